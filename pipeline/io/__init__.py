@@ -1,0 +1,152 @@
+"""Point cloud files: read and write :class:`~pipeline.cloud.Cloud` by file suffix.
+
+One module per format family (``text``, ``las``, ``ply``); :data:`FORMATS` maps each
+lower-case suffix to its reader and writer, and :func:`read_cloud` / :func:`write_cloud`
+dispatch through it (suffixes are matched case-insensitively).
+
+* ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`pipeline.io.text`
+* ``.las`` ``.laz``: :mod:`pipeline.io.las` (laspy, LAZ through lazrs)
+* ``.ply``: :mod:`pipeline.io.ply` (plyfile)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..cloud import Cloud
+from ..errors import InputFormatError, InvalidParameterError
+from . import las, ply, text
+
+__all__ = ["FORMATS", "CloudFormat", "read_cloud", "supported_suffixes", "write_cloud"]
+
+
+@dataclass(frozen=True)
+class CloudFormat:
+    """A point cloud file format: its reader, its writer and the options each accepts.
+
+    Parameters
+    ----------
+    name : str
+        Human-readable name (``"text"``, ``"LAS/LAZ"``, ``"PLY"``).
+    read : callable
+        ``read(path, **read_options) -> Cloud``.
+    write : callable
+        ``write(path, cloud, **write_options) -> Path``.
+    read_options : frozenset of str
+        Keyword options of :func:`read_cloud` that ``read`` accepts.
+    write_options : frozenset of str
+        Keyword options of :func:`write_cloud` that ``write`` accepts.
+    """
+
+    name: str
+    read: Callable[..., Cloud]
+    write: Callable[..., Path]
+    read_options: frozenset[str] = field(default_factory=frozenset)
+    write_options: frozenset[str] = field(default_factory=frozenset)
+
+
+_TEXT = CloudFormat("text", text.read_text, text.write_text, frozenset({"columns"}))
+_LAS = CloudFormat("LAS/LAZ", las.read_las, las.write_las, write_options=frozenset({"las_scale_m"}))
+_PLY = CloudFormat("PLY", ply.read_ply, ply.write_ply)
+
+#: Lower-case suffix -> format.
+FORMATS: dict[str, CloudFormat] = {
+    **{suffix: _TEXT for suffix in text.SUFFIXES},
+    **{suffix: _LAS for suffix in las.SUFFIXES},
+    **{suffix: _PLY for suffix in ply.SUFFIXES},
+}
+
+
+def supported_suffixes() -> list[str]:
+    """The suffixes :func:`read_cloud` and :func:`write_cloud` handle, sorted."""
+    return sorted(FORMATS)
+
+
+def _format_for(path: Path) -> CloudFormat:
+    suffix = path.suffix.lower()
+    try:
+        return FORMATS[suffix]
+    except KeyError:
+        shown = repr(path.suffix) if path.suffix else "no suffix"
+        raise InputFormatError(
+            f"{path}: {shown} is not a supported point cloud format; use one of "
+            f"{', '.join(supported_suffixes())}"
+        ) from None
+
+
+def _options(fmt: CloudFormat, allowed: frozenset[str], given: dict[str, Any]) -> dict[str, Any]:
+    """The options ``fmt`` accepts; an option given explicitly that it ignores is an error."""
+    for name, value in given.items():
+        if value is not None and name not in allowed:
+            raise InvalidParameterError(f"{name}= does not apply to {fmt.name} files; leave it out")
+    return {k: v for k, v in given.items() if k in allowed}
+
+
+def read_cloud(path: str | Path, *, columns: Sequence[str | None] | None = None) -> Cloud:
+    """Read a point cloud file, choosing the reader by suffix.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file; its suffix (any case) selects the format, see :data:`FORMATS`.
+    columns : sequence of str or None, optional
+        Text formats only: one name per column, overriding the header; must name
+        ``x``, ``y`` and ``z`` (``None`` skips a column).
+
+    Returns
+    -------
+    Cloud
+        Points (n, 3) float64 in the file's coordinates, per-point fields, and metadata
+        (always ``source_path``). The cloud is not validated: call ``.validate()`` to
+        reject empty clouds and NaN coordinates.
+
+    Raises
+    ------
+    InputFormatError
+        If the suffix is not supported, the file does not exist, or it cannot be parsed.
+    InvalidParameterError
+        If ``columns`` is given for a format that has no columns.
+    """
+    path = Path(path)
+    fmt = _format_for(path)
+    options = _options(fmt, fmt.read_options, {"columns": columns})
+    if not path.exists():
+        raise InputFormatError(f"{path} not found; check the path")
+    if not path.is_file():
+        raise InputFormatError(f"{path} is not a file")
+    return fmt.read(path, **options)
+
+
+def write_cloud(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) -> Path:
+    """Write a point cloud file, choosing the writer by suffix.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; its suffix (any case) selects the format. Written atomically:
+        a failed write leaves no partial file.
+    cloud : Cloud
+        The points, fields and metadata to write.
+    las_scale_m : float, optional
+        LAS/LAZ only: coordinate resolution in metres (default 0.1 mm); ignored by the
+        other formats, which store coordinates as float64.
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Raises
+    ------
+    InputFormatError
+        If the suffix is not supported or the file cannot be written.
+    InvalidGeometryError
+        If the cloud cannot be stored in that format (see the format modules).
+    """
+    path = Path(path)
+    fmt = _format_for(path)
+    options = {"las_scale_m": las_scale_m} if "las_scale_m" in fmt.write_options else {}
+    return fmt.write(path, cloud, **options)

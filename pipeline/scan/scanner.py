@@ -1,0 +1,384 @@
+"""The scanner's description: ``ScannerSpec``, instrument presets, stations and layouts.
+
+Angles are in degrees, distances in metres. The scanner frame has x along the
+station's heading, z up; azimuth is measured counter-clockwise from x in the
+horizontal plane, elevation up from the horizontal plane.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+
+ReturnMode = Literal["first", "last", "strongest", "all"]
+RETURN_MODES: tuple[str, ...] = ("first", "last", "strongest", "all")
+
+#: Near-infrared reflectance per hit label used by the intensity proxy (1550 nm-ish
+#: figures: bark ~0.45, leaves ~0.25 because water absorbs at 1550 nm, soil ~0.3).
+DEFAULT_REFLECTANCE: dict[str, float] = {"wood": 0.45, "leaf": 0.25, "ground": 0.30, "other": 0.5}
+
+
+def _finite(name: str, value: float) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise InvalidParameterError(f"{name} must be a finite number, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScannerSpec:
+    """A terrestrial laser scanner's settings.
+
+    Parameters
+    ----------
+    horizontal_resolution_deg, vertical_resolution_deg : float
+        Angular step between neighbouring pulses (> 0).
+    horizontal_fov_deg : (2,) float
+        Azimuth range swept, relative to the station heading; ``(0, 360)`` is a full turn.
+    vertical_fov_deg : (2,) float
+        Elevation range swept, within [-90, 90]; e.g. ``(-40, 60)`` for a RIEGL VZ-400.
+    min_range_m, max_range_m : float
+        Echoes nearer than ``min_range_m`` or farther than ``max_range_m`` are not recorded.
+    beam_divergence_mrad : float
+        Full-angle beam divergence. 0 (the default) casts one ray per pulse; > 0 samples
+        the beam cone with ``subrays`` rays, which can give several returns per pulse.
+    subrays : int
+        Rays per pulse when the beam model is on (>= 2; a centre ray and rings).
+    range_resolution_m : float
+        Two echoes of one pulse closer than this merge into one return (beam model only).
+    range_noise_sd_m : float
+        Standard deviation of Gaussian range noise; 0 (the default) is off.
+    angular_jitter_sd_deg : float
+        Standard deviation of Gaussian pointing noise per axis; 0 (the default) is off.
+    return_mode : {"first", "last", "strongest", "all"}
+        Which returns of a pulse are recorded.
+    seed : int
+        Seed of every random model; outputs are reproducible for a given seed.
+    reflectance : dict of str -> float
+        Reflectance per hit label, used by the intensity proxy only.
+    """
+
+    horizontal_resolution_deg: float = 0.04
+    vertical_resolution_deg: float = 0.04
+    horizontal_fov_deg: tuple[float, float] = (0.0, 360.0)
+    vertical_fov_deg: tuple[float, float] = (-40.0, 90.0)
+    min_range_m: float = 0.5
+    max_range_m: float = 400.0
+    beam_divergence_mrad: float = 0.0
+    subrays: int = 7
+    range_resolution_m: float = 0.3
+    range_noise_sd_m: float = 0.0
+    angular_jitter_sd_deg: float = 0.0
+    return_mode: ReturnMode = "first"
+    seed: int = 0
+    reflectance: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
+
+    def __post_init__(self) -> None:
+        for name in ("horizontal_resolution_deg", "vertical_resolution_deg"):
+            v = _finite(name, getattr(self, name))
+            if v <= 0:
+                raise InvalidParameterError(f"{name} must be > 0, got {v}")
+            if v > 45:
+                raise InvalidParameterError(f"{name} must be <= 45 degrees, got {v}")
+        h0, h1 = (_finite("horizontal_fov_deg", a) for a in self.horizontal_fov_deg)
+        if not 0 < h1 - h0 <= 360:
+            raise InvalidParameterError(
+                f"horizontal_fov_deg must span (0, 360] degrees, got ({h0}, {h1})"
+            )
+        v0, v1 = (_finite("vertical_fov_deg", a) for a in self.vertical_fov_deg)
+        if not -90 <= v0 < v1 <= 90:
+            raise InvalidParameterError(
+                f"vertical_fov_deg must satisfy -90 <= low < high <= 90, got ({v0}, {v1})"
+            )
+        lo, hi = _finite("min_range_m", self.min_range_m), _finite("max_range_m", self.max_range_m)
+        if lo < 0 or hi <= lo:
+            raise InvalidParameterError(
+                f"ranges must satisfy 0 <= min_range_m < max_range_m, got {lo}, {hi}"
+            )
+        for name in (
+            "beam_divergence_mrad",
+            "range_resolution_m",
+            "range_noise_sd_m",
+            "angular_jitter_sd_deg",
+        ):
+            if _finite(name, getattr(self, name)) < 0:
+                raise InvalidParameterError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.beam_divergence_mrad > 100:
+            raise InvalidParameterError(
+                f"beam_divergence_mrad={self.beam_divergence_mrad} is implausible (> 100 mrad)"
+            )
+        if int(self.subrays) != self.subrays or not 2 <= self.subrays <= 256:
+            raise InvalidParameterError(
+                f"subrays must be an integer in [2, 256], got {self.subrays}"
+            )
+        if self.return_mode not in RETURN_MODES:
+            raise InvalidParameterError(
+                f"return_mode must be one of {', '.join(RETURN_MODES)}, got {self.return_mode!r}"
+            )
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise InvalidParameterError(f"seed must be a non-negative integer, got {self.seed!r}")
+
+    # -- derived -----------------------------------------------------------------------
+    @property
+    def beam_model(self) -> bool:
+        """True when the beam-divergence model (sub-rays, multiple returns) is on."""
+        return self.beam_divergence_mrad > 0
+
+    @property
+    def full_turn(self) -> bool:
+        """True when the horizontal field of view is a full 360 degree turn."""
+        return abs(self.horizontal_fov_deg[1] - self.horizontal_fov_deg[0] - 360.0) < 1e-9
+
+    @property
+    def n_azimuth(self) -> int:
+        """Number of azimuth steps (scan columns) in the full field of view."""
+        span = self.horizontal_fov_deg[1] - self.horizontal_fov_deg[0]
+        if self.full_turn:
+            return max(1, int(round(360.0 / self.horizontal_resolution_deg)))
+        return int(math.floor(span / self.horizontal_resolution_deg + 1e-9)) + 1
+
+    @property
+    def n_elevation(self) -> int:
+        """Number of elevation steps (scan lines) in the full field of view."""
+        span = self.vertical_fov_deg[1] - self.vertical_fov_deg[0]
+        return int(math.floor(span / self.vertical_resolution_deg + 1e-9)) + 1
+
+    @property
+    def rays_per_pulse(self) -> int:
+        """Rays cast per pulse: ``subrays`` with the beam model, else 1."""
+        return self.subrays if self.beam_model else 1
+
+    def active_models(self) -> list[str]:
+        """Names of the optional models that are on (for reports)."""
+        out = []
+        if self.beam_model:
+            out.append(
+                f"beam divergence {self.beam_divergence_mrad} mrad × {self.subrays} sub-rays"
+            )
+        if self.range_noise_sd_m > 0:
+            out.append(f"range noise σ {self.range_noise_sd_m} m")
+        if self.angular_jitter_sd_deg > 0:
+            out.append(f"angular jitter σ {self.angular_jitter_sd_deg}°")
+        return out
+
+    def with_(self, **changes: object) -> ScannerSpec:
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain-JSON form of every setting."""
+        return {
+            "horizontal_resolution_deg": self.horizontal_resolution_deg,
+            "vertical_resolution_deg": self.vertical_resolution_deg,
+            "horizontal_fov_deg": list(self.horizontal_fov_deg),
+            "vertical_fov_deg": list(self.vertical_fov_deg),
+            "min_range_m": self.min_range_m,
+            "max_range_m": self.max_range_m,
+            "beam_divergence_mrad": self.beam_divergence_mrad,
+            "subrays": self.subrays,
+            "range_resolution_m": self.range_resolution_m,
+            "range_noise_sd_m": self.range_noise_sd_m,
+            "angular_jitter_sd_deg": self.angular_jitter_sd_deg,
+            "return_mode": self.return_mode,
+            "seed": self.seed,
+            "reflectance": dict(self.reflectance),
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class InstrumentPreset:
+    """Published figures of a real instrument.
+
+    ``spec(beam=False, noise=False)`` gives a geometric-only ``ScannerSpec`` with the
+    instrument's field of view, ranges and a typical resolution; ``beam=True`` turns on
+    its beam divergence and ``noise=True`` its ranging noise and angular jitter: treesim
+    models only what it is asked for.
+    """
+
+    name: str
+    description: str
+    resolution_deg: float
+    horizontal_fov_deg: tuple[float, float]
+    vertical_fov_deg: tuple[float, float]
+    min_range_m: float
+    max_range_m: float
+    beam_divergence_mrad: float
+    range_noise_sd_m: float
+    angular_jitter_sd_deg: float
+    wavelength_nm: float
+    source: str
+
+    def spec(self, *, beam: bool = False, noise: bool = False, **overrides: object) -> ScannerSpec:
+        """A ``ScannerSpec`` from these figures; ``overrides`` replace any field."""
+        kw: dict[str, object] = dict(
+            horizontal_resolution_deg=self.resolution_deg,
+            vertical_resolution_deg=self.resolution_deg,
+            horizontal_fov_deg=self.horizontal_fov_deg,
+            vertical_fov_deg=self.vertical_fov_deg,
+            min_range_m=self.min_range_m,
+            max_range_m=self.max_range_m,
+        )
+        if beam:
+            kw["beam_divergence_mrad"] = self.beam_divergence_mrad
+        if noise:
+            kw["range_noise_sd_m"] = self.range_noise_sd_m
+            kw["angular_jitter_sd_deg"] = self.angular_jitter_sd_deg
+        kw.update(overrides)
+        return ScannerSpec(**kw)  # type: ignore[arg-type]
+
+
+#: Instrument presets. Figures from the makers' data sheets:
+#:
+#: - ``riegl-vz400``: RIEGL VZ-400 data sheet (RIEGL Laser Measurement Systems,
+#:   "Datasheet VZ-400", 2014-09-19): FOV 100° vertical (+60°/-40°) × 360°, beam divergence
+#:   0.35 mrad, range 1.5-600 m (long-range mode), precision 3 mm (1σ at 100 m), angle
+#:   measurement resolution better than 0.0005°, laser wavelength near infrared (1550 nm).
+#:   0.04° is the resolution most forest TLS studies used with it (e.g. Calders et al. 2015,
+#:   Methods Ecol. Evol. 6:198).
+#: - ``faro-focus3d-x330``: FARO Focus3D X 330 tech sheet (FARO, 2013): FOV 300° vertical
+#:   (-60°/+90°) × 360°, beam divergence 0.19 mrad (0.011°), range 0.6-330 m, ranging noise
+#:   0.3 mm at 10 m on 90 % reflectance (raw), wavelength 1550 nm; step 0.009° at full
+#:   resolution, 0.036° at the common 1/4 resolution setting used here.
+PRESETS: dict[str, InstrumentPreset] = {
+    "riegl-vz400": InstrumentPreset(
+        name="riegl-vz400",
+        description="RIEGL VZ-400 (pulsed, 1550 nm, waveform returns)",
+        resolution_deg=0.04,
+        horizontal_fov_deg=(0.0, 360.0),
+        vertical_fov_deg=(-40.0, 60.0),
+        min_range_m=1.5,
+        max_range_m=600.0,
+        beam_divergence_mrad=0.35,
+        range_noise_sd_m=0.003,
+        angular_jitter_sd_deg=0.0005,
+        wavelength_nm=1550.0,
+        source="RIEGL VZ-400 data sheet, 2014-09-19",
+    ),
+    "faro-focus3d-x330": InstrumentPreset(
+        name="faro-focus3d-x330",
+        description="FARO Focus3D X 330 (phase shift, 1550 nm)",
+        resolution_deg=0.036,
+        horizontal_fov_deg=(0.0, 360.0),
+        vertical_fov_deg=(-60.0, 90.0),
+        min_range_m=0.6,
+        max_range_m=330.0,
+        beam_divergence_mrad=0.19,
+        range_noise_sd_m=0.0003,
+        angular_jitter_sd_deg=0.0005,
+        wavelength_nm=1550.0,
+        source="FARO Focus3D X 330 tech sheet, 2013",
+    ),
+}
+
+
+def preset(name: str) -> InstrumentPreset:
+    """The instrument preset called ``name`` (see ``PRESETS``)."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise InvalidParameterError(
+            f"unknown scanner preset {name!r}; choose one of {', '.join(sorted(PRESETS))}"
+        ) from None
+
+
+@dataclass(frozen=True, kw_only=True)
+class Station:
+    """A scanner position and orientation.
+
+    Parameters
+    ----------
+    position_m : (3,) float
+        The scanner's optical centre in the scene's coordinates (may be georeferenced).
+    heading_deg : float
+        Rotation of the scanner frame about z (azimuth 0 points along it).
+    pitch_deg, roll_deg : float
+        Tilt of the scanner about its y and x axes (0 for a levelled instrument).
+    """
+
+    position_m: tuple[float, float, float]
+    heading_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        pos = tuple(float(v) for v in self.position_m)
+        if len(pos) != 3 or not all(math.isfinite(v) for v in pos):
+            raise InvalidParameterError(
+                f"station position must be three finite numbers, got {self.position_m!r}"
+            )
+        object.__setattr__(self, "position_m", pos)
+        for name in ("heading_deg", "pitch_deg", "roll_deg"):
+            _finite(name, getattr(self, name))
+
+    @property
+    def position(self) -> np.ndarray:
+        """Position as a (3,) float64 array."""
+        return np.asarray(self.position_m, dtype=np.float64)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) float64 matrix taking scanner-frame vectors to scene-frame vectors."""
+        h, p, r = (math.radians(a) for a in (self.heading_deg, self.pitch_deg, self.roll_deg))
+        rz = np.array([[math.cos(h), -math.sin(h), 0], [math.sin(h), math.cos(h), 0], [0, 0, 1]])
+        ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
+        rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
+        return rz @ ry @ rx
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "position_m": list(self.position_m),
+            "heading_deg": self.heading_deg,
+            "pitch_deg": self.pitch_deg,
+            "roll_deg": self.roll_deg,
+        }
+
+
+def ring_layout(
+    n: int,
+    *,
+    distance_m: float,
+    height_m: float,
+    centre_xy: Sequence[float],
+    base_z_m: float = 0.0,
+    start_angle_deg: float = 0.0,
+) -> list[Station]:
+    """``n`` stations evenly spaced on a circle around a centre.
+
+    Parameters
+    ----------
+    n : int
+        Number of stations (3 gives the classic three scans 120° apart).
+    distance_m : float
+        Horizontal distance from the centre to each station.
+    height_m : float
+        Instrument height above ``base_z_m`` (the scene's ground or stem base).
+    centre_xy : (2,) float
+        Centre of the ring, in scene coordinates.
+    start_angle_deg : float
+        Polar angle of the first station, counter-clockwise from +x.
+    """
+    if int(n) != n or n < 1:
+        raise InvalidParameterError(f"the number of stations must be a positive integer, got {n}")
+    if not math.isfinite(distance_m) or distance_m <= 0:
+        raise InvalidParameterError(f"distance_m must be > 0, got {distance_m}")
+    _finite("height_m", height_m)
+    cx, cy = (float(v) for v in centre_xy)
+    out = []
+    for k in range(int(n)):
+        a = math.radians(start_angle_deg + 360.0 * k / n)
+        out.append(
+            Station(
+                position_m=(
+                    cx + distance_m * math.cos(a),
+                    cy + distance_m * math.sin(a),
+                    base_z_m + height_m,
+                )
+            )
+        )
+    return out

@@ -1,0 +1,43 @@
+"""Shared fixtures: analytic shapes with exact answers, and the path to shared data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def shared_path(*parts: str) -> Path:
+    """A file in ../shared/data, or skip the test with the reason when it is absent."""
+    p = SHARED_DATA.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"needs {p} (the project's shared data, not part of a user's clone)")
+    return p
+
+
+def cylinder_arrays(
+    radius: float = 0.15,
+    height: float = 2.0,
+    sections: int = 2048,
+    base: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """A closed vertical cylinder (float64 vertices, triangles) standing on ``base``."""
+    import trimesh
+
+    m = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
+    v = np.asarray(m.vertices, dtype=np.float64) + np.array([0.0, 0.0, height / 2])
+    v = v + np.asarray(base, dtype=np.float64)
+    return v, np.asarray(m.faces, dtype=np.int64)
+
+
+def box_arrays(lo: tuple[float, float, float], hi: tuple[float, float, float]):
+    """A closed axis-aligned box (float64 vertices, outward triangles)."""
+    import trimesh
+
+    lo_a, hi_a = np.asarray(lo, float), np.asarray(hi, float)
+    m = trimesh.creation.box(extents=hi_a - lo_a)
+    v = np.asarray(m.vertices, dtype=np.float64) + (lo_a + hi_a) / 2
+    return v, np.asarray(m.faces, dtype=np.int64)

@@ -1,0 +1,28 @@
+"""Shared fixtures for the tree-model tests: the coffee tree's QSM tables."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+COFFEE = SHARED_DATA / "trees" / "coffee_tree"
+
+
+def _need(path: Path) -> Path:
+    if not path.is_file():
+        pytest.skip(f"needs the shared data set ({path} is absent; it lives in ../shared/data)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def treeqsm_csv() -> Path:
+    """The coffee tree's TreeQSM 2.4.1 flat cylinder table."""
+    return _need(COFFEE / "QSM_treeqsm_v2.4.1_cylinders.csv")
+
+
+@pytest.fixture(scope="session")
+def simpleforest_csv() -> Path:
+    """The coffee tree's SimpleForest cylinder table."""
+    return _need(COFFEE / "QSM_simpleforest.csv")
