@@ -24,7 +24,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -199,7 +199,10 @@ class CylinderTable:
             except (TypeError, ValueError) as exc:
                 raise ModelError(f"{name} cannot be converted to {dtype}: {exc}") from exc
             if arr.shape != (n,):
-                raise ModelError(f"{name} must have shape ({n},) like start, got {arr.shape}")
+                raise ModelError(
+                    f"{name} must have shape ({n},) like start, got {arr.shape}; give one "
+                    "value per cylinder"
+                )
             values[name] = arr
         for name, arr in values.items():
             object.__setattr__(self, name, _readonly(arr))
@@ -286,13 +289,20 @@ class CylinderTable:
         -------
         CylinderTable
             ``self``, so that ``table = CylinderTable(...).validate()`` reads well.
+
+        Raises
+        ------
+        ModelError
+            On the first failed check; the message names the 1-based row.
+        EmptyInputError
+            If the table has no rows.
         """
         where = f"{source}: " if source else ""
         n = self.n_cylinders
         if n == 0:
             raise EmptyInputError(f"{where}the cylinder table has no rows")
 
-        def fail(row0: int, what: str, fix: str) -> None:
+        def fail(row0: int, what: str, fix: str) -> NoReturn:
             raise ModelError(f"{where}row {row0 + 1}: {what}; {fix}")
 
         float_cols = {

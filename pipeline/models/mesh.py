@@ -22,6 +22,9 @@ from .cylinders import CylinderTable, _check_facets
 #: Triangles summed at a time by :func:`mesh_volume` (bounds its temporary memory).
 _VOLUME_CHUNK = 1 << 20
 
+#: Cylinders whose vertices :func:`cylinders_to_mesh` computes at a time.
+_MESH_BLOCK = 2048
+
 
 def vertices_per_cylinder(facets: int, caps: bool = True) -> int:
     """Vertices each cylinder contributes to :func:`cylinders_to_mesh`'s output."""
@@ -103,21 +106,23 @@ def cylinders_to_mesh(
     f = facets
     vpc = vertices_per_cylinder(f, caps)
 
-    axis = table.unit_axis
-    u, v = _ring_basis(axis)
     angle = 2.0 * np.pi * np.arange(f) / f
-    cos, sin = np.cos(angle), np.sin(angle)
-    # (n, f, 3) unit offsets from the axis to the ring vertices.
-    ring = cos[None, :, None] * u[:, None, :]
-    ring += sin[None, :, None] * v[:, None, :]
-
+    cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
+    axis = table.unit_axis
     start = table.start
     end = start + table.length_m[:, None] * axis
     vertices = np.empty((n, vpc, 3), dtype=np.float64)
-    np.multiply(ring, table.radius_m[:, None, None], out=vertices[:, :f])
-    vertices[:, :f] += start[:, None, :]
-    np.multiply(ring, table.end_radius_m[:, None, None], out=vertices[:, f : 2 * f])
-    vertices[:, f : 2 * f] += end[:, None, :]
+    # In blocks of cylinders, so that the (block, f, 3) temporaries stay in cache.
+    for lo in range(0, n, _MESH_BLOCK):
+        hi = min(lo + _MESH_BLOCK, n)
+        u, v = _ring_basis(axis[lo:hi])
+        ring = cos * u[:, None, :]  # unit offsets from the axis to the ring vertices
+        ring += sin * v[:, None, :]
+        block = vertices[lo:hi]
+        np.multiply(ring, table.radius_m[lo:hi, None, None], out=block[:, :f])
+        block[:, :f] += start[lo:hi, None, :]
+        np.multiply(ring, table.end_radius_m[lo:hi, None, None], out=block[:, f : 2 * f])
+        block[:, f : 2 * f] += end[lo:hi, None, :]
     if caps:
         vertices[:, 2 * f] = start
         vertices[:, 2 * f + 1] = end

@@ -158,6 +158,10 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
         raise InputFormatError(f"{p.name}: not a mesh file (supported: {', '.join(MESH_SUFFIXES)})")
     if label is not None and label not in LABEL_CODES:
         raise InvalidParameterError(f"label must be one of {', '.join(LABEL_CODES)}, got {label!r}")
+    if p.suffix.lower() == ".ply":
+        ply_parts = _load_labelled_ply(p, label)
+        if ply_parts is not None:
+            return ply_parts
     try:
         loaded = trimesh.load(str(p), force="scene", process=False)
     except Exception as exc:  # trimesh raises many kinds; map at the boundary
@@ -182,6 +186,41 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
                 label=part_label,
                 name=f"{p.name}:{geom_name}",
             )
+        )
+    if not parts:
+        raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")
+    return parts
+
+
+def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
+    """Read a PLY whose faces carry a ``label`` property (as treesim writes them), in
+    float64; ``None`` when the file has no such property (trimesh reads it then)."""
+    from plyfile import PlyData
+
+    try:
+        ply = PlyData.read(str(p))
+    except Exception as exc:
+        raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
+    names = [e.name for e in ply.elements]
+    if "vertex" not in names or "face" not in names:
+        return None
+    face = ply["face"].data
+    if "label" not in face.dtype.names:
+        return None
+    vd = ply["vertex"].data
+    v = np.stack([vd["x"], vd["y"], vd["z"]], axis=1).astype(np.float64)
+    key = "vertex_indices" if "vertex_indices" in face.dtype.names else face.dtype.names[0]
+    polys = face[key]
+    if len(polys) and not all(len(q) == 3 for q in polys):
+        return None
+    f = np.stack(polys).astype(np.int64) if len(polys) else np.empty((0, 3), np.int64)
+    codes = np.asarray(face["label"], dtype=np.int64)
+    inv = {c: n for n, c in LABEL_CODES.items()}
+    parts = []
+    for c in np.unique(codes):
+        name = inv.get(int(c), "other")
+        parts.append(
+            MeshPart(vertices=v, faces=f[codes == c], label=label or name, name=f"{p.name}:{name}")
         )
     if not parts:
         raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")

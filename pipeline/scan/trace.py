@@ -297,7 +297,8 @@ def scan(
     if total_rays > max_rays:
         secs = total_rays / (_EST_RAYS_PER_S * max(1, nthreads or _cores()))
         raise ResourceLimitError(
-            f"this scan needs {total_rays:.3g} rays ({len(stations)} stations at "
+            f"this scan needs {total_rays:.3g} rays ({len(stations)} station"
+            f"{'s' if len(stations) > 1 else ''} at "
             f"{spec.horizontal_resolution_deg}°×{spec.vertical_resolution_deg}°"
             f"{f', {s} sub-rays per pulse' if s > 1 else ''}), about "
             f"{_human_time(secs)} here, over the limit of {max_rays:.3g}; coarsen the "

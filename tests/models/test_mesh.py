@@ -29,12 +29,12 @@ def _prism_volume(radius: float, height: float, facets: int) -> float:
 def _assert_closed_and_outward(faces: np.ndarray) -> None:
     """Every edge is shared by exactly two faces, traversed once in each direction."""
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    uniq, counts = np.unique(directed, axis=0, return_counts=True)
-    assert counts.max() == 1, "a directed edge is used twice: inconsistent winding"
-    reverse = np.ascontiguousarray(uniq[:, ::-1])
-    as_keys = uniq.view([("a", uniq.dtype), ("b", uniq.dtype)]).ravel()
-    rev_keys = reverse.view([("a", uniq.dtype), ("b", uniq.dtype)]).ravel()
-    assert np.isin(rev_keys, as_keys).all(), "an edge has no opposite: the mesh is open"
+    base = np.int64(faces.max()) + 1
+    keys = directed[:, 0] * base + directed[:, 1]
+    keys.sort()
+    assert (np.diff(keys) > 0).all(), "a directed edge is used twice: inconsistent winding"
+    reverse = np.sort(directed[:, 1] * base + directed[:, 0])
+    assert np.array_equal(keys, reverse), "an edge has no opposite: the mesh is open"
 
 
 def _min_triangle_area(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -191,9 +191,11 @@ def test_a_hundred_thousand_cylinders_mesh_quickly() -> None:
     table = _table(
         rng.uniform(-10, 10, (n, 3)), axis, rng.uniform(0.01, 0.3, n), rng.uniform(0.002, 0.1, n)
     )
-    t0 = time.perf_counter()
-    vertices, faces = cylinders_to_mesh(table, facets=32)
-    elapsed = time.perf_counter() - t0
-    assert faces.shape == (n * 128, 3)
-    # Typically 0.3-0.6 s; the bound only catches a fall back to per-cylinder Python.
-    assert elapsed < 3.0, f"meshing {n} cylinders took {elapsed:.2f} s"
+    elapsed = []
+    for _ in range(2):  # the first run also pays the OS for ~0.5 GB of fresh pages
+        t0 = time.perf_counter()
+        vertices, faces = cylinders_to_mesh(table, facets=32)
+        elapsed.append(time.perf_counter() - t0)
+    assert vertices.shape == (n * 66, 3) and faces.shape == (n * 128, 3)
+    # Typically 0.2-0.3 s warm; the bound catches a fall back to per-cylinder Python.
+    assert min(elapsed) < 2.0, f"meshing {n} cylinders took {min(elapsed):.2f} s"

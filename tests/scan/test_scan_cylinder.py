@@ -38,7 +38,9 @@ def analytic_count(res: float, el0: float = -40.0) -> int:
 def test_point_count_and_float64_accuracy(base):
     scene = cylinder_scene(base)
     st = Station(position_m=(base[0] + D, base[1], base[2] + ZS))
-    res = scan(scene, [st], ScannerSpec(horizontal_resolution_deg=0.04, vertical_resolution_deg=0.04))
+    res = scan(
+        scene, [st], ScannerSpec(horizontal_resolution_deg=0.04, vertical_resolution_deg=0.04)
+    )
     expected = analytic_count(0.04)
     n = len(res.cloud)
     assert abs(n - expected) <= 0.02 * expected, (n, expected)
@@ -52,7 +54,9 @@ def test_point_count_and_float64_accuracy(base):
     ang = np.arctan2(p[:, 1], p[:, 0]) % (2 * np.pi)
     k = np.floor(ang / (2 * np.pi / SECTIONS))
     mid = (k + 0.5) * 2 * np.pi / SECTIONS
-    plane_d = np.abs(p[:, 0] * np.cos(mid) + p[:, 1] * np.sin(mid) - R * math.cos(math.pi / SECTIONS))
+    plane_d = np.abs(
+        p[:, 0] * np.cos(mid) + p[:, 1] * np.sin(mid) - R * math.cos(math.pi / SECTIONS)
+    )
     assert plane_d.max() <= 1e-6
     assert p[:, 2].min() >= -1e-6 and p[:, 2].max() <= H + 1e-6
     # ranges are float64 distances from the station
@@ -101,8 +105,13 @@ def test_window_casts_same_points_with_far_fewer_rays():
 def test_chunking_does_not_change_the_result():
     scene = cylinder_scene()
     st = ring_layout(3, distance_m=D, height_m=ZS, centre_xy=(0, 0))
-    spec = ScannerSpec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1,
-                       range_noise_sd_m=0.01, angular_jitter_sd_deg=0.01, seed=3)
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.1,
+        vertical_resolution_deg=0.1,
+        range_noise_sd_m=0.01,
+        angular_jitter_sd_deg=0.01,
+        seed=3,
+    )
     a = scan(scene, st, spec)
     b = scan(scene, st, spec, chunk_rays=997)
     np.testing.assert_array_equal(a.cloud.points, b.cloud.points)

@@ -39,8 +39,9 @@ def same_points(a, b):
 )
 def test_window_matches_full_field_of_view(station):
     scene = box_scene((4.0, -0.5, 0.0), (6.0, 0.5, 2.0))
-    spec = ScannerSpec(horizontal_resolution_deg=0.25, vertical_resolution_deg=0.25,
-                       vertical_fov_deg=(-90.0, 90.0))
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.25, vertical_resolution_deg=0.25, vertical_fov_deg=(-90.0, 90.0)
+    )
     win = scan(scene, [station], spec)
     full = scan(scene, [station], spec, window=False)
     assert len(win.cloud) > 100
@@ -50,8 +51,9 @@ def test_window_matches_full_field_of_view(station):
 
 def test_window_matches_with_a_partial_horizontal_fov():
     scene = box_scene((4.0, -0.5, 0.0), (6.0, 0.5, 2.0))
-    spec = ScannerSpec(horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2,
-                       horizontal_fov_deg=(-3.0, 2.0))
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2, horizontal_fov_deg=(-3.0, 2.0)
+    )
     st = [Station(position_m=(0.0, 0.0, 1.0))]
     win, full = scan(scene, st, spec), scan(scene, st, spec, window=False)
     same_points(win, full)
@@ -61,7 +63,9 @@ def test_window_matches_with_a_partial_horizontal_fov():
 
 def test_box_window_is_exact_for_a_box():
     w = box_window(np.array([4.0, -1.0, -1.0]), np.array([6.0, 1.0, 3.0]))
-    assert w.azimuth_deg == pytest.approx((-math.degrees(math.atan(1 / 4)), math.degrees(math.atan(1 / 4))))
+    assert w.azimuth_deg == pytest.approx(
+        (-math.degrees(math.atan(1 / 4)), math.degrees(math.atan(1 / 4)))
+    )
     assert w.elevation_deg[1] == pytest.approx(math.degrees(math.atan2(3.0, 4.0)))
     assert w.elevation_deg[0] == pytest.approx(math.degrees(math.atan2(-1.0, 4.0)))
 
@@ -70,10 +74,12 @@ def test_labels_and_incidence_on_a_wall():
     # a leaf plate in front of a wood wall: every hit knows what it hit
     wall_v, wall_f = box_arrays((10.0, -2.0, 0.0), (10.2, 2.0, 2.0))
     leaf_v, leaf_f = box_arrays((5.0, -0.2, 0.8), (5.01, 0.2, 1.2))
-    scene = Scene([
-        MeshPart(vertices=wall_v, faces=wall_f, label="wood", name="wall"),
-        MeshPart(vertices=leaf_v, faces=leaf_f, label="leaf", name="leaf"),
-    ])
+    scene = Scene(
+        [
+            MeshPart(vertices=wall_v, faces=wall_f, label="wood", name="wall"),
+            MeshPart(vertices=leaf_v, faces=leaf_f, label="leaf", name="leaf"),
+        ]
+    )
     st = Station(position_m=(0.0, 0.0, 1.0))
     res = scan(scene, [st], ScannerSpec(horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2))
     p, lab = res.cloud.points, res.cloud.fields["label"]
@@ -93,20 +99,34 @@ def test_beam_divergence_gives_multiple_returns_at_edges():
     # a pole's edge in front of a wall: pulses split between the two surfaces
     wall_v, wall_f = box_arrays((20.0, -3.0, -1.0), (20.2, 3.0, 3.0))
     pole_v, pole_f = cylinder_arrays(0.1, 2.0, 256, (10.0, 0.0, 0.0))
-    scene = Scene([
-        MeshPart(vertices=wall_v, faces=wall_f, label="other", name="wall"),
-        MeshPart(vertices=pole_v, faces=pole_f, label="wood", name="pole"),
-    ])
+    scene = Scene(
+        [
+            MeshPart(vertices=wall_v, faces=wall_f, label="other", name="wall"),
+            MeshPart(vertices=pole_v, faces=pole_f, label="wood", name="pole"),
+        ]
+    )
     st = [Station(position_m=(0.0, 0.0, 1.0))]
-    base = ScannerSpec(horizontal_resolution_deg=0.05, vertical_resolution_deg=0.2,
-                       beam_divergence_mrad=3.0, subrays=19, range_resolution_m=0.5)
-    runs = {m: scan(scene, st, base.with_(return_mode=m)) for m in ("first", "last", "strongest", "all")}
+    base = ScannerSpec(
+        horizontal_resolution_deg=0.05,
+        vertical_resolution_deg=0.2,
+        beam_divergence_mrad=3.0,
+        subrays=19,
+        range_resolution_m=0.5,
+    )
+    runs = {
+        m: scan(scene, st, base.with_(return_mode=m)) for m in ("first", "last", "strongest", "all")
+    }
     allc = runs["all"].cloud
     nr, rn = allc.fields["number_of_returns"], allc.fields["return_number"]
     assert (nr == 2).sum() > 0
     assert set(np.unique(rn)) == {1, 2}
     pulses = {tuple(x) for x in np.c_[allc.fields["scan_line"], allc.fields["scan_column"]]}
-    assert len(runs["first"].cloud) == len(runs["last"].cloud) == len(runs["strongest"].cloud) == len(pulses)
+    assert (
+        len(runs["first"].cloud)
+        == len(runs["last"].cloud)
+        == len(runs["strongest"].cloud)
+        == len(pulses)
+    )
     assert len(allc) == len(pulses) + int((rn == 2).sum())
     # first returns of split pulses lie on the pole (~10 m), last ones on the wall (~20 m)
     f = runs["first"].cloud
@@ -163,10 +183,12 @@ def test_billions_of_rays_are_refused_with_an_estimate():
     scene = box_scene((4.0, -0.5, 0.0), (6.0, 0.5, 2.0))
     spec = ScannerSpec(horizontal_resolution_deg=0.0005, vertical_resolution_deg=0.0005)
     # the full sphere: 720000 x 260001 pulses
-    with pytest.raises(ResourceLimitError, match=r"needs 1\.87e\+11 rays .* about [\d.]+ days"):
+    with pytest.raises(
+        ResourceLimitError, match=r"needs 1\.87e\+11 rays .* about [\d.]+ (s|min|h|days) here"
+    ):
         scan(scene, [Station(position_m=(0.0, 0.0, 1.0))], spec, window=False)
-    # windowed it is ~3e9, still over the default limit of 1e9
-    with pytest.raises(ResourceLimitError, match=r"needs 3\.\d+e\+09 rays"):
+    # windowed it is 1.6e9, still over the default limit of 1e9
+    with pytest.raises(ResourceLimitError, match=r"needs 1\.6e\+09 rays"):
         scan(scene, [Station(position_m=(0.0, 0.0, 1.0))], spec)
 
 
@@ -187,8 +209,13 @@ def test_a_large_scan_runs_in_bounded_memory():
         print(r.rays_cast, len(r.cloud), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
         """
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, cwd=str(__import__("pathlib").Path(__file__).parents[2]))
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=str(__import__("pathlib").Path(__file__).parents[2]),
+    )
     rays, points, maxrss_kib = (int(x) for x in out.stdout.split())
     assert rays > 5_000_000 and points > 0
     unchunked_bytes = rays * 200
