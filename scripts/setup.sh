@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Install what treesim needs on a fresh Debian/Ubuntu machine: the shared libraries that
+# open3d and pymeshlab load, a virtualenv in .venv, and treesim with its dev extras.
+# Safe to re-run; skips apt when the libraries are already there.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV="${VENV:-.venv}"
+PYTHON="${PYTHON:-python3}"
+
+need_pkgs=()
+for pair in "libusb-1.0.so.0:libusb-1.0-0" "libGL.so.1:libgl1" "libglib-2.0.so.0:libglib2.0-0" \
+            "libgomp.so.1:libgomp1"; do
+  lib="${pair%%:*}"; pkg="${pair##*:}"
+  if ! ldconfig -p 2>/dev/null | grep -q "$lib"; then need_pkgs+=("$pkg"); fi
+done
+if [ "${#need_pkgs[@]}" -gt 0 ]; then
+  echo "setup: installing system libraries: ${need_pkgs[*]}"
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need_pkgs[@]}"
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "setup: creating virtualenv $VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install -q --upgrade pip
+"$VENV/bin/python" -m pip install -q -e ".[dev]"
+"$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh" \
+  || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
+echo "setup: ready ($("$VENV/bin/python" --version), treesim in $VENV)"
