@@ -280,28 +280,6 @@ def cmd_scan(args: argparse.Namespace) -> int:
     return 0
 
 
-# -- model -----------------------------------------------------------------------------
-def cmd_model_from_qsm(args: argparse.Namespace) -> int:
-    from .io.mesh import write_mesh
-    from .models import cylinders_to_mesh, mesh_volume, read_cylinders
-
-    table = read_cylinders(args.table)
-    v, f = cylinders_to_mesh(table, facets=args.facets)
-    out = Path(args.output)
-    write_mesh(out, v, f)
-    s = table.summary()
-    print(
-        f"{Path(args.table).name}: {s['n_cylinders']:,} cylinders, DBH {s['dbh_m'] * 100:.2f} cm, "
-        f"height {s['height_m']:.2f} m, volume {s['volume_total_m3'] * 1000:.2f} L "
-        f"(stem {s['volume_stem_m3'] * 1000:.2f} L)"
-    )
-    print(
-        f"wrote {out}: {len(f):,} triangles, {args.facets} facets per ring, "
-        f"enclosed volume {mesh_volume(v, f) * 1000:.2f} L"
-    )
-    return 0
-
-
 # -- demo ------------------------------------------------------------------------------
 def cmd_demo(args: argparse.Namespace) -> int:
     """Mesh the bundled coffee tree's TreeQSM cylinders and scan it from three stations."""
@@ -367,16 +345,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scan_options(sc)
     sc.set_defaults(func=cmd_scan)
 
-    md = sub.add_parser("model", help="tree models: QSM cylinder tables to meshes")
-    msub = md.add_subparsers(dest="model_command", metavar="SUBCOMMAND", parser_class=_Parser)
-    fq = msub.add_parser(
-        "from-qsm", help="mesh a QSM cylinder table (TreeQSM, SimpleForest, treesim CSV)"
-    )
-    fq.add_argument("table", metavar="TABLE")
-    fq.add_argument("-o", "--output", required=True, metavar="tree.ply")
-    fq.add_argument("--facets", type=int, default=32, help="facets per cylinder ring (default 32)")
-    fq.set_defaults(func=cmd_model_from_qsm)
-    md.set_defaults(func=lambda a: (md.print_help(), 2)[1])
+    from .models.cli import register as register_model
+
+    register_model(sub)
 
     dm = sub.add_parser("demo", help="run the main job on the bundled sample tree")
     dm.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")

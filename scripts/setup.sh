@@ -13,6 +13,10 @@ for pair in "libusb-1.0.so.0:libusb-1.0-0" "libGL.so.1:libgl1" "libglib-2.0.so.0
   lib="${pair%%:*}"; pkg="${pair##*:}"
   if ! ldconfig -p 2>/dev/null | grep -q "$lib"; then need_pkgs+=("$pkg"); fi
 done
+# headless Chromium renders the HTML report in the tests (they skip without it)
+if [ "${TREESIM_NO_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null 2>&1; then
+  need_pkgs+=(chromium)
+fi
 if [ "${#need_pkgs[@]}" -gt 0 ]; then
   echo "setup: installing system libraries: ${need_pkgs[*]}"
   SUDO=""
