@@ -122,12 +122,21 @@ class Scene:
         self.faces = np.concatenate(faces)
         self.face_label = np.concatenate(labels)
         self.dropped_degenerate = dropped
+        mask = np.zeros(len(self.vertices), dtype=bool)
+        mask[self.faces.ravel()] = True
+        self._used = np.flatnonzero(mask)
+        used = self.vertices[self._used]
+        self._bounds = np.stack([used.min(axis=0), used.max(axis=0)])
+
+    @property
+    def used_vertices(self) -> np.ndarray:
+        """(u, 3) float64 vertices referenced by at least one triangle."""
+        return self.vertices[self._used]
 
     @property
     def bounds(self) -> np.ndarray:
         """(2, 3) float64 min and max corner over the vertices used by triangles."""
-        used = self.vertices[np.unique(self.faces)]
-        return np.stack([used.min(axis=0), used.max(axis=0)])
+        return self._bounds.copy()
 
     @property
     def n_triangles(self) -> int:
@@ -184,7 +193,7 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
                 vertices=v,
                 faces=np.asarray(faces, dtype=np.int64),
                 label=part_label,
-                name=f"{p.name}:{geom_name}",
+                name=p.name if geom_name == p.name else f"{p.name}:{geom_name}",
             )
         )
     if not parts:

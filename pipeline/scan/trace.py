@@ -122,8 +122,8 @@ def estimate_rays(
     scene: Scene, stations: Sequence[Station], spec: ScannerSpec, *, window: bool = True
 ) -> list[int]:
     """Rays each station would cast (no casting; cheap)."""
-    frame = LocalFrame.around(scene.vertices[np.unique(scene.faces)])
-    verts = frame.to_local(scene.vertices[np.unique(scene.faces)])
+    frame = LocalFrame.around(scene.used_vertices)
+    verts = frame.to_local(scene.used_vertices)
     return [
         _grid_for(verts, frame.to_local(st.position), st.rotation, spec, window)[0].n_pulses
         * spec.rays_per_pulse
@@ -154,8 +154,7 @@ class _Caster:
         n = np.cross(v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0)
         self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
         self.label = scene.face_label
-        used = v[np.unique(f)]
-        self.lo, self.hi = used.min(axis=0), used.max(axis=0)
+        self.lo, self.hi = frame.to_local(scene.bounds)
         diag = float(np.linalg.norm(self.hi - self.lo))
         self.pad = 1e-3 + 1e-5 * diag
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
@@ -167,45 +166,56 @@ class _Caster:
         self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
         self.build_s = time.perf_counter() - t0
 
-    def cast(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cast rays from ``o`` ((3,) or (n, 3)) along unit ``d`` (n, 3), float64 in and
-        out: returns (t, primitive) with t = inf and primitive = -1 on a miss."""
-        n = len(d)
-        o = np.broadcast_to(o, d.shape)
-        # slab test against the scene's bounds: rays that cannot reach it are not cast
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / d
-            t1 = (self.lo - self.pad - o) * inv
-            t2 = (self.hi + self.pad - o) * inv
-        tmin = np.nanmax(np.minimum(t1, t2), axis=1)
-        tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-        reach = (tmax >= np.maximum(tmin, 0.0)) & np.isfinite(tmax)
-        t_out = np.full(n, np.inf)
-        prim = np.full(n, -1, dtype=np.int64)
-        idx = np.flatnonzero(reach)
-        if len(idx) == 0:
-            return t_out, prim
-        t_start = np.maximum(tmin[idx] - self.pad, 0.0)
-        oo = o[idx] + t_start[:, None] * d[idx]
-        rays = np.empty((len(idx), 6), dtype=np.float32)
-        rays[:, :3] = oo
-        rays[:, 3:] = d[idx]
-        ans = self.rc.cast_rays(self.o3d.core.Tensor(rays), nthreads=self.nthreads)
-        th = ans["t_hit"].numpy()
-        hit = np.isfinite(th)
-        hidx = idx[hit]
-        pid = ans["primitive_ids"].numpy()[hit].astype(np.int64)
-        t_coarse = t_start[hit] + th[hit].astype(np.float64)
-        # float64 refinement: intersect the ray with the hit triangle's plane
+    #: Stations nearer the scene's bounds than this cast from their own position;
+    #: farther ones start every ray this close to the bounds (float32 keeps ~1e-7 of
+    #: the ray's length, so 50 m costs at most ~3 µm before the float64 refinement).
+    NEAR_M = 50.0
+
+    def entry_distance(self, o: np.ndarray) -> float:
+        """How far every ray from ``o`` can start without skipping any surface: the
+        distance from ``o`` to the scene's (padded) bounding box, minus the pad, or 0
+        when that is under ``NEAR_M``."""
+        gap = np.maximum(np.maximum(self.lo - self.pad - o, o - self.hi - self.pad), 0.0)
+        t0 = float(np.linalg.norm(gap)) - self.pad
+        return t0 if t0 > self.NEAR_M else 0.0
+
+    def cast_f32(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cast (n, 6) float32 rays (origin, unit direction); returns Open3D's
+        ``t_hit`` (float32, inf on a miss) and primitive ids (uint32)."""
+        o3c = self.o3d.core
+        ans = self.rc.cast_rays(o3c.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
+
+    def refine(
+        self, o: np.ndarray, d: np.ndarray, t_coarse: np.ndarray, pid: np.ndarray
+    ) -> np.ndarray:
+        """Float64 ranges: intersect each ray (``o`` + t ``d``, float64) with the plane of
+        its hit triangle; keeps the float32 range where the two disagree (grazing)."""
         nrm = self.normal[pid]
-        dd = d[hidx]
-        denom = np.einsum("ij,ij->i", dd, nrm)
-        num = np.einsum("ij,ij->i", self.v0[pid] - o[hidx], nrm)
+        denom = np.einsum("ij,ij->i", d, nrm)
+        num = np.einsum("ij,ij->i", self.v0[pid] - o, nrm)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_fine = num / denom
         ok = (np.abs(denom) > 1e-9) & (np.abs(t_fine - t_coarse) < 1e-3 + 1e-5 * t_coarse)
-        t_out[hidx] = np.where(ok, t_fine, t_coarse)
-        prim[hidx] = pid
+        return np.where(ok, t_fine, t_coarse)
+
+    def cast(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cast rays from the point ``o`` (3,) along unit ``d`` (n, 3), float64 in and
+        out: returns (t, primitive) with t = inf and primitive = -1 on a miss."""
+        n = len(d)
+        t0 = self.entry_distance(o)
+        rays = np.empty((n, 6), dtype=np.float32)
+        rays[:, :3] = o + t0 * d
+        rays[:, 3:] = d
+        th, pr = self.cast_f32(rays)
+        t_out = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
+        hidx = np.flatnonzero(np.isfinite(th))
+        if len(hidx):
+            pid = pr[hidx].astype(np.int64)
+            t_coarse = t0 + th[hidx].astype(np.float64)
+            t_out[hidx] = self.refine(o, d[hidx], t_coarse, pid)
+            prim[hidx] = pid
         return t_out, prim
 
 
@@ -283,9 +293,8 @@ def scan(
     if int(chunk_rays) < 1:
         raise InvalidParameterError(f"chunk_rays must be >= 1, got {chunk_rays}")
     t_all = time.perf_counter()
-    used = np.unique(scene.faces)
-    frame = LocalFrame.around(scene.vertices[used])
-    verts_used = frame.to_local(scene.vertices[used])
+    frame = LocalFrame.around(scene.used_vertices)
+    verts_used = frame.to_local(scene.used_vertices)
     s = spec.rays_per_pulse
     plans = []
     for st in stations:
@@ -322,18 +331,29 @@ def scan(
     for k, (o, rot, grid, win) in enumerate(plans):
         t_st = time.perf_counter()
         n_points = 0
+        fast = s == 1 and spec.angular_jitter_sd_deg == 0
+        t0 = caster.entry_distance(o)
+        station = stations[k]
+        level = station.pitch_deg == 0 and station.roll_deg == 0
         for a in range(0, grid.n_pulses, per_chunk):
             b = min(grid.n_pulses, a + per_chunk)
-            lines, cols = grid.indices(a, b)
-            az, el = pulse_angles(spec, k, lines, cols)
-            d = directions(az, el) @ rot.T
-            if s == 1:
-                t, prim = caster.cast(o, d)
+            if fast:
+                t, prim, lines_r, cols_r, d_r = _fast_block(
+                    caster, spec, grid, a, b, o, t0, rot, station.heading_deg, level
+                )
                 rec = _single_returns(spec, t, prim)
             else:
-                sd = beam_model.subray_directions(d, offsets).reshape(-1, 3)
-                t, prim = caster.cast(o, sd)
-                rec = _beam_returns(spec, t.reshape(-1, s), prim.reshape(-1, s), sd, weights)
+                lines, cols = grid.indices(a, b)
+                az, el = pulse_angles(spec, k, lines, cols)
+                d = directions(az, el) @ rot.T
+                if s == 1:
+                    t, prim = caster.cast(o, d)
+                    rec = _single_returns(spec, t, prim)
+                else:
+                    sd = beam_model.subray_directions(d, offsets).reshape(-1, 3)
+                    t, prim = caster.cast(o, sd)
+                    rec = _beam_returns(spec, t.reshape(-1, s), prim.reshape(-1, s), sd, weights)
+                lines_r, cols_r, d_r = lines, cols, d
             n_rec = len(rec["pulse"])
             if n_rec:
                 pi = rec["pulse"]
@@ -341,10 +361,10 @@ def scan(
                 if spec.range_noise_sd_m > 0:
                     # independent draws per pulse and per return
                     rng = rng + spec.range_noise_sd_m * hashed_normal(
-                        spec.seed, 1, k, lines[pi], cols[pi], sub=rec["return_number"]
+                        spec.seed, 1, k, lines_r[pi], cols_r[pi], sub=rec["return_number"]
                     )
-                ray_d = rec["direction"] if rec["direction"] is not None else d[pi]
-                p_local = o + rng[:, None] * d[pi]
+                ray_d = rec["direction"] if rec["direction"] is not None else d_r[pi]
+                p_local = o + rng[:, None] * d_r[pi]
                 pts.append(p_local)
                 prim = rec["primitive"]
                 lab = caster.label[prim]
@@ -359,8 +379,8 @@ def scan(
                 out["return_number"].append(rec["return_number"].astype(np.uint8))
                 out["number_of_returns"].append(rec["number_of_returns"].astype(np.uint8))
                 out["intensity"].append(np.round(inten * 65535).astype(np.uint16))
-                out["scan_line"].append(lines[pi].astype(np.int32))
-                out["scan_column"].append(cols[pi].astype(np.int32))
+                out["scan_line"].append(lines_r[pi].astype(np.int32))
+                out["scan_column"].append(cols_r[pi].astype(np.int32))
                 n_points += n_rec
             done_rays += (b - a) * s
             if progress is not None:
@@ -418,6 +438,61 @@ _FIELDS: dict[str, Any] = {
     "scan_line": np.int32,
     "scan_column": np.int32,
 }
+
+
+def _fast_block(
+    caster: _Caster,
+    spec: ScannerSpec,
+    grid: PulseGrid,
+    a: int,
+    b: int,
+    o: np.ndarray,
+    t0: float,
+    rot: np.ndarray,
+    heading_deg: float,
+    level: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cast pulses ``a:b`` of a grid with no per-pulse randomness.
+
+    The grid is separable (azimuth × elevation), so float32 rays are built by
+    broadcasting column and line terms, and the float64 work (directions, refinement)
+    is done for the hits only. Returns (t, primitive, line, column, direction) of hits.
+    """
+    nl = len(grid.lines)
+    ca, cb = a // nl, (b - 1) // nl + 1
+    off = a - ca * nl
+    hdeg = heading_deg if level else 0.0
+    az = np.radians(
+        spec.horizontal_fov_deg[0] + hdeg + grid.columns[ca:cb] * spec.horizontal_resolution_deg
+    )
+    el = np.radians(spec.vertical_fov_deg[0] + grid.lines * spec.vertical_resolution_deg)
+    ce, se = np.cos(el).astype(np.float32), np.sin(el).astype(np.float32)
+    cz, sz = np.cos(az).astype(np.float32), np.sin(az).astype(np.float32)
+    rays = np.empty((cb - ca, nl, 6), dtype=np.float32)
+    np.multiply(cz[:, None], ce[None, :], out=rays[:, :, 3])
+    np.multiply(sz[:, None], ce[None, :], out=rays[:, :, 4])
+    rays[:, :, 5] = se[None, :]
+    if not level:
+        rays[:, :, 3:] = rays[:, :, 3:] @ rot.T.astype(np.float32)
+    if t0 > 0:
+        np.multiply(rays[:, :, 3:], np.float32(t0), out=rays[:, :, :3])
+        rays[:, :, :3] += o.astype(np.float32)
+    else:
+        rays[:, :, :3] = o.astype(np.float32)
+    rays = rays.reshape(-1, 6)[off : off + (b - a)]
+    th, pr = caster.cast_f32(np.ascontiguousarray(rays))
+    hidx = np.flatnonzero(np.isfinite(th))
+    f = hidx + off
+    lines = grid.lines[f % nl]
+    cols = grid.columns[ca + f // nl]
+    az_h = np.radians(spec.horizontal_fov_deg[0] + hdeg + cols * spec.horizontal_resolution_deg)
+    el_h = np.radians(spec.vertical_fov_deg[0] + lines * spec.vertical_resolution_deg)
+    d = directions(az_h, el_h)
+    if not level:
+        d = d @ rot.T
+    pid = pr[hidx].astype(np.int64)
+    t = caster.refine(o, d, t0 + th[hidx].astype(np.float64), pid)
+    return t, pid, lines, cols, d
 
 
 def _in_range(spec: ScannerSpec, t: np.ndarray) -> np.ndarray:
