@@ -1,0 +1,863 @@
+"""AVOHD comparison: absolute point distances between a cloud and a reference, both ways.
+
+The method judges a (simulated) cloud by the absolute values of its Hausdorff distances
+(AVOHD) to a reference, which is a triangle mesh (the tree model that was scanned) or
+another cloud (the field scan):
+
+* **accuracy** -- every point of the cloud to the reference: point-to-triangle for a mesh,
+  nearest neighbour for a cloud. Small values mean the points lie on the reference.
+* **completeness** -- the reference to the cloud: for a mesh, points sampled uniformly by
+  area on its surface (seeded, about one per ``sample_spacing_m²``); for a cloud, its
+  points. Small values mean the reference was seen. Accuracy alone can never show
+  occlusion: a cloud covering half a stem has perfect accuracy and 50 % coverage.
+
+Definitions used throughout (and written into ``comparison.json``):
+
+* ``hausdorff_m``: ``max(accuracy.max_m, completeness.max_m)``, the symmetric Hausdorff
+  distance (for a mesh reference, estimated on the surface samples);
+* ``chamfer_m``: ``(accuracy.mean_m + completeness.mean_m) / 2``, the mean of the two
+  directions' mean absolute distances (some authors sum them, i.e. twice this, or average
+  squared distances; treesim uses the symmetric mean so that it reads in metres);
+* ``coverage``: the fraction (0-1) of reference samples that have a cloud point within
+  ``tolerance_m``;
+* ``tolerance_m`` (τ) defaults to ``3 × point_spacing_m``, where ``point_spacing_m`` is
+  the cloud's median nearest-neighbour distance. Rationale: even points scattered at
+  random (Poisson) with that median spacing leave only 2⁻⁹ ≈ 0.2 % of a fully sampled
+  surface farther than 3s from every point, and a regular grid of spacing ``g`` leaves no
+  point farther than ``g/√2``, so surfaces sampled up to 4× more sparsely than the median
+  (scan density falls with range and incidence) still count as covered, while real gaps
+  (occlusion) do not;
+* ``sample_spacing_m`` defaults to ``point_spacing_m``: the mesh is sampled about as
+  densely as the cloud (``area / spacing²`` samples, clamped to ``min_samples`` ..
+  ``max_samples``).
+
+Precision: everything is float64. Open3D's ``RaycastingScene`` (float32) only picks the
+closest triangle, near the origin of a :class:`~pipeline.frame.LocalFrame`; the closest
+point on that triangle is then recomputed in float64 (Ericson's region test), so a point
+lying on the mesh measures ~1e-12 m, also at UTM coordinates. Nearest neighbours use
+SciPy's ``cKDTree`` in float64 in the same local frame.
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .cloud import LABEL_NAMES, Cloud
+from .errors import (
+    EmptyInputError,
+    InvalidGeometryError,
+    InvalidParameterError,
+)
+from .frame import LocalFrame
+
+__all__ = [
+    "CompareParams",
+    "Comparison",
+    "DistanceStats",
+    "closest_points_on_triangles",
+    "compare",
+    "point_spacing",
+    "sample_surface",
+    "software_versions",
+    "write_comparison",
+]
+
+#: Name of the per-point distance field in the distance clouds (CloudCompare's convention).
+DISTANCE_FIELD = "scalar_distance"
+
+#: Plain-language definitions, written into ``comparison.json`` and the report.
+DEFINITIONS: dict[str, str] = {
+    "accuracy": "distance from every point of the cloud to the reference (m)",
+    "completeness": "distance from every reference sample to the nearest cloud point (m)",
+    "hausdorff_m": "max(accuracy.max_m, completeness.max_m): the symmetric Hausdorff distance",
+    "chamfer_m": "(accuracy.mean_m + completeness.mean_m) / 2: mean of the two directions' means",
+    "coverage": "fraction (0-1) of reference samples with a cloud point within tolerance_m",
+    "tolerance_m": "default 3 × point_spacing_m (the cloud's median nearest-neighbour distance)",
+    "point_spacing_m": "median distance from a cloud point to its nearest other point",
+    "sample_spacing_m": "mesh references: one surface sample per sample_spacing_m² of area",
+}
+
+#: Default coverage tolerance, in multiples of the cloud's median point spacing.
+TOLERANCE_FACTOR = 3.0
+
+_CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 MB)
+_O3D_CHUNK = 1 << 21  # points per Open3D query
+
+
+# -- parameters and statistics --------------------------------------------------------
+@dataclass(frozen=True, kw_only=True)
+class CompareParams:
+    """How a comparison is made.
+
+    Parameters
+    ----------
+    tolerance_m : float, optional
+        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
+    sample_spacing_m : float, optional
+        Mesh references: spacing of the surface samples for completeness (m), i.e. one
+        sample per ``sample_spacing_m²``; default ``point_spacing_m``.
+    seed : int
+        Seed of the surface sampling (and of the spacing estimate's subsample).
+    min_samples, max_samples : int
+        Bounds on the number of surface samples (the spacing is adjusted to stay within
+        them; the effective spacing is reported).
+    spacing_subsample : int
+        Points used to estimate the cloud's median spacing (all if fewer).
+    nthreads : int
+        Threads for Open3D and the k-d tree queries (0: all cores).
+    """
+
+    tolerance_m: float | None = None
+    sample_spacing_m: float | None = None
+    seed: int = 0
+    min_samples: int = 10_000
+    max_samples: int = 2_000_000
+    spacing_subsample: int = 200_000
+    nthreads: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("tolerance_m", "sample_spacing_m"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InvalidParameterError(
+                    f"{name} must be a positive number of metres, got {v!r}"
+                )
+        if int(self.min_samples) < 1 or int(self.max_samples) < int(self.min_samples):
+            raise InvalidParameterError(
+                f"need 1 <= min_samples <= max_samples, got {self.min_samples}, {self.max_samples}"
+            )
+        if int(self.spacing_subsample) < 2:
+            raise InvalidParameterError("spacing_subsample must be at least 2")
+        if int(self.nthreads) < 0:
+            raise InvalidParameterError(f"nthreads must be >= 0, got {self.nthreads}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DistanceStats:
+    """Summary of absolute distances (m); every figure is ``None`` when ``n == 0``."""
+
+    n: int
+    mean_m: float | None
+    rms_m: float | None
+    median_m: float | None
+    p95_m: float | None
+    p99_m: float | None
+    max_m: float | None
+
+    @classmethod
+    def of(cls, distances: np.ndarray) -> DistanceStats:
+        """Statistics of ``distances`` : (n,) float64 (linear-interpolated percentiles)."""
+        d = np.asarray(distances, dtype=np.float64).ravel()
+        if len(d) == 0:
+            return cls(
+                n=0, mean_m=None, rms_m=None, median_m=None, p95_m=None, p99_m=None, max_m=None
+            )
+        med, p95, p99 = np.percentile(d, [50.0, 95.0, 99.0])
+        return cls(
+            n=int(len(d)),
+            mean_m=float(d.mean()),
+            rms_m=float(np.sqrt(np.mean(d * d))),
+            median_m=float(med),
+            p95_m=float(p95),
+            p99_m=float(p99),
+            max_m=float(d.max()),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# -- geometry helpers -----------------------------------------------------------------
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def closest_points_on_triangles(
+    p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
+) -> np.ndarray:
+    """Closest point on triangle ``(a[i], b[i], c[i])`` to ``p[i]``, exactly, in float64.
+
+    Ericson's region test (Real-Time Collision Detection, 5.1.5), vectorised.
+
+    Parameters
+    ----------
+    p, a, b, c : (n, 3) float64
+        Query points and triangle corners (non-degenerate triangles).
+
+    Returns
+    -------
+    (n, 3) float64
+        The closest points.
+    """
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+    bp = p - b
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
+    cp = p - c
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        out = a + ab * (vb / denom)[:, None] + ac * (vc / denom)[:, None]  # interior
+        # regions in reverse order of Ericson's tests, so that earlier tests win
+        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)  # edge BC
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out[m] = b[m] + t[m, None] * (c[m] - b[m])
+        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # edge AC
+        t = d2 / (d2 - d6)
+        out[m] = a[m] + t[m, None] * ac[m]
+        m = (d6 >= 0) & (d5 <= d6)  # vertex C
+        out[m] = c[m]
+        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # edge AB
+        t = d1 / (d1 - d3)
+        out[m] = a[m] + t[m, None] * ab[m]
+        m = (d3 >= 0) & (d4 <= d3)  # vertex B
+        out[m] = b[m]
+        m = (d1 <= 0) & (d2 <= 0)  # vertex A
+        out[m] = a[m]
+    return out
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int, *, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points uniformly distributed by area on a triangle mesh (seeded).
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    faces : (f, 3) int
+    n : int
+        Number of samples.
+    seed : int
+        Seed of ``numpy.random.default_rng``.
+
+    Returns
+    -------
+    points : (n, 3) float64
+    face_index : (n,) int64
+        The triangle each sample lies on.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a = v[f[:, 0]]
+    ab = v[f[:, 1]] - a
+    ac = v[f[:, 2]] - a
+    area = 0.5 * np.linalg.norm(np.cross(ab, ac), axis=1)
+    cum = np.cumsum(area)
+    if len(cum) == 0 or not cum[-1] > 0:
+        raise EmptyInputError("the mesh has no surface area to sample")
+    rng = np.random.default_rng(seed)
+    tri = np.searchsorted(cum, rng.random(n) * cum[-1], side="right")
+    tri = np.minimum(tri, len(f) - 1)
+    r1 = np.sqrt(rng.random(n))
+    r2 = rng.random(n)
+    u = r1 * (1.0 - r2)
+    w = r1 * r2
+    pts = a[tri] + u[:, None] * ab[tri] + w[:, None] * ac[tri]
+    return pts, tri
+
+
+def _workers(nthreads: int) -> int:
+    return -1 if int(nthreads) == 0 else int(nthreads)
+
+
+def point_spacing(
+    points: np.ndarray, *, subsample: int = 200_000, seed: int = 0, tree: Any = None
+) -> float:
+    """Median distance from a point to its nearest other point (duplicates ignored).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        The cloud, preferably in a local frame.
+    subsample : int
+        Estimate from this many seeded random points (queried against all points).
+    seed : int
+    tree : scipy.spatial.cKDTree, optional
+        A tree already built on ``points``.
+
+    Returns
+    -------
+    float
+        The spacing in metres.
+
+    Raises
+    ------
+    InvalidGeometryError
+        If all points coincide.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    tree = tree if tree is not None else cKDTree(pts)
+    if len(pts) > subsample:
+        idx = np.random.default_rng(seed).choice(len(pts), size=subsample, replace=False)
+        q = pts[idx]
+    else:
+        q = pts
+    k = min(len(pts), 8)
+    d, _ = tree.query(q, k=k)
+    d = np.where(d > 0, d, np.inf).min(axis=1)  # nearest *other* point, skipping duplicates
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        raise InvalidGeometryError(
+            "all points of the cloud coincide, so it has no spacing; give --tolerance-m "
+            "and --sample-spacing-m or check the input"
+        )
+    return float(np.median(d))
+
+
+# -- references -----------------------------------------------------------------------
+@dataclass
+class _Reference:
+    kind: str  # "mesh" or "cloud"
+    points: np.ndarray  # mesh vertices or cloud points (float64, input coordinates)
+    faces: np.ndarray | None
+    face_label: np.ndarray | None
+    point_label: np.ndarray | None
+    label_names: dict[int, str]
+    info: dict[str, Any]
+
+
+def _label_names(metadata: Mapping[str, Any]) -> dict[int, str]:
+    """``{code: name}`` from a cloud's ``label_names`` metadata (either way round)."""
+    value = metadata.get("label_names")
+    if isinstance(value, Mapping) and value:
+        try:
+            return {int(k): str(v) for k, v in value.items()}
+        except (TypeError, ValueError):
+            try:
+                return {int(v): str(k) for k, v in value.items()}
+            except (TypeError, ValueError):
+                pass
+    return dict(LABEL_NAMES)
+
+
+def _check_cloud(cloud: Cloud, what: str) -> Cloud:
+    if not isinstance(cloud, Cloud):
+        raise InvalidParameterError(f"the {what} must be a Cloud, got {type(cloud).__name__}")
+    if len(cloud) == 0:
+        raise EmptyInputError(f"the {what} has no points; nothing to compare")
+    try:
+        cloud.validate()
+    except InvalidGeometryError as exc:
+        raise InvalidGeometryError(f"the {what}: {exc}") from None
+    if len(cloud) < 2:
+        raise InvalidGeometryError(
+            f"the {what} has a single point; a comparison needs at least 2 points "
+            "(check that the right file was given)"
+        )
+    return cloud
+
+
+def _as_reference(reference: Any) -> _Reference:
+    from .scan.scene import MeshPart, Scene
+
+    if isinstance(reference, Cloud):
+        ref = _check_cloud(reference, "reference cloud")
+        label = ref.fields.get("label")
+        return _Reference(
+            kind="cloud",
+            points=ref.points,
+            faces=None,
+            face_label=None,
+            point_label=None if label is None else np.asarray(label).astype(np.int64),
+            label_names=_label_names(ref.metadata),
+            info={"kind": "cloud", "points": len(ref)},
+        )
+    labelled = isinstance(reference, Scene)
+    if isinstance(reference, tuple) and len(reference) == 2:
+        v, f = reference
+        v = np.asarray(v, dtype=np.float64)
+        f = np.asarray(f)
+        if v.size == 0 or f.size == 0:
+            raise EmptyInputError("the reference mesh has no vertices or no triangles")
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise InvalidGeometryError(f"mesh vertices must have shape (v, 3), got {v.shape}")
+        reference = Scene([MeshPart(vertices=v, faces=f, label="other", name="reference mesh")])
+    elif not labelled:
+        raise InvalidParameterError(
+            "the reference must be a Cloud, a Scene or a (vertices, faces) tuple, got "
+            f"{type(reference).__name__}"
+        )
+    scene = reference
+    v = np.asarray(scene.vertices, dtype=np.float64)
+    f = np.asarray(scene.faces, dtype=np.int64)
+    if len(f) == 0:
+        raise EmptyInputError("the reference mesh has no triangles; nothing to compare")
+    return _Reference(
+        kind="mesh",
+        points=v,
+        faces=f,
+        face_label=np.asarray(scene.face_label).astype(np.int64) if labelled else None,
+        point_label=None,
+        label_names=dict(LABEL_NAMES),
+        info={
+            "kind": "mesh",
+            "vertices": len(v),
+            "triangles": len(f),
+            "degenerate_triangles_dropped": int(getattr(scene, "dropped_degenerate", 0)),
+        },
+    )
+
+
+# -- distance kernels -----------------------------------------------------------------
+def _point_to_mesh(
+    query: np.ndarray, verts: np.ndarray, faces: np.ndarray, nthreads: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (n,) and triangle ids (n,) from local-frame ``query`` to the mesh.
+
+    Open3D (float32) picks the closest triangle; the distance to it is recomputed in
+    float64.
+    """
+    import open3d as o3d
+
+    rc = o3d.t.geometry.RaycastingScene(nthreads=int(nthreads))
+    rc.add_triangles(
+        o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
+    )
+    n = len(query)
+    dist = np.empty(n, dtype=np.float64)
+    prim = np.empty(n, dtype=np.int64)
+    for s in range(0, n, _O3D_CHUNK):
+        q = query[s : s + _O3D_CHUNK]
+        ans = rc.compute_closest_points(
+            o3d.core.Tensor(q.astype(np.float32)), nthreads=int(nthreads)
+        )
+        pid = ans["primitive_ids"].numpy().astype(np.int64)
+        if (pid < 0).any() or (pid >= len(faces)).any():  # never expected: guard Open3D
+            raise InvalidGeometryError(
+                "Open3D returned no closest triangle for some points; check the mesh"
+            )
+        prim[s : s + len(q)] = pid
+        for t in range(0, len(q), _CHUNK):
+            qq = q[t : t + _CHUNK]
+            tri = faces[pid[t : t + _CHUNK]]
+            cp = closest_points_on_triangles(
+                qq, verts[tri[:, 0]], verts[tri[:, 1]], verts[tri[:, 2]]
+            )
+            dist[s + t : s + t + len(qq)] = np.linalg.norm(qq - cp, axis=1)
+    return dist, prim
+
+
+# -- the comparison -------------------------------------------------------------------
+@dataclass
+class Comparison:
+    """The result of :func:`compare`.
+
+    Attributes
+    ----------
+    accuracy, completeness : DistanceStats
+        Statistics of the two directions (see the module docstring).
+    hausdorff_m, chamfer_m, tolerance_m, coverage : float
+        Top-level figures (definitions in :data:`DEFINITIONS`).
+    point_spacing_m : float
+        The cloud's median nearest-neighbour spacing.
+    sample_spacing_m : float or None
+        Effective spacing of the mesh samples (None for a cloud reference).
+    cloud : Cloud
+        The compared cloud (input coordinates, with its fields).
+    accuracy_m : (n,) float64
+        Per cloud point: distance to the reference.
+    reference_points : (m, 3) float64
+        The reference samples (mesh) or points (cloud), input coordinates.
+    completeness_m : (m,) float64
+        Per reference sample: distance to the nearest cloud point.
+    reference_label : (m,) int64 or None
+        Label code of each reference sample, when the reference carries labels.
+    reference_face : (m,) int64 or None
+        Triangle of each mesh sample.
+    by_label : dict of str -> dict
+        Per hit label (``wood``, ``leaf``, ...): ``accuracy`` stats of the cloud points
+        with that label; for labelled references also ``completeness`` stats and
+        ``coverage`` of the reference samples with that label (to the whole cloud).
+    by_station : dict of int -> dict
+        Per station: ``accuracy`` stats of its points, and ``coverage`` of the whole
+        reference by that station's points alone.
+    reference_info : dict
+        Kind, size, area of the reference.
+    params : CompareParams
+    frame : LocalFrame
+        The frame the distances were computed in.
+    timings_s : dict of str -> float
+    """
+
+    accuracy: DistanceStats
+    completeness: DistanceStats
+    hausdorff_m: float
+    chamfer_m: float
+    tolerance_m: float
+    coverage: float
+    point_spacing_m: float
+    sample_spacing_m: float | None
+    cloud: Cloud
+    accuracy_m: np.ndarray
+    reference_points: np.ndarray
+    completeness_m: np.ndarray
+    reference_label: np.ndarray | None
+    reference_face: np.ndarray | None
+    label_names: dict[int, str]
+    by_label: dict[str, dict[str, Any]]
+    by_station: dict[int, dict[str, Any]]
+    reference_info: dict[str, Any]
+    params: CompareParams
+    frame: LocalFrame
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The figures as JSON-ready values (no per-point arrays)."""
+        return {
+            "accuracy": self.accuracy.to_dict(),
+            "completeness": self.completeness.to_dict(),
+            "hausdorff_m": self.hausdorff_m,
+            "chamfer_m": self.chamfer_m,
+            "tolerance_m": self.tolerance_m,
+            "coverage": self.coverage,
+            "point_spacing_m": self.point_spacing_m,
+            "cloud": {"points": len(self.cloud)},
+            "reference": dict(self.reference_info),
+            "by_label": self.by_label,
+            "by_station": {str(k): v for k, v in self.by_station.items()},
+            "parameters": {
+                **asdict(self.params),
+                "tolerance_m": self.tolerance_m,
+                "tolerance_rule": "given"
+                if self.params.tolerance_m is not None
+                else "3 × point_spacing_m",
+                "sample_spacing_m": self.sample_spacing_m,
+                "sample_spacing_rule": None
+                if self.sample_spacing_m is None
+                else ("given" if self.params.sample_spacing_m is not None else "point_spacing_m"),
+                "frame_origin_m": list(self.frame.origin),
+            },
+            "definitions": dict(DEFINITIONS),
+            "timings_s": dict(self.timings_s),
+        }
+
+    def distance_cloud(self) -> Cloud:
+        """The compared cloud with its fields plus ``scalar_distance`` (accuracy, m)."""
+        fields = dict(self.cloud.fields)
+        fields[DISTANCE_FIELD] = self.accuracy_m
+        return Cloud(self.cloud.points, fields, dict(self.cloud.metadata))
+
+    def reference_cloud(self) -> Cloud:
+        """The reference samples with ``scalar_distance`` (completeness, m) and, when
+        known, ``label`` and ``face_index``."""
+        fields: dict[str, np.ndarray] = {DISTANCE_FIELD: self.completeness_m}
+        if self.reference_label is not None:
+            fields["label"] = self.reference_label.astype(np.uint8)
+        if self.reference_face is not None:
+            fields["face_index"] = self.reference_face.astype(np.int32)
+        meta = {"label_names": dict(self.label_names)} if self.reference_label is not None else {}
+        return Cloud(self.reference_points, fields, meta)
+
+
+def compare(
+    cloud: Cloud,
+    reference: Any,
+    *,
+    tolerance_m: float | None = None,
+    sample_spacing_m: float | None = None,
+    seed: int = 0,
+    params: CompareParams | None = None,
+) -> Comparison:
+    """Compare a cloud with a reference mesh or cloud, both ways, in float64.
+
+    Parameters
+    ----------
+    cloud : Cloud
+        The (simulated) cloud. Its ``label`` and ``station`` fields, when present, split
+        the figures by hit label and by station.
+    reference : Cloud, Scene or (vertices (v, 3) float, faces (f, 3) int)
+        The reference: a mesh (a ``pipeline.scan.Scene`` keeps its part labels) or a cloud.
+    tolerance_m : float, optional
+        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
+    sample_spacing_m : float, optional
+        Spacing of the mesh surface samples (m); default ``point_spacing_m``.
+    seed : int
+        Seed of the surface sampling.
+    params : CompareParams, optional
+        All settings at once (overrides the three keywords above).
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    EmptyInputError
+        If the cloud or the reference is empty.
+    InvalidGeometryError
+        If either holds NaN or infinite coordinates, or the cloud has a single point.
+    InvalidParameterError
+        If a parameter is out of range.
+    """
+    from scipy.spatial import cKDTree
+
+    if params is None:
+        params = CompareParams(
+            tolerance_m=tolerance_m, sample_spacing_m=sample_spacing_m, seed=seed
+        )
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    cloud = _check_cloud(cloud, "cloud")
+    ref = _as_reference(reference)
+    used = ref.points if ref.faces is None else ref.points[np.unique(ref.faces)]
+    frame = LocalFrame.around(used)
+    cloud_local = frame.to_local(cloud.points)
+    workers = _workers(params.nthreads)
+
+    t0 = time.perf_counter()
+    cloud_tree = cKDTree(cloud_local)
+    spacing = point_spacing(
+        cloud_local, subsample=params.spacing_subsample, seed=params.seed, tree=cloud_tree
+    )
+    tau = float(params.tolerance_m) if params.tolerance_m is not None else TOLERANCE_FACTOR * spacing
+    timings["cloud_index"] = time.perf_counter() - t0
+
+    # accuracy: cloud -> reference
+    t0 = time.perf_counter()
+    ref_face: np.ndarray | None = None
+    sample_spacing: float | None = None
+    info = dict(ref.info)
+    if ref.kind == "mesh":
+        assert ref.faces is not None
+        verts_local = frame.to_local(ref.points)
+        acc, _ = _point_to_mesh(cloud_local, verts_local, ref.faces, params.nthreads)
+        timings["accuracy"] = time.perf_counter() - t0
+        # completeness: surface samples -> cloud
+        t0 = time.perf_counter()
+        tri = verts_local[ref.faces]
+        area = float(
+            0.5
+            * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+        )
+        s_asked = float(params.sample_spacing_m) if params.sample_spacing_m is not None else spacing
+        n_samples = int(
+            np.clip(math.ceil(area / s_asked**2), params.min_samples, params.max_samples)
+        )
+        sample_spacing = math.sqrt(area / n_samples)
+        samples_local, ref_face = sample_surface(
+            verts_local, ref.faces, n_samples, seed=params.seed
+        )
+        ref_local = samples_local
+        ref_label = ref.face_label[ref_face] if ref.face_label is not None else None
+        info.update(area_m2=area, samples=n_samples)
+        timings["sampling"] = time.perf_counter() - t0
+    else:
+        ref_local = frame.to_local(ref.points)
+        ref_tree = cKDTree(ref_local)
+        acc, _ = ref_tree.query(cloud_local, k=1, workers=workers)
+        ref_label = ref.point_label
+        timings["accuracy"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    comp, _ = cloud_tree.query(ref_local, k=1, workers=workers)
+    timings["completeness"] = time.perf_counter() - t0
+    acc = np.asarray(acc, dtype=np.float64)
+    comp = np.asarray(comp, dtype=np.float64)
+
+    acc_stats = DistanceStats.of(acc)
+    comp_stats = DistanceStats.of(comp)
+    covered = comp <= tau
+    coverage = float(covered.mean())
+    assert acc_stats.max_m is not None and comp_stats.max_m is not None
+    assert acc_stats.mean_m is not None and comp_stats.mean_m is not None
+
+    # splits
+    t0 = time.perf_counter()
+    names = _label_names(cloud.metadata)
+    if ref.kind == "cloud":
+        names = {**ref.label_names, **names}
+    by_label = _split_by_label(cloud, acc, ref_label, comp, tau, names)
+    by_station = _split_by_station(cloud, cloud_local, acc, ref_local, tau, workers)
+    timings["splits"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+
+    return Comparison(
+        accuracy=acc_stats,
+        completeness=comp_stats,
+        hausdorff_m=float(max(acc_stats.max_m, comp_stats.max_m)),
+        chamfer_m=float(0.5 * (acc_stats.mean_m + comp_stats.mean_m)),
+        tolerance_m=tau,
+        coverage=coverage,
+        point_spacing_m=spacing,
+        sample_spacing_m=sample_spacing,
+        cloud=cloud,
+        accuracy_m=acc,
+        reference_points=frame.to_global(ref_local),
+        completeness_m=comp,
+        reference_label=None if ref_label is None else np.asarray(ref_label, dtype=np.int64),
+        reference_face=ref_face,
+        label_names=names,
+        by_label=by_label,
+        by_station=by_station,
+        reference_info=info,
+        params=params,
+        frame=frame,
+        timings_s=timings,
+    )
+
+
+def _split_by_label(
+    cloud: Cloud,
+    acc: np.ndarray,
+    ref_label: np.ndarray | None,
+    comp: np.ndarray,
+    tau: float,
+    names: dict[int, str],
+) -> dict[str, dict[str, Any]]:
+    cloud_label = cloud.fields.get("label")
+    codes: set[int] = set()
+    if cloud_label is not None:
+        cloud_label = np.asarray(cloud_label).astype(np.int64)
+        codes |= {int(c) for c in np.unique(cloud_label)}
+    if ref_label is not None:
+        codes |= {int(c) for c in np.unique(ref_label)}
+    if cloud_label is None and (ref_label is None or len(codes) < 2):
+        return {}  # nothing to split
+    out: dict[str, dict[str, Any]] = {}
+    for code in sorted(codes):
+        entry: dict[str, Any] = {"code": code}
+        if cloud_label is not None:
+            entry["accuracy"] = DistanceStats.of(acc[cloud_label == code]).to_dict()
+        if ref_label is not None:
+            sel = ref_label == code
+            entry["completeness"] = DistanceStats.of(comp[sel]).to_dict()
+            entry["coverage"] = float((comp[sel] <= tau).mean()) if sel.any() else None
+        out[names.get(code, f"label_{code}")] = entry
+    return out
+
+
+def _split_by_station(
+    cloud: Cloud,
+    cloud_local: np.ndarray,
+    acc: np.ndarray,
+    ref_local: np.ndarray,
+    tau: float,
+    workers: int,
+) -> dict[int, dict[str, Any]]:
+    from scipy.spatial import cKDTree
+
+    station = cloud.fields.get("station")
+    if station is None:
+        return {}
+    station = np.asarray(station).astype(np.int64)
+    out: dict[int, dict[str, Any]] = {}
+    for s in np.unique(station):
+        sel = station == s
+        entry: dict[str, Any] = {
+            "points": int(sel.sum()),
+            "accuracy": DistanceStats.of(acc[sel]).to_dict(),
+        }
+        tree = cKDTree(cloud_local[sel])
+        d, _ = tree.query(ref_local, k=1, distance_upper_bound=tau * (1 + 1e-12), workers=workers)
+        entry["coverage"] = float((d <= tau).mean())
+        out[int(s)] = entry
+    return out
+
+
+# -- output ---------------------------------------------------------------------------
+def software_versions(*extra: str) -> dict[str, str]:
+    """Versions of Python, treesim and the numerical libraries (plus ``extra`` modules)."""
+    from importlib import metadata
+
+    from . import __version__
+
+    out = {
+        "treesim": __version__,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(terse=True),
+    }
+    for name in ("numpy", "scipy", "open3d", "laspy", "plyfile", *extra):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _json_ready(value: Any) -> Any:
+    """Replace NaN/inf by None and numpy scalars by Python ones, recursively."""
+    if isinstance(value, dict):
+        return {str(k): _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_comparison(
+    comparison: Comparison,
+    outdir: str | Path,
+    *,
+    inputs: Mapping[str, Any] | None = None,
+    formats: tuple[str, ...] = (".ply", ".laz"),
+) -> dict[str, Path]:
+    """Write ``comparison.json`` and the distance clouds into ``outdir``.
+
+    Parameters
+    ----------
+    comparison : Comparison
+    outdir : str or Path
+        Created if missing.
+    inputs : mapping, optional
+        Extra JSON-ready facts to record (input paths, the scan's settings).
+    formats : tuple of str
+        Suffixes of the distance clouds (``.ply`` carries ``scalar_distance`` as a
+        CloudCompare scalar field; ``.laz`` as an extra dimension).
+
+    Returns
+    -------
+    dict of str -> Path
+        ``comparison``, ``cloud_distances<suffix>``, ``reference_distances<suffix>``.
+    """
+    import json
+    import os
+
+    from .io import write_cloud
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    dist_cloud = comparison.distance_cloud()
+    ref_cloud = comparison.reference_cloud()
+    for suffix in formats:
+        key = suffix.lstrip(".").lower()
+        written[f"cloud_distances_{key}"] = write_cloud(
+            out / f"cloud_distances{suffix}", dist_cloud
+        )
+        written[f"reference_distances_{key}"] = write_cloud(
+            out / f"reference_distances{suffix}", ref_cloud
+        )
+    summary = {
+        "kind": "treesim.comparison",
+        **comparison.to_dict(),
+        "inputs": dict(inputs or {}),
+        "outputs": {k: p.name for k, p in written.items()},
+        "software": software_versions(),
+    }
+    path = out / "comparison.json"
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(_json_ready(summary), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+    written["comparison"] = path
+    return written

@@ -1,0 +1,158 @@
+"""What a report shows: the comparison's figures and its per-point distances."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cloud import LABEL_NAMES
+from ..compare import DISTANCE_FIELD, Comparison, software_versions
+from ..errors import InputFormatError
+
+#: Keys ``comparison.json`` must have for a report to be drawn.
+REQUIRED_KEYS = ("accuracy", "completeness", "hausdorff_m", "chamfer_m", "tolerance_m", "coverage")
+
+
+@dataclass
+class ReportData:
+    """A comparison's figures and per-point distances, in the shape the report needs.
+
+    Attributes
+    ----------
+    summary : dict
+        The content of ``comparison.json`` (figures, parameters, inputs, software).
+    cloud_points : (n, 3) float64
+        The compared cloud, input coordinates.
+    cloud_distance_m : (n,) float64
+        Accuracy: distance of each cloud point to the reference.
+    cloud_station, cloud_label : (n,) int64 or None
+    reference_points : (m, 3) float64
+        Reference samples (mesh) or points (cloud).
+    reference_distance_m : (m,) float64
+        Completeness: distance of each reference sample to the cloud.
+    reference_label : (m,) int64 or None
+    label_names : dict of int -> str
+    source_dir : Path or None
+        Where ``comparison.json`` was read from.
+    """
+
+    summary: dict[str, Any]
+    cloud_points: np.ndarray
+    cloud_distance_m: np.ndarray
+    cloud_station: np.ndarray | None
+    cloud_label: np.ndarray | None
+    reference_points: np.ndarray
+    reference_distance_m: np.ndarray
+    reference_label: np.ndarray | None
+    label_names: dict[int, str]
+    source_dir: Path | None = None
+
+    @property
+    def origin(self) -> np.ndarray:
+        """(3,) float64 display origin: the frame origin when the data is georeferenced-far
+        from zero (coordinates beyond 10 km), else zeros."""
+        o = np.asarray(
+            self.summary.get("parameters", {}).get("frame_origin_m") or (0.0, 0.0, 0.0),
+            dtype=np.float64,
+        )
+        return o if np.abs(o).max() > 1e4 else np.zeros(3)
+
+    @classmethod
+    def from_comparison(
+        cls, comparison: Comparison, *, inputs: dict[str, Any] | None = None
+    ) -> ReportData:
+        """Build from an in-memory :class:`~pipeline.compare.Comparison`."""
+        from ..compare import _json_ready
+
+        summary = _json_ready(
+            {
+                "kind": "treesim.comparison",
+                **comparison.to_dict(),
+                "inputs": dict(inputs or {}),
+                "software": software_versions(),
+            }
+        )
+        station = comparison.cloud.fields.get("station")
+        label = comparison.cloud.fields.get("label")
+        return cls(
+            summary=summary,
+            cloud_points=comparison.cloud.points,
+            cloud_distance_m=comparison.accuracy_m,
+            cloud_station=None if station is None else np.asarray(station).astype(np.int64),
+            cloud_label=None if label is None else np.asarray(label).astype(np.int64),
+            reference_points=comparison.reference_points,
+            reference_distance_m=comparison.completeness_m,
+            reference_label=comparison.reference_label,
+            label_names=dict(comparison.label_names),
+        )
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> ReportData:
+        """Read ``comparison.json`` (or the folder holding it) and its distance clouds."""
+        from ..io import read_cloud
+
+        p = Path(path)
+        if p.is_dir():
+            p = p / "comparison.json"
+        if not p.is_file():
+            raise InputFormatError(
+                f"{p} not found; run 'treesim compare CLOUD REFERENCE -o OUTDIR' first, "
+                "then 'treesim report OUTDIR'"
+            )
+        try:
+            summary = json.loads(p.read_text())
+        except (OSError, ValueError) as exc:
+            raise InputFormatError(f"{p} could not be read as JSON: {exc}") from exc
+        missing = [k for k in REQUIRED_KEYS if k not in summary]
+        if not isinstance(summary, dict) or missing:
+            raise InputFormatError(
+                f"{p} is not a treesim comparison (missing {', '.join(missing)})"
+            )
+        outputs = summary.get("outputs", {})
+
+        def find(kind: str) -> Path:
+            for key in (f"{kind}_ply", f"{kind}_laz", f"{kind}_las"):
+                if key in outputs and (p.parent / outputs[key]).is_file():
+                    return p.parent / outputs[key]
+            for suffix in (".ply", ".laz", ".las"):
+                if (p.parent / f"{kind}{suffix}").is_file():
+                    return p.parent / f"{kind}{suffix}"
+            raise InputFormatError(
+                f"{p.parent} lacks {kind}.ply/.laz, which 'treesim compare' writes beside "
+                "comparison.json; copy them along or run the comparison again"
+            )
+
+        cloud = read_cloud(find("cloud_distances"))
+        ref = read_cloud(find("reference_distances"))
+        for c, name in ((cloud, "cloud_distances"), (ref, "reference_distances")):
+            if DISTANCE_FIELD not in c.fields:
+                raise InputFormatError(f"{name} in {p.parent} has no {DISTANCE_FIELD} field")
+        names = dict(LABEL_NAMES)
+        for meta in (ref.metadata, cloud.metadata):
+            ln = meta.get("label_names")
+            if isinstance(ln, dict):
+                try:
+                    names.update({int(k): str(v) for k, v in ln.items()})
+                except (TypeError, ValueError):
+                    pass
+
+        def opt(c: Any, name: str) -> np.ndarray | None:
+            v = c.fields.get(name)
+            return None if v is None else np.asarray(v).astype(np.int64)
+
+        return cls(
+            summary=summary,
+            cloud_points=cloud.points,
+            cloud_distance_m=np.asarray(cloud.fields[DISTANCE_FIELD], dtype=np.float64),
+            cloud_station=opt(cloud, "station"),
+            cloud_label=opt(cloud, "label"),
+            reference_points=ref.points,
+            reference_distance_m=np.asarray(ref.fields[DISTANCE_FIELD], dtype=np.float64),
+            reference_label=opt(ref, "label"),
+            label_names=names,
+            source_dir=p.parent,
+        )
