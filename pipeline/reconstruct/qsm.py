@@ -1,0 +1,601 @@
+"""Cylinder-fitting quantitative structure model (QSM), deterministic.
+
+Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
+
+1. **Graph.** A k-nearest-neighbour graph with edges up to ``link_m``; its connected
+   components are joined by their shortest gaps (Borůvka steps over cross-component
+   neighbour pairs, then nearest points), so occlusion gaps are bridged.
+2. **Geodesic distance** from the base (the points within ``base_band_m`` of the lowest
+   point) by Dijkstra, with predecessors.
+3. **Slices** of the geodesic distance, ``slice_m`` thick; the graph restricted to each
+   slice splits it into clusters: the skeleton's nodes. A node's parent is the node its
+   points' shortest paths come from (a tree by construction: distance grows along paths).
+4. **Branches**: from the base, each node continues its branch through the child with
+   the longest subtree; other children start branches of the next order.
+5. **Radii, measured where the data allow**: per node, points are projected on the plane
+   normal to the local axis, a circle is fitted by RANSAC and refined by robust
+   (soft-L1) least squares; the fit is accepted ("measured") only when its arc coverage,
+   residual, inlier share and radius pass quality gates. Accepted fits also move the node
+   to the circle's centre (a centroid is biased toward the scanned side).
+6. **Regularised radii**: a per-tree model ``r = r_tip + a · S^b`` of radius against
+   growth length S (the length of the subtree a node supports, as rTwig does) is fitted
+   to the measured nodes; unmeasured nodes take the model (``modelled``), or interpolate
+   between measured neighbours on their branch (``interpolated``); along each branch the
+   radius is made non-increasing (weighted isotonic regression), a child never exceeds
+   its parent at the junction, and nothing is thinner than the twig prior.
+7. **Cylinders** (frusta) between consecutive nodes, children starting at their parent's
+   surface, tips extended by half a slice, the stem extended down to the base.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import least_squares
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from ..errors import InvalidParameterError, ReconstructionError
+from ..models import CylinderTable
+
+
+@dataclass(frozen=True, kw_only=True)
+class QSMParams:
+    """Parameters of the cylinder QSM (``None``: derived from the point spacing).
+
+    Parameters
+    ----------
+    slice_m : float, optional
+        Thickness of the geodesic slices (node spacing along branches); default
+        ``clamp(6 × spacing, 0.02, 0.08)``.
+    neighbors : int
+        Neighbours per point in the graph.
+    link_m : float, optional
+        Longest graph edge before gap bridging; default ``max(4 × spacing, 0.02)``.
+    base_band_m : float, optional
+        Points this close above the lowest point form the base; default ``slice_m / 2``.
+    min_coverage_deg : float
+        Arc a circle fit's points must cover to count as measured.
+    max_rel_residual : float
+        Largest RMS residual of a measured fit, relative to its radius.
+    min_radius_m : float, optional
+        Smallest radius that can be measured; default ``1.5 × spacing``.
+    twig_radius_m : float
+        Radius prior of branch tips (twigs), m.
+    """
+
+    slice_m: float | None = None
+    neighbors: int = 10
+    link_m: float | None = None
+    base_band_m: float | None = None
+    min_coverage_deg: float = 180.0
+    max_rel_residual: float = 0.12
+    min_radius_m: float | None = None
+    twig_radius_m: float = 0.003
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("slice_m", "link_m", "base_band_m", "min_radius_m"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise InvalidParameterError(f"{name} must be > 0 (or omitted), got {v}")
+        if not 3 <= self.neighbors <= 64:
+            raise InvalidParameterError(f"neighbors must be in [3, 64], got {self.neighbors}")
+        if not 0 < self.min_coverage_deg <= 360:
+            raise InvalidParameterError("min_coverage_deg must be in (0, 360]")
+        if not self.twig_radius_m > 0:
+            raise InvalidParameterError("twig_radius_m must be > 0")
+
+    def resolved(self, spacing_m: float) -> dict[str, float]:
+        """The derived values for a cloud with the given point spacing."""
+        s = max(spacing_m, 1e-4)
+        slice_m = self.slice_m or min(max(6.0 * s, 0.02), 0.08)
+        return {
+            "slice_m": slice_m,
+            "link_m": self.link_m or max(4.0 * s, 0.02),
+            "base_band_m": self.base_band_m or 0.5 * slice_m,
+            "min_radius_m": self.min_radius_m or 1.5 * s,
+        }
+
+
+@dataclass
+class QSMResult:
+    """A fitted QSM in local coordinates and what the fit found."""
+
+    table: CylinderTable
+    node_position: np.ndarray  # (m, 3)
+    node_radius: np.ndarray  # (m,)
+    node_measured: np.ndarray  # (m,) bool
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------- graph
+def _knn_graph(points: np.ndarray, k: int, link_m: float) -> tuple[sparse.csr_matrix, cKDTree]:
+    tree = cKDTree(points)
+    k = min(k + 1, len(points))
+    d, idx = tree.query(points, k=k)
+    rows = np.repeat(np.arange(len(points)), k - 1)
+    cols = idx[:, 1:].ravel()
+    w = d[:, 1:].ravel()
+    keep = np.isfinite(w) & (w <= link_m) & (cols < len(points))
+    g = sparse.coo_matrix(
+        (np.maximum(w[keep], 1e-9), (rows[keep], cols[keep])), shape=(len(points),) * 2
+    ).tocsr()
+    return g.maximum(g.T).tocsr(), tree
+
+
+def _bridge(
+    points: np.ndarray, g: sparse.csr_matrix, tree: cKDTree, main_hint: int
+) -> tuple[sparse.csr_matrix, int]:
+    """Join every component to the rest by its shortest gaps; returns (graph, bridges)."""
+    n = len(points)
+    ncomp, labels = connected_components(g, directed=False)
+    if ncomp == 1:
+        return g, 0
+    k = min(24, n)
+    d, idx = tree.query(points, k=k)
+    extra_r, extra_c, extra_w = [], [], []
+    parent = np.arange(ncomp)
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for _ in range(64):  # Borůvka rounds over the candidate pairs
+        lab = np.array([find(c) for c in range(ncomp)])[labels]
+        li = np.repeat(lab, k)
+        lj = lab[idx.ravel()]
+        cross = li != lj
+        if not cross.any():
+            break
+        ci = np.repeat(np.arange(n), k)[cross]
+        cj = idx.ravel()[cross]
+        cw = d.ravel()[cross]
+        comp = li[cross]
+        order = np.lexsort((cw, comp))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = comp[order][1:] != comp[order][:-1]
+        merged = False
+        for e in order[first]:
+            a, b = find(int(labels[ci[e]])), find(int(labels[cj[e]]))
+            if a != b:
+                parent[a] = b
+                extra_r.append(ci[e])
+                extra_c.append(cj[e])
+                extra_w.append(cw[e])
+                merged = True
+        if not merged:
+            break
+    lab = np.array([find(c) for c in range(ncomp)])[labels]
+    roots = np.unique(lab)
+    if len(roots) > 1:  # components with no candidate pair: nearest point of the main one
+        main = lab[main_hint]
+        main_idx = np.flatnonzero(lab == main)
+        main_tree = cKDTree(points[main_idx])
+        for r in roots:
+            if r == main:
+                continue
+            members = np.flatnonzero(lab == r)
+            dd, jj = main_tree.query(points[members], k=1)
+            e = int(np.argmin(dd))
+            extra_r.append(members[e])
+            extra_c.append(main_idx[jj[e]])
+            extra_w.append(dd[e])
+    b = sparse.coo_matrix(
+        (np.maximum(np.asarray(extra_w), 1e-9), (np.asarray(extra_r), np.asarray(extra_c))),
+        shape=g.shape,
+    ).tocsr()
+    b = b.maximum(b.T)
+    return g.maximum(b).tocsr(), len(extra_w)
+
+
+# ---------------------------------------------------------------------------- circles
+def _circle_3pt(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Circles through point triples p (t, 3, 2): centres (t, 2), radii (t,)."""
+    a, b, c = p[:, 0], p[:, 1], p[:, 2]
+    d = 2 * (
+        a[:, 0] * (b[:, 1] - c[:, 1])
+        + b[:, 0] * (c[:, 1] - a[:, 1])
+        + c[:, 0] * (a[:, 1] - b[:, 1])
+    )
+    sa, sb, sc = (a**2).sum(1), (b**2).sum(1), (c**2).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / d
+        uy = (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / d
+    cen = np.stack([ux, uy], axis=1)
+    return cen, np.linalg.norm(a - cen, axis=1)
+
+
+@dataclass
+class CircleFit:
+    centre: np.ndarray  # (2,)
+    radius: float
+    rms: float
+    coverage_deg: float
+    inlier_share: float
+
+
+def fit_circle(
+    q: np.ndarray, w: np.ndarray, rng: np.random.Generator, band_min: float
+) -> CircleFit | None:
+    """Robust circle fit to 2-D points ``q`` (m, 2) with weights ``w``."""
+    m = len(q)
+    if m < 6:
+        return None
+    t = 96
+    tri = np.stack([rng.choice(m, 3, replace=False) for _ in range(t)])
+    cen, rad = _circle_3pt(q[tri])
+    ext = float(np.ptp(q, axis=0).max())
+    ok = np.isfinite(rad) & (rad > 0) & (rad < 2.0 * ext + band_min)
+    if not ok.any():
+        return None
+    cen, rad = cen[ok], rad[ok]
+    # one inlier band for every candidate (a band growing with the radius would favour
+    # huge circles that pass through everything)
+    band = max(band_min, 0.04 * ext)
+    dist = np.abs(np.linalg.norm(q[None, :, :] - cen[:, None, :], axis=2) - rad[:, None])
+    score = ((dist < band) * w[None, :]).sum(axis=1)
+    best = int(np.argmax(score))
+    inl = dist[best] < band
+    if inl.sum() < 5:
+        return None
+    qi, wi = q[inl], np.sqrt(w[inl])
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        return wi * (np.linalg.norm(qi - x[:2], axis=1) - x[2])
+
+    x0 = np.array([cen[best, 0], cen[best, 1], rad[best]])
+    try:
+        sol = least_squares(resid, x0, loss="soft_l1", f_scale=band, max_nfev=50)
+        x = sol.x
+    except (ValueError, np.linalg.LinAlgError):
+        x = x0
+    r = float(abs(x[2]))
+    d_all = np.abs(np.linalg.norm(q - x[:2], axis=1) - r)
+    inl = d_all < band
+    if inl.sum() < 5:
+        return None
+    rms = float(np.sqrt(np.average(d_all[inl] ** 2, weights=w[inl])))
+    ang = np.arctan2(q[inl, 1] - x[1], q[inl, 0] - x[0])
+    sectors = np.unique(np.floor((ang + np.pi) / (2 * np.pi) * 36).astype(int) % 36)
+    return CircleFit(
+        centre=x[:2].copy(),
+        radius=r,
+        rms=rms,
+        coverage_deg=10.0 * len(sectors),
+        inlier_share=float(w[inl].sum() / w.sum()),
+    )
+
+
+def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ref = np.eye(3)[int(np.argmin(np.abs(a)))]
+    u = np.cross(a, ref)
+    u /= np.linalg.norm(u)
+    return u, np.cross(a, u)
+
+
+def _isotonic_decreasing(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least-squares non-increasing fit (pool adjacent violators)."""
+    vals, wts, cnt = [], [], []
+    for yi, wi in zip(y.tolist(), w.tolist(), strict=True):
+        vals.append(yi)
+        wts.append(wi)
+        cnt.append(1)
+        while len(vals) > 1 and vals[-2] < vals[-1]:
+            wsum = wts[-2] + wts[-1]
+            v = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
+            c = cnt[-2] + cnt[-1]
+            vals[-2:], wts[-2:], cnt[-2:] = [v], [wsum], [c]
+    return np.repeat(vals, cnt)
+
+
+# ---------------------------------------------------------------------------- main
+def fit_qsm(
+    points: np.ndarray,
+    *,
+    spacing_m: float,
+    weights: np.ndarray | None = None,
+    params: QSMParams | None = None,
+) -> QSMResult:
+    """Fit a cylinder QSM to a single-tree cloud.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        The tree's points in a local frame (metres, z up), prepared (downsampled, outliers
+        removed).
+    spacing_m : float
+        Typical point spacing (median nearest-neighbour distance).
+    weights : (n,) float, optional
+        Points represented by each point (voxel counts); default 1.
+    params : QSMParams
+
+    Returns
+    -------
+    QSMResult
+        The cylinder table (local coordinates) and per-node diagnostics.
+    """
+    params = params or QSMParams()
+    res = params.resolved(spacing_m)
+    h, link, band, r_min = res["slice_m"], res["link_m"], res["base_band_m"], res["min_radius_m"]
+    p = np.asarray(points, dtype=np.float64)
+    n = len(p)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+    if n < 50:
+        raise ReconstructionError(f"only {n} points after preparation; a QSM needs hundreds")
+
+    # 1-2. graph, bridging, geodesic distance from the base
+    g, tree = _knn_graph(p, params.neighbors, link)
+    zmin = float(p[:, 2].min())
+    sources = np.flatnonzero(p[:, 2] <= zmin + band)
+    g, n_bridges = _bridge(p, g, tree, int(sources[0]))
+    dist, pred, _ = dijkstra(
+        g, directed=False, indices=sources, min_only=True, return_predecessors=True
+    )
+    if not np.isfinite(dist).all():
+        raise ReconstructionError("the point graph is not connected after gap bridging")
+
+    # 3. slices -> clusters (nodes)
+    sl = np.floor(dist / h).astype(np.int64)
+    coo = g.tocoo()
+    same = sl[coo.row] == sl[coo.col]
+    gs = sparse.coo_matrix((coo.data[same], (coo.row[same], coo.col[same])), shape=g.shape)
+    m, cl = connected_components(gs, directed=False)
+    # parent cluster by predecessor votes
+    has_pred = pred >= 0
+    ci, cp = cl[has_pred], cl[pred[has_pred]]
+    cross = ci != cp
+    votes = sparse.coo_matrix((w[has_pred][cross], (ci[cross], cp[cross])), shape=(m, m)).tocsr()
+    node_parent = np.full(m, -1, dtype=np.int64)
+    nz = np.diff(votes.indptr) > 0
+    node_parent[nz] = np.asarray(votes[nz].argmax(axis=1)).ravel()
+    wsum = np.bincount(cl, weights=w, minlength=m)
+    centroid = np.stack([np.bincount(cl, weights=w * p[:, j], minlength=m) for j in range(3)], 1)
+    centroid /= wsum[:, None]
+    npts = np.bincount(cl, minlength=m)
+    roots = np.flatnonzero(node_parent < 0)
+    main_root = int(roots[np.argmax(wsum[roots])])
+    for r in roots:  # extra bases (e.g. buttresses, stray low points) hang off the main one
+        if r != main_root:
+            node_parent[r] = main_root
+
+    # children, subtree length (process nodes by decreasing geodesic distance)
+    node_dist = np.bincount(cl, weights=w * dist, minlength=m) / wsum
+    order = np.argsort(-node_dist, kind="stable")
+    edge_len = np.zeros(m)
+    has_par = node_parent >= 0
+    edge_len[has_par] = np.linalg.norm(centroid[has_par] - centroid[node_parent[has_par]], axis=1)
+    sub_len = edge_len.copy()
+    for v in order:
+        pv = node_parent[v]
+        if pv >= 0:
+            sub_len[pv] += sub_len[v]
+    children: list[list[int]] = [[] for _ in range(m)]
+    for v in np.argsort(node_dist, kind="stable"):
+        pv = node_parent[v]
+        if pv >= 0:
+            children[pv].append(int(v))
+
+    # prune spurs: leaf nodes with very few points hanging off a node that continues
+    keep = np.ones(m, dtype=bool)
+    for v in range(m):
+        if not children[v] and node_parent[v] >= 0 and npts[v] < 4:
+            if len(children[node_parent[v]]) > 1:
+                keep[v] = False
+    for v in range(m):
+        children[v] = [c for c in children[v] if keep[c]]
+
+    # 4. branches
+    branch_of = np.full(m, -1, dtype=np.int64)
+    branches: list[list[int]] = []
+    branch_order: list[int] = []
+    branch_parent_node: list[int] = []
+    stack = [(main_root, 0, -1)]
+    while stack:
+        start, order_k, junction = stack.pop()
+        b = len(branches)
+        seq = []
+        v = start
+        while True:
+            seq.append(v)
+            branch_of[v] = b
+            kids = children[v]
+            if not kids:
+                break
+            main = max(kids, key=lambda c: (sub_len[c], -c))
+            for c in sorted(kids, reverse=True):
+                if c != main:
+                    stack.append((c, order_k + 1, v))
+            v = main
+        branches.append(seq)
+        branch_order.append(order_k)
+        branch_parent_node.append(junction)
+
+    # 5. circle fits per node
+    pos = centroid.copy()
+    radius = np.full(m, np.nan)
+    quality = np.zeros(m)
+    measured = np.zeros(m, dtype=bool)
+    members_sorted = np.argsort(cl, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(cl, minlength=m))])
+    rng_base = params.seed * 1_000_003
+    band_min = max(1.0 * spacing_m, 0.001)
+    axes = np.zeros((m, 3))
+    for seq in branches:
+        for i, v in enumerate(seq):
+            prev_pt = (
+                centroid[seq[i - 1]]
+                if i > 0
+                else (centroid[node_parent[v]] if node_parent[v] >= 0 else None)
+            )
+            next_pt = centroid[seq[i + 1]] if i + 1 < len(seq) else None
+            if prev_pt is not None and next_pt is not None:
+                a = next_pt - prev_pt
+            elif next_pt is not None:
+                a = next_pt - centroid[v]
+            elif prev_pt is not None:
+                a = centroid[v] - prev_pt
+            else:
+                a = np.array([0.0, 0.0, 1.0])
+            na = np.linalg.norm(a)
+            a = a / na if na > 0 else np.array([0.0, 0.0, 1.0])
+            axes[v] = a
+            if not keep[v]:
+                continue
+            idx = members_sorted[bounds[v] : bounds[v + 1]]
+            if len(idx) < 6:
+                continue
+            u, vv = _basis(a)
+            rel = p[idx] - centroid[v]
+            q = np.stack([rel @ u, rel @ vv], axis=1)
+            fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
+            if fit is None:
+                continue
+            radius[v] = fit.radius
+            ok = (
+                fit.coverage_deg >= params.min_coverage_deg
+                and fit.rms <= params.max_rel_residual * fit.radius + 0.5 * spacing_m
+                and fit.inlier_share >= 0.6
+                and fit.radius >= r_min
+                and fit.radius <= 0.75 * float(np.ptp(q, axis=0).max()) + band_min
+            )
+            if ok:
+                measured[v] = True
+                quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
+                pos[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
+
+    # 6. radius model r = r_tip + a * S^b on measured nodes (S: growth length)
+    r_tip = params.twig_radius_m
+    grow = sub_len + 0.5 * h
+    mm = measured & keep & (radius > r_tip * 1.05)
+    a_fit, b_fit = 0.02, 0.5
+    if mm.sum() >= 3:
+        x = np.log(grow[mm])
+        y = np.log(radius[mm] - r_tip)
+        wq = quality[mm]
+
+        def res_fn(t: np.ndarray) -> np.ndarray:
+            return np.sqrt(wq) * (t[0] + t[1] * x - y)
+
+        sol = least_squares(
+            res_fn,
+            np.array([math.log(0.02), 0.5]),
+            loss="soft_l1",
+            f_scale=0.2,
+            bounds=([-20, 0.15], [5, 1.5]),
+        )
+        a_fit, b_fit = math.exp(sol.x[0]), float(sol.x[1])
+    model = r_tip + a_fit * grow**b_fit
+
+    final_r = np.where(measured, radius, model)
+    tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
+    for seq in branches:
+        s = np.asarray(seq)
+        meas = measured[s]
+        if meas.sum() >= 2:  # interpolate between measured anchors along the branch
+            along = np.concatenate(
+                [[0.0], np.cumsum(np.linalg.norm(np.diff(pos[s], axis=0), axis=1))]
+            )
+            first, last = np.flatnonzero(meas)[[0, -1]]
+            inner = (~meas) & (np.arange(len(s)) > first) & (np.arange(len(s)) < last)
+            if inner.any():
+                final_r[s[inner]] = np.interp(along[inner], along[meas], radius[s][meas])
+                tag[s[inner]] = 1
+        wts = np.where(measured[s], 0.2 + quality[s], 0.05)
+        final_r[s] = _isotonic_decreasing(final_r[s], wts)
+    # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
+    for b, seq in enumerate(branches):
+        j = branch_parent_node[b]
+        s = np.asarray(seq)
+        if j >= 0:
+            final_r[s] = np.minimum(final_r[s], final_r[j])
+        final_r[s] = np.maximum(final_r[s], r_tip)
+
+    # 7. cylinders
+    starts, ends, r0, r1, par, bra, ordr, tags = [], [], [], [], [], [], [], []
+    end_row_of_node = np.full(m, -1, dtype=np.int64)
+    tag_names = np.array(["measured", "interpolated", "modelled"])
+    for b, seq in enumerate(branches):
+        j = branch_parent_node[b]
+        pts = [pos[v] for v in seq]
+        rads = [final_r[v] for v in seq]
+        tg = [tag[v] for v in seq]
+        if j < 0:  # stem: extend from the ground up to the first node
+            a = axes[seq[0]]
+            base = pos[seq[0]] - a * max((pos[seq[0]][2] - zmin) / max(a[2], 0.2), 0.0)
+            pts = [base, *pts]
+            rads = [rads[0], *rads]
+            tg = [tg[0], *tg]
+        else:  # start at the parent's surface
+            d0 = pts[0] - pos[j]
+            L0 = float(np.linalg.norm(d0))
+            if L0 > 0:
+                off = min(final_r[j], 0.5 * L0)
+                pts = [pos[j] + d0 / L0 * off, *pts]
+            else:
+                pts = [pos[j], *pts]
+            rads = [rads[0], *rads]
+            tg = [tg[0], *tg]
+        if len(pts) >= 2:  # tip: half a slice beyond the last node
+            d1 = pts[-1] - pts[-2]
+            L1 = float(np.linalg.norm(d1))
+            if L1 > 0:
+                pts[-1] = pts[-1] + d1 / L1 * 0.5 * h
+        prev_row = -1
+        for i in range(len(pts) - 1):
+            node = seq[i]  # segment i ends at node seq[i]
+            if np.linalg.norm(pts[i + 1] - pts[i]) < 1e-6:
+                end_row_of_node[node] = (
+                    prev_row if prev_row >= 0 else (end_row_of_node[j] if j >= 0 else -1)
+                )
+                continue
+            row = len(starts)
+            starts.append(pts[i])
+            ends.append(pts[i + 1])
+            r0.append(rads[i])
+            r1.append(rads[i + 1])
+            if prev_row >= 0:
+                par.append(prev_row)
+            else:
+                par.append(int(end_row_of_node[j]) if j >= 0 else -1)
+            bra.append(b + 1)
+            ordr.append(branch_order[b])
+            tags.append(tag_names[tg[i + 1]])
+            prev_row = row
+            end_row_of_node[node] = row
+    if not starts:
+        raise ReconstructionError("no cylinders could be built (is the cloud a tree?)")
+    par_arr = np.asarray(par, dtype=np.int64)
+    table = CylinderTable.from_endpoints(
+        np.asarray(starts),
+        np.asarray(ends),
+        np.asarray(r0),
+        end_radius_m=np.asarray(r1),
+        parent=par_arr,
+        branch=np.asarray(bra),
+        branch_order=np.asarray(ordr),
+        tag=np.asarray(tags),
+    )
+    diagnostics = {
+        "params": {**asdict(params), **res},
+        "points": n,
+        "graph_bridges": n_bridges,
+        "nodes": int(keep.sum()),
+        "nodes_measured": int(measured.sum()),
+        "branches": len(branches),
+        "radius_model": {"r_tip_m": r_tip, "a": a_fit, "b": b_fit},
+        "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in tag_names},
+    }
+    return QSMResult(
+        table=table,
+        node_position=pos,
+        node_radius=final_r,
+        node_measured=measured,
+        diagnostics=diagnostics,
+    )
