@@ -346,8 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
     sc.set_defaults(func=cmd_scan)
 
     from .models.cli import register as register_model
+    from .reconstruct.cli import register as register_reconstruct
 
     register_model(sub)
+    register_reconstruct(sub)
 
     dm = sub.add_parser("demo", help="run the main job on the bundled sample tree")
     dm.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")
