@@ -62,6 +62,13 @@ class QSMParams:
         Arc a circle fit's points must cover to count as measured.
     max_rel_residual : float
         Largest RMS residual of a measured fit, relative to its radius.
+    partial_coverage_deg, partial_rel_residual : float
+        A fit covering less than ``min_coverage_deg`` (one-sided scans) still counts as
+        measured when it covers at least ``partial_coverage_deg`` with an RMS residual
+        under ``partial_rel_residual`` of its radius.
+    pipe_exponent : float
+        Exponent b of the radius model ``r = r_tip + a · S^b`` (S: growth length); 0.5 is
+        the pipe model (cross-section area proportional to the length supported).
     min_radius_m : float, optional
         Smallest radius that can be measured; default ``1.5 × spacing``.
     twig_radius_m : float
@@ -74,6 +81,9 @@ class QSMParams:
     base_band_m: float | None = None
     min_coverage_deg: float = 180.0
     max_rel_residual: float = 0.12
+    partial_coverage_deg: float = 120.0
+    partial_rel_residual: float = 0.06
+    pipe_exponent: float = 0.5
     min_radius_m: float | None = None
     twig_radius_m: float = 0.003
     seed: int = 0
@@ -427,6 +437,7 @@ def fit_qsm(
     rng_base = params.seed * 1_000_003
     band_min = max(1.0 * spacing_m, 0.001)
     axes = np.zeros((m, 3))
+    extent = np.full(m, np.inf)  # half the data's extent across the axis, per node
     for seq in branches:
         for i, v in enumerate(seq):
             prev_pt = (
@@ -454,13 +465,21 @@ def fit_qsm(
             u, vv = _basis(a)
             rel = p[idx] - centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
+            extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
             fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
             if fit is None:
                 continue
             radius[v] = fit.radius
-            ok = (
+            full = (
                 fit.coverage_deg >= params.min_coverage_deg
                 and fit.rms <= params.max_rel_residual * fit.radius + 0.5 * spacing_m
+            )
+            partial = (
+                fit.coverage_deg >= params.partial_coverage_deg
+                and fit.rms <= params.partial_rel_residual * fit.radius + 0.25 * spacing_m
+            )
+            ok = (
+                (full or partial)
                 and fit.inlier_share >= 0.6
                 and fit.radius >= r_min
                 and fit.radius <= 0.75 * float(np.ptp(q, axis=0).max()) + band_min
@@ -470,28 +489,26 @@ def fit_qsm(
                 quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
                 pos[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
 
-    # 6. radius model r = r_tip + a * S^b on measured nodes (S: growth length)
+    # 6. radius model r = r_tip + a * S^b (S: growth length), b fixed (pipe model), a from
+    # the measured nodes (weighted median); without measurements, from the base's spread
     r_tip = params.twig_radius_m
+    b_fit = params.pipe_exponent
     grow = sub_len + 0.5 * h
     mm = measured & keep & (radius > r_tip * 1.05)
-    a_fit, b_fit = 0.02, 0.5
     if mm.sum() >= 3:
-        x = np.log(grow[mm])
-        y = np.log(radius[mm] - r_tip)
-        wq = quality[mm]
-
-        def res_fn(t: np.ndarray) -> np.ndarray:
-            return np.sqrt(wq) * (t[0] + t[1] * x - y)
-
-        sol = least_squares(
-            res_fn,
-            np.array([math.log(0.02), 0.5]),
-            loss="soft_l1",
-            f_scale=0.2,
-            bounds=([-20, 0.15], [5, 1.5]),
-        )
-        a_fit, b_fit = math.exp(sol.x[0]), float(sol.x[1])
+        ratio = (radius[mm] - r_tip) / grow[mm] ** b_fit
+        o = np.argsort(ratio)
+        cw = np.cumsum(quality[mm][o])
+        a_fit = float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
+        a_source = "measured nodes"
+    else:
+        idx = members_sorted[bounds[main_root] : bounds[main_root + 1]]
+        spread = float(np.sqrt(np.mean(np.sum((p[idx, :2] - p[idx, :2].mean(0)) ** 2, 1))))
+        a_fit = max(spread - r_tip, r_tip) / grow[main_root] ** b_fit
+        a_source = "base spread (no measured nodes)"
     model = r_tip + a_fit * grow**b_fit
+    # never wider than the data around the node
+    model = np.minimum(model, np.where(np.isfinite(extent), 1.1 * extent + spacing_m, model))
 
     final_r = np.where(measured, radius, model)
     tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
@@ -589,7 +606,7 @@ def fit_qsm(
         "nodes": int(keep.sum()),
         "nodes_measured": int(measured.sum()),
         "branches": len(branches),
-        "radius_model": {"r_tip_m": r_tip, "a": a_fit, "b": b_fit},
+        "radius_model": {"r_tip_m": r_tip, "a": a_fit, "b": b_fit, "a_from": a_source},
         "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in tag_names},
     }
     return QSMResult(
