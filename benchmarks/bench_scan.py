@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from pipeline.models import cylinders_to_mesh, read_cylinders  # noqa: E402
 from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan  # noqa: E402
-from pipeline.scan.rays import directions, pulse_angles, windowed_grid, box_window  # noqa: E402
+from pipeline.scan.rays import box_window, directions, pulse_angles, windowed_grid  # noqa: E402
 
 SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 
@@ -46,8 +46,13 @@ def tree_scene(facets: int = 24) -> Scene:
 
 def stations_for(scene: Scene):
     lo, hi = scene.bounds
-    return ring_layout(3, distance_m=10.0, height_m=1.5,
-                       centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2), base_z_m=lo[2])
+    return ring_layout(
+        3,
+        distance_m=10.0,
+        height_m=1.5,
+        centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
+        base_z_m=lo[2],
+    )
 
 
 def raw_cast(scene: Scene, stations, spec: ScannerSpec, chunk: int) -> tuple[int, float, int]:
@@ -57,8 +62,9 @@ def raw_cast(scene: Scene, stations, spec: ScannerSpec, chunk: int) -> tuple[int
     origin = 0.5 * (scene.bounds[0] + scene.bounds[1])
     v = scene.vertices - origin
     rc = o3d.t.geometry.RaycastingScene()
-    rc.add_triangles(o3d.core.Tensor(v.astype(np.float32)),
-                     o3d.core.Tensor(scene.faces.astype(np.uint32)))
+    rc.add_triangles(
+        o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(scene.faces.astype(np.uint32))
+    )
     rc.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))  # build BVH
     total, hits, elapsed = 0, 0, 0.0
     for k, st in enumerate(stations):
@@ -82,8 +88,9 @@ def raw_cast(scene: Scene, stations, spec: ScannerSpec, chunk: int) -> tuple[int
 
 
 def peak_rss_of(code: str) -> tuple[float, str]:
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         cwd=str(ROOT), check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), check=True
+    )
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_maxrss / 2**20, out.stdout.strip()
 
@@ -97,14 +104,17 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} cores; python {sys.version.split()[0]}")
     t0 = time.perf_counter()
     scene = tree_scene()
-    print(f"tree: coffee TreeQSM mesh, {scene.n_triangles:,} triangles "
-          f"(built in {time.perf_counter() - t0:.2f} s)")
+    print(
+        f"tree: coffee TreeQSM mesh, {scene.n_triangles:,} triangles "
+        f"(built in {time.perf_counter() - t0:.2f} s)"
+    )
     stations = stations_for(scene)
     spec = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
     chunk = 1 << 19
 
-    scan(scene, stations[:1], spec.with_(horizontal_resolution_deg=1.0,
-                                         vertical_resolution_deg=1.0))  # warm imports
+    scan(
+        scene, stations[:1], spec.with_(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0)
+    )  # warm imports
     best = None
     for _ in range(2):
         t0 = time.perf_counter()
@@ -118,15 +128,23 @@ def main() -> None:
         rays, raw_s, raw_hits = raw_cast(scene, stations, spec, chunk)
         raw_best = raw_s if raw_best is None else min(raw_best, raw_s)
     print(f"\n== scan at {res}° from 3 stations (10 m, 1.5 m high), best of 2")
-    print(f"pipeline.scan: {r.rays_cast:,} rays, {len(r.cloud):,} points, {wall:.2f} s "
-          f"(BVH build {r.bvh_build_s:.2f} s)")
-    print(f"  throughput: {r.rays_cast / cast_s / 1e6:.2f} M rays/s, "
-          f"{len(r.cloud) / cast_s / 1e6:.2f} M points/s (excluding BVH build)")
-    print(f"raw cast_rays on the same rays: {rays:,} rays, {raw_hits:,} hits, {raw_best:.2f} s, "
-          f"{rays / raw_best / 1e6:.2f} M rays/s")
+    print(
+        f"pipeline.scan: {r.rays_cast:,} rays, {len(r.cloud):,} points, {wall:.2f} s "
+        f"(BVH build {r.bvh_build_s:.2f} s)"
+    )
+    print(
+        f"  throughput: {r.rays_cast / cast_s / 1e6:.2f} M rays/s, "
+        f"{len(r.cloud) / cast_s / 1e6:.2f} M points/s (excluding BVH build)"
+    )
+    print(
+        f"raw cast_rays on the same rays: {rays:,} rays, {raw_hits:,} hits, {raw_best:.2f} s, "
+        f"{rays / raw_best / 1e6:.2f} M rays/s"
+    )
     print(f"ratio pipeline / raw rate: {raw_best / cast_s:.2f} (target >= 0.70)")
-    print(f"full field of view would cast {r.rays_full_fov:,} rays "
-          f"({r.rays_full_fov / r.rays_cast:.0f}x the windowed count)")
+    print(
+        f"full field of view would cast {r.rays_full_fov:,} rays "
+        f"({r.rays_full_fov / r.rays_cast:.0f}x the windowed count)"
+    )
     coarse = spec.with_(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1)
     t0 = time.perf_counter()
     rf = scan(scene, stations, coarse, window=False)
@@ -134,8 +152,10 @@ def main() -> None:
     t0 = time.perf_counter()
     rw = scan(scene, stations, coarse, window=True)
     tw = time.perf_counter() - t0
-    print(f"at 0.1°: full FOV {rf.rays_cast:,} rays {tf:.2f} s vs window {rw.rays_cast:,} rays "
-          f"{tw:.2f} s (same points: {len(rf.cloud) == len(rw.cloud)})")
+    print(
+        f"at 0.1°: full FOV {rf.rays_cast:,} rays {tf:.2f} s vs window {rw.rays_cast:,} rays "
+        f"{tw:.2f} s (same points: {len(rf.cloud) == len(rw.cloud)})"
+    )
 
     print(f"\n== peak memory at {fine}° (3 stations), fresh process each")
     code = (
@@ -149,23 +169,36 @@ def main() -> None:
     )
     rss, out = peak_rss_of(code)
     n_rays, n_pts, secs = out.split()
-    print(f"pipeline.scan: {int(n_rays):,} rays, {int(n_pts):,} points in {secs} s; "
-          f"peak RSS {rss:.2f} GiB (target < 2 GiB; unchunked would need "
-          f"~{int(n_rays) * 200 / 2**30:.1f} GiB for rays alone)")
+    print(
+        f"pipeline.scan: {int(n_rays):,} rays, {int(n_pts):,} points in {secs} s; "
+        f"peak RSS {rss:.2f} GiB (target < 2 GiB; unchunked would need "
+        f"~{int(n_rays) * 200 / 2**30:.1f} GiB for rays alone)"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         from pipeline.io.mesh import write_mesh
 
         mesh = write_mesh(Path(tmp) / "tree.ply", scene.vertices, scene.faces)
         t0 = time.perf_counter()
-        cmd = [sys.executable, "-m", "pipeline.cli", "scan", str(mesh), "-o",
-               str(Path(tmp) / "scan.laz"), "--resolution-deg", str(fine)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "pipeline.cli",
+            "scan",
+            str(mesh),
+            "-o",
+            str(Path(tmp) / "scan.laz"),
+            "--resolution-deg",
+            str(fine),
+        ]
         subprocess.run(cmd, check=True, capture_output=True, cwd=str(ROOT))
         cli_s = time.perf_counter() - t0
         usage = resource.getrusage(resource.RUSAGE_CHILDREN)
         summary = json.loads((Path(tmp) / "scan.json").read_text())
-        print(f"treesim scan (CLI, incl. start-up, load, LAZ write): {cli_s:.1f} s, "
-              f"{summary['points']:,} points; peak RSS of any child so far "
-              f"{usage.ru_maxrss / 2**20:.2f} GiB")
+        print(
+            f"treesim scan (CLI, incl. start-up, load, LAZ write): {cli_s:.1f} s, "
+            f"{summary['points']:,} points; peak RSS of any child so far "
+            f"{usage.ru_maxrss / 2**20:.2f} GiB"
+        )
 
 
 if __name__ == "__main__":

@@ -63,6 +63,7 @@ def write_mesh(
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
     os.close(fd)
+    os.chmod(tmp, 0o644)  # mkstemp makes 0600; outputs are ordinary files
     try:
         if suffix == ".ply":
             _write_ply(Path(tmp), v, f, lab)

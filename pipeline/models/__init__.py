@@ -1,4 +1,12 @@
-"""Tree models: cylinder tables (QSMs), their readers and writers, and their meshes."""
+"""Tree models: cylinder tables (QSMs), procedural trees, and their meshes.
+
+* :mod:`.cylinders`: :class:`CylinderTable`, read (TreeQSM CSV and text export,
+  SimpleForest, treesim CSV), validated, measured and written;
+* :mod:`.mesh`: tables as triangle meshes, a closed prism per cylinder or a closed,
+  mitred tube per branch (:func:`tubes_to_mesh`);
+* :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`PRESETS`) whose
+  cylinder table is the exact truth of their mesh.
+"""
 
 from __future__ import annotations
 
@@ -6,30 +14,60 @@ from .cylinders import (
     AXIS_NORM_TOLERANCE,
     CYLINDER_TAGS,
     FORMATS,
+    TREEQSM_TEXT_COLUMNS,
     TREESIM_COLUMNS,
     CylinderTable,
     read_cylinders,
     write_cylinders,
 )
 from .mesh import (
+    JOINTS,
+    TubeMesh,
     cylinder_mesh,
     cylinders_to_mesh,
     faces_per_cylinder,
     mesh_volume,
+    tubes_to_mesh,
     vertices_per_cylinder,
+)
+from .procedural import (
+    LEAF_SHAPES,
+    PRESETS,
+    SHAPES,
+    LeafParams,
+    ProceduralTree,
+    StemLevel,
+    TreeParams,
+    generate_tree,
+    preset,
+    shape_ratio,
 )
 
 __all__ = [
     "AXIS_NORM_TOLERANCE",
     "CYLINDER_TAGS",
     "FORMATS",
+    "JOINTS",
+    "LEAF_SHAPES",
+    "PRESETS",
+    "SHAPES",
+    "TREEQSM_TEXT_COLUMNS",
     "TREESIM_COLUMNS",
     "CylinderTable",
+    "LeafParams",
+    "ProceduralTree",
+    "StemLevel",
+    "TreeParams",
+    "TubeMesh",
     "cylinder_mesh",
     "cylinders_to_mesh",
     "faces_per_cylinder",
+    "generate_tree",
     "mesh_volume",
+    "preset",
     "read_cylinders",
+    "shape_ratio",
+    "tubes_to_mesh",
     "vertices_per_cylinder",
     "write_cylinders",
 ]

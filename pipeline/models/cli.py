@@ -1,18 +1,132 @@
-"""``treesim model ...`` subcommands (registered by ``pipeline.cli``)."""
+"""``treesim model ...`` subcommands (registered by ``pipeline.cli``).
+
+* ``treesim model generate --species NAME [--leaves/--no-leaves] [--seed N] [--facets N]
+  -o tree.obj``: a procedural tree as a labelled mesh (OBJ with ``wood`` and ``leaf``
+  groups, or PLY with a per-face label), plus ``tree.cylinders.csv`` (the exact cylinder
+  table, treesim's CSV) and ``tree.truth.json`` (its reference figures);
+* ``treesim model list``: the species presets with their key figures;
+* ``treesim model from-qsm TABLE -o tree.ply``: a QSM cylinder table as a mesh.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import os
 from pathlib import Path
+from typing import Any
+
+from ..errors import InputFormatError, InvalidParameterError
+
+#: Mesh suffixes ``generate`` and ``from-qsm`` write.
+MESH_SUFFIXES = (".obj", ".ply")
+
+
+def _check_output(path: Path) -> None:
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputFormatError(
+            f"{path.name}: cannot write a mesh as {path.suffix or 'no suffix'!r}; "
+            f"use one of {', '.join(MESH_SUFFIXES)}"
+        )
+
+
+def _check_facets(facets: int) -> int:
+    if facets < 3:
+        raise InvalidParameterError(
+            f"--facets must be an integer >= 3 (vertices per ring), got {facets}"
+        )
+    return facets
+
+
+def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
+    """``tree.cylinders.csv`` and ``tree.truth.json`` beside ``tree.obj``."""
+    p = Path(mesh_path)
+    return p.with_name(p.stem + ".cylinders.csv"), p.with_name(p.stem + ".truth.json")
+
+
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise InputFormatError(f"could not write {path}: {exc}") from exc
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from .. import __version__
+    from ..io.mesh import write_mesh
+    from .cylinders import write_cylinders
+    from .procedural import generate_tree, preset
+
+    out = Path(args.output)
+    _check_output(out)
+    facets = _check_facets(args.facets)
+    params = preset(args.species)
+    tree = generate_tree(params, seed=args.seed, leaves=args.leaves)
+    vertices, faces, label = tree.mesh(facets)
+    table_path, truth_path = companion_paths(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_mesh(out, vertices, faces, face_label=label)
+    write_cylinders(table_path, tree.cylinders)
+    truth = tree.truth(facets)
+    truth["files"] = {"mesh": out.name, "cylinders": table_path.name}
+    truth["generator"] = f"treesim {__version__} (Weber & Penn procedural model)"
+    _write_json(truth_path, truth)
+    dbh = truth["dbh_m"] * 100.0
+    print(
+        f"{params.name} (seed {args.seed}): DBH {dbh:.1f} cm, height {truth['height_m']:.2f} m, "
+        f"wood {truth['volume_total_m3'] * 1000:.1f} L (stem {truth['volume_stem_m3'] * 1000:.1f} "
+        f"L), {truth['n_cylinders']:,} cylinders, {truth['n_leaves']:,} leaves"
+    )
+    print(
+        f"wrote {out}: {truth['n_triangles_wood']:,} wood + {truth['n_triangles_leaf']:,} leaf "
+        f"triangles, {facets} facets per ring, wood mesh volume "
+        f"{truth['mesh_volume_wood_m3'] * 1000:.1f} L ({truth['mesh_volume_error'] * 100:+.2f} % "
+        f"vs the table)"
+    )
+    print(f"wrote {table_path} and {truth_path}")
+    return 0
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from .procedural import PRESETS, generate_tree
+
+    facets = _check_facets(args.facets)
+    header = (
+        f"{'species':13} {'DBH cm':>7} {'height m':>9} {'wood L':>8} {'stem L':>7} "
+        f"{'cylinders':>9} {'triangles':>9} {'leaves':>7}  description"
+    )
+    print(f"seed {args.seed}, {facets} facets per ring (figures of the generated trees)")
+    print(header)
+    for name, params in PRESETS.items():
+        t = generate_tree(params, seed=args.seed).truth(facets)
+        print(
+            f"{name:13} {t['dbh_m'] * 100:7.1f} {t['height_m']:9.2f} "
+            f"{t['volume_total_m3'] * 1000:8.1f} {t['volume_stem_m3'] * 1000:7.1f} "
+            f"{t['n_cylinders']:9,} {t['n_triangles']:9,} {t['n_leaves']:7,}  "
+            f"{params.description}"
+        )
+        if args.sources:
+            print(f"{'':13} source: {params.source}")
+    if not args.sources:
+        print("(--sources shows where each preset's parameters come from)")
+    return 0
 
 
 def cmd_from_qsm(args: argparse.Namespace) -> int:
     from ..io.mesh import write_mesh
     from . import cylinders_to_mesh, mesh_volume, read_cylinders
 
-    table = read_cylinders(args.table)
-    v, f = cylinders_to_mesh(table, facets=args.facets)
     out = Path(args.output)
+    _check_output(out)
+    facets = _check_facets(args.facets)
+    table = read_cylinders(args.table, format=args.format)
+    v, f = cylinders_to_mesh(table, facets=facets, joints=args.joints)
     write_mesh(out, v, f)
     s = table.summary()
     dbh = f"{s['dbh_m'] * 100:.2f} cm" if s["dbh_m"] is not None else "n/a (no stem)"
@@ -21,22 +135,79 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
         f"height {s['height_m']:.2f} m, volume {s['volume_total_m3'] * 1000:.2f} L "
         f"(stem {s['volume_stem_m3'] * 1000:.2f} L)"
     )
+    volume = mesh_volume(v, f)
+    prism = facets * math.sin(2 * math.pi / facets) / (2 * math.pi) - 1.0
     print(
-        f"wrote {out}: {len(f):,} triangles, {args.facets} facets per ring, "
-        f"enclosed volume {mesh_volume(v, f) * 1000:.2f} L"
+        f"wrote {out}: {len(f):,} triangles, {facets} facets per ring, {args.joints} joints, "
+        f"enclosed volume {volume * 1000:.2f} L "
+        f"({(volume / s['volume_total_m3'] - 1) * 100:+.2f} % vs the table; the {facets}-gon "
+        f"alone gives {prism * 100:+.2f} %)"
     )
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``model`` command and its subcommands to ``treesim``'s parser."""
-    md = sub.add_parser("model", help="tree models: QSM cylinder tables to meshes")
+    from .cylinders import FORMATS
+    from .mesh import JOINTS
+    from .procedural import PRESETS
+
+    md = sub.add_parser(
+        "model",
+        help="tree models: procedural trees, QSM cylinder tables to meshes",
+        description="Tree models with known geometry: procedural trees with their exact "
+        "cylinder tables, and meshes of QSM cylinder tables.",
+    )
     msub = md.add_subparsers(dest="model_command", metavar="SUBCOMMAND", parser_class=type(md))
+
+    gen = msub.add_parser(
+        "generate",
+        help="generate a procedural tree: mesh, cylinder table and truth figures",
+        description="Generate a procedural tree (Weber & Penn model) and write its labelled "
+        "mesh (wood and leaf parts), its exact cylinder table (OUT.cylinders.csv) and its "
+        "reference figures (OUT.truth.json).",
+    )
+    gen.add_argument(
+        "--species", required=True, metavar="NAME", help=f"preset: {', '.join(PRESETS)}"
+    )
+    gen.add_argument(
+        "--leaves",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="add leaves, or not (default: the species' own choice)",
+    )
+    gen.add_argument("--seed", type=int, default=0, help="random seed, >= 0 (default 0)")
+    gen.add_argument(
+        "--facets", type=int, default=32, help="vertices per ring of the wood (default 32)"
+    )
+    gen.add_argument("-o", "--output", required=True, metavar="tree.obj", help=".obj or .ply")
+    gen.set_defaults(func=cmd_generate)
+
+    ls = msub.add_parser(
+        "list",
+        help="list the species presets with their key figures",
+        description="Generate each species preset and list its figures.",
+    )
+    ls.add_argument("--seed", type=int, default=0, help="seed of the trees listed (default 0)")
+    ls.add_argument("--facets", type=int, default=32, help="vertices per ring for triangle counts")
+    ls.add_argument("--sources", action="store_true", help="show where parameters come from")
+    ls.set_defaults(func=cmd_list)
+
     fq = msub.add_parser(
-        "from-qsm", help="mesh a QSM cylinder table (TreeQSM, SimpleForest, treesim CSV)"
+        "from-qsm",
+        help="mesh a QSM cylinder table (TreeQSM CSV or text, SimpleForest, treesim CSV)",
+        description="Mesh a QSM cylinder table, labelled wood.",
     )
     fq.add_argument("table", metavar="TABLE")
-    fq.add_argument("-o", "--output", required=True, metavar="tree.ply")
+    fq.add_argument("-o", "--output", required=True, metavar="tree.ply", help=".ply or .obj")
     fq.add_argument("--facets", type=int, default=32, help="facets per cylinder ring (default 32)")
+    fq.add_argument(
+        "--joints",
+        choices=JOINTS,
+        default="miter",
+        help="miter: one crack-free tube per branch (default); separate: a closed prism "
+        "per cylinder",
+    )
+    fq.add_argument("--format", choices=FORMATS, help="table format (default: detected)")
     fq.set_defaults(func=cmd_from_qsm)
     md.set_defaults(func=lambda a: (md.print_help(), 2)[1])

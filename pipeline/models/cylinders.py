@@ -10,7 +10,12 @@ reads / writes the table formats treesim meets:
 * ``"simpleforest"``: SimpleForest's table (``ID, parentID, startX, ..., endZ, radius, ...``),
   cylinders given by their end points and linked by ``ID``;
 * ``"treesim"``: treesim's own table, TreeQSM's column order plus ``end_radius`` and
-  ``tag`` (written by :func:`write_cylinders`, exact on round-trip).
+  ``tag`` (written by :func:`write_cylinders`, exact on round-trip);
+* ``"treeqsm-txt"``: TreeQSM's text export (``save_model_text``): tab-separated
+  ``cylinder_NAME.txt`` of TreeQSM 2.4 (a 13-name header over 17 columns: radius,
+  length, start (3), axis (3), parent, extension, branch, branch order, position in
+  branch, mad, SurfCov, added, UnmodRadius) or the headerless ``cyl_data_NAME.txt`` of
+  TreeQSM 2.3 (15 columns: the same without mad and SurfCov), values rounded to 0.1 mm.
 
 Rows are numbered from 1 in messages, counting data rows after the header: the row a
 TreeQSM ``parent`` entry refers to, and the line number minus one in a file without blank
@@ -38,7 +43,48 @@ CYLINDER_TAGS: tuple[str, ...] = ("measured", "interpolated", "modelled")
 AXIS_NORM_TOLERANCE: float = 1e-4
 
 #: Table formats :func:`read_cylinders` understands.
-FORMATS: tuple[str, ...] = ("treeqsm", "simpleforest", "treesim")
+FORMATS: tuple[str, ...] = ("treeqsm", "treeqsm-txt", "simpleforest", "treesim")
+
+#: Columns of TreeQSM's text export by column count (``save_model_text`` 1.1.0 of TreeQSM
+#: 2.4 writes 17, version 1.0.0 of TreeQSM 2.3 wrote 15); parent and extension 1-based.
+TREEQSM_TEXT_COLUMNS: dict[int, tuple[str, ...]] = {
+    17: (
+        "radius",
+        "length",
+        "start_x",
+        "start_y",
+        "start_z",
+        "axis_x",
+        "axis_y",
+        "axis_z",
+        "parent",
+        "extension",
+        "branch",
+        "branch_order",
+        "position_in_branch",
+        "mad",
+        "surf_cov",
+        "added",
+        "unmod_radius",
+    ),
+    15: (
+        "radius",
+        "length",
+        "start_x",
+        "start_y",
+        "start_z",
+        "axis_x",
+        "axis_y",
+        "axis_z",
+        "parent",
+        "extension",
+        "branch",
+        "branch_order",
+        "position_in_branch",
+        "added",
+        "unmod_radius",
+    ),
+}
 
 #: treesim's CSV columns, in order (TreeQSM's order, then ``end_radius`` and ``tag``).
 TREESIM_COLUMNS: tuple[str, ...] = (
@@ -791,17 +837,79 @@ def _read_simpleforest(cols: _Columns) -> CylinderTable:
     )
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _sniff_treeqsm_text(path: Path) -> bool:
+    """Whether the file looks like TreeQSM's text export (see :data:`TREEQSM_TEXT_COLUMNS`)."""
+    try:
+        with path.open(encoding="utf-8-sig", errors="replace") as fh:
+            first = fh.readline().strip()
+    except OSError:
+        return False  # reported by the reader
+    if first.lower().startswith("radius (m)"):
+        return True
+    fields = first.split()
+    return (
+        "," not in first
+        and ";" not in first
+        and len(fields) in TREEQSM_TEXT_COLUMNS
+        and all(_is_number(x) for x in fields)
+    )
+
+
+def _read_treeqsm_text(path: Path) -> CylinderTable:
+    """TreeQSM's ``save_model_text`` output as a table (not yet validated)."""
+    try:
+        with path.open(encoding="utf-8-sig") as fh:
+            lines = [line.split() for line in fh if line.strip()]
+    except FileNotFoundError as exc:
+        raise InputFormatError(f"cylinder table not found: {path}; check the path") from exc
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(
+            f"{path}: not a text file ({exc.reason}); give a TreeQSM text export"
+        ) from exc
+    except OSError as exc:
+        raise InputFormatError(f"{path}: cannot read the cylinder table: {exc}") from exc
+    if not lines:
+        raise InputFormatError(f"{path}: the file is empty; expected a TreeQSM text export")
+    if not all(_is_number(x) for x in lines[0]):
+        lines = lines[1:]  # the header: names with units, fewer than the columns
+    if not lines:
+        raise EmptyInputError(f"{path}: the TreeQSM text export has a header but no rows")
+    width = len(lines[0])
+    if width not in TREEQSM_TEXT_COLUMNS:
+        counts = " or ".join(str(k) for k in TREEQSM_TEXT_COLUMNS)
+        raise InputFormatError(
+            f"{path}: row 1 has {width} columns; TreeQSM's text export has {counts}"
+        )
+    for i, r in enumerate(lines):
+        if len(r) != width:
+            raise InputFormatError(
+                f"{path}: row {i + 1} has {len(r)} columns but row 1 has {width}; fix the row"
+            )
+    cols = _Columns(path, list(TREEQSM_TEXT_COLUMNS[width]), lines)
+    return _read_treeqsm(cols, "treeqsm")
+
+
 def read_cylinders(path: str | Path, format: str | None = None) -> CylinderTable:
-    """Read and validate a cylinder table from a CSV file.
+    """Read and validate a cylinder table from a CSV (or TreeQSM text) file.
 
     Parameters
     ----------
     path : str or Path
         The CSV file.
-    format : {"treeqsm", "simpleforest", "treesim"}, optional
+    format : {"treeqsm", "treeqsm-txt", "simpleforest", "treesim"}, optional
         The table's format; detected from the header when not given: SimpleForest's
         header has ``ID, parentID, startX, ...``; treesim's is TreeQSM's with
-        ``end_radius`` and ``tag``; TreeQSM's has ``radius, length, start_x, ...``.
+        ``end_radius`` and ``tag``; TreeQSM's has ``radius, length, start_x, ...``;
+        TreeQSM's text export starts with ``radius (m)`` or has no header and 15 or 17
+        whitespace-separated numbers per row.
         Extra columns (TreeQSM's ``surf_cov``, ``mad``; SimpleForest's
         ``growthLength``, ...) are ignored.
 
@@ -826,6 +934,10 @@ def read_cylinders(path: str | Path, format: str | None = None) -> CylinderTable
         :meth:`CylinderTable.validate`); the message names the 1-based data row.
     """
     path = Path(path)
+    if format is not None and format not in FORMATS:
+        raise InvalidParameterError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
+    if format == "treeqsm-txt" or (format is None and _sniff_treeqsm_text(path)):
+        return _read_treeqsm_text(path).validate(source=str(path))
     header, rows = _read_csv(path)
     detected = _detect_format(header)
     if format is None:
@@ -836,8 +948,6 @@ def read_cylinders(path: str | Path, format: str | None = None) -> CylinderTable
                 "(ID, parentID, startX, ...) or treesim's own CSV, or pass format="
             )
         format = detected
-    if format not in FORMATS:
-        raise InvalidParameterError(f"format must be one of {', '.join(FORMATS)}, got {format!r}")
     cols = _Columns(path, header, rows)
     if format == "simpleforest":
         table = _read_simpleforest(cols)

@@ -1,4 +1,4 @@
-"""Shared fixtures for the tree-model tests: the coffee tree's QSM tables."""
+"""Shared fixtures for the tree-model tests: the coffee tree's QSM tables, the presets."""
 
 from __future__ import annotations
 
@@ -26,3 +26,11 @@ def treeqsm_csv() -> Path:
 def simpleforest_csv() -> Path:
     """The coffee tree's SimpleForest cylinder table."""
     return _need(COFFEE / "QSM_simpleforest.csv")
+
+
+@pytest.fixture(scope="session")
+def preset_trees():
+    """Every species preset generated with seed 0 (and its default leaves), generated once."""
+    from pipeline.models import PRESETS, generate_tree
+
+    return {name: generate_tree(name, seed=0) for name in PRESETS}
