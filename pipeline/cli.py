@@ -347,9 +347,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .models.cli import register as register_model
     from .reconstruct.cli import register as register_reconstruct
+    from .report.cli import register as register_report
 
     register_model(sub)
     register_reconstruct(sub)
+    register_report(sub)
 
     dm = sub.add_parser("demo", help="run the main job on the bundled sample tree")
     dm.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")

@@ -1,0 +1,197 @@
+"""Reports of a comparison: ``report.json``, PNG plots and one offline HTML page.
+
+``build_report(source, outdir)`` takes a :class:`~pipeline.compare.Comparison` or the
+folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
+
+* ``report.json``: the figures, the parameters, the plain-language summary and the
+  software versions;
+* ``histograms.png``, ``cumulative.png``: the distance distributions of both directions;
+* ``views_accuracy.png``, ``views_completeness.png``: side and top views of the cloud and
+  of the reference samples coloured by distance;
+* ``coverage.png``: coverage by station (and by hit label);
+* ``report.html``: all of it in one self-contained page (images and data inline, no
+  external resources), with an interactive 3D view of a subsample.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from ..compare import Comparison, _json_ready, software_versions
+from ..errors import InvalidParameterError
+from . import figures
+from .data import ReportData
+from .html import build_html
+from .text import summary_paragraph
+
+__all__ = ["PNG_FILES", "ReportData", "ReportParams", "build_report", "summary_paragraph"]
+
+#: The PNG files a report writes, by key.
+PNG_FILES = {
+    "histograms": "histograms.png",
+    "cumulative": "cumulative.png",
+    "views_accuracy": "views_accuracy.png",
+    "views_completeness": "views_completeness.png",
+    "coverage": "coverage.png",
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReportParams:
+    """How a report is drawn.
+
+    Parameters
+    ----------
+    max_view_points : int
+        Points per data set in the HTML page's 3D view (random subsample, seeded).
+    max_plot_points : int
+        Points per PNG view (random subsample, seeded).
+    seed : int
+        Seed of the subsamples.
+    dpi : int
+        Resolution of the PNG plots.
+    """
+
+    max_view_points: int = 40_000
+    max_plot_points: int = 120_000
+    seed: int = 0
+    dpi: int = 130
+
+    def __post_init__(self) -> None:
+        for name in ("max_view_points", "max_plot_points", "dpi"):
+            if int(getattr(self, name)) < 1:
+                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+def build_report(
+    source: Comparison | ReportData | str | Path,
+    outdir: str | Path | None = None,
+    *,
+    params: ReportParams | None = None,
+    inputs: dict[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Write ``report.json``, the PNG plots and ``report.html``.
+
+    Parameters
+    ----------
+    source : Comparison, ReportData, or path
+        A comparison in memory, or the folder / ``comparison.json`` written by
+        ``treesim compare`` (its distance clouds must sit beside it).
+    outdir : str or Path, optional
+        Where to write; default the folder of ``comparison.json`` (required for an
+        in-memory comparison).
+    params : ReportParams, optional
+    inputs : dict, optional
+        For an in-memory comparison: input facts to show (``cloud``, ``reference`` paths).
+
+    Returns
+    -------
+    dict of str -> Path
+        ``report_json``, ``report_html`` and one entry per PNG (see :data:`PNG_FILES`).
+    """
+    params = params or ReportParams()
+    if isinstance(source, Comparison):
+        data = ReportData.from_comparison(source, inputs=inputs)
+    elif isinstance(source, ReportData):
+        data = source
+    else:
+        data = ReportData.from_file(source)
+    if outdir is None:
+        if data.source_dir is None:
+            raise InvalidParameterError("give outdir for a comparison held in memory")
+        outdir = data.source_dir
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    s = data.summary
+    s.setdefault("report_software", {})
+    s["report_software"] = {"matplotlib": software_versions("matplotlib")["matplotlib"]}
+
+    pngs = {key: out / name for key, name in PNG_FILES.items()}
+    figures.histograms(data, pngs["histograms"], dpi=params.dpi)
+    figures.cumulative(data, pngs["cumulative"], dpi=params.dpi)
+    ref_word = figures._ref_word(s)
+    stations = [
+        (int(st["index"]), st["position_m"])
+        for st in ((s.get("inputs") or {}).get("scan") or {}).get("stations", []) or []
+        if "index" in st and "position_m" in st
+    ]
+    figures.views(
+        data.cloud_points,
+        data.cloud_distance_m,
+        figures.accuracy_colour_limit(s),
+        pngs["views_accuracy"],
+        title=f"Cloud coloured by distance to the {ref_word} (accuracy)",
+        colour_label=f"distance to the {ref_word}",
+        origin=data.origin,
+        max_points=params.max_plot_points,
+        seed=params.seed,
+        dpi=params.dpi,
+    )
+    figures.views(
+        data.reference_points,
+        data.reference_distance_m,
+        figures.completeness_colour_limit(s),
+        pngs["views_completeness"],
+        title=f"{ref_word.capitalize()} coloured by distance to the cloud (completeness)",
+        colour_label="distance to the cloud",
+        origin=data.origin,
+        stations=stations or None,
+        tau_m=float(s["tolerance_m"]),
+        max_points=params.max_plot_points,
+        seed=params.seed + 1,
+        dpi=params.dpi,
+    )
+    figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
+
+    paragraph = summary_paragraph(s)
+    generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    page = build_html(
+        data,
+        pngs,
+        paragraph,
+        generated=generated,
+        max_view_points=params.max_view_points,
+        seed=params.seed,
+        dpi=params.dpi,
+    )
+    html_path = out / "report.html"
+    _write_text(html_path, page)
+
+    figures_keys = (
+        "accuracy",
+        "completeness",
+        "hausdorff_m",
+        "chamfer_m",
+        "tolerance_m",
+        "coverage",
+        "point_spacing_m",
+        "cloud",
+        "reference",
+        "by_label",
+        "by_station",
+    )
+    report = {
+        "kind": "treesim.report",
+        "generated": generated,
+        "summary": paragraph,
+        "figures": {k: s[k] for k in figures_keys if k in s},
+        "parameters": {**s.get("parameters", {}), "report": asdict(params)},
+        "inputs": s.get("inputs", {}),
+        "definitions": s.get("definitions", {}),
+        "software": {**s.get("software", {}), **s["report_software"]},
+        "files": {"report_html": html_path.name, **{k: p.name for k, p in pngs.items()}},
+    }
+    json_path = out / "report.json"
+    _write_text(json_path, json.dumps(_json_ready(report), indent=2, allow_nan=False) + "\n")
+    return {"report_json": json_path, "report_html": html_path, **pngs}
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)

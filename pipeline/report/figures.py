@@ -1,0 +1,389 @@
+"""The report's PNG plots, drawn with matplotlib's object API on the Agg canvas.
+
+No pyplot and no global backend switch: every figure is a ``matplotlib.figure.Figure``
+with its own ``FigureCanvasAgg``, so drawing a report never disturbs a caller's
+interactive session and works without a display.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .data import ReportData
+
+#: Colours of the two directions, used by every plot and by the HTML page.
+ACCURACY_COLOUR = "#2c6e9b"
+COMPLETENESS_COLOUR = "#c2612d"
+LABEL_COLOURS = {"wood": "#8a5a34", "leaf": "#4f8a3a", "ground": "#8c8170", "other": "#7b8794"}
+#: Viridis without its palest yellow, which vanishes on white.
+CMAP_RANGE = (0.0, 0.92)
+
+_RC = {
+    "font.size": 9.5,
+    "axes.titlesize": 10.5,
+    "axes.titleweight": "bold",
+    "axes.titlelocation": "left",
+    "axes.labelsize": 9.5,
+    "axes.labelcolor": "#333b45",
+    "axes.edgecolor": "#9aa5b1",
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "axes.grid": True,
+    "grid.color": "#e4e7eb",
+    "grid.linewidth": 0.8,
+    "xtick.color": "#52606d",
+    "ytick.color": "#52606d",
+    "legend.frameon": False,
+    "figure.facecolor": "white",
+    "savefig.facecolor": "white",
+}
+
+
+def cmap() -> Any:
+    """The distance colour map (viridis truncated to :data:`CMAP_RANGE`)."""
+    from matplotlib import colormaps
+    from matplotlib.colors import ListedColormap
+
+    base = colormaps["viridis"]
+    return ListedColormap(base(np.linspace(*CMAP_RANGE, 256)), name="treesim_distance")
+
+
+def unit_for(extent_m: float) -> tuple[str, float]:
+    """A readable unit for axes spanning ``extent_m``: (name, metres -> unit factor)."""
+    if extent_m >= 2.0:
+        return "m", 1.0
+    if extent_m >= 2e-3:
+        return "mm", 1e3
+    if extent_m >= 2e-6:
+        return "µm", 1e6
+    return "nm", 1e9
+
+
+def accuracy_colour_limit(summary: dict[str, Any]) -> float:
+    """Top of the accuracy colour scale (m): the p99 distance, at least 0.1 mm."""
+    return max(float(summary["accuracy"]["p99_m"] or 0.0), 1e-4)
+
+
+def completeness_colour_limit(summary: dict[str, Any]) -> float:
+    """Top of the completeness colour scale (m): the p95 distance, at least τ."""
+    return max(float(summary["completeness"]["p95_m"] or 0.0), float(summary["tolerance_m"]))
+
+
+def _num(x: float) -> str:
+    """A figure for a legend: 3 significant digits, and 0 for round-off (< 0.0005)."""
+    return "0" if abs(x) < 5e-4 else f"{x:.3g}"
+
+
+def _new_figure(w: float, h: float) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w, h), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: Path, dpi: int) -> Path:
+    fig.savefig(path, dpi=dpi, metadata={"Software": None})
+    return path
+
+
+def _ref_word(summary: dict[str, Any]) -> str:
+    return "mesh" if summary.get("reference", {}).get("kind", "mesh") == "mesh" else "reference"
+
+
+def histograms(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
+    """Distance histograms, one panel per direction, as shares (%) of the points."""
+    import matplotlib
+
+    s = data.summary
+    tau = float(s["tolerance_m"])
+    ref = _ref_word(s)
+    panels = [
+        (
+            f"Accuracy: cloud → {ref}",
+            data.cloud_distance_m,
+            s["accuracy"],
+            ACCURACY_COLOUR,
+            "share of cloud points (%)",
+        ),
+        (
+            f"Completeness: {ref} → cloud",
+            data.reference_distance_m,
+            s["completeness"],
+            COMPLETENESS_COLOUR,
+            f"share of {ref} samples (%)",
+        ),
+    ]
+    with matplotlib.rc_context(_RC):
+        fig = _new_figure(11.0, 3.7)
+        axes = fig.subplots(1, 2)
+        for ax, (title, d, st, colour, ylabel) in zip(axes, panels, strict=True):
+            d = np.asarray(d, dtype=np.float64)
+            top = float(st["p99_m"] or 0.0)
+            xmax = top * 1.15 if top > 0 else max(float(st["max_m"] or 0.0), 1e-12)
+            unit, k = unit_for(xmax)
+            bins = np.linspace(0.0, xmax * k, 61)
+            shown = d[d <= xmax]
+            ax.hist(
+                shown * k,
+                bins=bins,
+                weights=np.full(len(shown), 100.0 / max(len(d), 1)),
+                color=colour,
+                alpha=0.85,
+                edgecolor="white",
+                linewidth=0.3,
+            )
+            for q, name, ls in ((st["median_m"], "median", ":"), (st["p95_m"], "p95", "--")):
+                if q is not None and q <= xmax:
+                    ax.axvline(q * k, color="#323f4b", lw=1.0, ls=ls, label=f"{name} {_num(q * k)}")
+            if tau <= xmax:
+                ax.axvline(tau * k, color="#b83232", lw=1.2, ls="-", label=f"τ {_num(tau * k)}")
+            ax.set_xlim(0, xmax * k)
+            ax.set_xlabel(f"distance ({unit})")
+            ax.set_ylabel(ylabel)
+            beyond = int((d > xmax).sum())
+            note = f"n = {len(d):,}"
+            if beyond:
+                note += f"; {beyond:,} beyond the axis (up to {float(st['max_m']) * k:.3g} {unit})"
+            ax.set_title(f"{title}\n", loc="left")
+            ax.text(0, 1.02, note, transform=ax.transAxes, fontsize=8.5, color="#616e7c")
+            ax.legend(title=unit, fontsize=8, title_fontsize=8, loc="upper right")
+        return _save(fig, path, dpi)
+
+
+def cumulative(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
+    """Cumulative distance curves of both directions, with τ and the coverage marked."""
+    import matplotlib
+
+    s = data.summary
+    tau = float(s["tolerance_m"])
+    ref = _ref_word(s)
+    tops = [float(s[k]["p99_m"] or 0.0) for k in ("accuracy", "completeness")]
+    xmax = max(max(tops) * 1.05, 2.0 * tau)
+    unit, k = unit_for(xmax)
+    probs = np.linspace(0.0, 1.0, 1001)
+    with matplotlib.rc_context(_RC):
+        fig = _new_figure(11.0, 3.9)
+        ax = fig.subplots()
+        for name, d, colour in (
+            (f"accuracy (cloud → {ref})", data.cloud_distance_m, ACCURACY_COLOUR),
+            (f"completeness ({ref} → cloud)", data.reference_distance_m, COMPLETENESS_COLOUR),
+        ):
+            q = np.quantile(np.asarray(d, dtype=np.float64), probs)
+            xs = np.concatenate([[0.0], q, [max(q[-1], xmax)]]) * k
+            ys = np.concatenate([[0.0], probs, [1.0]]) * 100
+            lines = ax.step(xs, ys, where="post", color=colour, lw=2.0)
+            within = float((np.asarray(d) <= tau).mean())
+            ax.plot([tau * k], [within * 100], "o", color=colour, ms=6, zorder=5)
+            lines[-1].set_label(f"{name}: {within * 100:.1f} % within τ")
+        ax.axvline(tau * k, color="#b83232", lw=1.2, label=f"τ = {tau * k:.3g} {unit}")
+        ax.set_xlim(0, xmax * k)
+        ax.set_ylim(0, 101)
+        ax.set_xlabel(f"distance ({unit})")
+        ax.set_ylabel("share within distance (%)")
+        ax.set_title("Cumulative distance distributions")
+        ax.legend(loc="lower right")
+        return _save(fig, path, dpi)
+
+
+def _subsample(n: int, cap: int, seed: int) -> np.ndarray:
+    if n <= cap:
+        return np.arange(n)
+    return np.sort(np.random.default_rng(seed).choice(n, size=cap, replace=False))
+
+
+def views(
+    points: np.ndarray,
+    distance_m: np.ndarray,
+    vmax_m: float,
+    path: Path,
+    *,
+    title: str,
+    colour_label: str,
+    origin: np.ndarray,
+    stations: list[tuple[int, np.ndarray]] | None = None,
+    tau_m: float | None = None,
+    max_points: int = 120_000,
+    seed: int = 0,
+    dpi: int = 130,
+) -> Path:
+    """Side (x-z, y-z) and top (x-y) views of points coloured by distance.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    distance_m : (n,) float64
+    vmax_m : float
+        Top of the colour scale; larger distances take the top colour.
+    origin : (3,) float64
+        Subtracted from the coordinates for display (axes say so).
+    stations : list of (index, (3,) float64), optional
+        Scanner positions drawn in the top view.
+    """
+    import matplotlib
+    from matplotlib.colors import Normalize
+
+    idx = _subsample(len(points), max_points, seed)
+    p = np.asarray(points, dtype=np.float64)[idx] - origin
+    d = np.asarray(distance_m, dtype=np.float64)[idx]
+    order = np.argsort(d, kind="stable")  # largest distances drawn last, on top
+    p, d = p[order], d[order]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    ext = np.maximum(hi - lo, 1e-6 + 1e-3 * float((hi - lo).max()))
+    top_ext = ext[:2]
+    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], top_ext[0] / top_ext[1]], 0.35, 3.0)
+    panel_h = 4.6
+    width = float(ratios.sum() * panel_h + 1.4)
+    if width > 13.0:
+        panel_h *= 13.0 / width
+        width = 13.0
+    unit, k = unit_for(vmax_m)
+    norm = Normalize(0.0, vmax_m * k)
+    size = float(np.clip(25_000 / max(len(p), 1), 0.15, 6.0))
+    offs = "" if not np.any(origin) else " − origin"
+    with matplotlib.rc_context({**_RC, "axes.grid": False}):
+        fig = _new_figure(width, panel_h + 0.9)
+        axes = fig.subplots(1, 3, width_ratios=list(ratios))
+        specs = (
+            (0, 2, "side view (looking along +y)", "x", "z"),
+            (1, 2, "side view (looking along −x)", "y", "z"),
+            (0, 1, "top view", "x", "y"),
+        )
+        sc = None
+        for ax, (i, j, name, xl, yl) in zip(axes, specs, strict=True):
+            sc = ax.scatter(
+                p[:, i],
+                p[:, j],
+                c=d * k,
+                s=size,
+                cmap=cmap(),
+                norm=norm,
+                linewidths=0,
+                rasterized=True,
+            )
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_xlabel(f"{xl}{offs} (m)")
+            ax.set_ylabel(f"{yl}{offs} (m)")
+            ax.set_title(name, fontsize=9.5, fontweight="normal", color="#52606d")
+            for spine in ax.spines.values():
+                spine.set_visible(True)
+                spine.set_color("#cbd2d9")
+        if stations:
+            _draw_stations(axes[2], stations, origin, lo[:2], hi[:2])
+        assert sc is not None
+        cb = fig.colorbar(sc, ax=list(axes), extend="max", shrink=0.85, pad=0.01, aspect=30)
+        cb.set_label(f"{colour_label} ({unit})")
+        if tau_m is not None and tau_m <= vmax_m:
+            cb.ax.axhline(tau_m * k, color="#b83232", lw=2.0)
+            cb.ax.text(
+                -0.3,
+                tau_m * k,
+                "τ",
+                transform=cb.ax.get_yaxis_transform(),
+                ha="right",
+                va="center",
+                color="#b83232",
+                fontsize=9,
+                fontweight="bold",
+            )
+        if np.any(origin):
+            title += " · origin = ({:,.3f}, {:,.3f}, {:,.3f}) m".format(*origin)
+        fig.suptitle(title, x=0.01, ha="left", fontsize=10.5, fontweight="bold")
+        return _save(fig, path, dpi)
+
+
+def _draw_stations(
+    ax: Any,
+    stations: list[tuple[int, np.ndarray]],
+    origin: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> None:
+    """Stations in a top view without zooming out: those outside the data's box are shown
+    as a sight line from the centre to the box's edge, labelled with their distance."""
+    margin = 0.06 * float((hi - lo).max())
+    blo, bhi = lo - margin, hi + margin
+    centre = 0.5 * (lo + hi)
+    for s_idx, pos in stations:
+        q = np.asarray(pos, dtype=np.float64)[:2] - origin[:2]
+        rel = q - centre
+        dist = float(np.hypot(*rel))
+        if np.all(q >= blo) and np.all(q <= bhi):
+            end, label = q, f"S{s_idx}"
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(rel > 0, (bhi - centre) / rel, (blo - centre) / rel)
+            t = float(np.nanmin(np.where(np.isfinite(t) & (t > 0), t, np.inf)))
+            end = centre + 0.97 * t * rel
+            label = f"S{s_idx} · {dist:.1f} m"
+            ax.plot(
+                [centre[0], end[0]],
+                [centre[1], end[1]],
+                color="#7b8794",
+                lw=0.8,
+                ls=(0, (4, 3)),
+                zorder=0,
+            )
+        ax.plot(end[0], end[1], marker="^", color="#1f2933", ms=7, ls="none", zorder=6)
+        ax.annotate(
+            label,
+            (end[0], end[1]),
+            xytext=(0, 7),
+            textcoords="offset points",
+            ha="center",
+            fontsize=8,
+            color="#1f2933",
+            zorder=6,
+        )
+
+
+def coverage_bars(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
+    """Coverage of the reference (% within τ) by all stations and by each station alone;
+    a second panel per hit label when the reference carries labels."""
+    import matplotlib
+
+    s = data.summary
+    tau = float(s["tolerance_m"])
+    ref = _ref_word(s)
+    stations = s.get("by_station", {})
+    labels = {k: v for k, v in s.get("by_label", {}).items() if v.get("coverage") is not None}
+    if len(labels) < 2:
+        labels = {}
+    unit, k = unit_for(tau)
+    with matplotlib.rc_context(_RC):
+        n_panels = 2 if labels else 1
+        width = 3.2 + 0.55 * (len(stations) + 1) + (2.0 + 0.6 * len(labels) if labels else 0.0)
+        fig = _new_figure(min(max(width, 5.5), 11.0), 3.6)
+        axes = np.atleast_1d(fig.subplots(1, n_panels, width_ratios=None))
+        names = ["all"] + [f"S{key}" for key in stations]
+        values = [s["coverage"]] + [v["coverage"] for v in stations.values()]
+        colours = ["#1f2933"] + [COMPLETENESS_COLOUR] * len(stations)
+        ax = axes[0]
+        bars = ax.bar(names, np.array(values) * 100, color=colours, width=0.65)
+        ax.bar_label(bars, labels=[f"{v * 100:.1f}" for v in values], padding=2, fontsize=8.5)
+        ax.set_ylim(0, 109)
+        ax.set_ylabel(f"{ref} within τ of the cloud (%)")
+        ax.set_xlabel("station (all: every station together)" if stations else "")
+        ax.set_title(f"Coverage by station (τ = {tau * k:.3g} {unit})")
+        ax.grid(axis="x", visible=False)
+        if labels:
+            ax = axes[1]
+            lnames = list(labels)
+            lvals = [labels[n]["coverage"] for n in lnames]
+            bars = ax.bar(
+                lnames,
+                np.array(lvals) * 100,
+                color=[LABEL_COLOURS.get(n, "#7b8794") for n in lnames],
+                width=0.6,
+            )
+            ax.bar_label(bars, labels=[f"{v * 100:.1f}" for v in lvals], padding=2, fontsize=8.5)
+            ax.set_ylim(0, 109)
+            ax.set_ylabel(f"{ref} part within τ (%)")
+            ax.set_xlabel("hit label")
+            ax.set_title("Coverage by part")
+            ax.grid(axis="x", visible=False)
+        return _save(fig, path, dpi)

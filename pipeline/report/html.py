@@ -1,0 +1,407 @@
+"""The self-contained HTML page: summary, figures, tables, plots and a 3D view, offline."""
+
+from __future__ import annotations
+
+import base64
+import json
+from html import escape
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import assets, figures
+from .data import ReportData
+from .text import length, mm, percent
+
+
+def _b64(data: bytes) -> str:
+    return base64.b64encode(data).decode("ascii")
+
+
+#: Width (inches) of a full-width plot; narrower plots are shown at the same scale.
+FULL_WIDTH_IN = 11.0
+
+
+def _img(path: Path, alt: str, dpi: int) -> str:
+    raw = path.read_bytes()
+    full = FULL_WIDTH_IN * dpi
+    width_px = int.from_bytes(raw[16:20], "big") if raw[12:16] == b"IHDR" else full
+    share = min(100.0, 100.0 * width_px / full)
+    return (
+        f'<img src="data:image/png;base64,{_b64(raw)}" alt="{escape(alt)}" '
+        f'style="width: {share:.1f}%">'
+    )
+
+
+def _json_script(obj: Any) -> str:
+    """JSON safe to place inside a ``<script>`` element."""
+    text = json.dumps(obj, separators=(",", ":"), allow_nan=False)
+    return text.replace("</", "<\\/").replace("<!--", "<\\!--")
+
+
+def viewer_payload(data: ReportData, *, max_points: int = 40_000, seed: int = 0) -> dict[str, Any]:
+    """The 3D viewer's data: subsampled points quantised to 16 bits per axis in the common
+    bounding box, colour indices (0-255) into a 256-entry colour table, and legends."""
+    from matplotlib.colors import Normalize  # noqa: F401  (matplotlib present: figures need it)
+
+    s = data.summary
+    ref_word = figures._ref_word(s)
+    lut = (figures.cmap()(np.linspace(0, 1, 256))[:, :3] * 255).round().astype(np.uint8)
+    sets = [
+        (
+            "accuracy",
+            f"Cloud → {ref_word}",
+            data.cloud_points,
+            data.cloud_distance_m,
+            figures.accuracy_colour_limit(s),
+            f"distance to the {ref_word}",
+            None,
+        ),
+        (
+            "completeness",
+            f"{ref_word.capitalize()} → cloud",
+            data.reference_points,
+            data.reference_distance_m,
+            figures.completeness_colour_limit(s),
+            "distance to the cloud",
+            float(s["tolerance_m"]),
+        ),
+    ]
+    picked = []
+    for i, (_, _, pts, _, _, _, _) in enumerate(sets):
+        idx = figures._subsample(len(pts), max_points, seed + i)
+        picked.append(idx)
+    allp = np.concatenate([sets[i][2][picked[i]] for i in range(2)])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    size = np.maximum(hi - lo, 1e-9)
+    out = []
+    for (key, name, pts, dist, vmax, clabel, tau), idx in zip(sets, picked, strict=True):
+        q = np.round((pts[idx] - lo) / size * 65535).clip(0, 65535).astype("<u2")
+        c = np.round(np.clip(dist[idx] / vmax, 0, 1) * 255).astype(np.uint8)
+        unit, k = figures.unit_for(vmax)
+        out.append(
+            {
+                "key": key,
+                "name": name,
+                "n": int(len(idx)),
+                "pos": _b64(q.tobytes()),
+                "col": _b64(c.tobytes()),
+                "vmax": vmax * k,
+                "unit": unit,
+                "tau": None if tau is None else tau * k,
+                "colour_label": f"{clabel} ({unit})",
+                "caption": f"{len(idx):,} of {len(pts):,} points"
+                + (" (random subsample)" if len(idx) < len(pts) else ""),
+            }
+        )
+    return {"datasets": out, "lut": _b64(lut.tobytes()), "bbox_size_m": size.tolist()}
+
+
+def _stats_rows(s: dict[str, Any], ref_word: str) -> str:
+    rows = []
+    for key, cls, title in (
+        ("accuracy", "acc", f"Accuracy (cloud → {ref_word})"),
+        ("completeness", "comp", f"Completeness ({ref_word} → cloud)"),
+    ):
+        st = s[key]
+        cells = "".join(
+            f'<td class="n">{mm(st[f])}</td>'
+            for f in ("mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")
+        )
+        rows.append(
+            f'<tr><td><span class="dot {cls}"></span>{escape(title)}</td>'
+            f'<td class="n">{st["n"]:,}</td>{cells}</tr>'
+        )
+    return "\n".join(rows)
+
+
+_STATS_HEAD = (
+    '<tr><th>direction</th><th class="n">n</th><th class="n">mean</th><th class="n">RMS</th>'
+    '<th class="n">median</th><th class="n">p95</th><th class="n">p99</th>'
+    '<th class="n">max</th></tr>'
+)
+
+
+def _label_table(s: dict[str, Any]) -> str:
+    by = s.get("by_label") or {}
+    if not by:
+        return ""
+    rows = []
+    for name, e in by.items():
+        acc = e.get("accuracy")
+        comp = e.get("completeness")
+        cells = [
+            f"{acc['n']:,}" if acc else "–",
+            mm(acc["mean_m"]) if acc else "–",
+            mm(acc["p95_m"]) if acc else "–",
+            mm(acc["max_m"]) if acc else "–",
+            f"{comp['n']:,}" if comp else "–",
+            mm(comp["mean_m"]) if comp else "–",
+            percent(e.get("coverage")) if comp else "–",
+        ]
+        rows.append(
+            f"<tr><td>{escape(name)}</td>"
+            + "".join(f'<td class="n">{c}</td>' for c in cells)
+            + "</tr>"
+        )
+    return (
+        "<h3>By hit label</h3>"
+        '<p class="lead">Accuracy of the cloud points with each label; completeness and '
+        "coverage of the reference samples with that label (to the whole cloud). "
+        "Distances in mm.</p>"
+        '<div class="scroll"><table><thead><tr><th>label</th><th class="n">points</th>'
+        '<th class="n">acc. mean</th><th class="n">acc. p95</th><th class="n">acc. max</th>'
+        '<th class="n">ref. samples</th><th class="n">compl. mean</th>'
+        '<th class="n">coverage</th></tr></thead><tbody>' + "".join(rows) + "</tbody></table></div>"
+    )
+
+
+def _station_table(s: dict[str, Any], stations_pos: dict[str, list[float]]) -> str:
+    by = s.get("by_station") or {}
+    if not by:
+        return ""
+    rows = []
+    for key, e in by.items():
+        acc = e["accuracy"]
+        pos = stations_pos.get(str(key))
+        where = ", ".join(f"{c:.2f}" for c in pos) if pos else "–"
+        rows.append(
+            f'<tr><td>S{escape(str(key))}</td><td class="n">{where}</td>'
+            f'<td class="n">{e["points"]:,}</td><td class="n">{mm(acc["mean_m"])}</td>'
+            f'<td class="n">{mm(acc["p95_m"])}</td><td class="n">{mm(acc["max_m"])}</td>'
+            f'<td class="n">{percent(e["coverage"])}</td></tr>'
+        )
+    return (
+        "<h3>By station</h3>"
+        '<p class="lead">Accuracy of each station\'s points; coverage of the whole reference '
+        "by that station alone (the stations together give the overall coverage). "
+        "Distances in mm.</p>"
+        '<div class="scroll"><table><thead><tr><th>station</th><th class="n">position (m)</th>'
+        '<th class="n">points</th><th class="n">acc. mean</th><th class="n">acc. p95</th>'
+        '<th class="n">acc. max</th><th class="n">coverage alone</th></tr></thead><tbody>'
+        + "".join(rows)
+        + "</tbody></table></div>"
+    )
+
+
+def _kv_table(rows: list[tuple[str, str]]) -> str:
+    body = "".join(f"<tr><td>{escape(k)}</td><td>{v}</td></tr>" for k, v in rows)
+    return f'<table class="kv"><tbody>{body}</tbody></table>'
+
+
+def _parameter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
+    p = s.get("parameters", {})
+    ref = s.get("reference", {})
+    inputs = s.get("inputs", {})
+    rows: list[tuple[str, str]] = []
+    if inputs.get("cloud"):
+        rows.append(("cloud", f"<code>{escape(str(inputs['cloud']))}</code>"))
+    rows.append(("cloud points", f"{s.get('cloud', {}).get('points', s['accuracy']['n']):,}"))
+    if inputs.get("reference"):
+        rows.append(("reference", f"<code>{escape(str(inputs['reference']))}</code>"))
+    if ref.get("kind") == "mesh":
+        rows.append(
+            (
+                "reference mesh",
+                f"{ref.get('triangles', 0):,} triangles, {ref.get('area_m2', 0):.4g} m² "
+                f"({ref.get('degenerate_triangles_dropped', 0)} degenerate dropped)",
+            )
+        )
+        rows.append(
+            (
+                "surface samples",
+                f"{ref.get('samples', 0):,}, one per ({length(p.get('sample_spacing_m'))})² "
+                f"of surface (spacing: {escape(str(p.get('sample_spacing_rule')))}); "
+                f"seed {p.get('seed')}",
+            )
+        )
+    else:
+        rows.append(("reference cloud", f"{ref.get('points', 0):,} points"))
+    rows.append(
+        ("cloud point spacing", f"{length(s.get('point_spacing_m'))} (median nearest neighbour)")
+    )
+    rows.append(
+        ("tolerance τ", f"{length(s['tolerance_m'])} ({escape(str(p.get('tolerance_rule')))})")
+    )
+    origin = p.get("frame_origin_m")
+    if origin:
+        rows.append(
+            ("local frame origin", ", ".join(f"{c:,.3f}" for c in origin) + " m (float64 shift)")
+        )
+    scan = inputs.get("scan") or {}
+    spec = scan.get("scanner") or {}
+    if spec:
+        res = (spec.get("horizontal_resolution_deg"), spec.get("vertical_resolution_deg"))
+        rows.append(("scanner resolution", f"{res[0]}° × {res[1]}° (horizontal × vertical)"))
+        models = scan.get("models_active")
+        rows.append(("scanner models", escape(", ".join(models) if models else "geometry only")))
+    if scan.get("stations"):
+        rows.append(("stations", str(len(scan["stations"]))))
+    return rows
+
+
+def build_html(
+    data: ReportData,
+    pngs: dict[str, Path],
+    paragraph: str,
+    *,
+    generated: str,
+    max_view_points: int = 40_000,
+    seed: int = 0,
+    dpi: int = 130,
+) -> str:
+    """The page as one string (every image and the viewer's data inline)."""
+    s = data.summary
+    ref_word = figures._ref_word(s)
+    inputs = s.get("inputs", {})
+    cloud_name = Path(str(inputs.get("cloud", "cloud"))).name
+    ref_name = Path(str(inputs.get("reference", ref_word))).name
+    acc = s["accuracy"]
+    ref = s.get("reference", {})
+    meta = f"{s.get('cloud', {}).get('points', acc['n']):,} points"
+    if ref.get("kind") == "mesh":
+        meta += f" · mesh of {ref.get('triangles', 0):,} triangles, {ref.get('area_m2', 0):.3g} m²"
+    else:
+        meta += f" · reference cloud of {ref.get('points', 0):,} points"
+    meta += f" · generated {escape(generated)}"
+    stations_pos = {}
+    for st in (inputs.get("scan") or {}).get("stations", []) or []:
+        if "index" in st and "position_m" in st:
+            stations_pos[str(st["index"])] = st["position_m"]
+
+    cards = [
+        (
+            "acc",
+            "Accuracy p95",
+            length(acc["p95_m"]),
+            f"95 % of points closer; median {length(acc['median_m'])}",
+        ),
+        ("comp", "Coverage", percent(s["coverage"]), f"of the {ref_word} within τ"),
+        (
+            "tau",
+            "Tolerance τ",
+            length(s["tolerance_m"]),
+            escape(str(s.get("parameters", {}).get("tolerance_rule", ""))),
+        ),
+        ("", "Hausdorff", length(s["hausdorff_m"]), "symmetric maximum"),
+        ("", "Chamfer", length(s["chamfer_m"]), "mean of both directions' means"),
+    ]
+    cards_html = "".join(
+        f'<div class="card {c}"><div class="k">{escape(k)}</div><div class="v">{v}</div>'
+        f'<div class="s">{sub}</div></div>'
+        for c, k, v, sub in cards
+    )
+    payload = viewer_payload(data, max_points=max_view_points, seed=seed)
+    set_buttons = "".join(
+        f'<button type="button" data-set="{i}" aria-pressed="{"true" if i == 0 else "false"}">'
+        f"{escape(d['name'])}</button>"
+        for i, d in enumerate(payload["datasets"])
+    )
+    defs = s.get("definitions", {})
+    defs_html = "".join(f"<dt>{escape(k)}</dt><dd>{escape(v)}</dd>" for k, v in defs.items())
+    versions = {**s.get("software", {}), **s.get("report_software", {})}
+    versions_html = "".join(
+        f"<span>{escape(k)} <b>{escape(str(v))}</b></span>" for k, v in versions.items()
+    )
+    tau_txt = length(s["tolerance_m"])
+
+    return f"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>treesim comparison: {escape(cloud_name)} vs {escape(ref_name)}</title>
+<script>{assets.ERROR_HOOK_JS}</script>
+<style>{assets.CSS}</style>
+</head>
+<body>
+<header class="top"><div class="wrap">
+  <div class="eyebrow">treesim · AVOHD comparison report</div>
+  <h1>{escape(cloud_name)}<span class="vs">vs</span>{escape(ref_name)}</h1>
+  <p class="meta">{meta}</p>
+</div></header>
+<main class="wrap">
+<div id="page-errors" hidden></div>
+<section class="panel summary"><p>{escape(paragraph)}</p></section>
+
+<section class="cards">{cards_html}</section>
+
+<section class="panel">
+  <h2>Distances</h2>
+  <p class="lead">Absolute distances in millimetres. Accuracy: every cloud point to the
+  {ref_word}. Completeness: every {ref_word} sample to the nearest cloud point; it shows what
+  the cloud misses, which accuracy alone can never show.</p>
+  <div class="scroll"><table><thead>{_STATS_HEAD}</thead><tbody>
+  {_stats_rows(s, ref_word)}
+  </tbody></table></div>
+  {_label_table(s)}
+  {_station_table(s, stations_pos)}
+</section>
+
+<section class="panel" id="viewer">
+  <h2>Interactive 3D view</h2>
+  <p class="lead">Drag to rotate, shift-drag or right-drag to pan, scroll to zoom,
+  double-click to reset. Colours as in the legend; darker points are farther away.</p>
+  <div class="viewer">
+    <canvas aria-label="3D view of the points coloured by distance"></canvas>
+    <div class="controls">
+      <div class="group"><div class="label">Points</div><div class="seg">{set_buttons}</div></div>
+      <div class="group"><div class="label">View</div><div class="seg">
+        <button type="button" data-view="home">Oblique</button>
+        <button type="button" data-view="side">Side</button>
+        <button type="button" data-view="top">Top</button></div></div>
+      <div class="group"><div class="label">Point size</div>
+        <input type="range" min="1" max="6" step="1" value="2" aria-label="point size"></div>
+      <div class="group"><div class="label legend-title"></div>
+        <div class="legend"><div class="bar"></div><div class="ticks"></div></div></div>
+      <div class="hint count"></div>
+    </div>
+  </div>
+  <script type="application/json" id="viewer-data">{_json_script(payload)}</script>
+</section>
+
+<section class="panel">
+  <h2>Distributions</h2>
+  <p class="lead">How far the points are, as shares of each direction's points.
+  The red line is the coverage tolerance τ = {tau_txt}.</p>
+  <figure>{_img(pngs["histograms"], "Histograms of the accuracy and completeness distances", dpi)}
+    <figcaption>Histograms up to the 99th percentile; the dotted and dashed lines are the
+    median and the 95th percentile.</figcaption></figure>
+  <figure>{_img(pngs["cumulative"], "Cumulative distributions of both directions", dpi)}
+    <figcaption>Share of points within a distance. Where the completeness curve crosses τ
+    is the coverage ({percent(s["coverage"])}).</figcaption></figure>
+</section>
+
+<section class="panel">
+  <h2>Where the differences are</h2>
+  <figure>{_img(pngs["views_accuracy"], "Cloud coloured by distance to the reference", dpi)}
+    <figcaption>The cloud, coloured by its distance to the {ref_word} (accuracy).
+    </figcaption></figure>
+  <figure>{_img(pngs["views_completeness"], "Reference coloured by distance to the cloud", dpi)}
+    <figcaption>The {ref_word} samples, coloured by their distance to the cloud
+    (completeness): bright areas were not seen. Triangles mark the stations.</figcaption>
+  </figure>
+</section>
+
+<section class="panel">
+  <h2>Coverage</h2>
+  <figure>{_img(pngs["coverage"], "Coverage of the reference by station", dpi)}
+    <figcaption>Share of the {ref_word} within τ = {tau_txt} of the cloud, by all stations
+    together and by each station alone.</figcaption></figure>
+</section>
+
+<section class="two">
+  <div class="panel"><h2>Parameters</h2>
+    <p class="lead">What produced these figures.</p>
+    {_kv_table(_parameter_rows(s))}</div>
+  <div class="panel"><h2>Definitions</h2>
+    <p class="lead">The figures' names as in <code>comparison.json</code>.</p>
+    <dl class="defs">{defs_html}</dl></div>
+</section>
+</main>
+<footer class="wrap"><div class="versions">{versions_html}</div></footer>
+<script>{assets.VIEWER_JS}</script>
+</body>
+</html>
+"""

@@ -1,0 +1,89 @@
+"""Numbers as words: length formatting and the report's plain-language summary."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+
+def length(x: float | None) -> str:
+    """A distance in metres as short text: ``"4.2 mm"``, ``"0.283 m"``, ``"< 0.001 mm"``."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if x < 1e-6:
+        return "< 0.001 mm"
+    if x < 0.1:
+        return f"{x * 1e3:.3g} mm"
+    return f"{x:.3g} m"
+
+
+def mm(x: float | None, decimals: int = 3) -> str:
+    """A distance in metres as millimetres with fixed decimals (for tables)."""
+    return "–" if x is None else f"{x * 1e3:,.{decimals}f}"
+
+
+def percent(f: float | None, decimals: int = 1) -> str:
+    """A fraction 0-1 as a percentage (``"62.4 %"``)."""
+    return "n/a" if f is None else f"{100 * f:.{decimals}f} %"
+
+
+def _ref_words(summary: dict[str, Any]) -> tuple[str, str]:
+    kind = summary.get("reference", {}).get("kind", "mesh")
+    if kind == "mesh":
+        return "the mesh", "of the mesh surface"
+    return "the reference cloud", "of the reference cloud"
+
+
+def summary_paragraph(summary: dict[str, Any]) -> str:
+    """One plain-language paragraph from a comparison's figures (no markup)."""
+    acc = summary["accuracy"]
+    comp = summary["completeness"]
+    cov = summary["coverage"]
+    tau = summary["tolerance_m"]
+    ref, ref_surface = _ref_words(summary)
+    n = summary.get("cloud", {}).get("points", acc["n"])
+    stations = summary.get("by_station", {})
+    who = f"The cloud ({n:,} points"
+    who += f" from {len(stations)} stations)" if len(stations) > 1 else ")"
+    parts: list[str] = []
+    if acc["p95_m"] is not None and acc["p95_m"] < 1e-6:
+        parts.append(
+            f"{who} lies on {ref} to numerical precision: 95 % of its points are within "
+            f"0.001 mm, the farthest {length(acc['max_m'])} away."
+        )
+    else:
+        parts.append(
+            f"{who} lies within {length(acc['p95_m'])} of {ref} for 95 % of its points "
+            f"(median {length(acc['median_m'])}, farthest {length(acc['max_m'])})."
+        )
+    if cov >= 0.995:
+        parts.append(
+            f"It covers practically all {ref_surface} ({percent(cov)}) within τ = {length(tau)}."
+        )
+    else:
+        parts.append(
+            f"It covers {percent(cov)} {ref_surface} within τ = {length(tau)}; the other "
+            f"{percent(1 - cov)} lies farther than τ from every point (occluded, or outside "
+            f"the scanners' view), the farthest part {length(comp['max_m'])} away."
+        )
+    labels = {
+        k: v
+        for k, v in summary.get("by_label", {}).items()
+        if v.get("coverage") is not None and k in ("wood", "leaf", "ground")
+    }
+    if len(labels) > 1:
+        bits = [f"{k} {percent(v['coverage'], 0)}" for k, v in labels.items()]
+        parts.append("Coverage by part: " + ", ".join(bits) + ".")
+    if len(stations) > 1:
+        best_k, best = max(stations.items(), key=lambda kv: kv[1]["coverage"])
+        parts.append(
+            f"Station {best_k} alone covers the most ({percent(best['coverage'], 0)}); "
+            f"{'both' if len(stations) == 2 else f'all {len(stations)}'} together cover "
+            f"{percent(cov, 0)}."
+        )
+    parts.append(
+        f"The symmetric Hausdorff distance is {length(summary['hausdorff_m'])} and the "
+        f"Chamfer distance (mean of both directions' mean distances) "
+        f"{length(summary['chamfer_m'])}."
+    )
+    return " ".join(parts)
