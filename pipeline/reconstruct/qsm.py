@@ -17,7 +17,7 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
    (soft-L1) least squares; the fit is accepted ("measured") only when its arc coverage,
    residual, inlier share and radius pass quality gates. Accepted fits also move the node
    to the circle's centre (a centroid is biased toward the scanned side).
-6. **Regularised radii**: a per-tree model ``r = r_tip + a · S^b`` of radius against
+6. **Regularised radii**: a per-tree pipe model ``r² = r_tip² + a · S`` of radius against
    growth length S (the length of the subtree a node supports, as rTwig does) is fitted
    to the measured nodes; unmeasured nodes take the model (``modelled``), or interpolate
    between measured neighbours on their branch (``interpolated``); along each branch the
@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import least_squares
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
@@ -67,8 +66,9 @@ class QSMParams:
         measured when it covers at least ``partial_coverage_deg`` with an RMS residual
         under ``partial_rel_residual`` of its radius.
     pipe_exponent : float
-        Exponent b of the radius model ``r = r_tip + a · S^b`` (S: growth length); 0.5 is
-        the pipe model (cross-section area proportional to the length supported).
+        Exponent b of the radius model ``r^(1/b) = r_tip^(1/b) + a · S`` (S: growth
+        length); 0.5 is the pipe model (cross-section area = tip area + area proportional
+        to the length supported).
     min_radius_m : float, optional
         Smallest radius that can be measured; default ``1.5 × spacing``.
     twig_radius_m : float
@@ -85,7 +85,7 @@ class QSMParams:
     partial_rel_residual: float = 0.06
     pipe_exponent: float = 0.5
     min_radius_m: float | None = None
-    twig_radius_m: float = 0.003
+    twig_radius_m: float = 0.002
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -239,9 +239,14 @@ def fit_circle(
     if m < 6:
         return None
     t = 96
-    tri = np.stack([rng.choice(m, 3, replace=False) for _ in range(t)])
+    tri = rng.integers(0, m, size=(t, 3))
+    tri = tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])]
+    if len(tri) == 0:
+        return None
     cen, rad = _circle_3pt(q[tri])
-    ext = float(np.ptp(q, axis=0).max())
+    # robust size of the point set: median distance from the median point (about r for
+    # points around a circle, whatever a few outliers do)
+    ext = 2.0 * float(np.median(np.linalg.norm(q - np.median(q, axis=0), axis=1)))
     ok = np.isfinite(rad) & (rad > 0) & (rad < 2.0 * ext + band_min)
     if not ok.any():
         return None
@@ -255,17 +260,7 @@ def fit_circle(
     inl = dist[best] < band
     if inl.sum() < 5:
         return None
-    qi, wi = q[inl], np.sqrt(w[inl])
-
-    def resid(x: np.ndarray) -> np.ndarray:
-        return wi * (np.linalg.norm(qi - x[:2], axis=1) - x[2])
-
-    x0 = np.array([cen[best, 0], cen[best, 1], rad[best]])
-    try:
-        sol = least_squares(resid, x0, loss="soft_l1", f_scale=band, max_nfev=50)
-        x = sol.x
-    except (ValueError, np.linalg.LinAlgError):
-        x = x0
+    x = _refine_circle(q[inl], w[inl], np.array([cen[best, 0], cen[best, 1], rad[best]]), band)
     r = float(abs(x[2]))
     d_all = np.abs(np.linalg.norm(q - x[:2], axis=1) - r)
     inl = d_all < band
@@ -281,6 +276,34 @@ def fit_circle(
         coverage_deg=10.0 * len(sectors),
         inlier_share=float(w[inl].sum() / w.sum()),
     )
+
+
+def _refine_circle(q: np.ndarray, w: np.ndarray, x0: np.ndarray, f_scale: float) -> np.ndarray:
+    """Geometric circle fit: iteratively reweighted Gauss-Newton with soft-L1 weights
+    (the robust loss of ``scipy.optimize.least_squares(loss="soft_l1")``), analytic
+    Jacobian; a few dozen numpy operations instead of a numerically differentiated
+    solver."""
+    x = x0.astype(np.float64).copy()
+    for _ in range(20):
+        dv = q - x[:2]
+        d = np.linalg.norm(dv, axis=1)
+        d = np.where(d > 1e-12, d, 1e-12)
+        res = d - x[2]
+        wt = w / np.sqrt(1.0 + (res / f_scale) ** 2)
+        jac = np.column_stack([-dv[:, 0] / d, -dv[:, 1] / d, -np.ones(len(d))])
+        jw = jac * wt[:, None]
+        a = jac.T @ jw
+        g = jw.T @ res
+        try:
+            step = np.linalg.solve(a + 1e-12 * np.eye(3), -g)
+        except np.linalg.LinAlgError:
+            break
+        x += step
+        if np.abs(step).max() < 1e-10 * max(1.0, abs(x[2])):
+            break
+    if not np.isfinite(x).all():
+        return x0
+    return x
 
 
 def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -489,14 +512,17 @@ def fit_qsm(
                 quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
                 pos[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
 
-    # 6. radius model r = r_tip + a * S^b (S: growth length), b fixed (pipe model), a from
-    # the measured nodes (weighted median); without measurements, from the base's spread
+    # 6. radius model (S: growth length, the length of the subtree a node supports):
+    # r^(1/b) = r_tip^(1/b) + a * S; b = 0.5 is the pipe model, "cross-section area = tip
+    # area + area proportional to the length supported". a comes from the measured nodes
+    # (weighted median); without measurements, from the spread of the base's points.
     r_tip = params.twig_radius_m
     b_fit = params.pipe_exponent
     grow = sub_len + 0.5 * h
     mm = measured & keep & (radius > r_tip * 1.05)
+    e = 1.0 / b_fit
     if mm.sum() >= 3:
-        ratio = (radius[mm] - r_tip) / grow[mm] ** b_fit
+        ratio = (radius[mm] ** e - r_tip**e) / grow[mm]
         o = np.argsort(ratio)
         cw = np.cumsum(quality[mm][o])
         a_fit = float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
@@ -504,9 +530,9 @@ def fit_qsm(
     else:
         idx = members_sorted[bounds[main_root] : bounds[main_root + 1]]
         spread = float(np.sqrt(np.mean(np.sum((p[idx, :2] - p[idx, :2].mean(0)) ** 2, 1))))
-        a_fit = max(spread - r_tip, r_tip) / grow[main_root] ** b_fit
+        a_fit = max(spread**e - r_tip**e, 0.0) / grow[main_root]
         a_source = "base spread (no measured nodes)"
-    model = r_tip + a_fit * grow**b_fit
+    model = (r_tip**e + a_fit * grow) ** b_fit
     # never wider than the data around the node
     model = np.minimum(model, np.where(np.isfinite(extent), 1.1 * extent + spacing_m, model))
 
