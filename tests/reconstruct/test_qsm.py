@@ -15,10 +15,16 @@ def scanned(table: CylinderTable, res_deg: float = 0.04, distance_m: float = 8.0
     v, f = cylinders_to_mesh(table, facets=64)
     scene = Scene([MeshPart(vertices=v, faces=f, label="wood")])
     lo, hi = scene.bounds
-    st = ring_layout(3, distance_m=distance_m, height_m=1.5,
-                     centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2), base_z_m=lo[2])
-    pts = scan(scene, st, ScannerSpec(horizontal_resolution_deg=res_deg,
-                                      vertical_resolution_deg=res_deg)).cloud.points
+    st = ring_layout(
+        3,
+        distance_m=distance_m,
+        height_m=1.5,
+        centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
+        base_z_m=lo[2],
+    )
+    pts = scan(
+        scene, st, ScannerSpec(horizontal_resolution_deg=res_deg, vertical_resolution_deg=res_deg)
+    ).cloud.points
     spacing = float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
     return pts, spacing
 
@@ -28,9 +34,12 @@ def y_tree() -> CylinderTable:
     starts = [[0, 0, 0], [0, 0, 2.0], [0, 0, 2.0], [0, 0, 2.0]]
     ends = [[0, 0, 2.0], [0, 0, 4.0], [1.06, 0, 3.06], [-0.75, 0.75, 3.06]]
     return CylinderTable.from_endpoints(
-        np.array(starts, float), np.array(ends, float), np.array([0.12, 0.09, 0.04, 0.04]),
+        np.array(starts, float),
+        np.array(ends, float),
+        np.array([0.12, 0.09, 0.04, 0.04]),
         end_radius_m=np.array([0.09, 0.06, 0.03, 0.03]),
-        parent=np.array([-1, 0, 0, 0]), branch=np.array([1, 1, 2, 3]),
+        parent=np.array([-1, 0, 0, 0]),
+        branch=np.array([1, 1, 2, 3]),
         branch_order=np.array([0, 0, 1, 1]),
     )
 
