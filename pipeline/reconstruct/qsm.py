@@ -510,7 +510,7 @@ def fit_qsm(
                 (full or partial)
                 and fit.inlier_share >= 0.6
                 and fit.radius >= r_min
-                and fit.radius <= 0.75 * float(np.ptp(q, axis=0).max()) + band_min
+                and fit.radius <= 0.6 * float(np.ptp(q, axis=0).max()) + band_min
             )
             if ok:
                 measured[v] = True
@@ -539,7 +539,7 @@ def fit_qsm(
         a_source = "base spread (no measured nodes)"
     model = (r_tip**e + a_fit * grow) ** b_fit
     # never wider than the data around the node
-    model = np.minimum(model, np.where(np.isfinite(extent), 1.1 * extent + spacing_m, model))
+    model = np.minimum(model, np.where(np.isfinite(extent), extent + 0.25 * spacing_m, model))
 
     final_r = np.where(measured, radius, model)
     tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
