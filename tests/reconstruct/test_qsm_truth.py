@@ -3,6 +3,8 @@ QSM, scored against the generator's own cylinder table (issue 5's targets)."""
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import pytest
 
 from pipeline.cloud import Cloud
@@ -29,12 +31,17 @@ def scan_preset(name: str):
     return tree.truth(32), scan(scene, stations, spec).cloud
 
 
+@lru_cache(maxsize=None)
+def rebuilt(name: str):
+    """(truth, figures) of a preset, scanned and rebuilt once per test session."""
+    truth, cloud = scan_preset(name)
+    return truth, reconstruct(Cloud(cloud.points), ReconstructParams(method="qsm")).figures
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", LEAF_OFF)
 def test_qsm_meets_the_targets_on_every_leaf_off_preset(name):
-    truth, cloud = scan_preset(name)
-    model = reconstruct(Cloud(cloud.points), ReconstructParams(method="qsm"))
-    fig = model.figures
+    truth, fig = rebuilt(name)
     report = {
         k: (fig[k], truth[k]) for k in ("dbh_m", "height_m", "volume_stem_m3", "volume_total_m3")
     }
@@ -63,8 +70,7 @@ STEM_CASES = [
 @pytest.mark.slow
 @pytest.mark.parametrize("name", STEM_CASES)
 def test_qsm_stem_volume_within_5_percent(name):
-    truth, cloud = scan_preset(name)
-    fig = reconstruct(Cloud(cloud.points), ReconstructParams(method="qsm")).figures
+    truth, fig = rebuilt(name)
     assert fig["volume_stem_m3"] == pytest.approx(truth["volume_stem_m3"], rel=0.05)
 
 
