@@ -3,7 +3,7 @@ QSM, scored against the generator's own cylinder table (issue 5's targets)."""
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import pytest
 
@@ -31,7 +31,7 @@ def scan_preset(name: str):
     return tree.truth(32), scan(scene, stations, spec).cloud
 
 
-@lru_cache(maxsize=None)
+@cache
 def rebuilt(name: str):
     """(truth, figures) of a preset, scanned and rebuilt once per test session."""
     truth, cloud = scan_preset(name)
