@@ -7,6 +7,7 @@ dispatch through it (suffixes are matched case-insensitively).
 * ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`pipeline.io.text`
 * ``.las`` ``.laz``: :mod:`pipeline.io.las` (laspy, LAZ through lazrs)
 * ``.ply``: :mod:`pipeline.io.ply` (plyfile)
+* ``.e57``: :mod:`pipeline.io.e57` (read only; needs the optional ``pye57``)
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidParameterError
-from . import las, ply, text
+from . import e57, las, ply, text
 
 __all__ = ["FORMATS", "CloudFormat", "read_cloud", "supported_suffixes", "write_cloud"]
 
@@ -52,11 +53,19 @@ _TEXT = CloudFormat("text", text.read_text, text.write_text, frozenset({"columns
 _LAS = CloudFormat("LAS/LAZ", las.read_las, las.write_las, write_options=frozenset({"las_scale_m"}))
 _PLY = CloudFormat("PLY", ply.read_ply, ply.write_ply)
 
+
+def _e57_write(path: str | Path, cloud: Cloud, **_: Any) -> Path:
+    raise InputFormatError(f"{path}: writing E57 is not supported; write .laz or .ply")
+
+
+_E57 = CloudFormat("E57", e57.read_e57, _e57_write)
+
 #: Lower-case suffix -> format.
 FORMATS: dict[str, CloudFormat] = {
     **{suffix: _TEXT for suffix in text.SUFFIXES},
     **{suffix: _LAS for suffix in las.SUFFIXES},
     **{suffix: _PLY for suffix in ply.SUFFIXES},
+    **{suffix: _E57 for suffix in e57.SUFFIXES},
 }
 
 

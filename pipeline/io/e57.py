@@ -73,7 +73,11 @@ def read_e57(path: str | Path) -> Cloud:
     try:
         e57 = pye57.E57(str(path))
     except Exception as exc:  # libE57Format raises its own exception types
-        raise InputFormatError(f"{path} could not be read as E57: {exc}") from exc
+        first = (str(exc).strip().splitlines() or ["unknown error"])[0]
+        first = first.split(" (", 1)[0][:160]
+        raise InputFormatError(
+            f"{path} could not be read as E57 ({first}); is it a complete E57 file?"
+        ) from exc
     try:
         n_scans = int(e57.scan_count)
         if n_scans == 0:

@@ -14,18 +14,18 @@ from pipeline.io import FORMATS, read_cloud, supported_suffixes, write_cloud
 
 def test_registry_covers_every_format() -> None:
     assert supported_suffixes() == sorted(
-        [".asc", ".csv", ".las", ".laz", ".ply", ".pts", ".txt", ".xyz"]
+        [".asc", ".csv", ".e57", ".las", ".laz", ".ply", ".pts", ".txt", ".xyz"]
     )
     assert all(suffix == suffix.lower() for suffix in FORMATS)
 
 
 def test_unknown_suffix_lists_supported(tmp_path: Path) -> None:
-    path = tmp_path / "cloud.e57"
+    path = tmp_path / "cloud.rcp"
     path.write_bytes(b"\0")
     with pytest.raises(InputFormatError) as info:
         read_cloud(path)
     message = str(info.value)
-    assert ".e57" in message
+    assert ".rcp" in message and ".e57" in message
     for suffix in (".las", ".laz", ".ply", ".xyz", ".csv"):
         assert suffix in message
     with pytest.raises(InputFormatError, match="supported"):
