@@ -565,6 +565,24 @@ def fit_qsm(
             final_r[s] = np.minimum(final_r[s], final_r[j])
         final_r[s] = np.maximum(final_r[s], r_tip)
 
+    # 6b. smooth each branch's axis: fitted centres jitter by a few mm to cm (partial
+    # arcs, furcations, centroid fall-backs) and a zig-zag axis is longer than the branch,
+    # which inflates length and volume (+14 % stem length measured on a 30 m preset).
+    # A (1, 2, 3, 2, 1) moving average along the branch, ends kept, removes the jitter.
+    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0])
+    for seq in branches:
+        if len(seq) < 5:
+            continue
+        s_idx = np.asarray(seq)
+        xyz = pos[s_idx]
+        padded = np.concatenate([np.repeat(xyz[:1], 2, 0), xyz, np.repeat(xyz[-1:], 2, 0)])
+        sm = np.stack(
+            [np.convolve(padded[:, j], kernel / kernel.sum(), mode="valid") for j in range(3)],
+            axis=1,
+        )
+        sm[0], sm[-1] = xyz[0], xyz[-1]
+        pos[s_idx] = sm
+
     # 7. cylinders
     starts, ends, r0, r1, par, bra, ordr, tags = [], [], [], [], [], [], [], []
     end_row_of_node = np.full(m, -1, dtype=np.int64)

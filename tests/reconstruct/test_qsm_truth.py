@@ -52,23 +52,8 @@ def test_qsm_meets_the_targets_on_every_leaf_off_preset(name):
     assert fig["watertight"] is True
 
 
-STEM_CASES = [
-    pytest.param(
-        name,
-        marks=pytest.mark.xfail(
-            strict=True,
-            reason="known: +5.6 % stem volume; past the trunk's forks the QSM follows a "
-            "limb the generator counts as order 1 (open in issue 5's note)",
-        ),
-    )
-    if name == "old-tupelo"
-    else name
-    for name in LEAF_OFF
-]
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("name", STEM_CASES)
+@pytest.mark.parametrize("name", LEAF_OFF)
 def test_qsm_stem_volume_within_5_percent(name):
     truth, fig = rebuilt(name)
     assert fig["volume_stem_m3"] == pytest.approx(truth["volume_stem_m3"], rel=0.05)
