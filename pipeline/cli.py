@@ -282,23 +282,25 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 # -- demo ------------------------------------------------------------------------------
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Mesh the bundled coffee tree's TreeQSM cylinders and scan it from three stations."""
-    from .io.mesh import write_mesh
-    from .models import cylinders_to_mesh, read_cylinders
+    """Run the whole loop (``run_tree``) on the bundled coffee tree's field cloud."""
+    from .run import preset, run_tree
+    from .run_cli import print_run_summary
 
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    table = read_cylinders(SAMPLE_DIR / "QSM_treeqsm_v2.4.1_cylinders.csv")
-    v, f = cylinders_to_mesh(table, facets=32)
-    mesh_path = write_mesh(out / "tree.ply", v, f)
+    cloud = SAMPLE_DIR / "cloud.txt"
     print(
-        f"bundled sample: Kentucky coffee tree (rTwig), TreeQSM model with {len(table):,} "
-        f"cylinders -> {mesh_path} ({len(f):,} triangles)"
+        "bundled sample: Kentucky coffee tree (rTwig), leaf-off TLS cloud; reconstruct, "
+        "scan from three stations, compare with the mesh and the field cloud, report"
     )
-    scan_args = build_parser().parse_args(["scan", str(mesh_path), "-o", str(out / "scan.laz")])
-    summary = run_scan(scan_args, [mesh_path], out / "scan.laz")
-    _write_json(out / "summary.json", {"tree": table.summary(), "scan": summary})
-    print(f"\ndemo output is in {out.resolve()}/ (tree.ply, scan.laz, scan.json, summary.json)")
+    result = run_tree(
+        cloud,
+        preset("standard"),
+        Path(args.output),
+        name="coffee_tree",
+        progress=_progress_printer(sys.stderr.isatty()),
+    )
+    print_run_summary(result)
+    print(f"\ndemo output is in {result.outdir.resolve()}/; open the report in a browser:")
+    print(f"{result.report_html.resolve()}")
     return 0
 
 
@@ -348,12 +350,17 @@ def build_parser() -> argparse.ArgumentParser:
     from .models.cli import register as register_model
     from .reconstruct.cli import register as register_reconstruct
     from .report.cli import register as register_report
+    from .run_cli import register as register_run
 
     register_model(sub)
     register_reconstruct(sub)
     register_report(sub)
+    register_run(sub)
 
-    dm = sub.add_parser("demo", help="run the main job on the bundled sample tree")
+    dm = sub.add_parser(
+        "demo",
+        help="run the whole loop on the bundled sample tree and print the report's path",
+    )
     dm.add_argument("-o", "--output", default="out/demo", help="output folder (default out/demo)")
     dm.set_defaults(func=cmd_demo)
     return p

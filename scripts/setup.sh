@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Install what treesim needs on a fresh Debian/Ubuntu machine: the shared libraries that
-# open3d and pymeshlab load, a virtualenv in .venv, and treesim with its dev extras.
+# open3d and pymeshlab load, a virtualenv in .venv, and treesim with its dev and dask extras.
 # Safe to re-run; skips apt when the libraries are already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -35,7 +35,7 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
 fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
-"$VENV/bin/python" -m pip install -q -e ".[dev]"
+"$VENV/bin/python" -m pip install -q -e ".[dev,dask,e57]"
 "$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
 echo "setup: ready ($("$VENV/bin/python" --version), treesim in $VENV)"

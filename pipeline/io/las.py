@@ -84,6 +84,28 @@ def _backends() -> tuple[laspy.LazBackend, ...]:
     return tuple(available) or (_LAZ_BACKEND,)
 
 
+def _check_header(path: Path) -> None:
+    """Refuse a LAS/LAZ whose header contradicts the file's size before laspy reads it
+    (laspy trusts the header's VLR count and can loop for ever on garbage)."""
+    import struct
+
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(227)
+    except OSError as exc:
+        raise InputFormatError(f"{path}: cannot be read ({exc.strerror})") from exc
+    if len(head) < 227 or head[:4] != b"LASF":
+        raise InputFormatError(f"{path}: not a LAS/LAZ file (no LASF header); is it complete?")
+    header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    if header_size < 227 or point_offset > size or point_offset < header_size:
+        raise InputFormatError(f"{path}: corrupt LAS header (point data offset {point_offset} "
+                               f"in a {size}-byte file)")
+    if n_vlrs * 54 > point_offset - header_size:
+        raise InputFormatError(f"{path}: corrupt LAS header ({n_vlrs} variable-length "
+                               "records cannot fit before the point data)")
+
+
 def read_las(path: str | Path) -> Cloud:
     """Read a LAS or LAZ file.
 
@@ -105,6 +127,7 @@ def read_las(path: str | Path) -> Cloud:
         If laspy cannot read the file (corrupt, truncated, no LAZ backend).
     """
     path = Path(path)
+    _check_header(path)
     try:
         las = laspy.read(path, laz_backend=_backends())
         header = las.header

@@ -1,0 +1,308 @@
+"""``run_batch``: every executor gives the same figures, failures are isolated, results
+are reused by hash, and a killed or interrupted batch resumes without corrupt output."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.batch import (
+    SUMMARY_COLUMNS,
+    TIME_COLUMNS,
+    BatchProgress,
+    ProgressBar,
+    discover_inputs,
+    run_batch,
+)
+from pipeline.errors import InputFormatError, InvalidParameterError
+from pipeline.executors import Executor, detect_available, plan_executor
+from pipeline.run import to_toml
+from tests.conftest import shared_path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: Columns that may differ between two runs of the same trees (how, when, how long).
+VOLATILE = {"reused", "input", *TIME_COLUMNS}
+
+
+def figures(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k not in VOLATILE} for r in rows]
+
+
+def result_files(out: Path) -> dict[str, int]:
+    """mtime (ns) of every finished tree's result.json."""
+    return {
+        p.parent.name: p.stat().st_mtime_ns for p in sorted((out / "trees").glob("*/result.json"))
+    }
+
+
+def assert_no_corrupt_output(out: Path) -> None:
+    """Every folder in trees/ is a finished result (result.json) or a recorded failure."""
+    for d in (out / "trees").iterdir():
+        if d.name.endswith(".failed"):
+            assert (d / "error.json").is_file(), d
+        else:
+            assert (d / "result.json").is_file(), d
+            assert (d / "run.json").is_file() and (d / "report.html").is_file(), d
+
+
+# -- executors ----------------------------------------------------------------------------
+def test_detect_available_lists_inline_and_local():
+    found = detect_available()
+    assert found[:2] == [Executor.INLINE, Executor.LOCAL]
+    assert all(e.is_available() for e in found)
+
+
+def test_plans_keep_workers_times_threads_within_the_cores():
+    from pipeline.run import cpu_count
+
+    cores = cpu_count()
+    for workers in range(1, cores + 1):
+        plan = plan_executor("local", workers=workers)
+        assert plan.workers * plan.threads <= cores
+        assert plan.threads >= 1
+    assert plan_executor("inline").threads == cores
+    assert plan_executor("local", n_tasks=1).workers == 1
+    with pytest.raises(InvalidParameterError, match="unknown executor"):
+        plan_executor("threads")
+    with pytest.raises(InvalidParameterError, match="dask"):
+        plan_executor("local", scheduler="tcp://x:8786")
+
+
+@pytest.fixture(scope="module")
+def inline_reference(saplings, quick, tmp_path_factory):
+    out = tmp_path_factory.mktemp("batch") / "inline"
+    return run_batch([saplings["sapling0"]], quick, out, executor="inline")
+
+
+@pytest.mark.parametrize("executor", [e.value for e in detect_available()])
+def test_every_executor_gives_the_same_figures(
+    executor, inline_reference, saplings, quick, tmp_path
+):
+    out = tmp_path / executor
+    kw = {"workers": 1} if executor != "inline" else {}
+    result = run_batch([saplings["sapling0"]], quick, out, executor=executor, **kw)
+    assert [r["status"] for r in result.rows] == ["ok"]
+    assert figures(result.rows) == figures(inline_reference.rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["executor"]["kind"] == executor
+    assert figures(summary["trees"]) == figures(inline_reference.rows)
+    assert_no_corrupt_output(out)
+    assert not (out / ".tmp").exists()
+
+
+@pytest.mark.slow
+def test_shared_trees_on_local_and_dask_give_identical_figures(quick, tmp_path):
+    pytest.importorskip("distributed", reason="the dask executor needs dask[distributed]")
+    trees = shared_path("trees")
+    results = {}
+    for executor in ("local", "dask"):
+        out = tmp_path / executor
+        results[executor] = run_batch([trees], quick, out, executor=executor, workers=2)
+        assert_no_corrupt_output(out)
+    local, dask = results["local"], results["dask"]
+    assert [r["status"] for r in local.rows] == ["ok"] * len(local.rows), local.rows
+    assert {r["id"] for r in local.rows} >= {"cloud", "tree7", "Lille_2", "pine"}
+    assert len(local.rows) == 5
+    # the QSM cylinder tables beside the coffee tree's cloud are not clouds
+    assert {p.name for p, _ in local.skipped_files} == {
+        "QSM_simpleforest.csv",
+        "QSM_treeqsm_v2.4.1_cylinders.csv",
+    }
+    assert figures(dask.rows) == figures(local.rows)
+    assert local.plan.workers * local.plan.threads <= os.cpu_count()
+
+
+# -- failures, reuse, manifests --------------------------------------------------------
+def test_a_corrupt_file_fails_alone_and_finished_trees_are_reused(saplings, quick, tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    for p in saplings.values():
+        shutil.copy(p, data / p.name)
+    # a LAZ file cut short (a copy that stopped half-way)
+    from pipeline.io import read_cloud, write_cloud
+
+    whole = write_cloud(tmp_path / "whole.laz", read_cloud(saplings["sapling0"]))
+    (data / "broken.laz").write_bytes(whole.read_bytes()[:3000])
+    manifest = tmp_path / "trees.csv"
+    manifest.write_text(
+        "path,id,resolution_deg\n"
+        "data/sapling0.ply,s0,\n"
+        "data/sapling1.ply,s1,0.2\n"
+        "data/broken.laz,broken,\n"
+    )
+    out = tmp_path / "out"
+    seen: list[BatchProgress] = []
+    result = run_batch([manifest], quick, out, executor="inline", progress=seen.append)
+    by_id = {r["id"]: r for r in result.rows}
+    assert [r["id"] for r in result.rows] == ["s0", "s1", "broken"]
+    assert by_id["s0"]["status"] == by_id["s1"]["status"] == "ok"
+    bad = by_id["broken"]
+    assert bad["status"] == "failed"
+    assert bad["error_class"] == "InputFormatError"
+    assert "broken.laz" in bad["error"] and "LAS" in bad["error"]
+    err = json.loads((out / "trees" / "broken.failed" / "error.json").read_text())
+    assert err["error_class"] == "InputFormatError" and "Traceback" in err["traceback"]
+    assert seen[-1].finished == 3 and seen[-1].failed == 1
+    # per-tree settings from the manifest
+    run_s1 = json.loads((out / "trees" / "s1" / "run.json").read_text())
+    assert run_s1["parameters"]["scan"]["scanner"]["horizontal_resolution_deg"] == 0.2
+    run_s0 = json.loads((out / "trees" / "s0" / "run.json").read_text())
+    assert run_s0["parameters"]["scan"]["scanner"]["horizontal_resolution_deg"] == 0.08
+    # the summary table and the index
+    with open(out / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["id"] for r in rows] == ["s0", "s1", "broken"]
+    assert list(rows[0]) == list(SUMMARY_COLUMNS)
+    assert float(rows[0]["dbh_m"]) == pytest.approx(0.031, abs=0.005)
+    index = (out / "index.html").read_text()
+    assert 'href="trees/s0/report.html"' in index and 'href="trees/s1/report.html"' in index
+    assert "trees/broken.failed/error.json" in index
+    assert_no_corrupt_output(out)
+
+    # again: nothing changed, nothing runs (the failed tree is tried again)
+    before = result_files(out)
+    again = run_batch([manifest], quick, out, executor="inline")
+    assert [r.get("reused", False) for r in again.rows] == [True, True, False]
+    assert figures(again.rows) == figures(result.rows)
+    assert result_files(out) == before
+    # a changed setting reruns that tree only
+    manifest.write_text(manifest.read_text().replace("s1,0.2", "s1,0.25"))
+    third = run_batch([manifest], quick, out, executor="inline")
+    assert [r.get("reused", False) for r in third.rows] == [True, False, False]
+    after = result_files(out)
+    assert after["s0"] == before["s0"] and after["s1"] != before["s1"]
+
+
+def test_inputs_from_folders_skip_tables_and_meshes(tmp_path, saplings):
+    from pipeline.io.mesh import write_mesh
+    from tests.conftest import box_arrays
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    shutil.copy(saplings["sapling0"], a / "tree.ply")
+    shutil.copy(saplings["sapling1"], b / "tree.ply")
+    (a / "cloud.xyz").write_text("0 0 0\n1 0 0\n")
+    (a / "qsm.csv").write_text("radius,length,start_x\n0.1,1,0\n")
+    (a / "pts.csv").write_text("X,Y,Z\n0,0,0\n")
+    write_mesh(b / "mesh.ply", *box_arrays((0, 0, 0), (1, 1, 1)))
+    (b / ".hidden").mkdir()
+    (b / ".hidden" / "x.xyz").write_text("0 0 0\n")
+    trees, skipped = discover_inputs([tmp_path])
+    assert [t.id for t in trees] == ["cloud", "pts", "a-tree", "b-tree"]
+    assert {p.name: why for p, why in skipped} == {
+        "qsm.csv": "a table without x, y, z columns (a QSM cylinder table?)",
+        "mesh.ply": "a mesh (PLY with faces)",
+    }
+    with pytest.raises(InputFormatError, match="not found"):
+        discover_inputs([tmp_path / "missing.laz"])
+    bad = tmp_path / "m.csv"
+    bad.write_text("path,colour\nx.ply,red\n")
+    with pytest.raises(InvalidParameterError, match="unknown column"):
+        discover_inputs([bad])
+
+
+def test_progress_bar_plain_and_terminal():
+    row = {"id": "t1", "status": "ok", "time_total_s": 3.5}
+    p = BatchProgress(
+        total=4, done=1, failed=1, reused=0, running=2, elapsed_s=7.0, eta_s=14.0, last=row
+    )
+    plain = io.StringIO()
+    ProgressBar(plain, tty=False)(p)
+    assert plain.getvalue() == "batch: 2/4 trees · 1 failed; t1 ok in 3.5 s; ~0:14 left\n"
+    term = io.StringIO()
+    bar = ProgressBar(term, tty=True, width=8)
+    bar(p)
+    bar.close()
+    text = term.getvalue()
+    assert text.startswith("\r[████░░░░] 2/4 trees · 1 failed · 2 running")
+    assert "~0:14 left" in text and text.endswith("\n")
+
+
+# -- killed and interrupted batches -----------------------------------------------------
+def _start_batch(inputs: list[Path], out: Path, config: Path, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, inputs), "-o", str(out)]
+    cmd += ["--config", str(config), "--no-progress", *extra]
+    return subprocess.Popen(
+        cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def _wait_for_results(proc: subprocess.Popen, out: Path, n: int, timeout_s: float = 120) -> None:
+    t0 = time.monotonic()
+    while not ((out / "trees").is_dir() and len(result_files(out)) >= n):
+        if proc.poll() is not None:
+            pytest.fail(f"the batch ended early: {proc.communicate()}")
+        if time.monotonic() - t0 > timeout_s:
+            proc.kill()
+            pytest.fail("no tree finished in time")
+        time.sleep(0.05)
+
+
+@pytest.fixture()
+def four_trees(tmp_path, saplings, quick):
+    data = tmp_path / "data"
+    data.mkdir()
+    for i, name in enumerate("abcd"):
+        shutil.copy(saplings[f"sapling{i % 2}"], data / f"{name}.ply")
+    config = tmp_path / "quick.toml"
+    config.write_text(to_toml(quick))
+    return sorted(data.iterdir()), config
+
+
+def test_a_killed_batch_resumes_without_redoing_finished_trees(four_trees, quick, tmp_path):
+    inputs, config = four_trees
+    out = tmp_path / "out"
+    proc = _start_batch(inputs, out, config, "--executor", "inline")
+    _wait_for_results(proc, out, 1)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=30)
+    assert_no_corrupt_output(out)  # the tree it was running is only in .tmp/
+    finished = result_files(out)
+    assert 1 <= len(finished) < 4
+
+    result = run_batch(inputs, quick, out, executor="inline")
+    assert [r["status"] for r in result.rows] == ["ok"] * 4
+    assert {r["id"] for r in result.rows if r.get("reused")} == set(finished)
+    after = result_files(out)
+    assert {k: after[k] for k in finished} == finished  # not redone
+    assert set(after) == {"a", "b", "c", "d"}
+    assert not (out / ".tmp").exists()
+    assert_no_corrupt_output(out)
+
+
+def test_ctrl_c_stops_the_workers_and_the_rerun_finishes_the_rest(four_trees, quick, tmp_path):
+    inputs, config = four_trees
+    out = tmp_path / "out"
+    proc = _start_batch(inputs, out, config, "--executor", "local", "--workers", "2")
+    _wait_for_results(proc, out, 1)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    finished = result_files(out)
+    # (a worker may finish a tree just before it is stopped: kept, and reused below)
+    assert {r["id"] for r in summary["trees"] if r["status"] == "ok"} <= set(finished)
+    assert_no_corrupt_output(out)
+    time.sleep(1.5)  # stopped workers write nothing more
+    assert result_files(out) == finished
+
+    result = run_batch(inputs, quick, out, executor="local", workers=2)
+    assert [r["status"] for r in result.rows] == ["ok"] * 4
+    assert {r["id"] for r in result.rows if r.get("reused")} == set(finished)
+    after = result_files(out)
+    assert {k: after[k] for k in finished} == finished
+    assert_no_corrupt_output(out)

@@ -1,0 +1,216 @@
+"""``run_tree``: every artefact, run.json's names, the station rule, and the parameters
+(presets, TOML, flat settings, the hash)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import pytest
+
+from pipeline.errors import InputFormatError, InvalidParameterError
+from pipeline.run import (
+    PRESETS,
+    STAGES,
+    RunParams,
+    apply_settings,
+    load_config,
+    params_hash,
+    preset,
+    run_tree,
+    station_distance_m,
+    to_toml,
+)
+
+ARTEFACTS = (
+    "tree.ply",
+    "cylinders.csv",
+    "tree.json",
+    "scan.laz",
+    "scan.json",
+    "vs_mesh/comparison.json",
+    "vs_mesh/report.html",
+    "vs_mesh/cloud_distances.laz",
+    "vs_mesh/reference_distances.laz",
+    "vs_field/comparison.json",
+    "vs_field/report.html",
+    "report.html",
+    "run.json",
+)
+
+
+@pytest.fixture(scope="module")
+def sapling_run(saplings, quick, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "sapling"
+    seen = []
+    result = run_tree(saplings["sapling0"], quick, out, progress=lambda f, m: seen.append(f))
+    return result, seen
+
+
+def test_run_tree_writes_every_artefact(sapling_run):
+    result, seen = sapling_run
+    for name in ARTEFACTS:
+        assert (result.outdir / name).is_file(), name
+    assert result.report_html == result.outdir / "report.html"
+    assert seen[0] == 0.0 and seen[-1] == 1.0
+    assert all(b >= a for a, b in zip(seen, seen[1:], strict=False))
+
+
+def test_run_json_uses_the_names_of_tree_json_and_comparison_json(sapling_run):
+    result, _ = sapling_run
+    run = json.loads(result.run_json.read_text())
+    assert run == result.summary
+    assert {"parameters", "software", "timings_s", "reconstruction", "vs_mesh", "vs_field"} <= set(
+        run
+    )
+    assert set(STAGES) | {"total"} == set(run["timings_s"])
+    assert all(v >= 0 for v in run["timings_s"].values())
+    assert run["parameters"] == result.summary["parameters"]
+    assert run["parameters"]["preset"] == "draft"
+    assert {"treesim", "numpy", "open3d", "pymeshlab"} <= set(run["software"])
+    tree = json.loads((result.outdir / "tree.json").read_text())
+    for key, value in run["reconstruction"].items():
+        assert key in tree, key
+        assert tree[key] == value, key
+    for key in ("vs_mesh", "vs_field"):
+        comp = json.loads((result.outdir / key / "comparison.json").read_text())
+        assert run[key], key
+        for name, value in run[key].items():
+            assert comp[name] == value, (key, name)
+        assert {"accuracy", "completeness", "coverage", "chamfer_m", "hausdorff_m"} <= set(run[key])
+
+
+def test_the_simulated_cloud_lies_on_the_mesh_and_near_the_field_cloud(sapling_run):
+    result, _ = sapling_run
+    vs_mesh, vs_field = result.vs_mesh, result.vs_field
+    # every hit is on the scanned mesh (the scanner refines hits onto the hit triangle's
+    # plane; at a triangle's edge a grazing hit can sit a few µm beyond it)
+    assert vs_mesh["accuracy"]["p99_m"] < 1e-6
+    assert vs_mesh["accuracy"]["max_m"] < 1e-4
+    assert vs_mesh["coverage"] > 0.5
+    assert vs_mesh["by_station"].keys() == {"0", "1", "2"}
+    assert vs_mesh["reference"]["kind"] == "mesh"
+    assert vs_field["reference"]["kind"] == "cloud"
+    assert vs_field["accuracy"]["p95_m"] < 0.02  # a sapling modelled within 2 cm
+    rec = result.reconstruction
+    assert rec["dbh_m"] == pytest.approx(0.031, abs=0.005)  # the sapling's DBH is 3.1 cm
+
+
+def test_stations_follow_the_size_rule(sapling_run):
+    result, _ = sapling_run
+    rule = result.summary["scan"]["station_rule"]
+    expected = max(5.0, 1.5 * rule["crown_diameter_m"], 0.5 * rule["height_m"])
+    assert rule["distance_m"] == pytest.approx(expected)
+    stations = result.summary["scan"]["stations"]
+    assert len(stations) == 3
+    xy = [s["position_m"][:2] for s in stations]
+    d = [math.dist(a, b) for a, b in zip(xy, xy[1:] + xy[:1], strict=True)]
+    assert d == pytest.approx([math.sqrt(3) * expected] * 3)  # 120° apart on the ring
+
+
+def test_run_page_presents_both_comparisons(sapling_run):
+    result, _ = sapling_run
+    page = result.report_html.read_text()
+    for link in ("vs_mesh/report.html", "vs_field/report.html", "run.json", "tree.ply"):
+        assert f'href="{link}"' in page
+    assert 'src="http' not in page and 'href="http' not in page  # works offline
+
+
+def test_station_distance_rule():
+    assert station_distance_m(1.0, 4.0) == 5.0
+    assert station_distance_m(6.0, 10.0) == 9.0
+    assert station_distance_m(2.0, 30.0) == 15.0
+    assert station_distance_m(1.0, 2.0, min_distance_m=2.0) == 2.0
+
+
+def test_run_tree_refuses_a_missing_file(tmp_path, quick):
+    with pytest.raises(InputFormatError, match="not found"):
+        run_tree(tmp_path / "nope.laz", quick, tmp_path / "out")
+
+
+# -- parameters ------------------------------------------------------------------------
+def test_presets_grow_finer():
+    d, s, f = PRESETS["draft"], PRESETS["standard"], PRESETS["fine"]
+    res = [p.scan.scanner.horizontal_resolution_deg for p in (d, s, f)]
+    assert res == sorted(res, reverse=True)
+    assert d.reconstruct.facets < s.reconstruct.facets < f.reconstruct.facets
+    assert preset("standard") == s
+    with pytest.raises(InvalidParameterError, match="draft, standard, fine"):
+        preset("ultra")
+
+
+def test_toml_round_trip(tmp_path):
+    for name, p in PRESETS.items():
+        cfg = tmp_path / f"{name}.toml"
+        cfg.write_text(to_toml(p))
+        assert load_config(cfg) == p
+
+
+def test_config_overrides_its_preset(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(
+        'preset = "draft"\n[reconstruct]\nmethod = "poisson"\n'
+        "[scan]\nn_stations = 4\ndistance_m = 7.5\n[scan.scanner]\n"
+        "horizontal_resolution_deg = 0.3\nvertical_fov_deg = [-30, 80]\n"
+        '[reconstruct.prepare]\nvoxel_size_m = "none"\n'
+    )
+    p = load_config(cfg)
+    assert p.preset == "draft"
+    assert p.reconstruct.method == "poisson"
+    assert p.reconstruct.facets == PRESETS["draft"].reconstruct.facets
+    assert p.reconstruct.prepare.voxel_size_m is None
+    assert (p.scan.n_stations, p.scan.distance_m) == (4, 7.5)
+    assert p.scan.scanner.horizontal_resolution_deg == 0.3
+    assert p.scan.scanner.vertical_fov_deg == (-30, 80)
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("[scan]\nstations = 3\n", "unknown setting 'stations' in \\[scan\\]"),
+        ("[scan]\nn_stations = 0\n", "n_stations must be in"),
+        ("[scan]\nn_stations = 'three'\n", "must be a number"),
+        ("[scan.scanner]\nhorizontal_resolution_deg = -1\n", "must be > 0"),
+        ("scan = 3\n", "must be a table"),
+        ('preset = "ultra"\n', "unknown preset"),
+        ("[scan\n", "not valid TOML"),
+    ],
+)
+def test_bad_configs_say_what_is_wrong(tmp_path, text, match):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(text)
+    with pytest.raises((InvalidParameterError, InputFormatError), match=match):
+        load_config(cfg)
+
+
+def test_flat_settings_map_to_nested_fields():
+    p = apply_settings(
+        preset("standard"),
+        {"method": "bpa", "resolution_deg": "0.1", "stations": "5", "voxel_m": "0", "facets": 8},
+    )
+    assert p.reconstruct.method == "bpa"
+    assert p.scan.scanner.horizontal_resolution_deg == p.scan.scanner.vertical_resolution_deg == 0.1
+    assert p.scan.n_stations == 5
+    assert p.reconstruct.prepare.voxel_size_m is None
+    assert p.reconstruct.facets == 8
+    with pytest.raises(InvalidParameterError, match="unknown setting 'colour'"):
+        apply_settings(p, {"colour": "red"})
+    with pytest.raises(InvalidParameterError, match="row 3: stations: cannot read"):
+        apply_settings(p, {"stations": "many"}, where="row 3: ")
+
+
+def test_the_hash_covers_results_not_threads():
+    p = preset("draft")
+    assert params_hash(p) == params_hash(p.with_threads(7))
+    assert params_hash(p) == params_hash(replace(p, preset="renamed"))
+    assert params_hash(p) != params_hash(apply_settings(p, {"resolution_deg": 0.2}))
+    assert params_hash(p) != params_hash(apply_settings(p, {"method": "poisson"}))
+    with pytest.raises(InvalidParameterError):
+        RunParams(threads=-1)
+
+
+def test_params_are_frozen():
+    p = preset("draft")
+    with pytest.raises(AttributeError):
+        p.threads = 3  # type: ignore[misc]
