@@ -54,6 +54,7 @@ import numpy as np
 
 from .cloud import LABEL_NAMES, Cloud
 from .compare import CompareParams
+from .compare import _json_ready as _jsonable
 from .errors import InputFormatError, InvalidParameterError
 from .reconstruct import PrepareParams, ReconstructParams
 from .report import ReportParams
@@ -595,20 +596,6 @@ COMPARISON_FIGURES = (
 
 #: Stages timed in ``run.json``'s ``timings_s`` (plus ``total``).
 STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Path):
-        return str(value)
-    return value
 
 
 def _write_json(path: Path, data: Any) -> None:
