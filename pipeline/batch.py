@@ -53,6 +53,7 @@ from typing import Any, TextIO
 
 from .errors import InputFormatError, InvalidParameterError, TreesimError
 from .executors import Executor, ExecutorPlan, open_executor, plan_executor, slots, task_threads
+from .jsonio import write_json as _write_json
 from .run import (
     STAGES,
     RunParams,
@@ -308,14 +309,6 @@ def _row_from_summary(summary: dict[str, Any]) -> dict[str, Any]:
     t = summary.get("timings_s", {})
     row.update({f"time_{s}_s": t.get(s) for s in (*STAGES, "total")})
     return row
-
-
-def _write_json(path: Path, data: Any) -> None:
-    from .run import _jsonable
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _install(src: Path, dest: Path, tmp_root: Path) -> None:

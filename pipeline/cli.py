@@ -8,7 +8,6 @@ to see a traceback for unexpected errors.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -17,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InvalidParameterError, TreesimError
+from .jsonio import write_json as _write_json
 
 SAMPLE_DIR = Path(__file__).resolve().parent / "data" / "coffee_tree"
 
@@ -302,24 +302,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"\ndemo output is in {result.outdir.resolve()}/; open the report in a browser:")
     print(f"{result.report_html.resolve()}")
     return 0
-
-
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
-    os.replace(tmp, path)
-
-
-def _json_default(o: Any) -> Any:
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 # -- parser ----------------------------------------------------------------------------

@@ -71,6 +71,7 @@ from .errors import (
     InvalidParameterError,
 )
 from .frame import LocalFrame
+from .jsonio import write_json
 
 __all__ = [
     "CompareParams",
@@ -946,19 +947,20 @@ def software_versions(*extra: str) -> dict[str, str]:
     return out
 
 
-def _json_ready(value: Any) -> Any:
-    """Replace NaN/inf by None and numpy scalars by Python ones, recursively."""
-    if isinstance(value, dict):
-        return {str(k): _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Path):
-        return str(value)
-    return value
+#: The figures of ``comparison.json`` that reports and ``run.json`` carry (same names).
+COMPARISON_FIGURES = (
+    "accuracy",
+    "completeness",
+    "hausdorff_m",
+    "chamfer_m",
+    "tolerance_m",
+    "coverage",
+    "point_spacing_m",
+    "cloud",
+    "reference",
+    "by_label",
+    "by_station",
+)
 
 
 def write_comparison(
@@ -986,8 +988,6 @@ def write_comparison(
     dict of str -> Path
         ``comparison``, ``cloud_distances<suffix>``, ``reference_distances<suffix>``.
     """
-    import json
-    import os
 
     from .io import write_cloud
 
@@ -1011,9 +1011,5 @@ def write_comparison(
         "outputs": {k: p.name for k, p in written.items()},
         "software": software_versions(),
     }
-    path = out / "comparison.json"
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(_json_ready(summary), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    written["comparison"] = path
+    written["comparison"] = write_json(out / "comparison.json", summary)
     return written

@@ -53,9 +53,10 @@ from typing import Any
 import numpy as np
 
 from .cloud import LABEL_NAMES, Cloud
-from .compare import CompareParams
-from .compare import _json_ready as _jsonable
+from .compare import COMPARISON_FIGURES, CompareParams
 from .errors import InputFormatError, InvalidParameterError
+from .jsonio import json_ready as _jsonable
+from .jsonio import write_json as _write_json
 from .reconstruct import PrepareParams, ReconstructParams
 from .report import ReportParams
 from .scan import ScannerSpec
@@ -579,29 +580,8 @@ class RunResult:
         return self.summary["vs_field"]
 
 
-#: The figures of ``comparison.json`` copied into ``run.json`` (same names).
-COMPARISON_FIGURES = (
-    "accuracy",
-    "completeness",
-    "hausdorff_m",
-    "chamfer_m",
-    "tolerance_m",
-    "coverage",
-    "point_spacing_m",
-    "cloud",
-    "reference",
-    "by_label",
-    "by_station",
-)
-
 #: Stages timed in ``run.json``'s ``timings_s`` (plus ``total``).
 STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
-
-
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(_jsonable(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def software_versions() -> dict[str, str]:

@@ -99,11 +99,14 @@ def _check_header(path: Path) -> None:
         raise InputFormatError(f"{path}: not a LAS/LAZ file (no LASF header); is it complete?")
     header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
     if header_size < 227 or point_offset > size or point_offset < header_size:
-        raise InputFormatError(f"{path}: corrupt LAS header (point data offset {point_offset} "
-                               f"in a {size}-byte file)")
+        raise InputFormatError(
+            f"{path}: corrupt LAS header (point data offset {point_offset} in a {size}-byte file)"
+        )
     if n_vlrs * 54 > point_offset - header_size:
-        raise InputFormatError(f"{path}: corrupt LAS header ({n_vlrs} variable-length "
-                               "records cannot fit before the point data)")
+        raise InputFormatError(
+            f"{path}: corrupt LAS header ({n_vlrs} variable-length "
+            "records cannot fit before the point data)"
+        )
 
 
 def read_las(path: str | Path) -> Cloud:

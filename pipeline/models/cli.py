@@ -11,13 +11,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 from pathlib import Path
-from typing import Any
 
 from ..errors import InputFormatError, InvalidParameterError
+from ..jsonio import write_json as _write_json
 
 #: Mesh suffixes ``generate`` and ``from-qsm`` write.
 MESH_SUFFIXES = (".obj", ".ply")
@@ -43,18 +41,6 @@ def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
     """``tree.cylinders.csv`` and ``tree.truth.json`` beside ``tree.obj``."""
     p = Path(mesh_path)
     return p.with_name(p.stem + ".cylinders.csv"), p.with_name(p.stem + ".truth.json")
-
-
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise InputFormatError(f"could not write {path}: {exc}") from exc
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def cmd_generate(args: argparse.Namespace) -> int:

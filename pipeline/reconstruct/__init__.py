@@ -17,8 +17,6 @@ reconstruction and its truth compare key by key.
 
 from __future__ import annotations
 
-import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -28,6 +26,7 @@ import numpy as np
 
 from ..cloud import LABEL_CODES, Cloud
 from ..errors import InvalidParameterError, ReconstructionError
+from ..jsonio import write_json
 from ..models import CylinderTable, cylinders_to_mesh, mesh_volume, write_cylinders
 from .preprocess import PreparedCloud, PrepareParams, prepare
 from .qsm import QSMParams, QSMResult, fit_circle, fit_qsm
@@ -138,7 +137,7 @@ class TreeModel:
 
     def to_dict(self) -> dict[str, Any]:
         """``tree.json``'s content."""
-        from .. import __version__
+        from ..compare import software_versions
 
         return {
             **self.figures,
@@ -147,7 +146,7 @@ class TreeModel:
             "preparation": self.preparation,
             "timings_s": self.timings_s,
             "diagnostics": self.diagnostics,
-            "software": _versions(__version__),
+            "software": software_versions("pymeshlab", "trimesh"),
         }
 
     def write(self, outdir: str | Path) -> dict[str, Path]:
@@ -163,33 +162,8 @@ class TreeModel:
         }
         if self.cylinders is not None:
             paths["cylinders"] = write_cylinders(out / "cylinders.csv", self.cylinders)
-        tmp = out / ".tree.json.tmp"
-        tmp.write_text(json.dumps(self.to_dict(), indent=2, default=_json_default) + "\n")
-        os.replace(tmp, out / "tree.json")
-        paths["json"] = out / "tree.json"
+        paths["json"] = write_json(out / "tree.json", self.to_dict())
         return paths
-
-
-def _versions(treesim_version: str) -> dict[str, str]:
-    import importlib.metadata as md
-
-    out = {"treesim": treesim_version}
-    for name in ("numpy", "scipy", "open3d", "pymeshlab", "trimesh"):
-        try:
-            out[name] = md.version(name)
-        except md.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def cloud_dbh_m(

@@ -16,14 +16,14 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from ..compare import Comparison, _json_ready, software_versions
+from ..compare import COMPARISON_FIGURES, Comparison, software_versions
 from ..errors import InvalidParameterError
+from ..jsonio import write_json
 from . import figures
 from .data import ReportData
 from .html import build_html
@@ -162,24 +162,11 @@ def build_report(
     html_path = out / "report.html"
     _write_text(html_path, page)
 
-    figures_keys = (
-        "accuracy",
-        "completeness",
-        "hausdorff_m",
-        "chamfer_m",
-        "tolerance_m",
-        "coverage",
-        "point_spacing_m",
-        "cloud",
-        "reference",
-        "by_label",
-        "by_station",
-    )
     report = {
         "kind": "treesim.report",
         "generated": generated,
         "summary": paragraph,
-        "figures": {k: s[k] for k in figures_keys if k in s},
+        "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
         "parameters": {**s.get("parameters", {}), "report": asdict(params)},
         "inputs": s.get("inputs", {}),
         "definitions": s.get("definitions", {}),
@@ -187,7 +174,7 @@ def build_report(
         "files": {"report_html": html_path.name, **{k: p.name for k, p in pngs.items()}},
     }
     json_path = out / "report.json"
-    _write_text(json_path, json.dumps(_json_ready(report), indent=2, allow_nan=False) + "\n")
+    write_json(json_path, report)
     return {"report_json": json_path, "report_html": html_path, **pngs}
 
 

@@ -66,7 +66,7 @@ class ReportData:
         cls, comparison: Comparison, *, inputs: dict[str, Any] | None = None
     ) -> ReportData:
         """Build from an in-memory :class:`~pipeline.compare.Comparison`."""
-        from ..compare import _json_ready
+        from ..jsonio import json_ready as _json_ready
 
         summary = _json_ready(
             {

@@ -1,0 +1,49 @@
+"""JSON output shared by every stage: plain values, no NaN, written atomically."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputFormatError
+
+
+def json_ready(value: Any) -> Any:
+    """Plain-JSON form of ``value``, recursively: numpy scalars and arrays become Python
+    numbers and lists, paths strings, and NaN or infinite floats ``None``."""
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as indented JSON through a temporary file renamed into place, so a
+    half-written file is never seen."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp")
+    try:
+        tmp.write_text(
+            json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
+        os.replace(tmp, p)
+    except OSError as exc:
+        raise InputFormatError(f"could not write {p}: {exc}") from exc
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return p
