@@ -182,7 +182,7 @@ def _spec_from_args(args: argparse.Namespace):
 
 
 def _stations_from_args(args: argparse.Namespace, scene) -> list:
-    from .scan import Station, ring_layout
+    from .scan import Station, ring_around
 
     if args.station and args.layout == "ring":
         raise InvalidParameterError("give either --layout ring or --station positions, not both")
@@ -190,13 +190,11 @@ def _stations_from_args(args: argparse.Namespace, scene) -> list:
         return [Station(position_m=_floats(s, 3, "--station")) for s in args.station]
     if args.layout == "list":
         raise InvalidParameterError("--layout list needs at least one --station X,Y,Z")
-    lo, hi = scene.bounds
-    return ring_layout(
+    return ring_around(
+        scene.bounds,
         args.stations,
         distance_m=args.distance_m,
         height_m=args.height_m,
-        centre_xy=(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])),
-        base_z_m=float(lo[2]),
         start_angle_deg=args.start_angle_deg,
     )
 

@@ -658,7 +658,7 @@ def run_tree(
     from .io import read_cloud, write_cloud
     from .reconstruct import reconstruct
     from .report import build_report
-    from .scan import ring_layout, scan
+    from .scan import ring_around, scan
 
     params = params or preset("standard")
     if not isinstance(params, RunParams):
@@ -715,12 +715,11 @@ def run_tree(
             f"max({sp.min_distance_m:g} m, 1.5 × crown diameter {crown_d:.3g} m, "
             f"0.5 × height {height:.3g} m)"
         )
-    stations = ring_layout(
+    stations = ring_around(
+        scene.bounds,
         sp.n_stations,
         distance_m=distance,
         height_m=sp.height_m,
-        centre_xy=(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])),
-        base_z_m=float(lo[2]),
         start_angle_deg=sp.start_angle_deg,
     )
     say(0.35, "scanning")

@@ -7,10 +7,11 @@ from .scanner import (
     ScannerSpec,
     Station,
     preset,
+    ring_around,
     ring_layout,
 )
 from .scene import MeshPart, Scene, label_from_name, load_mesh, load_scene
-from .trace import ScanResult, StationStats, estimate_rays, scan
+from .trace import ScanResult, StationStats, scan
 
 __all__ = [
     "PRESETS",
@@ -22,11 +23,11 @@ __all__ = [
     "Scene",
     "Station",
     "StationStats",
-    "estimate_rays",
     "label_from_name",
     "load_mesh",
     "load_scene",
     "preset",
+    "ring_around",
     "ring_layout",
     "scan",
 ]

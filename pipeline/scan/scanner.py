@@ -382,3 +382,30 @@ def ring_layout(
             )
         )
     return out
+
+
+def ring_around(
+    bounds: np.ndarray,
+    n: int,
+    *,
+    distance_m: float,
+    height_m: float,
+    start_angle_deg: float = 0.0,
+) -> list[Station]:
+    """``n`` stations on a ring around a scene: centred on its bounds in x and y, at
+    ``height_m`` above its lowest point (the usual field layout).
+
+    Parameters
+    ----------
+    bounds : (2, 3) float
+        Min and max corners of the scene (``Scene.bounds``).
+    """
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    return ring_layout(
+        n,
+        distance_m=distance_m,
+        height_m=height_m,
+        centre_xy=(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])),
+        base_z_m=float(lo[2]),
+        start_angle_deg=start_angle_deg,
+    )

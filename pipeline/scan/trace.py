@@ -118,19 +118,6 @@ class ScanResult:
         }
 
 
-def estimate_rays(
-    scene: Scene, stations: Sequence[Station], spec: ScannerSpec, *, window: bool = True
-) -> list[int]:
-    """Rays each station would cast (no casting; cheap)."""
-    frame = LocalFrame.around(scene.used_vertices)
-    verts = frame.to_local(scene.used_vertices)
-    return [
-        _grid_for(verts, frame.to_local(st.position), st.rotation, spec, window)[0].n_pulses
-        * spec.rays_per_pulse
-        for st in stations
-    ]
-
-
 def _grid_for(
     verts_local: np.ndarray, o: np.ndarray, rot: np.ndarray, spec: ScannerSpec, window: bool
 ) -> tuple[PulseGrid, Any]:
@@ -551,4 +538,4 @@ def _human_time(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
-__all__ = ["scan", "ScanResult", "StationStats", "estimate_rays", "BYTES_PER_RAY"]
+__all__ = ["scan", "ScanResult", "StationStats", "BYTES_PER_RAY"]
