@@ -11,14 +11,23 @@ __version__ = "0.1.0"
 
 from .batch import BatchResult, run_batch  # noqa: E402
 from .cloud import LABEL_CODES, Cloud  # noqa: E402
-from .compare import CompareParams, compare  # noqa: E402
+from .compare import compare  # noqa: E402
 from .errors import TreesimError  # noqa: E402
 from .frame import LocalFrame  # noqa: E402
 from .io import read_cloud, write_cloud  # noqa: E402
-from .reconstruct import ReconstructParams, reconstruct  # noqa: E402
+from .params import (  # noqa: E402
+    CompareParams,
+    ReconstructParams,
+    RunParams,
+    ScanParams,
+    ScannerSpec,
+    load_config,
+    run_preset,
+)
+from .reconstruct import reconstruct  # noqa: E402
 from .report import build_report  # noqa: E402
-from .run import RunParams, RunResult, ScanParams, run_tree  # noqa: E402
-from .scan import ScannerSpec, Station, load_scene, ring_layout, scan  # noqa: E402
+from .run import RunResult, run_tree  # noqa: E402
+from .scan import Station, load_scene, ring_layout, scan  # noqa: E402
 
 __all__ = [
     "LABEL_CODES",
@@ -36,11 +45,13 @@ __all__ = [
     "__version__",
     "build_report",
     "compare",
+    "load_config",
     "load_scene",
     "read_cloud",
     "reconstruct",
     "ring_layout",
     "run_batch",
+    "run_preset",
     "run_tree",
     "scan",
     "write_cloud",

@@ -3,7 +3,7 @@
 Inputs are point cloud files, folders (every cloud inside, by suffix, recursively; text
 tables without x, y, z columns, such as QSM cylinder tables, and PLY meshes are skipped
 with a note) and CSV manifests (a ``path`` column, an optional ``id`` column and per-tree
-settings in columns named as :data:`pipeline.run.SETTINGS`, e.g. ``method``,
+settings in columns named as :data:`pipeline.params.SETTINGS`, e.g. ``method``,
 ``resolution_deg``, ``stations``; relative paths are relative to the manifest).
 
 The output folder holds
@@ -34,12 +34,10 @@ from __future__ import annotations
 import concurrent.futures as cf
 import csv
 import datetime as _dt
-import html
 import json
 import os
 import re
 import shutil
-import sys
 import tempfile
 import time
 import traceback
@@ -49,25 +47,18 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from .errors import InputFormatError, InvalidParameterError, TreesimError
 from .executors import Executor, ExecutorPlan, open_executor, plan_executor, slots, task_threads
 from .jsonio import write_json as _write_json
-from .run import (
-    STAGES,
-    RunParams,
-    apply_settings,
-    file_sha256,
-    params_hash,
-    preset,
-    run_tree,
-)
+from .params import RunParams, apply_settings, params_hash, run_preset
+from .report.batch_index import batch_index_page
+from .run import STAGES, file_sha256, run_tree
 
 __all__ = [
     "BatchProgress",
     "BatchResult",
-    "ProgressBar",
     "SUMMARY_COLUMNS",
     "TreeInput",
     "discover_inputs",
@@ -127,7 +118,7 @@ class TreeInput:
         Its output folder's name (``trees/<id>``).
     path : Path
     settings : tuple of (str, str)
-        Per-tree settings from a manifest (see :data:`pipeline.run.SETTINGS`).
+        Per-tree settings from a manifest (see :data:`pipeline.params.SETTINGS`).
     """
 
     id: str
@@ -181,7 +172,7 @@ def _is_manifest(p: Path) -> bool:
 
 
 def _read_manifest(p: Path) -> list[tuple[Path, str | None, tuple[tuple[str, str], ...]]]:
-    from .run import SETTINGS
+    from .params import SETTINGS
 
     rows = []
     with open(p, encoding="utf-8-sig", newline="") as fh:
@@ -423,76 +414,6 @@ class BatchProgress:
         return self.done + self.failed + self.reused
 
 
-def _clock(seconds: float | None) -> str:
-    if seconds is None:
-        return "?"
-    s = int(round(seconds))
-    h, rem = divmod(s, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
-
-
-class ProgressBar:
-    """A progress line on ``stream`` (stderr): a redrawn bar on a terminal, one plain line
-    per finished tree otherwise.
-
-    Parameters
-    ----------
-    stream : text stream, optional
-        Default ``sys.stderr``.
-    tty : bool, optional
-        Force the terminal (``True``) or plain (``False``) form; default detect.
-    width : int
-        Characters of the bar.
-    """
-
-    def __init__(self, stream: TextIO | None = None, *, tty: bool | None = None, width: int = 24):
-        self.stream = stream or sys.stderr
-        self.tty = self.stream.isatty() if tty is None else tty
-        self.width = width
-        self._last_draw = 0.0
-        self._drawn = False
-
-    def __call__(self, p: BatchProgress) -> None:
-        left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"
-        if p.finished == p.total and p.running == 0:
-            left = "done"
-        counts = f"{p.finished}/{p.total} trees · {p.failed} failed"
-        if p.reused:
-            counts += f" · {p.reused} unchanged"
-        if self.tty:
-            now = time.monotonic()
-            if p.last is None and now - self._last_draw < 0.5:
-                return
-            self._last_draw = now
-            filled = int(self.width * p.finished / max(p.total, 1))
-            bar = "█" * filled + "░" * (self.width - filled)
-            line = f"\r[{bar}] {counts} · {p.running} running · {_clock(p.elapsed_s)} · {left}"
-            self.stream.write(line.ljust(100)[:120])
-            self._drawn = True
-            if p.finished == p.total and p.running == 0:
-                self.stream.write("\n")
-                self._drawn = False
-        elif p.last is not None:
-            r = p.last
-            what = (
-                f"failed: {r.get('error_class')}: {r.get('error')}"
-                if r["status"] == "failed"
-                else ("unchanged, not run again" if r.get("reused") else "ok")
-            )
-            took = r.get("time_total_s")
-            took_s = f" in {took:.1f} s" if isinstance(took, float) and not r.get("reused") else ""
-            self.stream.write(f"batch: {counts}; {r['id']} {what}{took_s}; {left}\n")
-        self.stream.flush()
-
-    def close(self) -> None:
-        """End a half-drawn bar line."""
-        if self._drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._drawn = False
-
-
 # -- the batch ----------------------------------------------------------------------------
 @dataclass
 class BatchResult:
@@ -601,7 +522,8 @@ def run_batch(
     scheduler : str, optional
         A running dask scheduler's address.
     progress : callable(BatchProgress), optional
-        Called when a tree finishes and about twice a second (e.g. :class:`ProgressBar`).
+        Called when a tree finishes and about twice a second (e.g. the command line's
+        :class:`pipeline.cli.progress.BatchProgressBar`).
 
     Returns
     -------
@@ -617,7 +539,7 @@ def run_batch(
     t_start = time.perf_counter()
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
-    params = params or preset("standard")
+    params = params or run_preset("standard")
     trees, skipped_files = discover_inputs(inputs)
     if not trees:
         raise InputFormatError("no point clouds found in the inputs; nothing to run")
@@ -859,74 +781,16 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
     )
     idx = out / "index.html"
     tmp = idx.with_name(".index.html.tmp")
-    tmp.write_text(_index_page(result, rows, counts), encoding="utf-8")
+    tmp.write_text(
+        batch_index_page(
+            rows,
+            counts,
+            skipped_files=result.skipped_files,
+            interrupted=result.interrupted,
+            executor=result.plan.describe(),
+            elapsed_s=result.elapsed_s,
+        ),
+        encoding="utf-8",
+    )
     os.replace(tmp, idx)
     result.summary_csv, result.summary_json, result.index_html = csv_path, json_path, idx
-
-
-def _fmt(v: Any, scale: float = 1.0, digits: int = 3, unit: str = "") -> str:
-    if v is None or v == "":
-        return "–"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return f"{v:,}{unit}"
-    if isinstance(v, float):
-        return f"{v * scale:.{digits}g}{unit}"
-    return html.escape(str(v))
-
-
-def _index_page(result: BatchResult, rows: list[dict[str, Any]], counts: dict[str, int]) -> str:
-    esc = html.escape
-    head = (
-        "<tr><th>tree</th><th>status</th><th>DBH</th><th>height</th><th>wood volume</th>"
-        "<th>scan points</th><th>coverage of the mesh</th><th>p95 to field cloud</th>"
-        "<th>coverage of the field cloud</th><th>time</th></tr>"
-    )
-    body = []
-    for r in rows:
-        tid = esc(str(r["id"]))
-        if r["status"] == "ok":
-            name = f'<a href="{esc(str(r["report"]))}">{tid}</a>'
-            status = "ok (unchanged)" if r["reused"] else "ok"
-        elif r["status"] == "failed":
-            err = esc(f"{r.get('error_class')}: {r.get('error')}")
-            link = (
-                f' (<a href="{esc(str(r["folder"]))}/error.json">error.json</a>)'
-                if r.get("folder")
-                else ""
-            )
-            name, status = tid, f'<span class="bad">failed</span>: {err}{link}'
-        else:
-            name, status = tid, esc(str(r["status"]))
-        body.append(
-            f"<tr><td>{name}</td><td class='l'>{status}</td>"
-            f"<td>{_fmt(r.get('dbh_m'), 100, unit=' cm')}</td>"
-            f"<td>{_fmt(r.get('height_m'), unit=' m')}</td>"
-            f"<td>{_fmt(r.get('volume_total_m3'), 1000, unit=' L')}</td>"
-            f"<td>{_fmt(r.get('scan_points'))}</td>"
-            f"<td>{_fmt(r.get('vs_mesh_coverage'), 100, unit=' %')}</td>"
-            f"<td>{_fmt(r.get('vs_field_accuracy_p95_m'), 1000, unit=' mm')}</td>"
-            f"<td>{_fmt(r.get('vs_field_coverage'), 100, unit=' %')}</td>"
-            f"<td>{_fmt(r.get('time_total_s'), digits=2, unit=' s')}</td></tr>"
-        )
-    skipped = ""
-    if result.skipped_files:
-        items = "".join(f"<li>{esc(str(p))}: {esc(why)}</li>" for p, why in result.skipped_files)
-        skipped = f"<h2>Files skipped</h2><ul>{items}</ul>"
-    note = " (interrupted: run the same command again to finish)" if result.interrupted else ""
-    return f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
-<title>treesim batch</title><style>
-body{{font:15px/1.45 system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#222;
-padding:0 1em}}
-table{{border-collapse:collapse}}td,th{{padding:.25em .7em;border-bottom:1px solid #eee;
-text-align:right}}td:first-child,th:first-child,.l{{text-align:left}}.bad{{color:#b00}}
-a{{color:#0a58ca}}.muted{{color:#777}}</style></head><body>
-<h1>treesim batch</h1>
-<p>{counts["trees"]} trees: {counts["ok"]} ok ({counts["reused"]} unchanged from an earlier
-run), {counts["failed"]} failed, {counts["not_run"]} not run{note}.
-<span class="muted">{esc(result.plan.describe())}; {result.elapsed_s:.1f} s.
-Figures of every tree: <a href="summary.csv">summary.csv</a>,
-<a href="summary.json">summary.json</a>.</span></p>
-<table>{head}{"".join(body)}</table>{skipped}</body></html>
-"""

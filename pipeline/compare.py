@@ -72,6 +72,7 @@ from .errors import (
 )
 from .frame import LocalFrame
 from .jsonio import write_json
+from .params import CompareParams
 
 __all__ = [
     "CompareParams",
@@ -109,53 +110,6 @@ _O3D_CHUNK = 1 << 21  # points per Open3D query
 
 
 # -- parameters and statistics --------------------------------------------------------
-@dataclass(frozen=True, kw_only=True)
-class CompareParams:
-    """How a comparison is made.
-
-    Parameters
-    ----------
-    tolerance_m : float, optional
-        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
-    sample_spacing_m : float, optional
-        Mesh references: spacing of the surface samples for completeness (m), i.e. one
-        sample per ``sample_spacing_m²``; default ``point_spacing_m``.
-    seed : int
-        Seed of the surface sampling (and of the spacing estimate's subsample).
-    min_samples, max_samples : int
-        Bounds on the number of surface samples (the spacing is adjusted to stay within
-        them; the effective spacing is reported).
-    spacing_subsample : int
-        Points used to estimate the cloud's median spacing (all if fewer).
-    nthreads : int
-        Threads for Open3D and the k-d tree queries (0: all cores).
-    """
-
-    tolerance_m: float | None = None
-    sample_spacing_m: float | None = None
-    seed: int = 0
-    min_samples: int = 10_000
-    max_samples: int = 2_000_000
-    spacing_subsample: int = 50_000
-    nthreads: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("tolerance_m", "sample_spacing_m"):
-            v = getattr(self, name)
-            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InvalidParameterError(
-                    f"{name} must be a positive number of metres, got {v!r}"
-                )
-        if int(self.min_samples) < 1 or int(self.max_samples) < int(self.min_samples):
-            raise InvalidParameterError(
-                f"need 1 <= min_samples <= max_samples, got {self.min_samples}, {self.max_samples}"
-            )
-        if int(self.spacing_subsample) < 2:
-            raise InvalidParameterError("spacing_subsample must be at least 2")
-        if int(self.nthreads) < 0:
-            raise InvalidParameterError(f"nthreads must be >= 0, got {self.nthreads}")
-
-
 @dataclass(frozen=True, kw_only=True)
 class DistanceStats:
     """Summary of absolute distances (m); every figure is ``None`` when ``n == 0``."""

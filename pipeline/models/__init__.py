@@ -4,7 +4,7 @@
   SimpleForest, treesim CSV), validated, measured and written;
 * :mod:`.mesh`: tables as triangle meshes, a closed prism per cylinder or a closed,
   mitred tube per branch (:func:`tubes_to_mesh`);
-* :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`PRESETS`) whose
+* :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`SPECIES`) whose
   cylinder table is the exact truth of their mesh.
 """
 
@@ -32,15 +32,15 @@ from .mesh import (
 )
 from .procedural import (
     LEAF_SHAPES,
-    PRESETS,
     SHAPES,
+    SPECIES,
     LeafParams,
     ProceduralTree,
     StemLevel,
     TreeParams,
     generate_tree,
-    preset,
     shape_ratio,
+    species_preset,
 )
 
 __all__ = [
@@ -49,7 +49,7 @@ __all__ = [
     "FORMATS",
     "JOINTS",
     "LEAF_SHAPES",
-    "PRESETS",
+    "SPECIES",
     "SHAPES",
     "TREEQSM_TEXT_COLUMNS",
     "TREESIM_COLUMNS",
@@ -64,7 +64,7 @@ __all__ = [
     "faces_per_cylinder",
     "generate_tree",
     "mesh_volume",
-    "preset",
+    "species_preset",
     "read_cylinders",
     "shape_ratio",
     "tubes_to_mesh",

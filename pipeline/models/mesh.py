@@ -34,10 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidGeometryError, InvalidParameterError
+from ..params.models import JOINTS
 from .cylinders import CylinderTable, _check_facets, _walk_to_roots
-
-#: Ways :func:`cylinders_to_mesh` joins the cylinders of a branch.
-JOINTS: tuple[str, ...] = ("separate", "miter")
 
 #: Default largest bend (degrees) between two cylinders that :func:`tubes_to_mesh` mitres;
 #: sharper joints end one tube and start another (the mitre ellipse grows as

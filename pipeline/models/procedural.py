@@ -940,7 +940,7 @@ def generate_tree(
     Parameters
     ----------
     species : str or TreeParams
-        A preset name (see :data:`PRESETS`) or parameters.
+        A preset name (see :data:`SPECIES`) or parameters.
     seed : int
         Seed of ``numpy.random.default_rng``, >= 0. The same seed gives the same tree,
         bit for bit.
@@ -953,7 +953,7 @@ def generate_tree(
     ProceduralTree
         Stem base at the origin, trunk along +z, metres.
     """
-    params = preset(species) if isinstance(species, str) else species
+    params = species_preset(species) if isinstance(species, str) else species
     if not isinstance(params, TreeParams):
         raise InvalidParameterError(f"species must be a preset name or TreeParams, got {species!r}")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
@@ -1046,11 +1046,11 @@ _ASPEN = TreeParams(
     ),
 )
 
-PRESETS: dict[str, TreeParams] = {}
+SPECIES: dict[str, TreeParams] = {}
 
 
 def _register(params: TreeParams) -> None:
-    PRESETS[params.name] = params
+    SPECIES[params.name] = params
 
 
 _register(_ASPEN)
@@ -1243,12 +1243,12 @@ _register(
 )
 
 
-def preset(name: str) -> TreeParams:
-    """The preset species called ``name`` (see :data:`PRESETS`)."""
+def species_preset(name: str) -> TreeParams:
+    """The tree species called ``name`` (see :data:`SPECIES`)."""
     try:
-        return PRESETS[name]
+        return SPECIES[name]
     except (KeyError, TypeError):
         raise InvalidParameterError(
-            f"unknown species {name!r}; choose one of {', '.join(PRESETS)} "
+            f"unknown species {name!r}; choose one of {', '.join(SPECIES)} "
             "(see 'treesim model list')"
         ) from None

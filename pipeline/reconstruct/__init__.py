@@ -18,21 +18,19 @@ reconstruction and its truth compare key by key.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from ..cloud import LABEL_CODES, Cloud
-from ..errors import InvalidParameterError, ReconstructionError
+from ..errors import ReconstructionError
 from ..jsonio import write_json
 from ..models import CylinderTable, cylinders_to_mesh, mesh_volume, write_cylinders
-from .preprocess import PreparedCloud, PrepareParams, prepare
-from .qsm import QSMParams, QSMResult, fit_circle, fit_qsm
-
-Method = Literal["qsm", "poisson", "bpa"]
-METHODS: tuple[str, ...] = ("qsm", "poisson", "bpa")
+from ..params import METHODS, PrepareParams, QSMParams, ReconstructParams
+from .preprocess import PreparedCloud, prepare
+from .qsm import QSMResult, fit_circle, fit_qsm
 
 __all__ = [
     "METHODS",
@@ -43,60 +41,6 @@ __all__ = [
     "cloud_dbh_m",
     "reconstruct",
 ]
-
-
-@dataclass(frozen=True, kw_only=True)
-class ReconstructParams:
-    """Everything that decides a reconstruction.
-
-    Parameters
-    ----------
-    method : {"qsm", "poisson", "bpa"}
-    prepare : PrepareParams
-        Input preparation (voxel size, outlier removal, ground removal, normals).
-    qsm : QSMParams
-        Cylinder fitting (qsm only).
-    facets : int
-        Facets per cylinder ring of the QSM mesh (speed/accuracy knob; the prism of n
-        facets holds (n / 2π)·sin(2π / n) of the cylinder's volume: 16 → -2.6 %,
-        32 → -0.64 %).
-    poisson_depth : int
-        Screened Poisson octree depth (speed/accuracy knob).
-    poisson_trim_quantile : float
-        Share of lowest-density Poisson vertices trimmed (hallucinated surface).
-    bpa_radii_m : tuple of float, optional
-        Ball radii; default from the point spacing.
-    timeout_s : float
-        Longest a pymeshlab step may run before it is stopped.
-    """
-
-    method: Method = "qsm"
-    prepare: PrepareParams = field(default_factory=PrepareParams)
-    qsm: QSMParams = field(default_factory=QSMParams)
-    facets: int = 32
-    poisson_depth: int = 8
-    poisson_trim_quantile: float = 0.1
-    bpa_radii_m: tuple[float, ...] | None = None
-    timeout_s: float = 600.0
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise InvalidParameterError(
-                f"method must be one of {', '.join(METHODS)}, got {self.method!r}"
-            )
-        if int(self.facets) != self.facets or not 3 <= self.facets <= 512:
-            raise InvalidParameterError(f"facets must be an integer in [3, 512], got {self.facets}")
-        if not 4 <= self.poisson_depth <= 16:
-            raise InvalidParameterError(
-                f"poisson_depth must be in [4, 16], got {self.poisson_depth}"
-            )
-        if not 0 <= self.poisson_trim_quantile < 1:
-            raise InvalidParameterError("poisson_trim_quantile must be in [0, 1)")
-        if not self.timeout_s > 0:
-            raise InvalidParameterError("timeout_s must be > 0")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass

@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 from ..cloud import Cloud
 from ..errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
 from ..frame import LocalFrame
+from ..params import PrepareParams
 
 __all__ = [
     "PrepareParams",
@@ -100,76 +101,6 @@ _CHUNK = 32768
 
 
 # --------------------------------------------------------------------------- parameters
-
-
-@dataclass(frozen=True, kw_only=True)
-class PrepareParams:
-    """How :func:`prepare` thins and cleans a cloud.
-
-    Parameters
-    ----------
-    voxel_size_m : float or None
-        Edge of the downsampling voxels (m); ``None`` keeps every point but still merges
-        exact duplicates.
-    sor_neighbors : int
-        Neighbours per point in statistical outlier removal.
-    sor_std_ratio : float or None
-        Outlier threshold in standard deviations of the mean neighbour distance;
-        ``None`` turns outlier removal off.
-    remove_ground : bool
-        Look for a ground plane under the tree and remove it.
-    ground_tolerance_m : float
-        Points less than this above the ground plane (or below it) are ground.
-    normals_neighbors : int or None
-        Neighbours per point for PCA normals; ``None`` skips normals.
-    min_points : int
-        Fewest points a tree cloud may have.
-    threads : int
-        Threads for the neighbour searches (results do not depend on it).
-    """
-
-    voxel_size_m: float | None = 0.005
-    sor_neighbors: int = 16
-    sor_std_ratio: float | None = 2.5
-    remove_ground: bool = False
-    ground_tolerance_m: float = 0.05
-    normals_neighbors: int | None = 24
-    min_points: int = 300
-    threads: int = 2
-
-    def __post_init__(self) -> None:
-        if self.voxel_size_m is not None and not (
-            math.isfinite(self.voxel_size_m) and self.voxel_size_m > 0
-        ):
-            raise InvalidParameterError(
-                f"voxel_size_m must be a positive length in metres or None, got {self.voxel_size_m}"
-            )
-        if int(self.sor_neighbors) != self.sor_neighbors or self.sor_neighbors < 2:
-            raise InvalidParameterError(
-                f"sor_neighbors must be an integer >= 2, got {self.sor_neighbors}"
-            )
-        if self.sor_std_ratio is not None and not (
-            math.isfinite(self.sor_std_ratio) and self.sor_std_ratio > 0
-        ):
-            raise InvalidParameterError(
-                f"sor_std_ratio must be positive or None, got {self.sor_std_ratio}"
-            )
-        if not (math.isfinite(self.ground_tolerance_m) and self.ground_tolerance_m > 0):
-            raise InvalidParameterError(
-                f"ground_tolerance_m must be a positive length, got {self.ground_tolerance_m}"
-            )
-        if self.normals_neighbors is not None and (
-            int(self.normals_neighbors) != self.normals_neighbors or self.normals_neighbors < 3
-        ):
-            raise InvalidParameterError(
-                f"normals_neighbors must be an integer >= 3 or None, got {self.normals_neighbors}"
-            )
-        if int(self.min_points) != self.min_points or self.min_points < 4:
-            raise InvalidParameterError(
-                f"min_points must be an integer >= 4, got {self.min_points}"
-            )
-        if int(self.threads) != self.threads or self.threads < 1:
-            raise InvalidParameterError(f"threads must be a positive integer, got {self.threads}")
 
 
 @dataclass(frozen=True, kw_only=True)

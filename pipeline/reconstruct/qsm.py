@@ -29,7 +29,6 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -38,81 +37,9 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from ..errors import InvalidParameterError, ReconstructionError
+from ..errors import ReconstructionError
 from ..models import CylinderTable
-
-
-@dataclass(frozen=True, kw_only=True)
-class QSMParams:
-    """Parameters of the cylinder QSM (``None``: derived from the point spacing).
-
-    Parameters
-    ----------
-    slice_m : float, optional
-        Thickness of the geodesic slices (node spacing along branches); default
-        ``clamp(6 × spacing, 0.02, 0.08)``.
-    neighbors : int
-        Neighbours per point in the graph.
-    link_m : float, optional
-        Longest graph edge before gap bridging; default ``max(4 × spacing, 0.02)``.
-    base_band_m : float, optional
-        Points this close above the lowest point form the base; default ``slice_m / 2``.
-    min_coverage_deg : float
-        Arc a circle fit's points must cover to count as measured.
-    max_rel_residual : float
-        Largest RMS residual of a measured fit, relative to its radius.
-    partial_coverage_deg, partial_rel_residual : float
-        A fit covering less than ``min_coverage_deg`` (one-sided scans) still counts as
-        measured when it covers at least ``partial_coverage_deg`` with an RMS residual
-        under ``partial_rel_residual`` of its radius.
-    pipe_exponent : float
-        Exponent b of the radius model ``r^(1/b) = r_tip^(1/b) + a · S`` (S: growth
-        length); 0.5 is the pipe model (cross-section area = tip area + area proportional
-        to the length supported).
-    min_radius_m : float, optional
-        Smallest radius that can be measured; default ``1.5 × spacing``.
-    twig_radius_m : float
-        Radius prior of branch tips (twigs), m: the radius a branch tends to at its tip,
-        where no scan resolves it. 1.5 mm is within the range of measured twig diameters
-        (rTwig's database: about 3-5 mm) and keeps the procedural presets' branch volume
-        within +5..+16 % (conifer shoots, thinner still, +76 %).
-    """
-
-    slice_m: float | None = None
-    neighbors: int = 10
-    link_m: float | None = None
-    base_band_m: float | None = None
-    min_coverage_deg: float = 180.0
-    max_rel_residual: float = 0.12
-    partial_coverage_deg: float = 120.0
-    partial_rel_residual: float = 0.06
-    pipe_exponent: float = 0.5
-    min_radius_m: float | None = None
-    twig_radius_m: float = 0.0015
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("slice_m", "link_m", "base_band_m", "min_radius_m"):
-            v = getattr(self, name)
-            if v is not None and not (math.isfinite(v) and v > 0):
-                raise InvalidParameterError(f"{name} must be > 0 (or omitted), got {v}")
-        if not 3 <= self.neighbors <= 64:
-            raise InvalidParameterError(f"neighbors must be in [3, 64], got {self.neighbors}")
-        if not 0 < self.min_coverage_deg <= 360:
-            raise InvalidParameterError("min_coverage_deg must be in (0, 360]")
-        if not self.twig_radius_m > 0:
-            raise InvalidParameterError("twig_radius_m must be > 0")
-
-    def resolved(self, spacing_m: float) -> dict[str, float]:
-        """The derived values for a cloud with the given point spacing."""
-        s = max(spacing_m, 1e-4)
-        slice_m = self.slice_m or min(max(6.0 * s, 0.02), 0.08)
-        return {
-            "slice_m": slice_m,
-            "link_m": self.link_m or max(4.0 * s, 0.02),
-            "base_band_m": self.base_band_m or 0.5 * slice_m,
-            "min_radius_m": self.min_radius_m or 1.5 * s,
-        }
+from ..params import QSMParams
 
 
 @dataclass

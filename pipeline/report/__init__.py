@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import datetime as _dt
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from ..compare import COMPARISON_FIGURES, Comparison, software_versions
 from ..errors import InvalidParameterError
 from ..jsonio import write_json
+from ..params import ReportParams
 from . import figures
 from .data import ReportData
 from .html import build_html
@@ -39,33 +40,6 @@ PNG_FILES = {
     "views_completeness": "views_completeness.png",
     "coverage": "coverage.png",
 }
-
-
-@dataclass(frozen=True, kw_only=True)
-class ReportParams:
-    """How a report is drawn.
-
-    Parameters
-    ----------
-    max_view_points : int
-        Points per data set in the HTML page's 3D view (random subsample, seeded).
-    max_plot_points : int
-        Points per PNG view (random subsample, seeded).
-    seed : int
-        Seed of the subsamples.
-    dpi : int
-        Resolution of the PNG plots.
-    """
-
-    max_view_points: int = 40_000
-    max_plot_points: int = 120_000
-    seed: int = 0
-    dpi: int = 130
-
-    def __post_init__(self) -> None:
-        for name in ("max_view_points", "max_plot_points", "dpi"):
-            if int(getattr(self, name)) < 1:
-                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
 def build_report(

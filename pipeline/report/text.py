@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import math
 from typing import Any
 
@@ -20,6 +21,20 @@ def length(x: float | None) -> str:
 def mm(x: float | None, decimals: int = 3) -> str:
     """A distance in metres as millimetres with fixed decimals (for tables)."""
     return "–" if x is None else f"{x * 1e3:,.{decimals}f}"
+
+
+def cell(v: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
+    """A value as an HTML table cell's text: ``–`` when missing, ``yes``/``no``, integers
+    with thousands separators, floats × ``scale`` to ``digits`` significant digits."""
+    if v is None or v == "":
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return f"{v:,}{unit}"
+    if isinstance(v, float):
+        return f"{v * scale:.{digits}g}{unit}"
+    return html.escape(str(v))
 
 
 def percent(f: float | None, decimals: int = 1) -> str:

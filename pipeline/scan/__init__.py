@@ -1,20 +1,18 @@
-"""The virtual terrestrial laser scanner."""
+"""The virtual terrestrial laser scanner.
 
-from .scanner import (
-    PRESETS,
-    RETURN_MODES,
-    InstrumentPreset,
-    ScannerSpec,
-    Station,
-    preset,
-    ring_around,
-    ring_layout,
-)
+``scan(scene, stations, spec)`` casts each station's rays at a :class:`~pipeline.scene.Scene`
+and returns the simulated cloud; :func:`stations_for` places stations by the station rule.
+The scanner's settings (:class:`~pipeline.params.ScannerSpec`) and instruments live in the
+parameter model, :mod:`pipeline.params`.
+"""
+
+from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
 from .scene import MeshPart, Scene, label_from_name, load_mesh, load_scene
+from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
 from .trace import ScanResult, StationStats, scan
 
 __all__ = [
-    "PRESETS",
+    "INSTRUMENTS",
     "RETURN_MODES",
     "InstrumentPreset",
     "MeshPart",
@@ -23,11 +21,13 @@ __all__ = [
     "Scene",
     "Station",
     "StationStats",
+    "instrument",
     "label_from_name",
     "load_mesh",
     "load_scene",
-    "preset",
     "ring_around",
     "ring_layout",
     "scan",
+    "station_distance_m",
+    "stations_for",
 ]

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scanner import ScannerSpec
+from ..params import ScannerSpec
 
 _U64 = np.uint64
 

@@ -22,6 +22,7 @@ import numpy as np
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
+from ..params import ScannerSpec
 from . import beam as beam_model
 from .rays import (
     PulseGrid,
@@ -32,8 +33,8 @@ from .rays import (
     pulse_angles,
     windowed_grid,
 )
-from .scanner import ScannerSpec, Station
 from .scene import Scene
+from .stations import Station
 
 Progress = Callable[[float, str], None]
 

@@ -1,20 +1,32 @@
-"""The scanner's description: ``ScannerSpec``, instrument presets, stations and layouts.
+"""The scanner's settings (:class:`ScannerSpec`) and the instruments it can imitate.
 
-Angles are in degrees, distances in metres. The scanner frame has x along the
-station's heading, z up; azimuth is measured counter-clockwise from x in the
-horizontal plane, elevation up from the horizontal plane.
+Angles are in degrees, distances in metres. The scanner frame has x along the station's
+heading, z up; azimuth is measured counter-clockwise from x in the horizontal plane,
+elevation up from the horizontal plane.
+
+*Instruments* (:data:`INSTRUMENTS`) are one of treesim's three kinds of preset: a real
+scanner's published figures. The others are run presets (:data:`pipeline.params.RUN_PRESETS`)
+and tree species (:data:`pipeline.models.SPECIES`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Literal
 
-import numpy as np
-
 from ..errors import InvalidParameterError
+from ._fields import finite, param
+
+__all__ = [
+    "DEFAULT_REFLECTANCE",
+    "INSTRUMENTS",
+    "InstrumentPreset",
+    "RETURN_MODES",
+    "ScannerSpec",
+    "instrument",
+    "resolution_fields",
+]
 
 ReturnMode = Literal["first", "last", "strongest", "all"]
 RETURN_MODES: tuple[str, ...] = ("first", "last", "strongest", "all")
@@ -22,13 +34,6 @@ RETURN_MODES: tuple[str, ...] = ("first", "last", "strongest", "all")
 #: Near-infrared reflectance per hit label used by the intensity proxy (1550 nm-ish
 #: figures: bark ~0.45, leaves ~0.25 because water absorbs at 1550 nm, soil ~0.3).
 DEFAULT_REFLECTANCE: dict[str, float] = {"wood": 0.45, "leaf": 0.25, "ground": 0.30, "other": 0.5}
-
-
-def _finite(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise InvalidParameterError(f"{name} must be a finite number, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -64,39 +69,59 @@ class ScannerSpec:
         Reflectance per hit label, used by the intensity proxy only.
     """
 
-    horizontal_resolution_deg: float = 0.04
-    vertical_resolution_deg: float = 0.04
-    horizontal_fov_deg: tuple[float, float] = (0.0, 360.0)
-    vertical_fov_deg: tuple[float, float] = (-40.0, 90.0)
-    min_range_m: float = 0.5
-    max_range_m: float = 400.0
-    beam_divergence_mrad: float = 0.0
-    subrays: int = 7
-    range_resolution_m: float = 0.3
-    range_noise_sd_m: float = 0.0
-    angular_jitter_sd_deg: float = 0.0
-    return_mode: ReturnMode = "first"
-    seed: int = 0
-    reflectance: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
+    horizontal_resolution_deg: float = param(
+        0.04, help="horizontal angular step between pulses", unit="deg", flag="--h-resolution-deg"
+    )
+    vertical_resolution_deg: float = param(
+        0.04, help="vertical angular step between pulses", unit="deg", flag="--v-resolution-deg"
+    )
+    horizontal_fov_deg: tuple[float, float] = param(
+        (0.0, 360.0),
+        help="azimuth range swept, START,END from the heading",
+        unit="deg",
+        flag="--hfov-deg",
+    )
+    vertical_fov_deg: tuple[float, float] = param(
+        (-40.0, 90.0), help="elevation range swept, LOW,HIGH", unit="deg", flag="--vfov-deg"
+    )
+    min_range_m: float = param(0.5, help="nearest echo recorded", unit="m")
+    max_range_m: float = param(400.0, help="farthest echo recorded", unit="m")
+    beam_divergence_mrad: float = param(
+        0.0, help="full-angle beam divergence; > 0 turns the beam model on", unit="mrad"
+    )
+    subrays: int = param(7, help="rays per pulse with the beam model")
+    range_resolution_m: float = param(
+        0.3, help="echo separation for multiple returns (beam model)", unit="m"
+    )
+    range_noise_sd_m: float = param(0.0, help="Gaussian range noise σ (0: off)", unit="m")
+    angular_jitter_sd_deg: float = param(0.0, help="pointing noise σ (0: off)", unit="deg")
+    return_mode: ReturnMode = param(
+        "first", help="which returns of a pulse are recorded", choices=RETURN_MODES
+    )
+    seed: int = param(0, help="seed of the noise models")
+    reflectance: dict[str, float] = param(
+        help="reflectance per hit label (intensity proxy only)",
+        factory=lambda: dict(DEFAULT_REFLECTANCE),
+    )
 
     def __post_init__(self) -> None:
         for name in ("horizontal_resolution_deg", "vertical_resolution_deg"):
-            v = _finite(name, getattr(self, name))
+            v = finite(name, getattr(self, name))
             if v <= 0:
                 raise InvalidParameterError(f"{name} must be > 0, got {v}")
             if v > 45:
                 raise InvalidParameterError(f"{name} must be <= 45 degrees, got {v}")
-        h0, h1 = (_finite("horizontal_fov_deg", a) for a in self.horizontal_fov_deg)
+        h0, h1 = (finite("horizontal_fov_deg", a) for a in self.horizontal_fov_deg)
         if not 0 < h1 - h0 <= 360:
             raise InvalidParameterError(
                 f"horizontal_fov_deg must span (0, 360] degrees, got ({h0}, {h1})"
             )
-        v0, v1 = (_finite("vertical_fov_deg", a) for a in self.vertical_fov_deg)
+        v0, v1 = (finite("vertical_fov_deg", a) for a in self.vertical_fov_deg)
         if not -90 <= v0 < v1 <= 90:
             raise InvalidParameterError(
                 f"vertical_fov_deg must satisfy -90 <= low < high <= 90, got ({v0}, {v1})"
             )
-        lo, hi = _finite("min_range_m", self.min_range_m), _finite("max_range_m", self.max_range_m)
+        lo, hi = finite("min_range_m", self.min_range_m), finite("max_range_m", self.max_range_m)
         if lo < 0 or hi <= lo:
             raise InvalidParameterError(
                 f"ranges must satisfy 0 <= min_range_m < max_range_m, got {lo}, {hi}"
@@ -107,7 +132,7 @@ class ScannerSpec:
             "range_noise_sd_m",
             "angular_jitter_sd_deg",
         ):
-            if _finite(name, getattr(self, name)) < 0:
+            if finite(name, getattr(self, name)) < 0:
                 raise InvalidParameterError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.beam_divergence_mrad > 100:
             raise InvalidParameterError(
@@ -217,8 +242,7 @@ class InstrumentPreset:
     def spec(self, *, beam: bool = False, noise: bool = False, **overrides: object) -> ScannerSpec:
         """A ``ScannerSpec`` from these figures; ``overrides`` replace any field."""
         kw: dict[str, object] = dict(
-            horizontal_resolution_deg=self.resolution_deg,
-            vertical_resolution_deg=self.resolution_deg,
+            **resolution_fields(self.resolution_deg),
             horizontal_fov_deg=self.horizontal_fov_deg,
             vertical_fov_deg=self.vertical_fov_deg,
             min_range_m=self.min_range_m,
@@ -245,7 +269,7 @@ class InstrumentPreset:
 #:   (-60°/+90°) × 360°, beam divergence 0.19 mrad (0.011°), range 0.6-330 m, ranging noise
 #:   0.3 mm at 10 m on 90 % reflectance (raw), wavelength 1550 nm; step 0.009° at full
 #:   resolution, 0.036° at the common 1/4 resolution setting used here.
-PRESETS: dict[str, InstrumentPreset] = {
+INSTRUMENTS: dict[str, InstrumentPreset] = {
     "riegl-vz400": InstrumentPreset(
         name="riegl-vz400",
         description="RIEGL VZ-400 (pulsed, 1550 nm, waveform returns)",
@@ -277,135 +301,20 @@ PRESETS: dict[str, InstrumentPreset] = {
 }
 
 
-def preset(name: str) -> InstrumentPreset:
-    """The instrument preset called ``name`` (see ``PRESETS``)."""
+def instrument(name: str) -> InstrumentPreset:
+    """The scanner instrument called ``name`` (see :data:`INSTRUMENTS`)."""
     try:
-        return PRESETS[name]
+        return INSTRUMENTS[name]
     except KeyError:
         raise InvalidParameterError(
-            f"unknown scanner preset {name!r}; choose one of {', '.join(sorted(PRESETS))}"
+            f"unknown scanner instrument {name!r}; choose one of {', '.join(sorted(INSTRUMENTS))}"
         ) from None
 
 
-@dataclass(frozen=True, kw_only=True)
-class Station:
-    """A scanner position and orientation.
+def resolution_fields(resolution_deg: float) -> dict[str, float]:
+    """One angular step for both axes: the ``ScannerSpec`` fields it sets.
 
-    Parameters
-    ----------
-    position_m : (3,) float
-        The scanner's optical centre in the scene's coordinates (may be georeferenced).
-    heading_deg : float
-        Rotation of the scanner frame about z (azimuth 0 points along it).
-    pitch_deg, roll_deg : float
-        Tilt of the scanner about its y and x axes (0 for a levelled instrument).
+    The single place where a square grid's step is expanded to the horizontal and
+    vertical resolutions (the ``resolution_deg`` setting, instruments, run presets).
     """
-
-    position_m: tuple[float, float, float]
-    heading_deg: float = 0.0
-    pitch_deg: float = 0.0
-    roll_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        pos = tuple(float(v) for v in self.position_m)
-        if len(pos) != 3 or not all(math.isfinite(v) for v in pos):
-            raise InvalidParameterError(
-                f"station position must be three finite numbers, got {self.position_m!r}"
-            )
-        object.__setattr__(self, "position_m", pos)
-        for name in ("heading_deg", "pitch_deg", "roll_deg"):
-            _finite(name, getattr(self, name))
-
-    @property
-    def position(self) -> np.ndarray:
-        """Position as a (3,) float64 array."""
-        return np.asarray(self.position_m, dtype=np.float64)
-
-    @property
-    def rotation(self) -> np.ndarray:
-        """(3, 3) float64 matrix taking scanner-frame vectors to scene-frame vectors."""
-        h, p, r = (math.radians(a) for a in (self.heading_deg, self.pitch_deg, self.roll_deg))
-        rz = np.array([[math.cos(h), -math.sin(h), 0], [math.sin(h), math.cos(h), 0], [0, 0, 1]])
-        ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
-        rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
-        return rz @ ry @ rx
-
-    def to_dict(self) -> dict[str, object]:
-        return {
-            "position_m": list(self.position_m),
-            "heading_deg": self.heading_deg,
-            "pitch_deg": self.pitch_deg,
-            "roll_deg": self.roll_deg,
-        }
-
-
-def ring_layout(
-    n: int,
-    *,
-    distance_m: float,
-    height_m: float,
-    centre_xy: Sequence[float],
-    base_z_m: float = 0.0,
-    start_angle_deg: float = 0.0,
-) -> list[Station]:
-    """``n`` stations evenly spaced on a circle around a centre.
-
-    Parameters
-    ----------
-    n : int
-        Number of stations (3 gives the classic three scans 120° apart).
-    distance_m : float
-        Horizontal distance from the centre to each station.
-    height_m : float
-        Instrument height above ``base_z_m`` (the scene's ground or stem base).
-    centre_xy : (2,) float
-        Centre of the ring, in scene coordinates.
-    start_angle_deg : float
-        Polar angle of the first station, counter-clockwise from +x.
-    """
-    if int(n) != n or n < 1:
-        raise InvalidParameterError(f"the number of stations must be a positive integer, got {n}")
-    if not math.isfinite(distance_m) or distance_m <= 0:
-        raise InvalidParameterError(f"distance_m must be > 0, got {distance_m}")
-    _finite("height_m", height_m)
-    cx, cy = (float(v) for v in centre_xy)
-    out = []
-    for k in range(int(n)):
-        a = math.radians(start_angle_deg + 360.0 * k / n)
-        out.append(
-            Station(
-                position_m=(
-                    cx + distance_m * math.cos(a),
-                    cy + distance_m * math.sin(a),
-                    base_z_m + height_m,
-                )
-            )
-        )
-    return out
-
-
-def ring_around(
-    bounds: np.ndarray,
-    n: int,
-    *,
-    distance_m: float,
-    height_m: float,
-    start_angle_deg: float = 0.0,
-) -> list[Station]:
-    """``n`` stations on a ring around a scene: centred on its bounds in x and y, at
-    ``height_m`` above its lowest point (the usual field layout).
-
-    Parameters
-    ----------
-    bounds : (2, 3) float
-        Min and max corners of the scene (``Scene.bounds``).
-    """
-    lo, hi = np.asarray(bounds, dtype=np.float64)
-    return ring_layout(
-        n,
-        distance_m=distance_m,
-        height_m=height_m,
-        centre_xy=(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])),
-        base_z_m=float(lo[2]),
-        start_angle_deg=start_angle_deg,
-    )
+    return {"horizontal_resolution_deg": resolution_deg, "vertical_resolution_deg": resolution_deg}

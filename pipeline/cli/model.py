@@ -1,4 +1,4 @@
-"""``treesim model ...`` subcommands (registered by ``pipeline.cli``).
+"""``treesim model ...``: the tree model library's commands.
 
 * ``treesim model generate --species NAME [--leaves/--no-leaves] [--seed N] [--facets N]
   -o tree.obj``: a procedural tree as a labelled mesh (OBJ with ``wood`` and ``leaf``
@@ -16,6 +16,9 @@ from pathlib import Path
 
 from ..errors import InputFormatError, InvalidParameterError
 from ..jsonio import write_json as _write_json
+from ..params import merge
+from ..params.models import ModelParams
+from ._options import collect, param_option
 
 #: Mesh suffixes ``generate`` and ``from-qsm`` write.
 MESH_SUFFIXES = (".obj", ".ply")
@@ -44,16 +47,20 @@ def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from .. import __version__
+    from .._version import __version__
     from ..io.mesh import write_mesh
-    from .cylinders import write_cylinders
-    from .procedural import generate_tree, preset
+    from ..models import generate_tree, species_preset, write_cylinders
 
+    mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(args.facets)
-    params = preset(args.species)
-    tree = generate_tree(params, seed=args.seed, leaves=args.leaves)
+    facets = _check_facets(mp.facets)
+    if mp.species is None:
+        raise InvalidParameterError(
+            "give the tree species: --species NAME (see 'treesim model list')"
+        )
+    params = species_preset(mp.species)
+    tree = generate_tree(params, seed=mp.seed, leaves=mp.leaves)
     vertices, faces, label = tree.mesh(facets)
     table_path, truth_path = companion_paths(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -65,7 +72,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     _write_json(truth_path, truth)
     dbh = truth["dbh_m"] * 100.0
     print(
-        f"{params.name} (seed {args.seed}): DBH {dbh:.1f} cm, height {truth['height_m']:.2f} m, "
+        f"{params.name} (seed {mp.seed}): DBH {dbh:.1f} cm, height {truth['height_m']:.2f} m, "
         f"wood {truth['volume_total_m3'] * 1000:.1f} L (stem {truth['volume_stem_m3'] * 1000:.1f} "
         f"L), {truth['n_cylinders']:,} cylinders, {truth['n_leaves']:,} leaves"
     )
@@ -80,17 +87,18 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from .procedural import PRESETS, generate_tree
+    from ..models import SPECIES, generate_tree
 
-    facets = _check_facets(args.facets)
+    mp = merge(ModelParams(), collect(args))
+    facets = _check_facets(mp.facets)
     header = (
         f"{'species':13} {'DBH cm':>7} {'height m':>9} {'wood L':>8} {'stem L':>7} "
         f"{'cylinders':>9} {'triangles':>9} {'leaves':>7}  description"
     )
-    print(f"seed {args.seed}, {facets} facets per ring (figures of the generated trees)")
+    print(f"seed {mp.seed}, {facets} facets per ring (figures of the generated trees)")
     print(header)
-    for name, params in PRESETS.items():
-        t = generate_tree(params, seed=args.seed).truth(facets)
+    for name, params in SPECIES.items():
+        t = generate_tree(params, seed=mp.seed).truth(facets)
         print(
             f"{name:13} {t['dbh_m'] * 100:7.1f} {t['height_m']:9.2f} "
             f"{t['volume_total_m3'] * 1000:8.1f} {t['volume_stem_m3'] * 1000:7.1f} "
@@ -106,13 +114,14 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_from_qsm(args: argparse.Namespace) -> int:
     from ..io.mesh import write_mesh
-    from . import cylinders_to_mesh, mesh_volume, read_cylinders
+    from ..models import cylinders_to_mesh, mesh_volume, read_cylinders
 
+    mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(args.facets)
+    facets = _check_facets(mp.facets)
     table = read_cylinders(args.table, format=args.format)
-    v, f = cylinders_to_mesh(table, facets=facets, joints=args.joints)
+    v, f = cylinders_to_mesh(table, facets=facets, joints=mp.joints)
     write_mesh(out, v, f)
     s = table.summary()
     dbh = f"{s['dbh_m'] * 100:.2f} cm" if s["dbh_m"] is not None else "n/a (no stem)"
@@ -124,7 +133,7 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     volume = mesh_volume(v, f)
     prism = facets * math.sin(2 * math.pi / facets) / (2 * math.pi) - 1.0
     print(
-        f"wrote {out}: {len(f):,} triangles, {facets} facets per ring, {args.joints} joints, "
+        f"wrote {out}: {len(f):,} triangles, {facets} facets per ring, {mp.joints} joints, "
         f"enclosed volume {volume * 1000:.2f} L "
         f"({(volume / s['volume_total_m3'] - 1) * 100:+.2f} % vs the table; the {facets}-gon "
         f"alone gives {prism * 100:+.2f} %)"
@@ -132,11 +141,14 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     return 0
 
 
+def param_options_model(parser: argparse.ArgumentParser, names: list[str]) -> None:
+    for name in names:
+        param_option(parser, ModelParams, name)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``model`` command and its subcommands to ``treesim``'s parser."""
-    from .cylinders import FORMATS
-    from .mesh import JOINTS
-    from .procedural import PRESETS
+    from ..models import FORMATS
 
     md = sub.add_parser(
         "model",
@@ -153,19 +165,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "mesh (wood and leaf parts), its exact cylinder table (OUT.cylinders.csv) and its "
         "reference figures (OUT.truth.json).",
     )
-    gen.add_argument(
-        "--species", required=True, metavar="NAME", help=f"preset: {', '.join(PRESETS)}"
-    )
-    gen.add_argument(
-        "--leaves",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="add leaves, or not (default: the species' own choice)",
-    )
-    gen.add_argument("--seed", type=int, default=0, help="random seed, >= 0 (default 0)")
-    gen.add_argument(
-        "--facets", type=int, default=32, help="vertices per ring of the wood (default 32)"
-    )
+    param_option(gen, ModelParams, "species", metavar="NAME")
+    param_options_model(gen, ["leaves", "seed", "facets"])
     gen.add_argument("-o", "--output", required=True, metavar="tree.obj", help=".obj or .ply")
     gen.set_defaults(func=cmd_generate)
 
@@ -174,8 +175,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="list the species presets with their key figures",
         description="Generate each species preset and list its figures.",
     )
-    ls.add_argument("--seed", type=int, default=0, help="seed of the trees listed (default 0)")
-    ls.add_argument("--facets", type=int, default=32, help="vertices per ring for triangle counts")
+    param_options_model(ls, ["seed", "facets"])
     ls.add_argument("--sources", action="store_true", help="show where parameters come from")
     ls.set_defaults(func=cmd_list)
 
@@ -186,14 +186,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     fq.add_argument("table", metavar="TABLE")
     fq.add_argument("-o", "--output", required=True, metavar="tree.ply", help=".ply or .obj")
-    fq.add_argument("--facets", type=int, default=32, help="facets per cylinder ring (default 32)")
-    fq.add_argument(
-        "--joints",
-        choices=JOINTS,
-        default="miter",
-        help="miter: one crack-free tube per branch (default); separate: a closed prism "
-        "per cylinder",
-    )
+    param_options_model(fq, ["facets", "joints"])
     fq.add_argument("--format", choices=FORMATS, help="table format (default: detected)")
     fq.set_defaults(func=cmd_from_qsm)
     md.set_defaults(func=lambda a: (md.print_help(), 2)[1])

@@ -1,0 +1,69 @@
+"""The ``treesim`` command line: one module per command, options from the parameter model.
+
+Every command ends with a one-line error and a non-zero exit on bad input (exit 1 for
+treesim's own errors, 2 for bad usage, 130 when interrupted); set ``TREESIM_DEBUG=1``
+to see a traceback for unexpected errors.
+
+A new command is a module here with ``register(subparsers)`` and its ``cmd_*`` function,
+added to :data:`COMMANDS`; its options that set parameters come from
+:mod:`pipeline.cli._options` (``param_option``), never typed by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+
+from ..errors import TreesimError
+from ._options import Parser
+
+#: The command modules, in the order ``treesim --help`` lists them.
+COMMANDS = ("scan", "model", "reconstruct", "compare", "report", "run", "batch", "demo")
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole ``treesim`` parser, every command registered."""
+    from .._version import __version__
+
+    p = Parser(prog="treesim", description=(__doc__ or "").splitlines()[0])
+    p.add_argument("--version", action="version", version=f"treesim {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    for name in COMMANDS:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except TreesimError as exc:
+        print(f"treesim: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("treesim: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(
+            "treesim: error: out of memory; coarsen the resolution or lower --chunk-rays",
+            file=sys.stderr,
+        )
+        return 1
+    except Exception as exc:  # never a traceback for users
+        if os.environ.get("TREESIM_DEBUG"):
+            raise
+        print(
+            f"treesim: internal error: {type(exc).__name__}: {exc} "
+            "(set TREESIM_DEBUG=1 for a traceback and report it)",
+            file=sys.stderr,
+        )
+        return 3

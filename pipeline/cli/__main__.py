@@ -1,0 +1,7 @@
+"""``python -m pipeline.cli``: the ``treesim`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

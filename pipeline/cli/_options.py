@@ -1,0 +1,159 @@
+"""Command-line options generated from the parameter model.
+
+:func:`param_option` adds the flag that sets one field of a parameter dataclass: its name,
+type, choices, help text, unit and shown default all come from the field's
+:func:`~pipeline.params.param` declaration, so no command types a default or a help
+text of its own. :func:`collect` gathers the options a user gave into the nested mapping
+that :func:`pipeline.params.merge` checks and applies, the same way as a TOML file.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..errors import InvalidParameterError
+from ..params import ParamInfo, Setting, field_info, set_path
+
+#: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
+PARAM = "treesim_param"
+#: Attribute of a generated argparse action: the flat :class:`Setting` it sets.
+SETTING = "treesim_setting"
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line (exit 2)."""
+
+    def error(self, message: str) -> None:  # one line, exit 2
+        self.exit(2, f"treesim: error: {message} (see '{self.prog} --help')\n")
+
+
+def floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    """``n`` comma-separated numbers (``"-40,90"``), or a one-line error naming ``what``."""
+    try:
+        vals = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n:
+        raise InvalidParameterError(f"{what} must be {n} numbers separated by commas, got {text!r}")
+    return vals
+
+
+def integer(text: str) -> int:
+    """An integer, also written as ``1e9`` or ``2e6``."""
+    try:
+        return int(text)
+    except ValueError:
+        v = float(text)
+        if not v.is_integer():
+            raise ValueError(f"not an integer: {text!r}") from None
+        return int(v)
+
+
+def _number_type(info: ParamInfo) -> Any:
+    t = info.type.replace(" ", "")
+    base = t.split("|")[0]
+    if base == "int":
+        return integer
+    if base == "float":
+        return float
+    return str
+
+
+def _optional(convert: Any) -> Any:
+    def read(text: str) -> Any:
+        if text.strip().lower() in ("none", "off", "auto"):
+            return None
+        v = convert(text)
+        return None if v == 0 else v
+
+    read.__name__ = getattr(convert, "__name__", "value")
+    return read
+
+
+def param_option(
+    group: Any,
+    cls: type,
+    name: str,
+    *,
+    path: tuple[str, ...] = (),
+    flag: str | None = None,
+    metavar: str | None = None,
+) -> argparse.Action:
+    """Add the option that sets field ``name`` of ``cls`` (at ``path`` below the root).
+
+    The option's default is left unset (``argparse.SUPPRESS``): a flag not given leaves the
+    model's default (or the preset's, or the config file's) in force. ``--help`` shows the
+    model's help, unit and default. Optional fields read ``0`` and ``none`` as ``None``.
+    """
+    info = field_info(cls, name, path=path)
+    t = info.type.replace(" ", "")
+    kw: dict[str, Any] = {"dest": "param:" + ".".join(info.path), "default": argparse.SUPPRESS}
+    if t in ("bool", "bool|None"):
+        kw["action"] = argparse.BooleanOptionalAction if info.optional else "store_const"
+        if not info.optional:
+            kw["const"] = True
+    elif t.startswith("tuple[float,...]"):
+        kw.update(action="append", type=float, metavar=metavar or "VALUE")
+    elif t.startswith("tuple"):
+        n = t.split("[", 1)[1].count(",") + 1
+        flag_name = flag or info.cli_flag
+
+        def read(text: str) -> tuple[float, ...]:
+            return floats(text, n, flag_name)
+
+        kw.update(type=read, metavar=metavar or ",".join("ABCD"[:n]))
+    elif info.choices:
+        kw["choices"] = list(info.choices)
+    else:
+        convert = _number_type(info)
+        kw["type"] = _optional(convert) if info.optional else convert
+        if metavar:
+            kw["metavar"] = metavar
+    help_text = info.help_text()
+    if info.optional and t not in ("bool|None",):
+        help_text = help_text[:-1] + "; 0 or none: " + (info.none_means or "none") + ")"
+    action = group.add_argument(flag or info.cli_flag, help=help_text, **kw)
+    setattr(action, PARAM, info)
+    return action
+
+
+def param_options(group: Any, cls: type, names: list[str], *, path: tuple[str, ...] = ()) -> None:
+    """:func:`param_option` for each of ``names``."""
+    for name in names:
+        param_option(group, cls, name, path=path)
+
+
+def setting_option(group: Any, setting: Setting, *, default_text: str) -> argparse.Action:
+    """Add the flag of a flat setting (``treesim run``/``batch``): its value is read by
+    :func:`pipeline.params.apply_settings`, like a manifest column."""
+    info = setting.info
+    unit = f"{info.unit}; " if info.unit else ""
+    zero = f"; 0: {info.none_means}" if info.optional else ""
+    kw: dict[str, Any] = {"dest": "setting:" + setting.name, "default": None}
+    if info.choices:
+        kw["choices"] = list(info.choices)
+    else:
+        kw["type"] = _number_type(info)
+    help_text = f"{setting.help or info.help} ({unit}default {default_text}{zero})"
+    action = group.add_argument(setting.flag, help=help_text, **kw)
+    setattr(action, SETTING, setting)
+    return action
+
+
+def collect(args: argparse.Namespace) -> dict[str, Any]:
+    """The generated options the user gave, as a nested mapping below the root dataclass."""
+    nested: dict[str, Any] = {}
+    for dest, value in vars(args).items():
+        if dest.startswith("param:"):
+            set_path(nested, tuple(dest[len("param:") :].split(".")), value)
+    return nested
+
+
+def settings_given(args: argparse.Namespace) -> dict[str, Any]:
+    """The flat settings the user gave (``--resolution-deg`` ...), by setting name."""
+    return {
+        dest[len("setting:") :]: v
+        for dest, v in vars(args).items()
+        if dest.startswith("setting:") and v is not None
+    }

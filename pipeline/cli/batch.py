@@ -1,0 +1,89 @@
+"""``treesim batch``: the loop on many trees, resumable, on local processes or Dask."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..params import SETTINGS
+from ._settings import CONFIG_HELP, add_settings, params_from_args
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from ..batch import run_batch
+    from .progress import BatchProgressBar
+
+    params = params_from_args(args, with_threads=False)
+    bar = None if args.no_progress else BatchProgressBar(sys.stderr)
+    try:
+        result = run_batch(
+            args.inputs,
+            params,
+            args.output,
+            executor=args.executor,
+            workers=args.workers,
+            threads=args.threads,
+            scheduler=args.scheduler,
+            progress=bar,
+        )
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        out = Path(args.output)
+        print(
+            f"treesim: interrupted; finished trees are kept in {out}/trees and listed in "
+            f"{out}/summary.csv; run the same command again to finish the rest",
+            file=sys.stderr,
+        )
+        return 130
+    if bar is not None:
+        bar.close()
+    for p, why in result.skipped_files:
+        print(f"skipped {p}: {why}")
+    for r in result.rows:
+        if r["status"] == "failed":
+            print(f"failed {r['id']} ({r['input']}): {r.get('error_class')}: {r.get('error')}")
+    n_run = result.n_ok - result.n_reused
+    print(
+        f"{len(result.rows)} trees: {n_run} run, {result.n_reused} unchanged (not run again), "
+        f"{result.n_failed} failed, in {result.elapsed_s:.1f} s on {result.plan.describe()}"
+    )
+    print(f"summary: {result.summary_csv.resolve()} (and summary.json)")
+    print(f"index: {result.index_html.resolve()}")
+    return 1 if result.n_failed else 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``batch`` to ``treesim``'s parser."""
+    bp = sub.add_parser(
+        "batch",
+        help="run the loop on many trees (resumable; local processes or Dask)",
+        description="Run the whole loop on every tree in INPUTS (cloud files, folders of "
+        "clouds, or CSV manifests with a 'path' column and per-tree settings in columns "
+        f"named like the flags: {', '.join(SETTINGS)}). Each tree goes to "
+        "OUTDIR/trees/<id>/; summary.csv, summary.json and index.html list them all. "
+        "Trees already finished with the same file and settings are not run again, so an "
+        "interrupted batch resumes.",
+        epilog=CONFIG_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    bp.add_argument("inputs", nargs="+", metavar="INPUT", help="files, folders or manifests")
+    bp.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="batch folder")
+    add_settings(bp)
+    x = bp.add_argument_group("execution")
+    x.add_argument(
+        "--executor",
+        choices=["inline", "local", "dask"],
+        default="local",
+        help="inline: this process; local: a process pool (default); dask: a Dask cluster",
+    )
+    x.add_argument("--workers", type=int, help="worker processes (default one per core)")
+    x.add_argument("--threads", type=int, help="threads per tree (default cores // workers)")
+    x.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a running Dask scheduler (default: a local cluster); with --executor dask",
+    )
+    x.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
+    bp.set_defaults(func=cmd_batch)

@@ -1,0 +1,121 @@
+"""``treesim compare``: AVOHD distances between a cloud and a reference mesh or cloud."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputFormatError
+from ..params import CompareParams, merge
+from ._options import collect, param_option
+
+
+def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:
+    """The scan settings ``treesim scan`` wrote beside a cloud (``OUT.json``), if any."""
+    side = cloud_path.with_suffix(".json")
+    if not side.is_file():
+        return None
+    try:
+        info = json.loads(side.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(info, dict) or "stations" not in info:
+        return None
+    return {
+        "source": side.name,
+        "scanner": info.get("scanner"),
+        "models_active": info.get("models_active"),
+        "stations": [
+            {k: st.get(k) for k in ("index", "position_m", "points")}
+            for st in info.get("stations", [])
+            if isinstance(st, dict)
+        ],
+    }
+
+
+def _fmt_mm(x: float | None) -> str:
+    return "      –" if x is None else f"{x * 1e3:9.3f}"
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from ..compare import compare, write_comparison
+    from ..io import read_cloud, read_reference
+    from ..report.text import length, percent
+
+    cloud_path = Path(args.cloud)
+    params = merge(CompareParams(), collect(args))
+    if not cloud_path.exists():
+        raise InputFormatError(f"{cloud_path} not found; check the path")
+    cloud = read_cloud(cloud_path)
+    reference, kind = read_reference(args.reference)
+    result = compare(cloud, reference, params=params)
+    inputs: dict[str, Any] = {"cloud": str(cloud_path), "reference": str(args.reference)}
+    sidecar = scan_sidecar(cloud_path)
+    if sidecar:
+        inputs["scan"] = sidecar
+    written = write_comparison(result, args.output, inputs=inputs)
+
+    ref = result.reference_info
+    what = (
+        f"mesh, {ref['triangles']:,} triangles, {ref['area_m2']:.3g} m², "
+        f"{ref['samples']:,} surface samples every {length(result.sample_spacing_m)}"
+        if kind == "mesh"
+        else f"cloud, {ref['points']:,} points"
+    )
+    print(
+        f"compared {cloud_path.name} ({len(cloud):,} points, spacing "
+        f"{length(result.point_spacing_m)}) with {Path(args.reference).name} ({what})"
+    )
+    head = "".join(f"{h:>9}" for h in ("mean", "RMS", "median", "p95", "p99", "max"))
+    print(f"{'(mm)':<14}{'n':>11}{head}")
+    for name, st in (("accuracy", result.accuracy), ("completeness", result.completeness)):
+        vals = (st.mean_m, st.rms_m, st.median_m, st.p95_m, st.p99_m, st.max_m)
+        print(f"{name:<14}{st.n:>11,}" + "".join(_fmt_mm(v) for v in vals))
+    print(
+        f"Hausdorff {length(result.hausdorff_m)} · Chamfer {length(result.chamfer_m)} · "
+        f"coverage {percent(result.coverage)} within τ = {length(result.tolerance_m)}"
+    )
+    for label, e in result.by_label.items():
+        bits = []
+        if "accuracy" in e and e["accuracy"]["n"]:
+            bits.append(f"{e['accuracy']['n']:,} points, p95 {length(e['accuracy']['p95_m'])}")
+        if e.get("coverage") is not None:
+            bits.append(f"coverage {percent(e['coverage'])}")
+        if bits:
+            print(f"  {label}: " + ", ".join(bits))
+    for k, e in result.by_station.items():
+        print(
+            f"  station {k}: {e['points']:,} points, p95 {length(e['accuracy']['p95_m'])}, "
+            f"coverage alone {percent(e['coverage'])}"
+        )
+    out = Path(args.output)
+    names = ", ".join(p.name for key, p in written.items() if key != "comparison")
+    print(f"wrote {written['comparison']} and {names}")
+    if args.report:
+        from ..report import build_report
+
+        files = build_report(out)
+        print(f"wrote {files['report_html']} (open it in a browser; it works offline)")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``compare`` to ``treesim``'s parser."""
+    cp = sub.add_parser(
+        "compare",
+        help="AVOHD comparison of a cloud with a reference mesh or cloud",
+        description="Measure absolute distances both ways between CLOUD and REFERENCE "
+        "(a mesh: OBJ, PLY with faces, STL, OFF, GLB; or a point cloud) and write "
+        "comparison.json and the distance clouds (PLY and LAZ with a scalar_distance field).",
+    )
+    cp.add_argument("cloud", metavar="CLOUD", help="the (simulated) point cloud")
+    cp.add_argument("reference", metavar="REFERENCE", help="the reference mesh or cloud")
+    cp.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder")
+    g = cp.add_argument_group("comparison")
+    for f in fields(CompareParams):
+        param_option(g, CompareParams, f.name)
+    cp.add_argument("--report", action="store_true", help="also write the report into OUTDIR")
+    cp.set_defaults(func=cmd_compare)

@@ -1,0 +1,105 @@
+"""Progress on the terminal: one printer for a long step, one bar for a batch."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import TextIO
+
+from ..batch import BatchProgress
+
+__all__ = ["BatchProgressBar", "progress_printer"]
+
+
+def progress_printer(enabled: bool | None = None) -> Callable[[float, str], None] | None:
+    """A ``progress(fraction, message)`` callback drawing one line on stderr, at most five
+    times a second; ``None`` (no output) when stderr is not a terminal or ``enabled`` is
+    false."""
+    if enabled is None:
+        enabled = sys.stderr.isatty()
+    if not enabled:
+        return None
+    last = [0.0]
+
+    def show(fraction: float, message: str) -> None:
+        now = time.monotonic()
+        if now - last[0] < 0.2 and fraction < 1.0:
+            return
+        last[0] = now
+        sys.stderr.write(f"\r  {message}: {100 * fraction:5.1f} %")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def _clock(seconds: float | None) -> str:
+    if seconds is None:
+        return "?"
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+class BatchProgressBar:
+    """A progress line on ``stream`` (stderr): a redrawn bar on a terminal, one plain line
+    per finished tree otherwise.
+
+    Parameters
+    ----------
+    stream : text stream, optional
+        Default ``sys.stderr``.
+    tty : bool, optional
+        Force the terminal (``True``) or plain (``False``) form; default detect.
+    width : int
+        Characters of the bar.
+    """
+
+    def __init__(self, stream: TextIO | None = None, *, tty: bool | None = None, width: int = 24):
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty() if tty is None else tty
+        self.width = width
+        self._last_draw = 0.0
+        self._drawn = False
+
+    def __call__(self, p: BatchProgress) -> None:
+        left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"
+        if p.finished == p.total and p.running == 0:
+            left = "done"
+        counts = f"{p.finished}/{p.total} trees · {p.failed} failed"
+        if p.reused:
+            counts += f" · {p.reused} unchanged"
+        if self.tty:
+            now = time.monotonic()
+            if p.last is None and now - self._last_draw < 0.5:
+                return
+            self._last_draw = now
+            filled = int(self.width * p.finished / max(p.total, 1))
+            bar = "█" * filled + "░" * (self.width - filled)
+            line = f"\r[{bar}] {counts} · {p.running} running · {_clock(p.elapsed_s)} · {left}"
+            self.stream.write(line.ljust(100)[:120])
+            self._drawn = True
+            if p.finished == p.total and p.running == 0:
+                self.stream.write("\n")
+                self._drawn = False
+        elif p.last is not None:
+            r = p.last
+            what = (
+                f"failed: {r.get('error_class')}: {r.get('error')}"
+                if r["status"] == "failed"
+                else ("unchanged, not run again" if r.get("reused") else "ok")
+            )
+            took = r.get("time_total_s")
+            took_s = f" in {took:.1f} s" if isinstance(took, float) and not r.get("reused") else ""
+            self.stream.write(f"batch: {counts}; {r['id']} {what}{took_s}; {left}\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End a half-drawn bar line."""
+        if self._drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._drawn = False

@@ -1,0 +1,219 @@
+"""``treesim scan``: scan meshes with the virtual TLS scanner."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any
+
+from ..errors import InvalidParameterError
+from ..jsonio import write_json
+from ..params import (
+    INSTRUMENTS,
+    SETTINGS,
+    RunParams,
+    ScannerSpec,
+    ScanParams,
+    merge,
+    resolution_fields,
+)
+from ._options import collect, floats, param_option, param_options
+from .progress import progress_printer
+
+#: ScannerSpec fields without a flag (set them in code or a TOML file).
+_NO_FLAG = ("reflectance",)
+
+
+def _instrument_list() -> str:
+    return "; ".join(f"{p.name}: {p.description}" for p in INSTRUMENTS.values())
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``scan`` to ``treesim``'s parser."""
+    p = sub.add_parser(
+        "scan",
+        help="scan meshes with a virtual TLS scanner",
+        description="Scan one or more meshes (OBJ, PLY, STL, OFF, GLB) from one "
+        "or more stations and write the simulated cloud (LAZ, LAS, PLY, XYZ). Stations "
+        "stand on a ring placed by the station rule (see 'treesim run --help') unless "
+        "--distance-m or --station is given.",
+    )
+    p.add_argument("meshes", nargs="*", metavar="MESH")
+    p.add_argument("-o", "--output", metavar="OUT.laz")
+    p.add_argument(
+        "--label",
+        choices=["wood", "leaf", "ground", "other"],
+        help="label every part of the meshes (default: from group/material names)",
+    )
+    p.add_argument(
+        "--list-instruments",
+        "--list-presets",
+        dest="list_instruments",
+        action="store_true",
+        help="list the scanner instruments and exit",
+    )
+    g = p.add_argument_group("stations")
+    g.add_argument(
+        "--layout",
+        choices=["ring", "list"],
+        default=None,
+        help="ring: N stations around the scene centre (default); list: --station",
+    )
+    param_options(g, ScanParams, ["n_stations", "distance_m", "min_distance_m", "height_m"])
+    param_option(g, ScanParams, "start_angle_deg")
+    g.add_argument(
+        "--station",
+        action="append",
+        default=[],
+        metavar="X,Y,Z",
+        help="an explicit station position in scene coordinates (repeatable)",
+    )
+    s = p.add_argument_group("scanner")
+    s.add_argument(
+        "--instrument",
+        choices=list(INSTRUMENTS),
+        help=f"start from a real instrument's figures ({_instrument_list()})",
+    )
+    s.add_argument(
+        "--beam", action="store_true", help="turn on the instrument's beam divergence model"
+    )
+    s.add_argument(
+        "--noise",
+        action="store_true",
+        help="turn on the instrument's range noise and angular jitter",
+    )
+    s.add_argument(
+        "--resolution-deg",
+        type=float,
+        help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
+    )
+    for f in fields(ScannerSpec):
+        if f.name not in _NO_FLAG:
+            param_option(s, ScannerSpec, f.name, path=("scanner",))
+    x = p.add_argument_group("execution")
+    x.add_argument(
+        "--full-fov",
+        action="store_true",
+        help="cast the whole field of view instead of the scene's window",
+    )
+    param_options(x, ScanParams, ["max_rays", "chunk_rays"])
+    param_option(x, RunParams, "threads")
+    p.set_defaults(func=cmd_scan)
+
+
+def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
+    """ScanParams from the defaults, the instrument, then the flags; and the threads."""
+    given = collect(args)
+    threads = (
+        merge(RunParams(), {"threads": given.pop("threads")}).threads
+        if ("threads" in given)
+        else RunParams().threads
+    )
+    scanner_given = given.pop("scanner", {})
+    if args.resolution_deg is not None:
+        for k, v in resolution_fields(args.resolution_deg).items():
+            scanner_given.setdefault(k, v)
+    base = ScanParams()
+    if args.instrument:
+        spec = INSTRUMENTS[args.instrument].spec(beam=args.beam, noise=args.noise)
+        base = replace(base, scanner=spec)
+    elif args.beam or args.noise:
+        raise InvalidParameterError(
+            "--beam and --noise take their figures from --instrument; "
+            "give --instrument or set --beam-divergence-mrad / "
+            "--range-noise-sd-m directly"
+        )
+    return merge(base, {**given, "scanner": scanner_given}), threads
+
+
+def _stations(args: argparse.Namespace, scene: Any, sp: ScanParams) -> tuple[list, dict | None]:
+    from ..scan import Station, stations_for
+
+    if args.station and args.layout == "ring":
+        raise InvalidParameterError("give either --layout ring or --station positions, not both")
+    if args.station:
+        return [Station(position_m=floats(s, 3, "--station")) for s in args.station], None
+    if args.layout == "list":
+        raise InvalidParameterError("--layout list needs at least one --station X,Y,Z")
+    return stations_for(scene.bounds, sp)
+
+
+def run_scan(
+    args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
+) -> dict[str, Any]:
+    """Load, scan, write the cloud and ``<out>.json``; print a per-station table."""
+    from ..io import write_cloud
+    from ..scan import load_scene, scan
+
+    out_suffix = out.suffix.lower()
+    if out_suffix not in (".laz", ".las", ".ply", ".xyz", ".txt", ".csv"):
+        raise InvalidParameterError(f"-o {out}: write .laz, .las, .ply, .xyz, .txt or .csv")
+    sp, threads = params_from_args(args)
+    t0 = time.perf_counter()
+    scene = load_scene(meshes, labels=[label] * len(meshes) if label else None)
+    t_load = time.perf_counter() - t0
+    stations, rule = _stations(args, scene, sp)
+    result = scan(
+        scene,
+        stations,
+        sp.scanner,
+        window=not args.full_fov,
+        chunk_rays=int(sp.chunk_rays),
+        max_rays=int(sp.max_rays),
+        nthreads=threads,
+        progress=progress_printer(),
+    )
+    t1 = time.perf_counter()
+    write_cloud(out, result.cloud)
+    t_write = time.perf_counter() - t1
+    summary = {
+        "meshes": [str(m) for m in meshes],
+        "triangles": scene.n_triangles,
+        "degenerate_triangles_dropped": scene.dropped_degenerate,
+        "labels_in_scene": scene.labels_present(),
+        "output": str(out),
+        **({"station_rule": rule} if rule else {}),
+        **result.summary(),
+        "timings_s": {"load": t_load, "scan": result.total_s, "write": t_write},
+    }
+    summary_path = out.with_name(out.stem + ".json")
+    write_json(summary_path, summary)
+    print(
+        f"scanned {', '.join(Path(m).name for m in meshes)}: {scene.n_triangles:,} triangles "
+        f"({', '.join(scene.labels_present())})"
+    )
+    print(
+        f"{'station':>7}  {'position (m)':>34}  {'rays cast':>11}  {'points':>9}  {'time (s)':>8}"
+    )
+    for s in result.station_stats:
+        pos = ", ".join(f"{c:.2f}" for c in s.position_m)
+        print(f"{s.index:>7}  {pos:>34}  {s.rays_cast:>11,}  {s.points:>9,}  {s.time_s:>8.2f}")
+    models = ", ".join(result.models) or "none (geometry only)"
+    print(
+        f"total: {len(result.cloud):,} points from {result.rays_cast:,} rays "
+        f"(full field of view would be {result.rays_full_fov:,}) in {result.total_s:.2f} s; "
+        f"models: {models}"
+    )
+    print(f"wrote {out} and {summary_path}")
+    return summary
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    if args.list_instruments:
+        for p in INSTRUMENTS.values():
+            print(
+                f"{p.name:20} {p.description}; "
+                f"FOV {p.vertical_fov_deg[0]:g}..{p.vertical_fov_deg[1]:g}°, "
+                f"{p.min_range_m:g}-{p.max_range_m:g} m, divergence {p.beam_divergence_mrad} mrad, "
+                f"range noise {p.range_noise_sd_m * 1000:g} mm ({p.source})"
+            )
+        return 0
+    if not args.meshes:
+        raise InvalidParameterError("give at least one MESH file")
+    if args.output is None:
+        raise InvalidParameterError("give the output cloud with -o OUT.laz")
+    run_scan(args, [Path(m) for m in args.meshes], Path(args.output), label=args.label)
+    return 0

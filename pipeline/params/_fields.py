@@ -1,0 +1,185 @@
+"""Field metadata: every parameter carries its help text and unit once.
+
+A parameter dataclass declares each field with :func:`param`; the command line, the TOML
+file (:mod:`pipeline.params.settings`), ``--print-params`` and the service's JSON schemas
+read the help, unit and default from here (:func:`describe`), so none of them types a
+default or a help text of its own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import MISSING, dataclass, fields, is_dataclass
+from typing import Any
+
+from ..errors import InvalidParameterError
+
+__all__ = ["ParamInfo", "describe", "field_info", "finite", "param", "walk"]
+
+
+def param(
+    default: Any = MISSING,
+    *,
+    help: str,
+    unit: str | None = None,
+    factory: Callable[[], Any] | None = None,
+    choices: tuple[str, ...] | None = None,
+    none_means: str | None = None,
+    execution_only: bool = False,
+    flag: str | None = None,
+) -> Any:
+    """A dataclass field with its documentation.
+
+    Parameters
+    ----------
+    default : object
+        The default value (or ``factory`` for mutable and nested defaults).
+    help : str
+        One line for ``--help``, the TOML file and the JSON schema; no default in it.
+    unit : str, optional
+        The unit (``m``, ``deg``, ``mrad``, ``s``, ...); ``None`` for counts and names.
+    choices : tuple of str, optional
+        The allowed values of a text field.
+    none_means : str, optional
+        What ``None`` stands for ("derived from the point spacing", "off", ...).
+    execution_only : bool
+        True when the field decides only how fast a run goes, never its result
+        (threads, chunk sizes): left out of the run's settings hash.
+    flag : str, optional
+        The command-line flag when it is not ``--`` + the field name with dashes.
+    """
+    metadata = {
+        "help": help,
+        "unit": unit,
+        "choices": choices,
+        "none_means": none_means,
+        "execution_only": execution_only,
+        "flag": flag,
+    }
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    """What the parameter model says about one field.
+
+    Attributes
+    ----------
+    owner : type
+        The dataclass the field belongs to.
+    name : str
+    path : tuple of str
+        Field names from the root dataclass down to this field.
+    default : object
+        The default value (``factory()`` for factory fields).
+    type : str
+        The annotation as written (``"float | None"``, ``"int"``, ...).
+    help, unit, choices, none_means, execution_only, flag
+        As given to :func:`param`.
+    """
+
+    owner: type
+    name: str
+    path: tuple[str, ...]
+    default: Any
+    type: str
+    help: str
+    unit: str | None
+    choices: tuple[str, ...] | None
+    none_means: str | None
+    execution_only: bool
+    flag: str | None
+
+    @property
+    def optional(self) -> bool:
+        """Whether ``None`` is an allowed value."""
+        return "None" in self.type
+
+    @property
+    def cli_flag(self) -> str:
+        """The command-line flag that sets this field."""
+        return self.flag or "--" + self.name.replace("_", "-")
+
+    def default_text(self) -> str:
+        """The default as a reader sees it: ``"0.04 deg"``, ``"derived from ..."``."""
+        d = self.default
+        if d is None:
+            return self.none_means or "none"
+        if isinstance(d, bool):
+            return "on" if d else "off"
+        if isinstance(d, (tuple, list)):
+            text = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in d)
+        elif isinstance(d, float):
+            text = f"{d:g}"
+        elif isinstance(d, int):
+            text = str(d)
+        else:
+            text = str(d)
+        return f"{text} {self.unit}" if self.unit else text
+
+    def help_text(self) -> str:
+        """``help (unit; default ...)``: the line ``--help`` prints."""
+        unit = f"{self.unit}; " if self.unit else ""
+        return f"{self.help} ({unit}default {self.default_text()})"
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default is not MISSING:
+        return f.default
+    if f.default_factory is not MISSING:  # type: ignore[misc]
+        return f.default_factory()  # type: ignore[misc]
+    return None
+
+
+def field_info(cls: type, name: str, *, path: tuple[str, ...] = ()) -> ParamInfo:
+    """The :class:`ParamInfo` of field ``name`` of dataclass ``cls``."""
+    for f in fields(cls):
+        if f.name == name:
+            return _info(cls, f, path + (name,))
+    raise KeyError(f"{cls.__name__} has no field {name!r}")
+
+
+def _info(cls: type, f: dataclasses.Field, path: tuple[str, ...]) -> ParamInfo:
+    md = f.metadata
+    if "help" not in md:
+        raise TypeError(f"{cls.__name__}.{f.name} is declared without param(help=...)")
+    return ParamInfo(
+        owner=cls,
+        name=f.name,
+        path=path,
+        default=_default(f),
+        type=str(f.type),
+        help=md["help"],
+        unit=md["unit"],
+        choices=md["choices"],
+        none_means=md["none_means"],
+        execution_only=md["execution_only"],
+        flag=md["flag"],
+    )
+
+
+def describe(cls: type) -> list[ParamInfo]:
+    """Every field of dataclass ``cls`` (not descending into nested dataclasses)."""
+    return [_info(cls, f, (f.name,)) for f in fields(cls)]
+
+
+def walk(cls: type, prefix: tuple[str, ...] = ()) -> Iterator[ParamInfo]:
+    """Every leaf field of ``cls`` and of the dataclasses nested in it, depth first."""
+    for f in fields(cls):
+        info = _info(cls, f, prefix + (f.name,))
+        if is_dataclass(info.default) and not isinstance(info.default, type):
+            yield from walk(type(info.default), prefix + (f.name,))
+        else:
+            yield info
+
+
+def finite(name: str, value: float) -> float:
+    """``value`` as a float, or :class:`InvalidParameterError` naming ``name``."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise InvalidParameterError(f"{name} must be a finite number, got {value!r}")
+    return v

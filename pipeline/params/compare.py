@@ -1,0 +1,99 @@
+"""Comparison and report parameters."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import InvalidParameterError
+from ._fields import param
+
+__all__ = ["CompareParams", "ReportParams"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompareParams:
+    """How a comparison is made.
+
+    Parameters
+    ----------
+    tolerance_m : float, optional
+        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
+    sample_spacing_m : float, optional
+        Mesh references: spacing of the surface samples for completeness (m), i.e. one
+        sample per ``sample_spacing_m²``; default ``point_spacing_m``.
+    seed : int
+        Seed of the surface sampling (and of the spacing estimate's subsample).
+    min_samples, max_samples : int
+        Bounds on the number of surface samples (the spacing is adjusted to stay within
+        them; the effective spacing is reported).
+    spacing_subsample : int
+        Points used to estimate the cloud's median spacing (all if fewer).
+    nthreads : int
+        Threads for Open3D and the k-d tree queries (0: all cores).
+    """
+
+    tolerance_m: float | None = param(
+        None, help="coverage tolerance τ", unit="m", none_means="3 × the cloud's point spacing"
+    )
+    sample_spacing_m: float | None = param(
+        None,
+        help="spacing of the mesh surface samples",
+        unit="m",
+        none_means="the cloud's point spacing",
+    )
+    seed: int = param(0, help="seed of the surface sampling")
+    min_samples: int = param(10_000, help="fewest mesh surface samples")
+    max_samples: int = param(2_000_000, help="most mesh surface samples (the spacing grows to fit)")
+    spacing_subsample: int = param(
+        50_000, help="points used to estimate the cloud's median spacing"
+    )
+    nthreads: int = param(
+        0,
+        help="threads for Open3D and the k-d tree queries (0: all cores)",
+        execution_only=True,
+        flag="--threads",
+    )
+
+    def __post_init__(self) -> None:
+        for name in ("tolerance_m", "sample_spacing_m"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InvalidParameterError(
+                    f"{name} must be a positive number of metres, got {v!r}"
+                )
+        if int(self.min_samples) < 1 or int(self.max_samples) < int(self.min_samples):
+            raise InvalidParameterError(
+                f"need 1 <= min_samples <= max_samples, got {self.min_samples}, {self.max_samples}"
+            )
+        if int(self.spacing_subsample) < 2:
+            raise InvalidParameterError("spacing_subsample must be at least 2")
+        if int(self.nthreads) < 0:
+            raise InvalidParameterError(f"nthreads must be >= 0, got {self.nthreads}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReportParams:
+    """How a report is drawn.
+
+    Parameters
+    ----------
+    max_view_points : int
+        Points per data set in the HTML page's 3D view (random subsample, seeded).
+    max_plot_points : int
+        Points per PNG view (random subsample, seeded).
+    seed : int
+        Seed of the subsamples.
+    dpi : int
+        Resolution of the PNG plots.
+    """
+
+    max_view_points: int = param(40_000, help="points per data set in the 3D view")
+    max_plot_points: int = param(120_000, help="points per PNG view")
+    seed: int = param(0, help="seed of the subsamples")
+    dpi: int = param(130, help="resolution of the PNG plots")
+
+    def __post_init__(self) -> None:
+        for name in ("max_view_points", "max_plot_points", "dpi"):
+            if int(getattr(self, name)) < 1:
+                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)}")

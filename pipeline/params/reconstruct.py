@@ -1,0 +1,259 @@
+"""Reconstruction parameters: preparation, the cylinder QSM, the surface methods."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+from ..errors import InvalidParameterError
+from ._fields import param
+
+Method = Literal["qsm", "poisson", "bpa"]
+METHODS: tuple[str, ...] = ("qsm", "poisson", "bpa")
+
+__all__ = ["METHODS", "PrepareParams", "QSMParams", "ReconstructParams"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class PrepareParams:
+    """How :func:`prepare` thins and cleans a cloud.
+
+    Parameters
+    ----------
+    voxel_size_m : float or None
+        Edge of the downsampling voxels (m); ``None`` keeps every point but still merges
+        exact duplicates.
+    sor_neighbors : int
+        Neighbours per point in statistical outlier removal.
+    sor_std_ratio : float or None
+        Outlier threshold in standard deviations of the mean neighbour distance;
+        ``None`` turns outlier removal off.
+    remove_ground : bool
+        Look for a ground plane under the tree and remove it.
+    ground_tolerance_m : float
+        Points less than this above the ground plane (or below it) are ground.
+    normals_neighbors : int or None
+        Neighbours per point for PCA normals; ``None`` skips normals.
+    min_points : int
+        Fewest points a tree cloud may have.
+    threads : int
+        Threads for the neighbour searches (results do not depend on it).
+    """
+
+    voxel_size_m: float | None = param(
+        0.005,
+        help="voxel size for downsampling the field cloud",
+        unit="m",
+        none_means="off (exact duplicates still merged)",
+        flag="--voxel-m",
+    )
+    sor_neighbors: int = param(16, help="neighbours per point in statistical outlier removal")
+    sor_std_ratio: float | None = param(
+        2.5,
+        help="statistical outlier removal threshold, in standard deviations",
+        none_means="off",
+    )
+    remove_ground: bool = param(False, help="remove a ground plane under the tree first")
+    ground_tolerance_m: float = param(
+        0.05, help="points this close to the ground plane are ground", unit="m"
+    )
+    normals_neighbors: int | None = param(
+        24, help="neighbours per point for PCA normals", none_means="no normals"
+    )
+    min_points: int = param(300, help="fewest points a tree cloud may have")
+    threads: int = param(2, help="threads for the neighbour searches", execution_only=True)
+
+    def __post_init__(self) -> None:
+        if self.voxel_size_m is not None and not (
+            math.isfinite(self.voxel_size_m) and self.voxel_size_m > 0
+        ):
+            raise InvalidParameterError(
+                f"voxel_size_m must be a positive length in metres or None, got {self.voxel_size_m}"
+            )
+        if int(self.sor_neighbors) != self.sor_neighbors or self.sor_neighbors < 2:
+            raise InvalidParameterError(
+                f"sor_neighbors must be an integer >= 2, got {self.sor_neighbors}"
+            )
+        if self.sor_std_ratio is not None and not (
+            math.isfinite(self.sor_std_ratio) and self.sor_std_ratio > 0
+        ):
+            raise InvalidParameterError(
+                f"sor_std_ratio must be positive or None, got {self.sor_std_ratio}"
+            )
+        if not (math.isfinite(self.ground_tolerance_m) and self.ground_tolerance_m > 0):
+            raise InvalidParameterError(
+                f"ground_tolerance_m must be a positive length, got {self.ground_tolerance_m}"
+            )
+        if self.normals_neighbors is not None and (
+            int(self.normals_neighbors) != self.normals_neighbors or self.normals_neighbors < 3
+        ):
+            raise InvalidParameterError(
+                f"normals_neighbors must be an integer >= 3 or None, got {self.normals_neighbors}"
+            )
+        if int(self.min_points) != self.min_points or self.min_points < 4:
+            raise InvalidParameterError(
+                f"min_points must be an integer >= 4, got {self.min_points}"
+            )
+        if int(self.threads) != self.threads or self.threads < 1:
+            raise InvalidParameterError(f"threads must be a positive integer, got {self.threads}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class QSMParams:
+    """Parameters of the cylinder QSM (``None``: derived from the point spacing).
+
+    Parameters
+    ----------
+    slice_m : float, optional
+        Thickness of the geodesic slices (node spacing along branches); default
+        ``clamp(6 × spacing, 0.02, 0.08)``.
+    neighbors : int
+        Neighbours per point in the graph.
+    link_m : float, optional
+        Longest graph edge before gap bridging; default ``max(4 × spacing, 0.02)``.
+    base_band_m : float, optional
+        Points this close above the lowest point form the base; default ``slice_m / 2``.
+    min_coverage_deg : float
+        Arc a circle fit's points must cover to count as measured.
+    max_rel_residual : float
+        Largest RMS residual of a measured fit, relative to its radius.
+    partial_coverage_deg, partial_rel_residual : float
+        A fit covering less than ``min_coverage_deg`` (one-sided scans) still counts as
+        measured when it covers at least ``partial_coverage_deg`` with an RMS residual
+        under ``partial_rel_residual`` of its radius.
+    pipe_exponent : float
+        Exponent b of the radius model ``r^(1/b) = r_tip^(1/b) + a · S`` (S: growth
+        length); 0.5 is the pipe model (cross-section area = tip area + area proportional
+        to the length supported).
+    min_radius_m : float, optional
+        Smallest radius that can be measured; default ``1.5 × spacing``.
+    twig_radius_m : float
+        Radius prior of branch tips (twigs), m: the radius a branch tends to at its tip,
+        where no scan resolves it. 1.5 mm is within the range of measured twig diameters
+        (rTwig's database: about 3-5 mm) and keeps the procedural presets' branch volume
+        within +5..+16 % (conifer shoots, thinner still, +76 %).
+    """
+
+    slice_m: float | None = param(
+        None,
+        help="geodesic slice thickness",
+        unit="m",
+        none_means="clamp(6 × spacing, 0.02, 0.08) m",
+    )
+    neighbors: int = param(10, help="neighbours per point in the graph")
+    link_m: float | None = param(
+        None,
+        help="longest graph edge before gap bridging",
+        unit="m",
+        none_means="max(4 × spacing, 0.02) m",
+    )
+    base_band_m: float | None = param(
+        None,
+        help="points this close above the lowest point form the base",
+        unit="m",
+        none_means="slice_m / 2",
+    )
+    min_coverage_deg: float = param(
+        180.0, help="arc a circle fit must cover to count as measured", unit="deg"
+    )
+    max_rel_residual: float = param(
+        0.12, help="largest RMS residual of a measured fit, relative to its radius"
+    )
+    partial_coverage_deg: float = param(
+        120.0, help="smallest arc of a low-residual partial fit (one-sided scans)", unit="deg"
+    )
+    partial_rel_residual: float = param(0.06, help="largest relative RMS residual of a partial fit")
+    pipe_exponent: float = param(0.5, help="exponent b of the radius model (0.5: pipe model)")
+    min_radius_m: float | None = param(
+        None, help="smallest radius that can be measured", unit="m", none_means="1.5 × spacing"
+    )
+    twig_radius_m: float = param(0.0015, help="radius prior of branch tips (twigs)", unit="m")
+    seed: int = param(0, help="seed of the robust fits")
+
+    def __post_init__(self) -> None:
+        for name in ("slice_m", "link_m", "base_band_m", "min_radius_m"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise InvalidParameterError(f"{name} must be > 0 (or omitted), got {v}")
+        if not 3 <= self.neighbors <= 64:
+            raise InvalidParameterError(f"neighbors must be in [3, 64], got {self.neighbors}")
+        if not 0 < self.min_coverage_deg <= 360:
+            raise InvalidParameterError("min_coverage_deg must be in (0, 360]")
+        if not self.twig_radius_m > 0:
+            raise InvalidParameterError("twig_radius_m must be > 0")
+
+    def resolved(self, spacing_m: float) -> dict[str, float]:
+        """The derived values for a cloud with the given point spacing."""
+        s = max(spacing_m, 1e-4)
+        slice_m = self.slice_m or min(max(6.0 * s, 0.02), 0.08)
+        return {
+            "slice_m": slice_m,
+            "link_m": self.link_m or max(4.0 * s, 0.02),
+            "base_band_m": self.base_band_m or 0.5 * slice_m,
+            "min_radius_m": self.min_radius_m or 1.5 * s,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReconstructParams:
+    """Everything that decides a reconstruction.
+
+    Parameters
+    ----------
+    method : {"qsm", "poisson", "bpa"}
+    prepare : PrepareParams
+        Input preparation (voxel size, outlier removal, ground removal, normals).
+    qsm : QSMParams
+        Cylinder fitting (qsm only).
+    facets : int
+        Facets per cylinder ring of the QSM mesh (speed/accuracy knob; the prism of n
+        facets holds (n / 2π)·sin(2π / n) of the cylinder's volume: 16 → -2.6 %,
+        32 → -0.64 %).
+    poisson_depth : int
+        Screened Poisson octree depth (speed/accuracy knob).
+    poisson_trim_quantile : float
+        Share of lowest-density Poisson vertices trimmed (hallucinated surface).
+    bpa_radii_m : tuple of float, optional
+        Ball radii; default from the point spacing.
+    timeout_s : float
+        Longest a pymeshlab step may run before it is stopped.
+    """
+
+    method: Method = param("qsm", help="reconstruction method", choices=METHODS)
+    prepare: PrepareParams = param(help="input preparation", factory=PrepareParams)
+    qsm: QSMParams = param(help="cylinder fitting (qsm only)", factory=QSMParams)
+    facets: int = param(32, help="facets per cylinder ring of the QSM mesh")
+    poisson_depth: int = param(8, help="screened Poisson octree depth", flag="--depth")
+    poisson_trim_quantile: float = param(
+        0.1, help="share of lowest-density Poisson vertices trimmed"
+    )
+    bpa_radii_m: tuple[float, ...] | None = param(
+        None,
+        help="ball-pivoting radii",
+        unit="m",
+        none_means="from the point spacing",
+        flag="--bpa-radius-m",
+    )
+    timeout_s: float = param(
+        600.0, help="stop a pymeshlab step after this long", unit="s", execution_only=True
+    )
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise InvalidParameterError(
+                f"method must be one of {', '.join(METHODS)}, got {self.method!r}"
+            )
+        if int(self.facets) != self.facets or not 3 <= self.facets <= 512:
+            raise InvalidParameterError(f"facets must be an integer in [3, 512], got {self.facets}")
+        if not 4 <= self.poisson_depth <= 16:
+            raise InvalidParameterError(
+                f"poisson_depth must be in [4, 16], got {self.poisson_depth}"
+            )
+        if not 0 <= self.poisson_trim_quantile < 1:
+            raise InvalidParameterError("poisson_trim_quantile must be in [0, 1)")
+        if not self.timeout_s > 0:
+            raise InvalidParameterError("timeout_s must be > 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

@@ -1,0 +1,144 @@
+"""The run page: ``report.html`` of one ``treesim run``, presenting both comparisons."""
+
+from __future__ import annotations
+
+import html
+from typing import Any
+
+from .text import cell, length, percent
+
+__all__ = ["PAGE_CSS", "STAGES", "run_page"]
+
+#: Stages timed in ``run.json``'s ``timings_s`` (plus ``total``), in order.
+STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
+
+
+def _len(v: Any) -> str:
+    return length(v) if isinstance(v, (int, float)) else "–"
+
+
+def _pct(v: Any) -> str:
+    return percent(v) if isinstance(v, (int, float)) else "–"
+
+
+PAGE_CSS = """
+body{font:15px/1.45 system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222;padding:0 1em}
+h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #ddd}
+table{border-collapse:collapse;margin:.6em 0}td,th{padding:.25em .8em;border-bottom:1px solid #eee;
+text-align:right}th:first-child,td:first-child{text-align:left}.muted{color:#777}
+.cards{display:flex;gap:1.5em;flex-wrap:wrap}.card{flex:1 1 420px}img{max-width:100%}
+a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}
+"""
+
+
+def run_page(s: dict[str, Any], version: str) -> str:
+    """A small self-contained page: the tree, the scan, both comparisons, links.
+
+    Parameters
+    ----------
+    s : dict
+        ``run.json``'s content (:func:`pipeline.run.run_tree` builds it).
+    version : str
+        treesim's version, shown in the page's byline.
+    """
+    esc = html.escape
+    rec = s["reconstruction"]
+    sc = s["scan"]
+    rule = sc["station_rule"]
+    rows_tree = [
+        ("method", esc(str(s["parameters"]["reconstruct"]["method"]))),
+        ("DBH", cell(rec.get("dbh_m"), " cm", 100)),
+        ("height", cell(rec.get("height_m"), " m")),
+        ("wood volume", cell(rec.get("volume_total_m3"), " L", 1000)),
+        (
+            "stem / branch volume",
+            f"{cell(rec.get('volume_stem_m3'), ' L', 1000)} / "
+            f"{cell(rec.get('volume_branch_m3'), ' L', 1000)}",
+        ),
+        ("cylinders", cell(rec.get("n_cylinders"))),
+        ("triangles", cell(rec.get("n_triangles"))),
+        ("watertight", cell(rec.get("watertight"))),
+        (
+            "field points (used)",
+            f"{cell(rec.get('points_input'))} ({cell(rec.get('points_used'))})",
+        ),
+    ]
+    spec = s["parameters"]["scan"]["scanner"]
+    rows_scan = [
+        (
+            "stations",
+            f"{rule['n_stations']} on a ring, {rule['distance_m']:.2f} m out "
+            f"({esc(rule['rule'])}), {rule['height_above_base_m']:g} m high",
+        ),
+        (
+            "angular step",
+            f"{spec['horizontal_resolution_deg']:g}° × {spec['vertical_resolution_deg']:g}°",
+        ),
+        ("rays cast", cell(sc["rays_cast"])),
+        ("simulated points", cell(sc["points"])),
+        ("models", esc(", ".join(sc["models_active"]) or "geometry only")),
+    ]
+    t = s["timings_s"]
+    rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]
+
+    def cmp_rows(c: dict[str, Any]) -> str:
+        a, m = c["accuracy"], c["completeness"]
+        rows = [
+            (
+                "accuracy: mean / p95 / max",
+                f"{_len(a['mean_m'])} / {_len(a['p95_m'])} / {_len(a['max_m'])}",
+            ),
+            (
+                "completeness: mean / p95 / max",
+                f"{_len(m['mean_m'])} / {_len(m['p95_m'])} / {_len(m['max_m'])}",
+            ),
+            ("coverage within τ", f"{_pct(c['coverage'])} (τ = {_len(c['tolerance_m'])})"),
+            ("Hausdorff", _len(c["hausdorff_m"])),
+            ("Chamfer", _len(c["chamfer_m"])),
+        ]
+        return "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
+
+    def table(rows: list[tuple[str, str]]) -> str:
+        return (
+            "<table>" + "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows) + "</table>"
+        )
+
+    cards = []
+    for key, title, what, view in (
+        (
+            "vs_mesh",
+            "Simulated scan vs the tree mesh",
+            "how well the scan design samples the model",
+            "views_completeness.png",  # where the mesh was not seen
+        ),
+        (
+            "vs_field",
+            "Simulated scan vs the field cloud",
+            "how close the simulation comes to the real scan",
+            "views_accuracy.png",  # where the simulation departs from the field cloud
+        ),
+    ):
+        cards.append(
+            f'<div class="card"><h2>{title}</h2><p class="muted">{what}</p>'
+            f"<p>{esc(s['summary_text'].get(key, ''))}</p>"
+            f"<table>{cmp_rows(s[key])}</table>"
+            f'<p><a href="{key}/report.html">full report</a> · '
+            f'<a href="{key}/comparison.json">comparison.json</a></p>'
+            f'<a href="{key}/report.html"><img src="{key}/{view}" '
+            f'alt="distances ({key})"></a></div>'
+        )
+    files = "".join(
+        f'<li><a href="{esc(v)}">{esc(v)}</a></li>' for v in dict.fromkeys(s["files"].values())
+    )
+    return f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
+<title>treesim run: {esc(s["name"])}</title><style>{PAGE_CSS}</style></head><body>
+<h1>treesim run: {esc(s["name"])}</h1>
+<p class="muted">field cloud {esc(str(s["inputs"].get("cloud") or "in memory"))} ·
+preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
+<div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
+<div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
+<div class="cards">{"".join(cards)}</div>
+<h2>Time per stage</h2>{table(rows_time)}
+<h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,
+timings, every figure)</li></ul></body></html>
+"""
