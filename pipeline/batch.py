@@ -639,7 +639,7 @@ def _run_locked(
     progress: Callable[[BatchProgress], None] | None,
     t_start: float,
 ) -> BatchResult:
-    from . import __version__
+    from ._version import __version__
 
     shutil.rmtree(out / ".tmp", ignore_errors=True)
 
@@ -820,7 +820,7 @@ def _normalise(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def _write_summaries(result: BatchResult, params: RunParams) -> None:
-    from . import __version__
+    from ._version import __version__
     from .run import software_versions
 
     out = result.outdir

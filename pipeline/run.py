@@ -586,7 +586,7 @@ STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "repor
 
 def software_versions() -> dict[str, str]:
     """Versions of Python, treesim and every library a run uses."""
-    from .compare import software_versions as base
+    from ._version import software_versions as base
 
     return base("pymeshlab", "trimesh", "matplotlib")
 
@@ -653,7 +653,7 @@ def run_tree(
         From any stage, with its message (e.g. ``InputFormatError`` for a corrupt file,
         ``ReconstructionError``, ``ScanError``).
     """
-    from . import __version__
+    from ._version import __version__
     from .compare import compare, write_comparison
     from .io import read_cloud, write_cloud
     from .reconstruct import reconstruct

@@ -44,7 +44,7 @@ def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from .. import __version__
+    from .._version import __version__
     from ..io.mesh import write_mesh
     from .cylinders import write_cylinders
     from .procedural import generate_tree, preset

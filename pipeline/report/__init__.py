@@ -21,7 +21,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from ..compare import COMPARISON_FIGURES, Comparison, software_versions
+from .._version import software_versions
+from ..compare import COMPARISON_FIGURES, Comparison
 from ..errors import InvalidParameterError
 from ..jsonio import write_json
 from . import figures
