@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from ._system import cpu_count
 from .cloud import LABEL_NAMES, Cloud
 from .compare import COMPARISON_FIGURES, CompareParams
 from .errors import InputFormatError, InvalidParameterError
@@ -69,7 +70,6 @@ __all__ = [
     "ScanParams",
     "SETTINGS",
     "apply_settings",
-    "cpu_count",
     "file_sha256",
     "load_config",
     "params_hash",
@@ -80,14 +80,6 @@ __all__ = [
 ]
 
 Progress = Callable[[float, str], None]
-
-
-def cpu_count() -> int:
-    """CPU cores this process may run on (its affinity mask where the OS has one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
 
 
 # -- parameters -------------------------------------------------------------------------
