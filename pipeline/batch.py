@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from .atomic import atomic_path, write_text
 from .errors import InputFormatError, InvalidParameterError, TreesimError
 from .executors import Executor, ExecutorPlan, open_executor, plan_executor, slots, task_threads
 from .jsonio import write_json as _write_json
@@ -826,13 +827,11 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
     out = result.outdir
     rows = result.rows
     csv_path = out / "summary.csv"
-    tmp = csv_path.with_name(".summary.csv.tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=list(SUMMARY_COLUMNS))
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if v is None else v) for k, v in r.items()})
-    os.replace(tmp, csv_path)
     counts = {
         "trees": len(rows),
         "ok": sum(1 for r in rows if r["status"] == "ok"),
@@ -858,9 +857,7 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
         },
     )
     idx = out / "index.html"
-    tmp = idx.with_name(".index.html.tmp")
-    tmp.write_text(_index_page(result, rows, counts), encoding="utf-8")
-    os.replace(tmp, idx)
+    write_text(idx, _index_page(result, rows, counts))
     result.summary_csv, result.summary_json, result.index_html = csv_path, json_path, idx
 
 

@@ -43,7 +43,6 @@ import hashlib
 import html
 import json
 import math
-import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
@@ -53,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from ._system import cpu_count
+from .atomic import write_text
 from .cloud import LABEL_NAMES, Cloud
 from .compare import COMPARISON_FIGURES, CompareParams
 from .errors import InputFormatError, InvalidParameterError
@@ -819,7 +819,7 @@ def run_tree(
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
-    _write_text(out / "report.html", _run_page(summary, __version__))
+    write_text(out / "report.html", _run_page(summary, __version__))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
     return RunResult(
@@ -828,12 +828,6 @@ def run_tree(
         run_json=out / "run.json",
         summary=_jsonable(summary),
     )
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _summary_texts(out: Path) -> dict[str, str]:
