@@ -93,9 +93,10 @@ def hardware_ceiling(processes: int, work: Any, n: int) -> float:
 
 
 def main() -> int:
+    from pipeline._system import cpu_count
     from pipeline.batch import run_batch
     from pipeline.executors import detect_available
-    from pipeline.run import STAGES, cpu_count, preset
+    from pipeline.run import STAGES, preset
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="draft", choices=["draft", "standard", "fine"])

@@ -106,7 +106,7 @@ def main() -> None:
     if args.one:
         one(*args.one)
         return
-    from pipeline.run import cpu_count
+    from pipeline._system import cpu_count
 
     with tempfile.TemporaryDirectory() as tmp:
         sapling = Path(tmp) / "sapling.ply"

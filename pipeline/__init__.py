@@ -7,27 +7,26 @@ tree mesh, ``scan`` it with the virtual scanner, ``compare`` clouds with meshes 
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
-from .batch import BatchResult, run_batch  # noqa: E402
-from .cloud import LABEL_CODES, Cloud  # noqa: E402
-from .compare import compare  # noqa: E402
-from .errors import TreesimError  # noqa: E402
-from .frame import LocalFrame  # noqa: E402
-from .io import read_cloud, write_cloud  # noqa: E402
-from .params import (  # noqa: E402
+from ._version import __version__
+from .batch import BatchResult, run_batch
+from .cloud import LABEL_CODES, Cloud
+from .compare import compare
+from .errors import TreesimError
+from .frame import LocalFrame
+from .io import read_cloud, write_cloud
+from .params import (
     CompareParams,
     ReconstructParams,
     RunParams,
-    ScanParams,
     ScannerSpec,
+    ScanParams,
     load_config,
     run_preset,
 )
-from .reconstruct import reconstruct  # noqa: E402
-from .report import build_report  # noqa: E402
-from .run import RunResult, run_tree  # noqa: E402
-from .scan import Station, load_scene, ring_layout, scan  # noqa: E402
+from .reconstruct import reconstruct
+from .report import build_report
+from .run import RunResult, run_tree
+from .scan import Station, load_scene, ring_layout, scan
 
 __all__ = [
     "LABEL_CODES",

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .atomic import atomic_path, write_text
 from .errors import InputFormatError, InvalidParameterError, TreesimError
 from .executors import Executor, ExecutorPlan, open_executor, plan_executor, slots, task_threads
 from .jsonio import write_json as _write_json
@@ -561,7 +562,7 @@ def _run_locked(
     progress: Callable[[BatchProgress], None] | None,
     t_start: float,
 ) -> BatchResult:
-    from . import __version__
+    from ._version import __version__
 
     shutil.rmtree(out / ".tmp", ignore_errors=True)
 
@@ -742,19 +743,17 @@ def _normalise(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def _write_summaries(result: BatchResult, params: RunParams) -> None:
-    from . import __version__
+    from ._version import __version__
     from .run import software_versions
 
     out = result.outdir
     rows = result.rows
     csv_path = out / "summary.csv"
-    tmp = csv_path.with_name(".summary.csv.tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=list(SUMMARY_COLUMNS))
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if v is None else v) for k, v in r.items()})
-    os.replace(tmp, csv_path)
     counts = {
         "trees": len(rows),
         "ok": sum(1 for r in rows if r["status"] == "ok"),
@@ -780,8 +779,8 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
         },
     )
     idx = out / "index.html"
-    tmp = idx.with_name(".index.html.tmp")
-    tmp.write_text(
+    write_text(
+        idx,
         batch_index_page(
             rows,
             counts,
@@ -790,7 +789,5 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
             executor=result.plan.describe(),
             elapsed_s=result.elapsed_s,
         ),
-        encoding="utf-8",
     )
-    os.replace(tmp, idx)
     result.summary_csv, result.summary_json, result.index_html = csv_path, json_path, idx

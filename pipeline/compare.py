@@ -54,8 +54,6 @@ coffee tree's QSM mesh). Nearest neighbours use SciPy's ``cKDTree`` in float64.
 from __future__ import annotations
 
 import math
-import platform
-import sys
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
@@ -64,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from ._version import software_versions
 from .cloud import LABEL_NAMES, Cloud
 from .errors import (
     EmptyInputError,
@@ -82,7 +81,6 @@ __all__ = [
     "compare",
     "point_spacing",
     "sample_surface",
-    "software_versions",
     "well_conditioned",
     "write_comparison",
 ]
@@ -882,25 +880,6 @@ def _split_by_station(
 
 
 # -- output ---------------------------------------------------------------------------
-def software_versions(*extra: str) -> dict[str, str]:
-    """Versions of Python, treesim and the numerical libraries (plus ``extra`` modules)."""
-    from importlib import metadata
-
-    from . import __version__
-
-    out = {
-        "treesim": __version__,
-        "python": sys.version.split()[0],
-        "platform": platform.platform(terse=True),
-    }
-    for name in ("numpy", "scipy", "open3d", "laspy", "plyfile", *extra):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
 #: The figures of ``comparison.json`` that reports and ``run.json`` carry (same names).
 COMPARISON_FIGURES = (
     "accuracy",

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+from ._system import cpu_count
 from .errors import InvalidParameterError
-from .run import cpu_count
 
 __all__ = [
     "Executor",

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .atomic import write_text
 from .errors import InputFormatError
 
 
@@ -35,15 +35,8 @@ def write_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented JSON through a temporary file renamed into place, so a
     half-written file is never seen."""
     p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp")
     try:
-        tmp.write_text(
-            json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n", encoding="utf-8"
-        )
-        os.replace(tmp, p)
+        write_text(p, json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n")
     except OSError as exc:
         raise InputFormatError(f"could not write {p}: {exc}") from exc
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return p

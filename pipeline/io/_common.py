@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidGeometryError
 
@@ -165,21 +165,18 @@ def decode_metadata(lines: list[str]) -> dict[str, Any]:
 def atomic_output(path: Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; move it onto ``path`` on success.
 
-    A failed write leaves no partial file behind (and an existing file untouched).
-    OS errors are mapped to :class:`InputFormatError`.
+    :func:`pipeline.atomic.atomic_path` with OS errors mapped to
+    :class:`InputFormatError`: a failed write leaves no partial file behind (and an
+    existing file untouched).
     """
-    tmp = path.with_name(f".{path.name}.part")
     try:
-        yield tmp
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            yield tmp
     except OSError as exc:
         raise InputFormatError(
             f"could not write {path}: {exc.strerror or exc}; check that the folder exists "
             "and is writable"
         ) from exc
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_binary(path: Path, write: Callable[[BinaryIO], None]) -> None:

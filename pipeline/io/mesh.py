@@ -12,12 +12,11 @@ up to 0.5 m; these writers keep float64:
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..cloud import LABEL_CODES, LABEL_NAMES
 from ..errors import InputFormatError, InvalidGeometryError
 
@@ -61,25 +60,19 @@ def write_mesh(
         else np.asarray(face_label, dtype=np.uint8)
     )
     p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o644)  # mkstemp makes 0600; outputs are ordinary files
     try:
-        if suffix == ".ply":
-            _write_ply(Path(tmp), v, f, lab)
-        else:
-            mtl = p.with_suffix(".mtl")
-            with open(mtl, "w", encoding="ascii") as fh:
-                for code in np.unique(lab):
-                    name = LABEL_NAMES.get(int(code), "other")
-                    fh.write(f"newmtl {name}\nKd {_MTL_COLOURS.get(name, '0.6 0.6 0.6')}\n")
-            _write_obj(Path(tmp), v, f, lab, mtl.name)
-        os.replace(tmp, p)
+        with atomic_path(p) as tmp:
+            if suffix == ".ply":
+                _write_ply(tmp, v, f, lab)
+            else:
+                mtl = p.with_suffix(".mtl")
+                with open(mtl, "w", encoding="ascii") as fh:
+                    for code in np.unique(lab):
+                        name = LABEL_NAMES.get(int(code), "other")
+                        fh.write(f"newmtl {name}\nKd {_MTL_COLOURS.get(name, '0.6 0.6 0.6')}\n")
+                _write_obj(tmp, v, f, lab, mtl.name)
     except OSError as exc:
         raise InputFormatError(f"could not write {p}: {exc}") from exc
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return p
 
 

@@ -81,7 +81,7 @@ class TreeModel:
 
     def to_dict(self) -> dict[str, Any]:
         """``tree.json``'s content."""
-        from ..compare import software_versions
+        from .._version import software_versions
 
         return {
             **self.figures,

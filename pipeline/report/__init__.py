@@ -16,12 +16,13 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 from __future__ import annotations
 
 import datetime as _dt
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from ..compare import COMPARISON_FIGURES, Comparison, software_versions
+from .._version import software_versions
+from ..atomic import write_text
+from ..compare import COMPARISON_FIGURES, Comparison
 from ..errors import InvalidParameterError
 from ..jsonio import write_json
 from ..params import ReportParams
@@ -134,7 +135,7 @@ def build_report(
         dpi=params.dpi,
     )
     html_path = out / "report.html"
-    _write_text(html_path, page)
+    write_text(html_path, page)
 
     report = {
         "kind": "treesim.report",
@@ -150,9 +151,3 @@ def build_report(
     json_path = out / "report.json"
     write_json(json_path, report)
     return {"report_json": json_path, "report_html": html_path, **pngs}
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)

@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from .._version import software_versions
 from ..cloud import LABEL_NAMES
-from ..compare import DISTANCE_FIELD, Comparison, software_versions
+from ..compare import DISTANCE_FIELD, Comparison
 from ..errors import InputFormatError
 
 #: Keys ``comparison.json`` must have for a report to be drawn.

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._system import cpu_count
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
@@ -292,7 +293,7 @@ def scan(
         plans.append((o, rot, grid, win))
     total_rays = sum(p[2].n_pulses for p in plans) * s
     if total_rays > max_rays:
-        secs = total_rays / (_EST_RAYS_PER_S * max(1, nthreads or _cores()))
+        secs = total_rays / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
         raise ResourceLimitError(
             f"this scan needs {total_rays:.3g} rays ({len(stations)} station"
             f"{'s' if len(stations) > 1 else ''} at "
@@ -521,12 +522,6 @@ def _beam_returns(
         "return_number": g["return_number"][keep],
         "number_of_returns": g["number_of_returns"][keep],
     }
-
-
-def _cores() -> int:
-    import os
-
-    return os.cpu_count() or 1
 
 
 def _human_time(seconds: float) -> str:

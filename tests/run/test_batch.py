@@ -64,7 +64,7 @@ def test_detect_available_lists_inline_and_local():
 
 
 def test_plans_keep_workers_times_threads_within_the_cores():
-    from pipeline.run import cpu_count
+    from pipeline._system import cpu_count
 
     cores = cpu_count()
     for workers in range(1, cores + 1):

@@ -36,8 +36,14 @@ def test_treesim_meshes_keep_georeferenced_precision_and_labels(tmp_path):
 
 @pytest.mark.parametrize(
     ("name", "label"),
-    [("Leaves", "leaf"), ("TrunkAndBranches", "wood"), ("needles_01", "leaf"),
-     ("Terrain", "ground"), ("bark", "wood"), ("Material.001", "other")],
+    [
+        ("Leaves", "leaf"),
+        ("TrunkAndBranches", "wood"),
+        ("needles_01", "leaf"),
+        ("Terrain", "ground"),
+        ("bark", "wood"),
+        ("Material.001", "other"),
+    ],
 )
 def test_labels_from_group_and_material_names(name, label):
     assert label_from_name(name) == label
@@ -76,7 +82,10 @@ def test_helios_apple_sapling_parts_are_labelled_and_scanned():
     assert set(scene.labels_present()) == {"wood", "leaf"}
     lo, hi = scene.bounds
     c = (lo + hi) / 2
-    res = scan(scene, [Station(position_m=(c[0] + 6.0, c[1], lo[2] + 1.5))],
-               ScannerSpec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1))
+    res = scan(
+        scene,
+        [Station(position_m=(c[0] + 6.0, c[1], lo[2] + 1.5))],
+        ScannerSpec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1),
+    )
     labels = set(np.unique(res.cloud.fields["label"]).tolist())
     assert labels == {1, 2}  # wood and leaf both hit
