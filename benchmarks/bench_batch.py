@@ -96,7 +96,8 @@ def main() -> int:
     from pipeline._system import cpu_count
     from pipeline.batch import run_batch
     from pipeline.executors import detect_available
-    from pipeline.run import STAGES, preset
+    from pipeline.params import run_preset as preset
+    from pipeline.run import STAGES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="draft", choices=["draft", "standard", "fine"])

@@ -73,7 +73,8 @@ def peak_rss_mb() -> float:
 
 def one(preset_name: str, cloud: str, out: str) -> None:
     """Child process: run once, print a JSON line."""
-    from pipeline.run import preset, run_tree
+    from pipeline.params import run_preset as preset
+    from pipeline.run import run_tree
 
     t0 = time.perf_counter()
     res = run_tree(cloud, preset(preset_name), out)

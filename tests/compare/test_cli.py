@@ -1,6 +1,6 @@
 """``treesim compare``: files written, names scripts rely on, one-line errors.
 
-These call ``pipeline.cli.main``; they need ``pipeline.report.cli.register`` wired into
+These call ``pipeline.cli.main``; they need ``pipeline.cli.compare.register`` wired into
 ``pipeline.cli.build_parser``.
 """
 

@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.models import (
-    PRESETS,
+    SPECIES as PRESETS,
     CylinderTable,
     generate_tree,
     read_cylinders,

@@ -11,14 +11,14 @@ import trimesh
 from pipeline.errors import InvalidParameterError, TreesimError
 from pipeline.models import (
     LEAF_SHAPES,
-    PRESETS,
+    SPECIES as PRESETS,
     SHAPES,
     LeafParams,
     StemLevel,
     TreeParams,
     generate_tree,
     mesh_volume,
-    preset,
+    species_preset as preset,
     shape_ratio,
 )
 from pipeline.models.mesh import _ring_basis

@@ -8,7 +8,8 @@ from functools import cache
 import pytest
 
 from pipeline.cloud import Cloud
-from pipeline.models import PRESETS, generate_tree
+from pipeline.models import SPECIES as PRESETS
+from pipeline.models import generate_tree
 from pipeline.reconstruct import ReconstructParams, reconstruct
 from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
 

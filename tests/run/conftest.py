@@ -11,7 +11,8 @@ import pytest
 from pipeline.io import write_cloud
 from pipeline.models import generate_tree
 from pipeline.report import ReportParams
-from pipeline.run import RunParams, preset
+from pipeline.params import RunParams
+from pipeline.params import run_preset as preset
 from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
 
 

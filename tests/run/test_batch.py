@@ -20,13 +20,13 @@ from pipeline.batch import (
     SUMMARY_COLUMNS,
     TIME_COLUMNS,
     BatchProgress,
-    ProgressBar,
     discover_inputs,
     run_batch,
 )
 from pipeline.errors import InputFormatError, InvalidParameterError
 from pipeline.executors import Executor, detect_available, plan_executor
-from pipeline.run import to_toml
+from pipeline.cli.progress import BatchProgressBar as ProgressBar
+from pipeline.params import to_toml
 from tests.conftest import shared_path
 
 ROOT = Path(__file__).resolve().parents[2]

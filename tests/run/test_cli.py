@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import main
-from pipeline.run import to_toml
+from pipeline.params import to_toml
 
 
 def one_line_error(capsys) -> str:
@@ -88,7 +88,7 @@ def test_print_params_is_a_config_file(tmp_path, capsys):
     assert main(["run", "--print-params", "--preset", "fine", "--method", "poisson"]) == 0
     cfg = tmp_path / "fine.toml"
     cfg.write_text(capsys.readouterr().out)
-    from pipeline.run import load_config
+    from pipeline.params import load_config
 
     p = load_config(cfg)
     assert p.preset == "fine" and p.reconstruct.method == "poisson"

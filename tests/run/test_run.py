@@ -10,18 +10,17 @@ from dataclasses import replace
 import pytest
 
 from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.run import (
-    PRESETS,
-    STAGES,
+from pipeline.params import RUN_PRESETS as PRESETS
+from pipeline.params import (
     RunParams,
     apply_settings,
     load_config,
     params_hash,
-    preset,
-    run_tree,
-    station_distance_m,
     to_toml,
 )
+from pipeline.params import run_preset as preset
+from pipeline.run import STAGES, run_tree
+from pipeline.scan import station_distance_m
 
 ARTEFACTS = (
     "tree.ply",

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from pipeline.errors import InvalidParameterError, ResourceLimitError, ScanError
-from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, preset, scan
+from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, scan
+from pipeline.scan import instrument as preset
 from pipeline.scan.rays import box_window
 from tests.conftest import box_arrays, cylinder_arrays
 
