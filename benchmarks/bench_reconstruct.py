@@ -305,7 +305,7 @@ def _area(v: np.ndarray, f: np.ndarray) -> float:
 def _samples(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, float]:
     """Seeded surface samples, one per SAMPLE_SPACING_M² (at most MAX_SAMPLES), and the
     effective spacing (m)."""
-    from pipeline.compare import sample_surface
+    from pipeline.geometry import sample_surface
 
     area = _area(v, f)
     n = int(min(MAX_SAMPLES, max(1000, np.ceil(area / SAMPLE_SPACING_M**2))))
