@@ -181,8 +181,8 @@ def pulse_angles(
     spec: ScannerSpec, station_index: int, lines: np.ndarray, columns: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (rad, float64, scanner frame) of pulses, jitter included."""
-    el = np.radians(spec.vertical_fov_deg[0] + lines * spec.vertical_resolution_deg)
-    az = np.radians(spec.horizontal_fov_deg[0] + columns * spec.horizontal_resolution_deg)
+    el = spec.line_elevation_rad(lines)
+    az = spec.column_azimuth_rad(columns)
     if spec.angular_jitter_sd_deg > 0:
         sd = math.radians(spec.angular_jitter_sd_deg)
         az = az + sd * hashed_normal(spec.seed, 2, station_index, lines, columns)
