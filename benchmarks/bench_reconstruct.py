@@ -90,7 +90,8 @@ def fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:
 def preset_scene(name: str):
     """(tree, scene, stations) of a leaf-off preset, meshed at 32 facets."""
     from pipeline.models import generate_tree
-    from pipeline.scan import MeshPart, Scene, ring_layout
+    from pipeline.scan import ring_layout
+    from pipeline.scene import MeshPart, Scene
 
     tree = generate_tree(name, seed=0, leaves=False)
     v, f, _ = tree.mesh(32)

@@ -13,11 +13,12 @@ from .cloud import LABEL_CODES, Cloud
 from .compare import CompareParams, compare
 from .errors import TreesimError
 from .frame import LocalFrame
-from .io import read_cloud, write_cloud
+from .io import load_scene, read_cloud, write_cloud
 from .reconstruct import ReconstructParams, reconstruct
 from .report import build_report
 from .run import RunParams, RunResult, ScanParams, run_tree
-from .scan import ScannerSpec, Station, load_scene, ring_layout, scan
+from .scan import ScannerSpec, Station, ring_layout, scan
+from .scene import Scene
 
 __all__ = [
     "LABEL_CODES",
@@ -30,6 +31,7 @@ __all__ = [
     "RunResult",
     "ScanParams",
     "ScannerSpec",
+    "Scene",
     "Station",
     "TreesimError",
     "__version__",

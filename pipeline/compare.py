@@ -72,6 +72,7 @@ from .errors import (
 from .frame import LocalFrame
 from .geometry import kdtree, point_spacing, point_to_mesh_distances, sample_surface
 from .jsonio import write_json
+from .scene import MeshPart, Scene
 
 __all__ = [
     "CompareParams",
@@ -232,8 +233,6 @@ def _check_cloud(cloud: Cloud, what: str) -> Cloud:
 
 
 def _as_reference(reference: Any) -> _Reference:
-    from .scan.scene import MeshPart, Scene
-
     if isinstance(reference, Cloud):
         ref = _check_cloud(reference, "reference cloud")
         label = ref.fields.get("label")

@@ -53,7 +53,7 @@ import numpy as np
 
 from ._system import cpu_count
 from .atomic import write_text
-from .cloud import LABEL_NAMES, Cloud
+from .cloud import Cloud
 from .compare import COMPARISON_FIGURES, CompareParams
 from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
@@ -584,21 +584,11 @@ def software_versions() -> dict[str, str]:
 
 
 def _scene_from_model(model: Any) -> Any:
-    from .scan import MeshPart, Scene
+    from .scene import Scene
 
-    codes = np.asarray(model.face_label)
-    parts = []
-    for code in np.unique(codes):
-        sel = codes == code
-        parts.append(
-            MeshPart(
-                vertices=model.vertices,
-                faces=np.asarray(model.faces)[sel],
-                label=LABEL_NAMES.get(int(code), "other"),
-                name=f"reconstruction:{LABEL_NAMES.get(int(code), 'other')}",
-            )
-        )
-    return Scene(parts)
+    return Scene.from_labelled_mesh(
+        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
+    )
 
 
 def _sub(progress: Progress | None, lo: float, hi: float) -> Progress | None:

@@ -10,50 +10,6 @@ from typing import Any
 from ..errors import InputFormatError, InvalidParameterError
 
 
-def _ply_has_faces(path: Path) -> bool:
-    """Whether a PLY file declares a non-empty ``face`` element (reads the header only)."""
-    try:
-        with open(path, "rb") as fh:
-            for _ in range(10_000):
-                line = fh.readline()
-                if not line:
-                    break
-                words = line.decode("ascii", "replace").split()
-                if words[:2] == ["element", "face"] and len(words) >= 3:
-                    return int(words[2]) > 0
-                if words[:1] == ["end_header"]:
-                    break
-    except (OSError, ValueError):
-        return False
-    return False
-
-
-def load_reference(path: str | Path) -> tuple[Any, str]:
-    """A reference file as a ``Scene`` (mesh suffixes, PLY with faces) or a ``Cloud``.
-
-    Returns
-    -------
-    reference : Scene or Cloud
-    kind : str
-        ``"mesh"`` or ``"cloud"``.
-    """
-    from ..io import read_cloud, supported_suffixes
-    from ..scan.scene import MESH_SUFFIXES, load_scene
-
-    p = Path(path)
-    if not p.exists():
-        raise InputFormatError(f"{p} not found; check the path")
-    suffix = p.suffix.lower()
-    if suffix in MESH_SUFFIXES and (suffix != ".ply" or _ply_has_faces(p)):
-        return load_scene([p]), "mesh"
-    if suffix in supported_suffixes():
-        return read_cloud(p), "cloud"
-    raise InputFormatError(
-        f"{p.name}: not a mesh ({', '.join(MESH_SUFFIXES)}) or point cloud "
-        f"({', '.join(supported_suffixes())}) file"
-    )
-
-
 def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:
     """The scan settings ``treesim scan`` wrote beside a cloud (``OUT.json``), if any."""
     side = cloud_path.with_suffix(".json")
@@ -83,7 +39,7 @@ def _fmt_mm(x: float | None) -> str:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from ..compare import CompareParams, compare, write_comparison
-    from ..io import read_cloud
+    from ..io import read_cloud, read_reference
     from .text import length, percent
 
     cloud_path = Path(args.cloud)
@@ -97,7 +53,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not cloud_path.exists():
         raise InputFormatError(f"{cloud_path} not found; check the path")
     cloud = read_cloud(cloud_path)
-    reference, kind = load_reference(args.reference)
+    reference, kind = read_reference(args.reference)
     result = compare(cloud, reference, params=params)
     inputs: dict[str, Any] = {"cloud": str(cloud_path), "reference": str(args.reference)}
     sidecar = scan_sidecar(cloud_path)

@@ -23,6 +23,7 @@ from .._system import cpu_count
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
+from ..scene import Scene
 from . import beam as beam_model
 from .rays import (
     PulseGrid,
@@ -34,7 +35,6 @@ from .rays import (
     windowed_grid,
 )
 from .scanner import ScannerSpec, Station
-from .scene import Scene
 
 Progress = Callable[[float, str], None]
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
+from pipeline.io import load_mesh
 from pipeline.models import (
     PRESETS,
     CylinderTable,
@@ -16,7 +17,6 @@ from pipeline.models import (
     read_cylinders,
     write_cylinders,
 )
-from pipeline.scan import load_mesh
 
 TRUTH_NAMES = (
     "dbh_m",

@@ -10,7 +10,8 @@ import pytest
 from pipeline.cloud import Cloud
 from pipeline.models import PRESETS, generate_tree
 from pipeline.reconstruct import ReconstructParams, reconstruct
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
 

@@ -12,7 +12,8 @@ from pipeline.io import write_cloud
 from pipeline.models import generate_tree
 from pipeline.report import ReportParams
 from pipeline.run import RunParams, preset
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 
 
 def sapling_cloud(seed: int, resolution_deg: float = 0.1):

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from pipeline.errors import InvalidParameterError, ResourceLimitError, ScanError
-from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, preset, scan
+from pipeline.scan import ScannerSpec, Station, preset, scan
 from pipeline.scan.rays import box_window
+from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, cylinder_arrays
 
 
@@ -198,7 +199,8 @@ def test_a_large_scan_runs_in_bounded_memory():
     code = textwrap.dedent(
         """
         import numpy as np
-        from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, scan
+        from pipeline.scan import ScannerSpec, Station, scan
+        from pipeline.scene import MeshPart, Scene
         from tests.conftest import cylinder_arrays
         parts = []
         for y in (-8.0, 8.0):
