@@ -167,63 +167,6 @@ class ScannerSpec:
             out.append(f"angular jitter σ {self.angular_jitter_sd_deg}°")
         return out
 
-    def column_azimuth_rad(self, columns: np.ndarray, heading_deg: float = 0.0) -> np.ndarray:
-        """Azimuth of scan columns (rad, float64): ``radians(h0 + heading_deg + column ×
-        horizontal_resolution_deg)``, ``h0`` the start of ``horizontal_fov_deg``.
-
-        Parameters
-        ----------
-        columns : (n,) int
-            Column indices (0 at ``h0``).
-        heading_deg : float
-            Added to ``h0`` first (the station heading, for levelled scanners).
-
-        Returns
-        -------
-        (n,) float64
-        """
-        return np.radians(
-            self.horizontal_fov_deg[0] + heading_deg + columns * self.horizontal_resolution_deg
-        )
-
-    def line_elevation_rad(self, lines: np.ndarray) -> np.ndarray:
-        """Elevation of scan lines (rad, float64): ``radians(v0 + line ×
-        vertical_resolution_deg)``, ``v0`` the start of ``vertical_fov_deg``.
-
-        Parameters
-        ----------
-        lines : (n,) int
-            Line indices (0 at ``v0``).
-
-        Returns
-        -------
-        (n,) float64
-        """
-        return np.radians(self.vertical_fov_deg[0] + lines * self.vertical_resolution_deg)
-
-    @classmethod
-    def with_resolution(cls, resolution_deg: float, **fields: object) -> ScannerSpec:
-        """A spec with one angular step on both axes.
-
-        Parameters
-        ----------
-        resolution_deg : float
-            Step between neighbouring pulses, horizontally and vertically (degrees).
-        **fields
-            Any other field; an explicit ``horizontal_resolution_deg`` or
-            ``vertical_resolution_deg`` overrides ``resolution_deg`` on that axis.
-
-        Returns
-        -------
-        ScannerSpec
-        """
-        kw: dict[str, object] = {
-            "horizontal_resolution_deg": resolution_deg,
-            "vertical_resolution_deg": resolution_deg,
-            **fields,
-        }
-        return cls(**kw)  # type: ignore[arg-type]
-
     def with_(self, **changes: object) -> ScannerSpec:
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)  # type: ignore[arg-type]
@@ -246,6 +189,26 @@ class ScannerSpec:
             "seed": self.seed,
             "reflectance": dict(self.reflectance),
         }
+
+
+def resolution_fields(resolution_deg: float) -> dict[str, float]:
+    """One angular step for both axes: the ``ScannerSpec`` fields it sets.
+
+    The single place where a square grid's step is expanded to the horizontal and
+    vertical resolutions (instruments; the ``resolution_deg`` setting and run presets).
+
+    Parameters
+    ----------
+    resolution_deg : float
+        Step between neighbouring pulses, horizontally and vertically (degrees).
+
+    Returns
+    -------
+    dict of str -> float
+        ``horizontal_resolution_deg`` and ``vertical_resolution_deg``, for
+        ``ScannerSpec(**resolution_fields(r), ...)`` or ``spec.with_(**...)``.
+    """
+    return {"horizontal_resolution_deg": resolution_deg, "vertical_resolution_deg": resolution_deg}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -274,6 +237,7 @@ class InstrumentPreset:
     def spec(self, *, beam: bool = False, noise: bool = False, **overrides: object) -> ScannerSpec:
         """A ``ScannerSpec`` from these figures; ``overrides`` replace any field."""
         kw: dict[str, object] = dict(
+            **resolution_fields(self.resolution_deg),
             horizontal_fov_deg=self.horizontal_fov_deg,
             vertical_fov_deg=self.vertical_fov_deg,
             min_range_m=self.min_range_m,
@@ -285,7 +249,7 @@ class InstrumentPreset:
             kw["range_noise_sd_m"] = self.range_noise_sd_m
             kw["angular_jitter_sd_deg"] = self.angular_jitter_sd_deg
         kw.update(overrides)
-        return ScannerSpec.with_resolution(self.resolution_deg, **kw)
+        return ScannerSpec(**kw)  # type: ignore[arg-type]
 
 
 #: Instrument presets. Figures from the makers' data sheets:
