@@ -37,7 +37,8 @@ def fallback_inputs(folder: Path) -> list[Path]:
     """The bundled coffee tree and four saplings scanned at 0.05° (no shared data)."""
     from pipeline.io import write_cloud
     from pipeline.models import generate_tree
-    from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+    from pipeline.scan import ScannerSpec, ring_layout, scan
+    from pipeline.scene import MeshPart, Scene
 
     paths = [ROOT / "pipeline" / "data" / "coffee_tree" / "cloud.txt"]
     for seed in range(4):

@@ -40,7 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.cloud import Cloud  # noqa: E402
-from pipeline.compare import CompareParams, compare, sample_surface  # noqa: E402
+from pipeline.compare import CompareParams, compare  # noqa: E402
+from pipeline.geometry import sample_surface  # noqa: E402
 from pipeline.models import cylinders_to_mesh, read_cylinders  # noqa: E402
 
 SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"

@@ -38,7 +38,8 @@ def make_sapling(path: Path) -> dict:
     """Scan the sapling preset into ``path``; return its truth figures."""
     from pipeline.io import write_cloud
     from pipeline.models import generate_tree
-    from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+    from pipeline.scan import ScannerSpec, ring_layout, scan
+    from pipeline.scene import MeshPart, Scene
 
     tree = generate_tree("sapling", seed=0, leaves=False)
     v, f, _ = tree.mesh(32)

@@ -90,7 +90,8 @@ def fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:
 def preset_scene(name: str):
     """(tree, scene, stations) of a leaf-off preset, meshed at 32 facets."""
     from pipeline.models import generate_tree
-    from pipeline.scan import MeshPart, Scene, ring_layout
+    from pipeline.scan import ring_layout
+    from pipeline.scene import MeshPart, Scene
 
     tree = generate_tree(name, seed=0, leaves=False)
     v, f, _ = tree.mesh(32)
@@ -305,7 +306,7 @@ def _area(v: np.ndarray, f: np.ndarray) -> float:
 def _samples(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, float]:
     """Seeded surface samples, one per SAMPLE_SPACING_M² (at most MAX_SAMPLES), and the
     effective spacing (m)."""
-    from pipeline.compare import sample_surface
+    from pipeline.geometry import sample_surface
 
     area = _area(v, f)
     n = int(min(MAX_SAMPLES, max(1000, np.ceil(area / SAMPLE_SPACING_M**2))))

@@ -33,8 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.models import cylinders_to_mesh, read_cylinders  # noqa: E402
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan  # noqa: E402
+from pipeline.scan import ScannerSpec, ring_layout, scan  # noqa: E402
 from pipeline.scan.rays import box_window, directions, pulse_angles, windowed_grid  # noqa: E402
+from pipeline.scene import MeshPart, Scene  # noqa: E402
 
 SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 

@@ -13,7 +13,7 @@ from .cloud import LABEL_CODES, Cloud
 from .compare import compare
 from .errors import TreesimError
 from .frame import LocalFrame
-from .io import read_cloud, write_cloud
+from .io import load_scene, read_cloud, write_cloud
 from .params import (
     CompareParams,
     ReconstructParams,
@@ -26,7 +26,8 @@ from .params import (
 from .reconstruct import reconstruct
 from .report import build_report
 from .run import RunResult, run_tree
-from .scan import Station, load_scene, ring_layout, scan
+from .scan import Station, ring_layout, scan
+from .scene import Scene
 
 __all__ = [
     "LABEL_CODES",
@@ -39,6 +40,7 @@ __all__ = [
     "RunResult",
     "ScanParams",
     "ScannerSpec",
+    "Scene",
     "Station",
     "TreesimError",
     "__version__",

@@ -131,9 +131,9 @@ def _sniff_not_a_cloud(p: Path) -> str | None:
     """Why a file found in a folder is not a tree cloud, or None when it looks like one."""
     suffix = p.suffix.lower()
     if suffix == ".ply":
-        from .report.cli import _ply_has_faces
+        from .io.ply import ply_has_faces
 
-        return "a mesh (PLY with faces)" if _ply_has_faces(p) else None
+        return "a mesh (PLY with faces)" if ply_has_faces(p) else None
     if suffix not in _TEXT_SUFFIXES:
         return None
     try:

@@ -41,7 +41,7 @@ Two measured Open3D 0.20 pitfalls are handled:
   thin cylinder facets, as QSM meshes have) whose first corner is the sharp apex: up to
   1.5 mm off, for 47 % of the points on a 0.15 m × 2 m, 256-facet cylinder. treesim hands
   it every triangle with the first corner opposite the longest edge
-  (:func:`well_conditioned`), which removes the error;
+  (:func:`pipeline.geometry.well_conditioned`), which removes the error;
 * a float32 near-tie can pick the neighbour of the right triangle: where the closest
   point lies on the picked triangle's boundary, the triangles sharing that edge or
   corner are measured exactly too and the least distance is kept.
@@ -70,18 +70,16 @@ from .errors import (
     InvalidParameterError,
 )
 from .frame import LocalFrame
+from .geometry import kdtree, point_spacing, point_to_mesh_distances, sample_surface
 from .jsonio import write_json
 from .params import CompareParams
+from .scene import MeshPart, Scene
 
 __all__ = [
     "CompareParams",
     "Comparison",
     "DistanceStats",
-    "closest_points_on_triangles",
     "compare",
-    "point_spacing",
-    "sample_surface",
-    "well_conditioned",
     "write_comparison",
 ]
 
@@ -102,9 +100,6 @@ DEFINITIONS: dict[str, str] = {
 
 #: Default coverage tolerance, in multiples of the cloud's median point spacing.
 TOLERANCE_FACTOR = 3.0
-
-_CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 MB)
-_O3D_CHUNK = 1 << 21  # points per Open3D query
 
 
 # -- parameters and statistics --------------------------------------------------------
@@ -143,197 +138,9 @@ class DistanceStats:
         return asdict(self)
 
 
-# -- geometry helpers -----------------------------------------------------------------
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", a, b)
-
-
-def closest_points_on_triangles(
-    p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-) -> np.ndarray:
-    """Closest point on triangle ``(a[i], b[i], c[i])`` to ``p[i]``, exactly, in float64.
-
-    Ericson's region test (Real-Time Collision Detection, 5.1.5), vectorised.
-
-    Parameters
-    ----------
-    p, a, b, c : (n, 3) float64
-        Query points and triangle corners (non-degenerate triangles).
-
-    Returns
-    -------
-    (n, 3) float64
-        The closest points.
-    """
-    s, t, _ = _closest_params(p, a, b, c)
-    return a + s[:, None] * (b - a) + t[:, None] * (c - a)
-
-
-#: Feature of a triangle a closest point lies on (``_closest_params``' region codes).
-_INTERIOR, _A, _B, _C, _AB, _AC, _BC = range(7)
-
-
-def _closest_params(
-    p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ericson's test as parameters: the closest point is ``a + s (b - a) + t (c - a)``.
-
-    Returns
-    -------
-    s, t : (n,) float64
-    region : (n,) int8
-        ``_INTERIOR``, a corner (``_A``, ``_B``, ``_C``) or an edge (``_AB``, ``_AC``,
-        ``_BC``).
-    """
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1, d2 = _dot(ab, ap), _dot(ac, ap)
-    abab, abac, acac = _dot(ab, ab), _dot(ab, ac), _dot(ac, ac)
-    d3, d4 = d1 - abab, d2 - abac  # ab·(p - b), ac·(p - b)
-    d5, d6 = d1 - abac, d2 - acac  # ab·(p - c), ac·(p - c)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    zero, one = np.zeros_like(d1), np.ones_like(d1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        s, t = vb / denom, vc / denom
-        region = np.zeros(len(p), dtype=np.int8)
-        # regions in reverse order of Ericson's tests, so that earlier tests win
-        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        s, t, region = np.where(m, 1 - w, s), np.where(m, w, t), np.where(m, _BC, region)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        w = d2 / (d2 - d6)
-        s, t, region = np.where(m, zero, s), np.where(m, w, t), np.where(m, _AC, region)
-        m = (d6 >= 0) & (d5 <= d6)
-        s, t, region = np.where(m, zero, s), np.where(m, one, t), np.where(m, _C, region)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        w = d1 / (d1 - d3)
-        s, t, region = np.where(m, w, s), np.where(m, zero, t), np.where(m, _AB, region)
-        m = (d3 >= 0) & (d4 <= d3)
-        s, t, region = np.where(m, one, s), np.where(m, zero, t), np.where(m, _B, region)
-        m = (d1 <= 0) & (d2 <= 0)
-        s, t, region = np.where(m, zero, s), np.where(m, zero, t), np.where(m, _A, region)
-    return s, t, region.astype(np.int8)
-
-
-def _distances(
-    p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Exact distances (n,) from ``p[i]`` to triangle i, and the closest feature (n,)."""
-    s, t, region = _closest_params(p, a, b, c)
-    diff = (p - a) - s[:, None] * (b - a) - t[:, None] * (c - a)
-    return np.sqrt(_dot(diff, diff)), region
-
-
-def sample_surface(
-    vertices: np.ndarray, faces: np.ndarray, n: int, *, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` points uniformly distributed by area on a triangle mesh (seeded).
-
-    Parameters
-    ----------
-    vertices : (v, 3) float64
-    faces : (f, 3) int
-    n : int
-        Number of samples.
-    seed : int
-        Seed of ``numpy.random.default_rng``.
-
-    Returns
-    -------
-    points : (n, 3) float64
-    face_index : (n,) int64
-        The triangle each sample lies on (non-decreasing: samples come in face order).
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    a = v[f[:, 0]]
-    ab = v[f[:, 1]] - a
-    ac = v[f[:, 2]] - a
-    area = 0.5 * np.linalg.norm(np.cross(ab, ac), axis=1)
-    cum = np.cumsum(area)
-    if len(cum) == 0 or not cum[-1] > 0:
-        raise EmptyInputError("the mesh has no surface area to sample")
-    rng = np.random.default_rng(seed)
-    # sorted draws give samples in face order: spatially coherent, so that the k-d tree
-    # queries that follow hit the cache (2x faster than random order, measured)
-    tri = np.searchsorted(cum, np.sort(rng.random(n)) * cum[-1], side="right")
-    tri = np.minimum(tri, len(f) - 1)
-    r1 = np.sqrt(rng.random(n))
-    r2 = rng.random(n)
-    u = r1 * (1.0 - r2)
-    w = r1 * r2
-    pts = a[tri] + u[:, None] * ab[tri] + w[:, None] * ac[tri]
-    return pts, tri
-
-
+# -- helpers --------------------------------------------------------------------------
 def _workers(nthreads: int) -> int:
     return -1 if int(nthreads) == 0 else int(nthreads)
-
-
-def _kdtree(points: np.ndarray) -> Any:
-    """A SciPy k-d tree (float64), built the fast way (unbalanced, loose nodes)."""
-    from scipy.spatial import cKDTree
-
-    return cKDTree(points, balanced_tree=False, compact_nodes=False)
-
-
-def point_spacing(
-    points: np.ndarray,
-    *,
-    subsample: int = 50_000,
-    seed: int = 0,
-    tree: Any = None,
-    nthreads: int = 0,
-) -> float:
-    """Median distance from a point to its nearest other point (duplicates ignored).
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-        The cloud, preferably in a local frame.
-    subsample : int
-        Estimate from this many seeded random points (queried against all points).
-    seed : int
-    tree : scipy.spatial.cKDTree, optional
-        A tree already built on ``points``.
-    nthreads : int
-        Query threads (0: all cores).
-
-    Returns
-    -------
-    float
-        The spacing in metres.
-
-    Raises
-    ------
-    InvalidGeometryError
-        If all points coincide.
-    """
-
-    pts = np.asarray(points, dtype=np.float64)
-    tree = tree if tree is not None else _kdtree(pts)
-    if len(pts) > subsample:
-        idx = np.random.default_rng(seed).choice(len(pts), size=subsample, replace=False)
-        q = pts[idx]
-    else:
-        q = pts
-    d = tree.query(q, k=2, workers=_workers(nthreads))[0][:, 1]
-    dup = np.flatnonzero(d == 0)
-    if len(dup):  # duplicates: look further for the nearest *other* point
-        far = tree.query(q[dup], k=min(len(pts), 32), workers=_workers(nthreads))[0]
-        d[dup] = np.where(far > 0, far, np.inf).min(axis=1)
-    d = d[np.isfinite(d)]
-    if len(d) == 0:
-        raise InvalidGeometryError(
-            "all points of the cloud coincide, so it has no spacing to derive the tolerance "
-            "from; check the input, or give tolerance_m (--tolerance-m) and, for a mesh "
-            "reference, sample_spacing_m (--sample-spacing-m)"
-        )
-    return float(np.median(d))
 
 
 # -- references -----------------------------------------------------------------------
@@ -380,8 +187,6 @@ def _check_cloud(cloud: Cloud, what: str) -> Cloud:
 
 
 def _as_reference(reference: Any) -> _Reference:
-    from .scan.scene import MeshPart, Scene
-
     if isinstance(reference, Cloud):
         ref = _check_cloud(reference, "reference cloud")
         label = ref.fields.get("label")
@@ -428,126 +233,6 @@ def _as_reference(reference: Any) -> _Reference:
             "degenerate_triangles_dropped": int(getattr(scene, "dropped_degenerate", 0)),
         },
     )
-
-
-# -- distance kernels -----------------------------------------------------------------
-def well_conditioned(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``faces`` with each triangle's corners rotated so the first is opposite its longest
-    edge (orientation kept).
-
-    Open3D's float32 point-to-triangle routine (Ericson's, with the first corner as the
-    base) cancels catastrophically on sliver triangles whose first corner is the sharp
-    apex: on a 0.15 m x 2 m cylinder with 256 facets it put 47 % of the points lying on
-    the surface up to 1.5 mm off, picking the neighbouring triangle. With the first corner
-    opposite the longest edge, the two base edges are the short ones and the error is
-    gone (measured: 0 of 3000 points off by more than 1e-9 m, on that cylinder and on
-    the coffee tree's QSM mesh).
-
-    Parameters
-    ----------
-    vertices : (v, 3) float64
-    faces : (f, 3) int
-
-    Returns
-    -------
-    (f, 3) int64
-    """
-    f = np.asarray(faces, dtype=np.int64)
-    a, b, c = (vertices[f[:, i]] for i in range(3))
-    opposite = np.stack(
-        [
-            np.einsum("ij,ij->i", b - c, b - c),
-            np.einsum("ij,ij->i", c - a, c - a),
-            np.einsum("ij,ij->i", a - b, a - b),
-        ],
-        axis=1,
-    ).argmax(axis=1)
-    return np.take_along_axis(f, (opposite[:, None] + np.arange(3)) % 3, axis=1)
-
-
-def _vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
-    """CSR incidence: the triangles around vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``."""
-    flat = faces.ravel()
-    order = np.argsort(flat, kind="stable")
-    ptr = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(flat, minlength=n_vertices), out=ptr[1:])
-    return ptr, order // 3
-
-
-def _feature_minimum(
-    q: np.ndarray,
-    tri: np.ndarray,
-    region: np.ndarray,
-    verts: np.ndarray,
-    faces: np.ndarray,
-    ptr: np.ndarray,
-    idx: np.ndarray,
-) -> np.ndarray:
-    """Exact distance (k,) from each ``q[i]`` to the triangles that share the feature
-    (corner or edge, ``region[i]``) of triangle ``tri[i]`` its closest point lies on."""
-    # the feature's corners: u (always) and w (edges only, else -1)
-    first = np.choose(np.clip(region - 1, 0, 5), [0, 1, 2, 0, 0, 1])
-    second = np.choose(np.clip(region - 1, 0, 5), [0, 0, 0, 1, 2, 2])
-    rows = np.arange(len(tri))
-    u = tri[rows, first]
-    w = np.where(region >= _AB, tri[rows, second], -1)
-    counts = ptr[u + 1] - ptr[u]
-    point = np.repeat(rows, counts)
-    within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-    cand = idx[np.repeat(ptr[u], counts) + within]
-    ww = w[point]
-    keep = (ww < 0) | (faces[cand] == ww[:, None]).any(axis=1)  # triangles on the edge
-    point, cand = point[keep], cand[keep]
-    f = faces[cand]
-    d, _ = _distances(q[point], verts[f[:, 0]], verts[f[:, 1]], verts[f[:, 2]])
-    best = np.full(len(tri), np.inf)
-    np.minimum.at(best, point, d)
-    return best
-
-
-def _point_to_mesh(
-    query: np.ndarray, verts: np.ndarray, faces: np.ndarray, nthreads: int
-) -> np.ndarray:
-    """Exact distances (n,) from local-frame ``query`` to the mesh.
-
-    Open3D (float32) picks a closest triangle (corners rotated by
-    :func:`well_conditioned`); the distance to it is recomputed exactly in float64.
-    Where that closest point lies on the triangle's boundary, which is where a float32
-    near-tie can have picked the neighbour of the right triangle, the triangles sharing
-    that edge or corner are measured too and the smallest exact distance is kept.
-    """
-    import open3d as o3d
-
-    faces = well_conditioned(verts, faces)
-    rc = o3d.t.geometry.RaycastingScene(nthreads=int(nthreads))
-    rc.add_triangles(
-        o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
-    )
-    ptr, idx = _vertex_triangles(faces, len(verts))
-    n = len(query)
-    dist = np.empty(n, dtype=np.float64)
-    for s in range(0, n, _O3D_CHUNK):
-        q = query[s : s + _O3D_CHUNK]
-        ans = rc.compute_closest_points(
-            o3d.core.Tensor(q.astype(np.float32)), nthreads=int(nthreads)
-        )
-        pid = ans["primitive_ids"].numpy().astype(np.int64)
-        if (pid < 0).any() or (pid >= len(faces)).any():  # never expected: guard Open3D
-            raise InvalidGeometryError(
-                "Open3D returned no closest triangle for some points; check the mesh"
-            )
-        for t in range(0, len(q), _CHUNK):
-            qq = q[t : t + _CHUNK]
-            tri = faces[pid[t : t + _CHUNK]]
-            d, region = _distances(qq, verts[tri[:, 0]], verts[tri[:, 1]], verts[tri[:, 2]])
-            edge = np.flatnonzero(region != _INTERIOR)
-            if len(edge):
-                d[edge] = np.minimum(
-                    d[edge],
-                    _feature_minimum(qq[edge], tri[edge], region[edge], verts, faces, ptr, idx),
-                )
-            dist[s + t : s + t + len(qq)] = d
-    return dist
 
 
 # -- the comparison -------------------------------------------------------------------
@@ -718,14 +403,14 @@ def compare(
     workers = _workers(params.nthreads)
 
     t0 = time.perf_counter()
-    cloud_tree = _kdtree(cloud_local)
+    cloud_tree = kdtree(cloud_local)
     try:
         spacing = point_spacing(
             cloud_local,
             subsample=params.spacing_subsample,
             seed=params.seed,
             tree=cloud_tree,
-            nthreads=params.nthreads,
+            workers=workers,
         )
     except InvalidGeometryError:
         needed = params.tolerance_m is None or (
@@ -747,7 +432,7 @@ def compare(
     if ref.kind == "mesh":
         assert ref.faces is not None
         verts_local = frame.to_local(ref.points)
-        acc = _point_to_mesh(cloud_local, verts_local, ref.faces, params.nthreads)
+        acc = point_to_mesh_distances(cloud_local, verts_local, ref.faces, params.nthreads)
         timings["accuracy"] = time.perf_counter() - t0
         # completeness: surface samples -> cloud
         t0 = time.perf_counter()
@@ -770,7 +455,7 @@ def compare(
         timings["sampling"] = time.perf_counter() - t0
     else:
         ref_local = frame.to_local(ref.points)
-        ref_tree = _kdtree(ref_local)
+        ref_tree = kdtree(ref_local)
         acc, _ = ref_tree.query(cloud_local, k=1, workers=workers)
         ref_label = ref.point_label
         timings["accuracy"] = time.perf_counter() - t0
@@ -872,7 +557,7 @@ def _split_by_station(
             "points": int(sel.sum()),
             "accuracy": DistanceStats.of(acc[sel]).to_dict(),
         }
-        tree = _kdtree(cloud_local[sel])
+        tree = kdtree(cloud_local[sel])
         d, _ = tree.query(ref_local, k=1, distance_upper_bound=tau * (1 + 1e-12), workers=workers)
         entry["coverage"] = float((d <= tau).mean())
         out[int(s)] = entry

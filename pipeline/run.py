@@ -36,13 +36,14 @@ import numpy as np
 
 from ._system import cpu_count
 from .atomic import write_text
-from .cloud import LABEL_NAMES, Cloud
+from .cloud import Cloud
 from .compare import COMPARISON_FIGURES
 from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
 from .report.run_page import STAGES, run_page
+from .scene import Scene
 
 __all__ = ["STAGES", "RunResult", "file_sha256", "run_tree", "software_versions"]
 
@@ -101,22 +102,10 @@ def software_versions() -> dict[str, str]:
     return base("pymeshlab", "trimesh", "matplotlib")
 
 
-def _scene_from_model(model: Any) -> Any:
-    from .scan import MeshPart, Scene
-
-    codes = np.asarray(model.face_label)
-    parts = []
-    for code in np.unique(codes):
-        sel = codes == code
-        parts.append(
-            MeshPart(
-                vertices=model.vertices,
-                faces=np.asarray(model.faces)[sel],
-                label=LABEL_NAMES.get(int(code), "other"),
-                name=f"reconstruction:{LABEL_NAMES.get(int(code), 'other')}",
-            )
-        )
-    return Scene(parts)
+def _scene_from_model(model: Any) -> Scene:
+    return Scene.from_labelled_mesh(
+        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
+    )
 
 
 def _sub(progress: Progress | None, lo: float, hi: float) -> Progress | None:

@@ -8,6 +8,10 @@ dispatch through it (suffixes are matched case-insensitively).
 * ``.las`` ``.laz``: :mod:`pipeline.io.las` (laspy, LAZ through lazrs)
 * ``.ply``: :mod:`pipeline.io.ply` (plyfile)
 * ``.e57``: :mod:`pipeline.io.e57` (read only; needs the optional ``pye57``)
+
+Meshes (:mod:`pipeline.io.mesh`): :func:`load_mesh` / :func:`load_scene` read them into
+labelled parts and a :class:`~pipeline.scene.Scene`, :func:`write_mesh` writes them;
+:func:`read_reference` reads a comparison reference, mesh or cloud, by content.
 """
 
 from __future__ import annotations
@@ -19,9 +23,22 @@ from typing import Any
 
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidParameterError
+from ..scene import Scene
 from . import e57, las, ply, text
+from .mesh import MESH_SUFFIXES, load_mesh, load_scene, write_mesh
 
-__all__ = ["FORMATS", "CloudFormat", "read_cloud", "supported_suffixes", "write_cloud"]
+__all__ = [
+    "FORMATS",
+    "MESH_SUFFIXES",
+    "CloudFormat",
+    "load_mesh",
+    "load_scene",
+    "read_cloud",
+    "read_reference",
+    "supported_suffixes",
+    "write_cloud",
+    "write_mesh",
+]
 
 
 @dataclass(frozen=True)
@@ -159,3 +176,38 @@ def write_cloud(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) ->
     fmt = _format_for(path)
     options = {"las_scale_m": las_scale_m} if "las_scale_m" in fmt.write_options else {}
     return fmt.write(path, cloud, **options)
+
+
+def read_reference(path: str | Path) -> tuple[Scene | Cloud, str]:
+    """A comparison reference file as a ``Scene`` (mesh) or a ``Cloud``.
+
+    Mesh suffixes (:data:`MESH_SUFFIXES`) are read as meshes, except a PLY without
+    faces, which is a point cloud; other cloud suffixes are read as clouds.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    reference : Scene or Cloud
+    kind : str
+        ``"mesh"`` or ``"cloud"``.
+
+    Raises
+    ------
+    InputFormatError
+        If the file does not exist or its suffix is neither a mesh's nor a cloud's.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputFormatError(f"{p} not found; check the path")
+    suffix = p.suffix.lower()
+    if suffix in MESH_SUFFIXES and (suffix != ".ply" or ply.ply_has_faces(p)):
+        return load_scene([p]), "mesh"
+    if suffix in supported_suffixes():
+        return read_cloud(p), "cloud"
+    raise InputFormatError(
+        f"{p.name}: not a mesh ({', '.join(MESH_SUFFIXES)}) or point cloud "
+        f"({', '.join(supported_suffixes())}) file"
+    )

@@ -25,6 +25,37 @@ from ._common import decode_metadata, encode_metadata, field_columns, write_bina
 #: Suffixes handled by this module.
 SUFFIXES: tuple[str, ...] = (".ply",)
 
+
+def ply_has_faces(path: str | Path) -> bool:
+    """Whether a PLY file declares a non-empty ``face`` element, i.e. holds a mesh.
+
+    Reads the header only (at most 10 000 lines).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    bool
+        False also when the file cannot be read or its header parsed.
+    """
+    try:
+        with open(path, "rb") as fh:
+            for _ in range(10_000):
+                line = fh.readline()
+                if not line:
+                    break
+                words = line.decode("ascii", "replace").split()
+                if words[:2] == ["element", "face"] and len(words) >= 3:
+                    return int(words[2]) > 0
+                if words[:1] == ["end_header"]:
+                    break
+    except (OSError, ValueError):
+        return False
+    return False
+
+
 #: numpy dtypes PLY can store (keyed by kind and size).
 _PLY_TYPES = {
     ("i", 1): "i1",

@@ -216,6 +216,26 @@ class ScannerSpec:
         }
 
 
+def resolution_fields(resolution_deg: float) -> dict[str, float]:
+    """One angular step for both axes: the ``ScannerSpec`` fields it sets.
+
+    The single place where a square grid's step is expanded to the horizontal and
+    vertical resolutions (instruments; the ``resolution_deg`` setting and run presets).
+
+    Parameters
+    ----------
+    resolution_deg : float
+        Step between neighbouring pulses, horizontally and vertically (degrees).
+
+    Returns
+    -------
+    dict of str -> float
+        ``horizontal_resolution_deg`` and ``vertical_resolution_deg``, for
+        ``ScannerSpec(**resolution_fields(r), ...)`` or ``spec.with_(**...)``.
+    """
+    return {"horizontal_resolution_deg": resolution_deg, "vertical_resolution_deg": resolution_deg}
+
+
 @dataclass(frozen=True, kw_only=True)
 class InstrumentPreset:
     """Published figures of a real instrument.
@@ -309,12 +329,3 @@ def instrument(name: str) -> InstrumentPreset:
         raise InvalidParameterError(
             f"unknown scanner instrument {name!r}; choose one of {', '.join(sorted(INSTRUMENTS))}"
         ) from None
-
-
-def resolution_fields(resolution_deg: float) -> dict[str, float]:
-    """One angular step for both axes: the ``ScannerSpec`` fields it sets.
-
-    The single place where a square grid's step is expanded to the horizontal and
-    vertical resolutions (the ``resolution_deg`` setting, instruments, run presets).
-    """
-    return {"horizontal_resolution_deg": resolution_deg, "vertical_resolution_deg": resolution_deg}

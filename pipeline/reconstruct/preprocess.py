@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 from ..cloud import Cloud
 from ..errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
 from ..frame import LocalFrame
+from ..geometry import point_spacing
 from ..params import PrepareParams
 
 __all__ = [
@@ -344,16 +345,6 @@ def statistical_outliers(
     return (mean_d <= threshold) | sparse_but_consistent
 
 
-def median_spacing(points: np.ndarray, tree: cKDTree | None = None, *, workers: int = 1) -> float:
-    """Median distance from each point to its nearest neighbour (m)."""
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) < 2:
-        return 0.0
-    tree = cKDTree(pts) if tree is None else tree
-    d, _ = tree.query(pts, k=2, workers=workers)
-    return float(np.median(d[:, 1]))
-
-
 # --------------------------------------------------------------------------- local PCA
 
 
@@ -526,7 +517,11 @@ def _estimate_normals(
         s = np.einsum("nd,nd->n", pts - axis[j], normals)
         return normals * np.where(s < 0, -1.0, 1.0)[:, None], evals, normals
 
-    spacing = median_spacing(pts, tree, workers=workers) if spacing_m is None else float(spacing_m)
+    spacing = (
+        point_spacing(pts, distinct=False, tree=tree, workers=workers)
+        if spacing_m is None
+        else float(spacing_m)
+    )
     base = max(0.02, 6.0 * spacing)
     score = np.full(len(pts), -1.0)
     sign = np.ones(len(pts))
@@ -827,7 +822,7 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
     # 3. ground removal
     n2 = len(pts)
     tree = cKDTree(pts)
-    spacing = median_spacing(pts, tree, workers=w)
+    spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
     ground_info: dict[str, Any] = {}
     if params.remove_ground:
         ground, ground_info = find_ground(
@@ -836,7 +831,7 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
         if ground.any():
             pts, weights = pts[~ground], weights[~ground]
             tree = cKDTree(pts)
-            spacing = median_spacing(pts, tree, workers=w)
+            spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
     steps.append(
         _step(
             "ground_removal",

@@ -43,8 +43,9 @@ from scipy.spatial import cKDTree
 from ..cloud import Cloud
 from ..errors import InvalidGeometryError, InvalidParameterError, ReconstructionError
 from ..frame import LocalFrame
+from ..geometry import point_spacing
 from ._pmlworker import run_in_child
-from .preprocess import PreparedCloud, estimate_normals, median_spacing, prepare, voxel_downsample
+from .preprocess import PreparedCloud, estimate_normals, prepare, voxel_downsample
 
 __all__ = ["SurfaceResult", "ball_pivoting", "clean_mesh", "edge_topology", "poisson"]
 
@@ -643,7 +644,7 @@ def ball_pivoting(
         idx = _thin_to(pts, prep.spacing_m, int(max_points))
         pts = pts[idx]
         normals = _normals_for(prep)[idx] if prep.normals is not None else _normals_for(prep, pts)
-        spacing = median_spacing(pts)
+        spacing = point_spacing(pts, distinct=False, workers=1)
     else:
         normals = _normals_for(prep)
         spacing = prep.spacing_m

@@ -3,11 +3,14 @@
 ``scan(scene, stations, spec)`` casts each station's rays at a :class:`~pipeline.scene.Scene`
 and returns the simulated cloud; :func:`stations_for` places stations by the station rule.
 The scanner's settings (:class:`~pipeline.params.ScannerSpec`) and instruments live in the
-parameter model, :mod:`pipeline.params`.
+parameter model, :mod:`pipeline.params`. ``Scene``, ``MeshPart``, ``label_from_name``
+(:mod:`pipeline.scene`) and ``load_mesh``, ``load_scene`` (:mod:`pipeline.io.mesh`) are
+re-exported for convenience: what the scanner scans, and how it is read.
 """
 
+from ..io.mesh import load_mesh, load_scene
 from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
-from .scene import MeshPart, Scene, label_from_name, load_mesh, load_scene
+from ..scene import MeshPart, Scene, label_from_name
 from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
 from .trace import ScanResult, StationStats, scan
 

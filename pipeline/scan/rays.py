@@ -177,12 +177,52 @@ def windowed_grid(spec: ScannerSpec, window: AngularWindow, margin_steps: float 
     return PulseGrid(lines, cols)
 
 
+def column_azimuth_rad(
+    spec: ScannerSpec, columns: np.ndarray, heading_deg: float = 0.0
+) -> np.ndarray:
+    """Azimuth of scan columns (rad, float64): ``radians(h0 + heading_deg + column ×
+    horizontal_resolution_deg)``, ``h0`` the start of ``spec.horizontal_fov_deg``.
+
+    Parameters
+    ----------
+    spec : ScannerSpec
+    columns : (n,) int
+        Column indices (0 at ``h0``).
+    heading_deg : float
+        Added to ``h0`` first (the station heading, for levelled scanners).
+
+    Returns
+    -------
+    (n,) float64
+    """
+    return np.radians(
+        spec.horizontal_fov_deg[0] + heading_deg + columns * spec.horizontal_resolution_deg
+    )
+
+
+def line_elevation_rad(spec: ScannerSpec, lines: np.ndarray) -> np.ndarray:
+    """Elevation of scan lines (rad, float64): ``radians(v0 + line ×
+    vertical_resolution_deg)``, ``v0`` the start of ``spec.vertical_fov_deg``.
+
+    Parameters
+    ----------
+    spec : ScannerSpec
+    lines : (n,) int
+        Line indices (0 at ``v0``).
+
+    Returns
+    -------
+    (n,) float64
+    """
+    return np.radians(spec.vertical_fov_deg[0] + lines * spec.vertical_resolution_deg)
+
+
 def pulse_angles(
     spec: ScannerSpec, station_index: int, lines: np.ndarray, columns: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (rad, float64, scanner frame) of pulses, jitter included."""
-    el = np.radians(spec.vertical_fov_deg[0] + lines * spec.vertical_resolution_deg)
-    az = np.radians(spec.horizontal_fov_deg[0] + columns * spec.horizontal_resolution_deg)
+    el = line_elevation_rad(spec, lines)
+    az = column_azimuth_rad(spec, columns)
     if spec.angular_jitter_sd_deg > 0:
         sd = math.radians(spec.angular_jitter_sd_deg)
         az = az + sd * hashed_normal(spec.seed, 2, station_index, lines, columns)

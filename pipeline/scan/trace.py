@@ -24,17 +24,19 @@ from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
 from ..params import ScannerSpec
+from ..scene import Scene
 from . import beam as beam_model
 from .rays import (
     PulseGrid,
     box_window,
+    column_azimuth_rad,
     directions,
     full_grid,
     hashed_normal,
+    line_elevation_rad,
     pulse_angles,
     windowed_grid,
 )
-from .scene import Scene
 from .stations import Station
 
 Progress = Callable[[float, str], None]
@@ -451,10 +453,8 @@ def _fast_block(
     ca, cb = a // nl, (b - 1) // nl + 1
     off = a - ca * nl
     hdeg = heading_deg if level else 0.0
-    az = np.radians(
-        spec.horizontal_fov_deg[0] + hdeg + grid.columns[ca:cb] * spec.horizontal_resolution_deg
-    )
-    el = np.radians(spec.vertical_fov_deg[0] + grid.lines * spec.vertical_resolution_deg)
+    az = column_azimuth_rad(spec, grid.columns[ca:cb], hdeg)
+    el = line_elevation_rad(spec, grid.lines)
     ce, se = np.cos(el).astype(np.float32), np.sin(el).astype(np.float32)
     cz, sz = np.cos(az).astype(np.float32), np.sin(az).astype(np.float32)
     rays = np.empty((cb - ca, nl, 6), dtype=np.float32)
@@ -474,8 +474,8 @@ def _fast_block(
     f = hidx + off
     lines = grid.lines[f % nl]
     cols = grid.columns[ca + f // nl]
-    az_h = np.radians(spec.horizontal_fov_deg[0] + hdeg + cols * spec.horizontal_resolution_deg)
-    el_h = np.radians(spec.vertical_fov_deg[0] + lines * spec.vertical_resolution_deg)
+    az_h = column_azimuth_rad(spec, cols, hdeg)
+    el_h = line_elevation_rad(spec, lines)
     d = directions(az_h, el_h)
     if not level:
         d = d @ rot.T

@@ -8,22 +8,16 @@ import numpy as np
 import pytest
 
 from pipeline.cloud import LABEL_CODES, Cloud
-from pipeline.compare import (
-    CompareParams,
-    closest_points_on_triangles,
-    compare,
-    point_spacing,
-    well_conditioned,
-    write_comparison,
-)
+from pipeline.compare import CompareParams, compare, write_comparison
 from pipeline.errors import (
     EmptyInputError,
     InvalidGeometryError,
     InvalidParameterError,
     TreesimError,
 )
+from pipeline.geometry import closest_points_on_triangles, point_spacing, well_conditioned
 from pipeline.io import read_cloud
-from pipeline.scan import MeshPart, Scene
+from pipeline.scene import MeshPart, Scene
 from tests.compare.shapes import UTM, centroids, open_cylinder, sample_faces, sphere_mesh
 
 REQUIRED_STATS = ("n", "mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")

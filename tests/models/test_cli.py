@@ -9,14 +9,16 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
+from pipeline.io import load_mesh
 from pipeline.models import (
     SPECIES as PRESETS,
+)
+from pipeline.models import (
     CylinderTable,
     generate_tree,
     read_cylinders,
     write_cylinders,
 )
-from pipeline.scan import load_mesh
 
 TRUTH_NAMES = (
     "dbh_m",

@@ -11,15 +11,19 @@ import trimesh
 from pipeline.errors import InvalidParameterError, TreesimError
 from pipeline.models import (
     LEAF_SHAPES,
-    SPECIES as PRESETS,
     SHAPES,
     LeafParams,
     StemLevel,
     TreeParams,
     generate_tree,
     mesh_volume,
-    species_preset as preset,
     shape_ratio,
+)
+from pipeline.models import (
+    SPECIES as PRESETS,
+)
+from pipeline.models import (
+    species_preset as preset,
 )
 from pipeline.models.mesh import _ring_basis
 from pipeline.models.procedural import CHILD_RADIUS_LIMIT, MIN_JUNCTION_FACETS

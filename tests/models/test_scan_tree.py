@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.cloud import LABEL_CODES
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 from tests.models.geometry import near_distances
 
 #: Hits are refined in float64 onto their triangle (the scanner's promise is ~1e-9 m; at

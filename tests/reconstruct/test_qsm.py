@@ -8,7 +8,8 @@ from scipy.spatial import cKDTree
 
 from pipeline.models import CylinderTable, cylinders_to_mesh
 from pipeline.reconstruct.qsm import QSMParams, fit_circle, fit_qsm
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 
 
 def scanned(table: CylinderTable, res_deg: float = 0.04, distance_m: float = 8.0):

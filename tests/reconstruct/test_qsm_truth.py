@@ -11,7 +11,8 @@ from pipeline.cloud import Cloud
 from pipeline.models import SPECIES as PRESETS
 from pipeline.models import generate_tree
 from pipeline.reconstruct import ReconstructParams, reconstruct
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
 

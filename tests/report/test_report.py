@@ -18,7 +18,7 @@ from pipeline.cloud import LABEL_CODES, Cloud
 from pipeline.compare import compare, write_comparison
 from pipeline.report import PNG_FILES, ReportParams, build_report, summary_paragraph
 from pipeline.report.text import length
-from pipeline.scan import MeshPart, Scene
+from pipeline.scene import MeshPart, Scene
 from tests.compare.shapes import centroids, open_cylinder, sample_faces
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

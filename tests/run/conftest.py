@@ -10,10 +10,11 @@ import pytest
 
 from pipeline.io import write_cloud
 from pipeline.models import generate_tree
-from pipeline.report import ReportParams
 from pipeline.params import RunParams
 from pipeline.params import run_preset as preset
-from pipeline.scan import MeshPart, ScannerSpec, Scene, ring_layout, scan
+from pipeline.report import ReportParams
+from pipeline.scan import ScannerSpec, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 
 
 def sapling_cloud(seed: int, resolution_deg: float = 0.1):

@@ -23,9 +23,9 @@ from pipeline.batch import (
     discover_inputs,
     run_batch,
 )
+from pipeline.cli.progress import BatchProgressBar as ProgressBar
 from pipeline.errors import InputFormatError, InvalidParameterError
 from pipeline.executors import Executor, detect_available, plan_executor
-from pipeline.cli.progress import BatchProgressBar as ProgressBar
 from pipeline.params import to_toml
 from tests.conftest import shared_path
 

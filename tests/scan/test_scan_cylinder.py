@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, ring_layout, scan
+from pipeline.scan import ScannerSpec, Station, ring_layout, scan
+from pipeline.scene import MeshPart, Scene
 from tests.conftest import cylinder_arrays
 
 R, H, D, ZS, SECTIONS = 0.15, 2.0, 10.0, 1.5, 2048

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from pipeline.errors import InvalidParameterError, ResourceLimitError, ScanError
-from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, scan
+from pipeline.scan import ScannerSpec, Station, scan
 from pipeline.scan import instrument as preset
 from pipeline.scan.rays import box_window
+from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, cylinder_arrays
 
 
@@ -199,7 +200,8 @@ def test_a_large_scan_runs_in_bounded_memory():
     code = textwrap.dedent(
         """
         import numpy as np
-        from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, scan
+        from pipeline.scan import ScannerSpec, Station, scan
+        from pipeline.scene import MeshPart, Scene
         from tests.conftest import cylinder_arrays
         parts = []
         for y in (-8.0, 8.0):

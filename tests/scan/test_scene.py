@@ -7,8 +7,10 @@ import pytest
 import trimesh
 
 from pipeline.errors import EmptyInputError, InputFormatError, InvalidGeometryError
+from pipeline.io import load_mesh, load_scene
 from pipeline.io.mesh import write_mesh
-from pipeline.scan import ScannerSpec, Station, label_from_name, load_mesh, load_scene, scan
+from pipeline.scan import ScannerSpec, Station, scan
+from pipeline.scene import label_from_name
 from tests.conftest import box_arrays, shared_path
 
 
@@ -59,7 +61,7 @@ def test_degenerate_triangles_are_dropped_and_counted(tmp_path):
     v, f = box_arrays((0, 0, 0), (1, 1, 1))
     v = np.vstack([v, [[5, 5, 5]]])
     f = np.vstack([f, [[0, 0, 8]], [[1, 8, 8]]])
-    from pipeline.scan import MeshPart, Scene
+    from pipeline.scene import MeshPart, Scene
 
     scene = Scene([MeshPart(vertices=v, faces=f, label="wood")])
     assert scene.n_triangles == 12 and scene.dropped_degenerate == 2

@@ -1,18 +1,21 @@
-"""Scenes: labelled triangle meshes, loaded with trimesh, validated before Open3D sees them."""
+"""Scenes: labelled triangle meshes, float64, validated before Open3D sees them.
+
+The mesh counterpart of :class:`~pipeline.cloud.Cloud`, at the bottom of the package:
+:class:`MeshPart` is one labelled mesh, :class:`Scene` a validated set of them merged into
+one triangle soup. Mesh files are read into scenes by :func:`pipeline.io.load_scene`.
+"""
 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..cloud import LABEL_CODES
-from ..errors import EmptyInputError, InputFormatError, InvalidGeometryError, InvalidParameterError
+from .cloud import LABEL_CODES, LABEL_NAMES
+from .errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+__all__ = ["MeshPart", "Scene", "label_from_name", "labelled_parts"]
 
 _LABEL_PATTERNS: list[tuple[str, re.Pattern[str]]] = [
     ("leaf", re.compile(r"leaf|leaves|foliage|needle|crown_?leaf", re.I)),
@@ -128,6 +131,36 @@ class Scene:
         used = self.vertices[self._used]
         self._bounds = np.stack([used.min(axis=0), used.max(axis=0)])
 
+    @classmethod
+    def from_labelled_mesh(
+        cls,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        face_label: np.ndarray,
+        *,
+        name_prefix: str = "",
+    ) -> Scene:
+        """A scene from one mesh whose triangles carry label codes: one part per label.
+
+        Parameters
+        ----------
+        vertices : (v, 3) float
+            Vertex coordinates (m); shared by every part.
+        faces : (f, 3) int
+            Triangles as vertex indices.
+        face_label : (f,) int
+            Label code per triangle (``pipeline.cloud.LABEL_CODES``; unknown codes
+            become ``other``).
+        name_prefix : str
+            Prefix of the part names, which end in the label (``"model:"`` gives
+            ``model:wood``, ...).
+
+        Returns
+        -------
+        Scene
+        """
+        return cls(labelled_parts(vertices, faces, face_label, name_prefix=name_prefix))
+
     @property
     def used_vertices(self) -> np.ndarray:
         """(u, 3) float64 vertices referenced by at least one triangle."""
@@ -140,117 +173,55 @@ class Scene:
 
     @property
     def n_triangles(self) -> int:
+        """Number of (non-degenerate) triangles."""
         return len(self.faces)
 
     def labels_present(self) -> list[str]:
+        """Labels (``wood``, ``leaf``, ...) of the triangles, in label-code order."""
         codes = np.unique(self.face_label)
         inv = {v: k for k, v in LABEL_CODES.items()}
         return [inv[int(c)] for c in codes]
 
 
-def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
-    """Read a mesh file into labelled parts.
+def labelled_parts(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    face_label: np.ndarray,
+    *,
+    name_prefix: str = "",
+    label: str | None = None,
+) -> list[MeshPart]:
+    """Split a mesh whose triangles carry label codes into one part per code.
 
-    Groups or materials in the file become parts, labelled from their names (``Leaves``
-    -> leaf, ``TrunkAndBranches`` -> wood, ...) unless ``label`` forces one label for
-    the whole file. Quads and polygons are triangulated (trimesh), unlike Open3D's
-    legacy reader, which drops them silently.
+    Parameters
+    ----------
+    vertices : (v, 3) float
+        Vertex coordinates (m); shared by every part (not copied).
+    faces : (f, 3) int
+        Triangles as vertex indices.
+    face_label : (f,) int
+        Label code per triangle (``pipeline.cloud.LABEL_CODES``; unknown codes become
+        ``other``).
+    name_prefix : str
+        Prefix of the part names, which end in the code's label name.
+    label : str, optional
+        Force this label on every part (the names keep the codes' names).
+
+    Returns
+    -------
+    list of MeshPart
+        In ascending code order; empty if there are no triangles.
     """
-    import trimesh
-
-    p = Path(path)
-    if not p.exists():
-        raise InputFormatError(f"mesh file not found: {p}")
-    if p.is_dir():
-        raise InputFormatError(f"{p} is a folder, not a mesh file")
-    if p.suffix.lower() not in MESH_SUFFIXES:
-        raise InputFormatError(f"{p.name}: not a mesh file (supported: {', '.join(MESH_SUFFIXES)})")
-    if label is not None and label not in LABEL_CODES:
-        raise InvalidParameterError(f"label must be one of {', '.join(LABEL_CODES)}, got {label!r}")
-    if p.suffix.lower() == ".ply":
-        ply_parts = _load_labelled_ply(p, label)
-        if ply_parts is not None:
-            return ply_parts
-    try:
-        loaded = trimesh.load(str(p), force="scene", process=False)
-    except Exception as exc:  # trimesh raises many kinds; map at the boundary
-        raise InputFormatError(f"{p.name}: could not read as a mesh ({exc})") from exc
-    parts: list[MeshPart] = []
-    file_label = label_from_name(p.stem)
-    for node in loaded.graph.nodes_geometry:
-        transform, geom_name = loaded.graph[node]
-        geom = loaded.geometry[geom_name]
-        faces = getattr(geom, "faces", None)
-        if faces is None or len(faces) == 0:
-            continue
-        v = np.asarray(geom.vertices, dtype=np.float64)
-        if not np.allclose(transform, np.eye(4)):
-            v = v @ np.asarray(transform[:3, :3], dtype=np.float64).T + transform[:3, 3]
-        material = getattr(getattr(geom.visual, "material", None), "name", None) or ""
-        part_label = label or label_from_name(f"{geom_name} {material}", default=file_label)
+    codes = np.asarray(face_label)
+    parts = []
+    for code in np.unique(codes):
+        name = LABEL_NAMES.get(int(code), "other")
         parts.append(
             MeshPart(
-                vertices=v,
-                faces=np.asarray(faces, dtype=np.int64),
-                label=part_label,
-                name=p.name if geom_name == p.name else f"{p.name}:{geom_name}",
+                vertices=vertices,
+                faces=np.asarray(faces)[codes == code],
+                label=label or name,
+                name=f"{name_prefix}{name}",
             )
         )
-    if not parts:
-        raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")
     return parts
-
-
-def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
-    """Read a PLY whose faces carry a ``label`` property (as treesim writes them), in
-    float64; ``None`` when the file has no such property (trimesh reads it then)."""
-    from plyfile import PlyData
-
-    try:
-        ply = PlyData.read(str(p))
-    except Exception as exc:
-        raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
-    names = [e.name for e in ply.elements]
-    if "vertex" not in names or "face" not in names:
-        return None
-    face = ply["face"].data
-    if "label" not in face.dtype.names:
-        return None
-    vd = ply["vertex"].data
-    v = np.stack([vd["x"], vd["y"], vd["z"]], axis=1).astype(np.float64)
-    key = "vertex_indices" if "vertex_indices" in face.dtype.names else face.dtype.names[0]
-    polys = face[key]
-    if len(polys) and not all(len(q) == 3 for q in polys):
-        return None
-    f = np.stack(polys).astype(np.int64) if len(polys) else np.empty((0, 3), np.int64)
-    codes = np.asarray(face["label"], dtype=np.int64)
-    inv = {c: n for n, c in LABEL_CODES.items()}
-    parts = []
-    for c in np.unique(codes):
-        name = inv.get(int(c), "other")
-        parts.append(
-            MeshPart(vertices=v, faces=f[codes == c], label=label or name, name=f"{p.name}:{name}")
-        )
-    if not parts:
-        raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")
-    return parts
-
-
-def load_scene(
-    paths: Iterable[str | Path] | str | Path,
-    *,
-    labels: Sequence[str | None] | None = None,
-) -> Scene:
-    """Load one or more mesh files into a ``Scene``; ``labels[i]`` forces file i's label."""
-    if isinstance(paths, (str, Path)):
-        paths = [paths]
-    paths = list(paths)
-    if not paths:
-        raise InvalidParameterError("give at least one mesh file")
-    labels = list(labels) if labels is not None else [None] * len(paths)
-    if len(labels) != len(paths):
-        raise InvalidParameterError("give one label per mesh file (or none)")
-    parts: list[MeshPart] = []
-    for path, lab in zip(paths, labels, strict=True):
-        parts.extend(load_mesh(path, label=lab))
-    return Scene(parts)
