@@ -60,6 +60,15 @@ def _number_type(info: ParamInfo) -> Any:
     return str
 
 
+def _metavar(info: ParamInfo) -> str:
+    convert = _number_type(info)
+    if convert is integer:
+        return "N"
+    if convert is float:
+        return (info.unit or "x").upper()
+    return info.name.upper()
+
+
 def _optional(convert: Any) -> Any:
     def read(text: str) -> Any:
         if text.strip().lower() in ("none", "off", "auto"):
@@ -79,6 +88,7 @@ def param_option(
     path: tuple[str, ...] = (),
     flag: str | None = None,
     metavar: str | None = None,
+    required: bool = False,
 ) -> argparse.Action:
     """Add the option that sets field ``name`` of ``cls`` (at ``path`` below the root).
 
@@ -108,11 +118,13 @@ def param_option(
     else:
         convert = _number_type(info)
         kw["type"] = _optional(convert) if info.optional else convert
-        if metavar:
-            kw["metavar"] = metavar
+        kw["metavar"] = metavar or _metavar(info)
     help_text = info.help_text()
     if info.optional and t not in ("bool|None",):
         help_text = help_text[:-1] + "; 0 or none: " + (info.none_means or "none") + ")"
+    if required:
+        kw["required"] = True
+        help_text = info.help
     action = group.add_argument(flag or info.cli_flag, help=help_text, **kw)
     setattr(action, PARAM, info)
     return action
@@ -135,6 +147,7 @@ def setting_option(group: Any, setting: Setting, *, default_text: str) -> argpar
         kw["choices"] = list(info.choices)
     else:
         kw["type"] = _number_type(info)
+        kw["metavar"] = _metavar(info)
     help_text = f"{setting.help or info.help} ({unit}default {default_text}{zero})"
     action = group.add_argument(setting.flag, help=help_text, **kw)
     setattr(action, SETTING, setting)

@@ -165,7 +165,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "mesh (wood and leaf parts), its exact cylinder table (OUT.cylinders.csv) and its "
         "reference figures (OUT.truth.json).",
     )
-    param_option(gen, ModelParams, "species", metavar="NAME")
+    param_option(gen, ModelParams, "species", metavar="NAME", required=True)
     param_options_model(gen, ["leaves", "seed", "facets"])
     gen.add_argument("-o", "--output", required=True, metavar="tree.obj", help=".obj or .ply")
     gen.set_defaults(func=cmd_generate)

@@ -1,0 +1,255 @@
+"""The import graph of ``pipeline/``: no cycle, and every arrow points down the layers.
+
+Reads every import of every module (function-local ones included) with ``ast``; nothing
+is imported. The layers, bottom to top (README, "Layout"):
+
+* the base: ``errors``, ``_version``, ``_system``, ``atomic``, ``jsonio``, ``frame``,
+  ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;
+* the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
+  another, except ``reconstruct → models`` (cylinders to mesh);
+* ``report``, above ``compare``;
+* ``run``, ``batch``, ``executors``: one tree, many trees, where they run;
+* ``cli``, on top. The facade (``pipeline/__init__.py``) is imported by nobody inside.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[2] / "pipeline"
+
+BASE = {
+    "errors",
+    "_version",
+    "_system",
+    "atomic",
+    "jsonio",
+    "frame",
+    "cloud",
+    "scene",
+    "geometry",
+    "io",
+    "params",
+}
+STAGES = {"scan", "compare", "reconstruct", "models"}
+LAYER = {
+    **{m: 0 for m in BASE},
+    **{m: 1 for m in STAGES},
+    "report": 2,
+    "run": 3,
+    "batch": 3,
+    "executors": 3,
+    "cli": 4,
+}
+#: The one allowed arrow between stages.
+STAGE_ARROWS = {("reconstruct", "models")}
+#: Arrows inside the base layer that are allowed (the base is ordered too).
+BASE_ORDER = [
+    "errors",
+    "_version",
+    "_system",
+    "atomic",
+    "jsonio",
+    "frame",
+    "cloud",
+    "scene",
+    "geometry",
+    "params",
+    "io",
+]
+#: Order inside the top library layer: a batch runs trees on executors.
+TOP_ORDER = ["executors", "run", "batch"]
+WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_package(name: str) -> bool:
+    return (PKG.parent / name.replace(".", "/") / "__init__.py").exists()
+
+
+def _exists(name: str) -> bool:
+    p = PKG.parent / name.replace(".", "/")
+    return p.with_suffix(".py").exists() or (p / "__init__.py").exists()
+
+
+def _imports() -> dict[str, set[str]]:
+    """module -> the pipeline modules it imports (anywhere in its body)."""
+    graph: dict[str, set[str]] = defaultdict(set)
+    for path in sorted(PKG.rglob("*.py")):
+        mod = _module_name(path)
+        package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+        graph[mod]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    graph[mod].add(a.name)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")
+                    base = base[: len(base) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                for a in node.names:
+                    sub = f"{target}.{a.name}"
+                    graph[mod].add(sub if _exists(sub) else target)
+            elif (
+                isinstance(node, ast.Call)
+                and getattr(node.func, "attr", "") == "import_module"
+                and node.args
+                and isinstance(node.args[0], ast.JoinedStr)
+            ):
+                graph[mod].add(f"{mod}.*")  # cli's command modules: its own children
+    return graph
+
+
+GRAPH = _imports()
+
+
+def _top(name: str) -> str | None:
+    parts = name.split(".")
+    if parts[0] != "pipeline":
+        return None
+    return parts[1] if len(parts) > 1 else ""
+
+
+def test_the_graph_is_read():
+    assert "pipeline.run" in GRAPH and "pipeline.cli.scan" in GRAPH
+    assert "pipeline.params" in GRAPH["pipeline.run"]
+
+
+def test_no_import_of_web_libraries():
+    bad = [(m, t) for m, ts in GRAPH.items() for t in ts if t.split(".")[0] in WEB]
+    assert not bad, f"the library imports web code: {bad}"
+
+
+def test_nobody_inside_imports_the_facade():
+    bad = [m for m, ts in GRAPH.items() if "pipeline" in ts and m != "pipeline"]
+    assert not bad, f"these import the facade (pipeline/__init__): {bad}"
+
+
+def _arrow_ok(src: str, dst: str) -> bool:
+    if src == dst or dst == "":
+        return src == dst
+    if src not in LAYER or dst not in LAYER:
+        return False
+    if LAYER[src] == 0 and LAYER[dst] == 0:
+        return BASE_ORDER.index(dst) < BASE_ORDER.index(src)
+    if LAYER[src] == 1 and LAYER[dst] == 1:
+        return (src, dst) in STAGE_ARROWS
+    if src == "report":
+        return LAYER[dst] == 0 or dst == "compare"
+    if LAYER[src] == 3 and LAYER[dst] == 3:
+        return TOP_ORDER.index(dst) < TOP_ORDER.index(src)
+    return LAYER[dst] < LAYER[src]
+
+
+def test_every_arrow_points_down():
+    bad = []
+    for mod, targets in GRAPH.items():
+        src = _top(mod)
+        if not src:
+            continue  # the facade may import everything
+        for t in targets:
+            dst = _top(t)
+            if dst is None or dst == src:
+                continue
+            if not _arrow_ok(src, dst):
+                bad.append(f"{mod} -> {t}")
+    assert not bad, "imports against the layers:\n" + "\n".join(sorted(bad))
+
+
+def test_every_module_has_a_layer():
+    tops = {_top(m) for m in GRAPH} - {""}
+    assert tops <= set(LAYER) | {"data"}, f"modules outside the layer map: {tops - set(LAYER)}"
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    found, state, stack = [], {}, []
+
+    def visit(n: str) -> None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(edges.get(n, ())):
+            if state.get(m) == 1:
+                found.append(stack[stack.index(m) :] + [m])
+            elif m not in state:
+                visit(m)
+        stack.pop()
+        state[n] = 2
+
+    for n in sorted(edges):
+        if n not in state:
+            visit(n)
+    return found
+
+
+def test_no_cycle_between_layers_or_packages():
+    edges: dict[str, set[str]] = defaultdict(set)
+    for mod, targets in GRAPH.items():
+        src = _top(mod)
+        for t in targets:
+            dst = _top(t)
+            if src and dst and dst != src:
+                edges[src].add(dst)
+    assert not _cycles(edges), _cycles(edges)
+
+
+def test_no_cycle_between_modules():
+    """Module to module, a package's ``__init__`` importing its own children excepted."""
+    edges: dict[str, set[str]] = defaultdict(set)
+    for mod, targets in GRAPH.items():
+        for t in targets:
+            if not t.startswith("pipeline") or t == mod or t.endswith(".*"):
+                continue
+            if _is_package(mod) and t.startswith(mod + "."):
+                continue
+            edges[mod].add(t)
+    # a child importing its own package's __init__ is a cycle only if the __init__ imports
+    # it back, which the exemption above hides: forbid it outright
+    upward = [
+        (m, t)
+        for m, ts in edges.items()
+        for t in ts
+        if _is_package(t) and m.startswith(t + ".") and not m.endswith(".__main__")
+    ]
+    assert not upward, f"modules importing their own package's __init__: {upward}"
+    assert not _cycles(edges), _cycles(edges)
+
+
+@pytest.mark.parametrize(
+    "src, dst, ok",
+    [
+        ("scan", "compare", False),
+        ("compare", "scan", False),
+        ("reconstruct", "models", True),
+        ("models", "reconstruct", False),
+        ("report", "compare", True),
+        ("report", "scan", False),
+        ("io", "scan", False),
+        ("cloud", "errors", True),
+        ("errors", "cloud", False),
+        ("run", "cli", False),
+        ("cli", "run", True),
+        ("batch", "run", True),
+        ("run", "batch", False),
+    ],
+)
+def test_the_rule_itself(src, dst, ok):
+    assert _arrow_ok(src, dst) is ok
+
+
+def test_the_cycle_finder_finds_cycles():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}})
+    assert not _cycles({"a": {"b"}, "b": {"c"}, "c": set()})
