@@ -27,8 +27,22 @@ def cylinder_obj(tmp_path: Path) -> Path:
 
 def test_scan_writes_laz_with_standard_fields_and_extra_dims(cylinder_obj, tmp_path, capsys):
     out = tmp_path / "scan.laz"
-    rc = main(["scan", str(cylinder_obj), "-o", str(out), "--resolution-deg", "0.2",
-               "--stations", "3", "--distance-m", "10", "--height-m", "1.5"])
+    rc = main(
+        [
+            "scan",
+            str(cylinder_obj),
+            "-o",
+            str(out),
+            "--resolution-deg",
+            "0.2",
+            "--stations",
+            "3",
+            "--distance-m",
+            "10",
+            "--height-m",
+            "1.5",
+        ]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "points" in printed and "station" in printed
@@ -49,8 +63,21 @@ def test_scan_writes_laz_with_standard_fields_and_extra_dims(cylinder_obj, tmp_p
 
 def test_scan_writes_ply_with_double_coordinates_and_scalar_fields(cylinder_obj, tmp_path):
     out = tmp_path / "scan.ply"
-    assert main(["scan", str(cylinder_obj), "-o", str(out), "--resolution-deg", "0.25",
-                 "--station", "500010,5500000,301.5"]) == 0
+    assert (
+        main(
+            [
+                "scan",
+                str(cylinder_obj),
+                "-o",
+                str(out),
+                "--resolution-deg",
+                "0.25",
+                "--station",
+                "500010,5500000,301.5",
+            ]
+        )
+        == 0
+    )
     v = PlyData.read(str(out))["vertex"].data
     assert v.dtype["x"] == np.float64 and v.dtype["y"] == np.float64
     assert EXTRA_DIMS | {"intensity", "return_number", "number_of_returns"} <= set(v.dtype.names)
@@ -59,8 +86,9 @@ def test_scan_writes_ply_with_double_coordinates_and_scalar_fields(cylinder_obj,
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args],
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True, timeout=120
+    )
 
 
 def _obj(tmp_path: Path, text: str, name: str = "bad.obj") -> Path:
@@ -71,8 +99,17 @@ def _obj(tmp_path: Path, text: str, name: str = "bad.obj") -> Path:
 
 @pytest.mark.parametrize(
     "case",
-    ["missing", "not_a_mesh", "garbage_obj", "empty_mesh", "nan_vertices", "negative_resolution",
-     "inside", "bad_station", "bad_suffix"],
+    [
+        "missing",
+        "not_a_mesh",
+        "garbage_obj",
+        "empty_mesh",
+        "nan_vertices",
+        "negative_resolution",
+        "inside",
+        "bad_station",
+        "bad_suffix",
+    ],
 )
 def test_bad_input_gives_one_line_error_and_nonzero_exit(case, tmp_path, cylinder_obj):
     out = str(tmp_path / "o.laz")
