@@ -28,6 +28,7 @@ from pipeline.errors import InputFormatError, InvalidParameterError
 from pipeline.executors import Executor, detect_available, plan_executor
 from pipeline.run import to_toml
 from tests.conftest import shared_path
+from tests.run.conftest import PINNED_DBH_ROUNDING_M, SAPLING0_DRAFT_DBH_M
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -164,7 +165,8 @@ def test_a_corrupt_file_fails_alone_and_finished_trees_are_reused(saplings, quic
         rows = list(csv.DictReader(fh))
     assert [r["id"] for r in rows] == ["s0", "s1", "broken"]
     assert list(rows[0]) == list(SUMMARY_COLUMNS)
-    assert float(rows[0]["dbh_m"]) == pytest.approx(0.031, abs=0.005)
+    # the same cloud and preset as test_run's sapling: the same pinned DBH
+    assert float(rows[0]["dbh_m"]) == pytest.approx(SAPLING0_DRAFT_DBH_M, abs=PINNED_DBH_ROUNDING_M)
     index = (out / "index.html").read_text()
     assert 'href="trees/s0/report.html"' in index and 'href="trees/s1/report.html"' in index
     assert "trees/broken.failed/error.json" in index
