@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -88,12 +87,29 @@ def raw_cast(scene: Scene, stations, spec: ScannerSpec, chunk: int) -> tuple[int
     return total, elapsed, hits
 
 
+#: Appended to a child's code: print the child's own peak resident memory (VmHWM, KiB) as
+#: its last line. Not ``getrusage(RUSAGE_CHILDREN)`` in the parent: Linux carries the
+#: parent's ``ru_maxrss`` (which holds the mesh already) into a child across fork and exec.
+_PRINT_PEAK = (
+    "\nimport pathlib\n"
+    "print('VmHWM', [l.split()[1] for l in pathlib.Path('/proc/self/status').read_text()"
+    ".splitlines() if l.startswith('VmHWM:')][0])\n"
+)
+
+
 def peak_rss_of(code: str) -> tuple[float, str]:
+    """Run ``code`` in a fresh interpreter (it loads what it needs itself); return its own
+    peak RSS in GiB and its other output."""
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), check=True
+        [sys.executable, "-c", code + _PRINT_PEAK],
+        capture_output=True,
+        text=True,
+        cwd=str(ROOT),
+        check=True,
     )
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_maxrss / 2**20, out.stdout.strip()
+    lines = out.stdout.strip().splitlines()
+    assert lines[-1].startswith("VmHWM "), out.stdout + out.stderr
+    return int(lines[-1].split()[1]) / 2**20, "\n".join(lines[:-1]).strip()
 
 
 def main() -> None:
@@ -160,7 +176,7 @@ def main() -> None:
 
     print(f"\n== peak memory at {fine}° (3 stations), fresh process each")
     code = (
-        "import resource, time, sys; sys.path.insert(0, '.');"
+        "import time, sys; sys.path.insert(0, '.');"
         "from benchmarks.bench_scan import tree_scene, stations_for;"
         "from pipeline.scan import ScannerSpec, scan;"
         "s = tree_scene(); t = time.perf_counter();"
@@ -179,26 +195,24 @@ def main() -> None:
         from pipeline.io.mesh import write_mesh
 
         mesh = write_mesh(Path(tmp) / "tree.ply", scene.vertices, scene.faces)
+        argv = ["treesim", "scan", str(mesh), "-o", str(Path(tmp) / "scan.laz")]
+        argv += ["--resolution-deg", str(fine)]
+        # the CLI in a fresh interpreter that loads the mesh itself, then reports its peak
+        code = (
+            "import runpy, sys\n"
+            f"sys.argv = {argv!r}\n"
+            "try:\n"
+            "    runpy.run_module('pipeline.cli', run_name='__main__')\n"
+            "except SystemExit as e:\n"
+            "    assert not e.code, e.code\n"
+        )
         t0 = time.perf_counter()
-        cmd = [
-            sys.executable,
-            "-m",
-            "pipeline.cli",
-            "scan",
-            str(mesh),
-            "-o",
-            str(Path(tmp) / "scan.laz"),
-            "--resolution-deg",
-            str(fine),
-        ]
-        subprocess.run(cmd, check=True, capture_output=True, cwd=str(ROOT))
+        cli_rss, _ = peak_rss_of(code)
         cli_s = time.perf_counter() - t0
-        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
         summary = json.loads((Path(tmp) / "scan.json").read_text())
         print(
             f"treesim scan (CLI, incl. start-up, load, LAZ write): {cli_s:.1f} s, "
-            f"{summary['points']:,} points; peak RSS of any child so far "
-            f"{usage.ru_maxrss / 2**20:.2f} GiB"
+            f"{summary['points']:,} points; peak RSS {cli_rss:.2f} GiB"
         )
 
 

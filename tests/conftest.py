@@ -8,6 +8,10 @@ import numpy as np
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+#: The sample data the repository bundles (``pipeline/data``): in every clone, never skipped.
+#: Its coffee_tree/cloud.txt and QSM_treeqsm_v2.4.1_cylinders.csv are byte-identical to
+#: ../shared/data/trees/coffee_tree's (checked with cmp when the tests switched to them).
+BUNDLED_DATA = Path(__file__).resolve().parents[1] / "pipeline" / "data"
 
 
 def shared_path(*parts: str) -> Path:
@@ -15,6 +19,13 @@ def shared_path(*parts: str) -> Path:
     p = SHARED_DATA.joinpath(*parts)
     if not p.exists():
         pytest.skip(f"needs {p} (the project's shared data, not part of a user's clone)")
+    return p
+
+
+def bundled_path(*parts: str) -> Path:
+    """A file the repository bundles in pipeline/data (its absence is a failure, not a skip)."""
+    p = BUNDLED_DATA.joinpath(*parts)
+    assert p.is_file(), f"{p} is part of the repository and missing"
     return p
 
 

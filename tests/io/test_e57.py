@@ -46,7 +46,7 @@ def test_scans_are_merged_with_their_poses_in_float64(tmp_path: Path) -> None:
     np.testing.assert_array_equal(cloud.fields["station"], [0] * 200 + [1] * 150)
     assert cloud.fields["intensity"].shape == (350,)
     assert cloud.metadata["e57_scans"] == 2
-    np.testing.assert_allclose(cloud.metadata["stations"][1], GEO + [10.0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(cloud.metadata["stations"][1], GEO + [10.0, 0, 0], atol=1e-6, rtol=0)
 
 
 def test_not_an_e57_file(tmp_path: Path) -> None:

@@ -19,13 +19,6 @@ pytestmark = [
 ]
 
 
-def test_coffee_tree_text() -> None:
-    cloud = read_cloud(SHARED_DATA / "trees" / "coffee_tree" / "cloud.txt").validate()
-    assert len(cloud) == 14_667
-    assert cloud.fields == {}
-    assert np.ptp(cloud.points[:, 2]) > 1.0  # a tree, not a flat sheet
-
-
 def test_treels_pine_laz() -> None:
     cloud = read_cloud(SHARED_DATA / "trees" / "treels_pine" / "pine.laz").validate()
     assert len(cloud) == 73_851

@@ -10,6 +10,7 @@ import pytest
 from pipeline.cloud import Cloud
 from pipeline.errors import EmptyInputError, InputFormatError, InvalidGeometryError
 from pipeline.io import read_cloud, write_cloud
+from tests.conftest import bundled_path
 
 from .conftest import GEO_ORIGIN
 
@@ -181,3 +182,11 @@ def test_write_rejects_bad_field_names(tmp_path: Path) -> None:
     cloud = Cloud(np.zeros((1, 3)), {"two words": np.zeros(1)})
     with pytest.raises(InvalidGeometryError, match="rename"):
         write_cloud(tmp_path / "a.xyz", cloud)
+
+
+def test_bundled_coffee_tree_text() -> None:
+    # the sample the package bundles (the same file as ../shared/data's coffee tree)
+    cloud = read_cloud(bundled_path("coffee_tree", "cloud.txt")).validate()
+    assert len(cloud) == 14_667
+    assert cloud.fields == {}
+    assert np.ptp(cloud.points[:, 2]) > 1.0  # a tree, not a flat sheet

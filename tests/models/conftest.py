@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import bundled_path
+
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 COFFEE = SHARED_DATA / "trees" / "coffee_tree"
 
@@ -18,8 +20,8 @@ def _need(path: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def treeqsm_csv() -> Path:
-    """The coffee tree's TreeQSM 2.4.1 flat cylinder table."""
-    return _need(COFFEE / "QSM_treeqsm_v2.4.1_cylinders.csv")
+    """The coffee tree's TreeQSM 2.4.1 flat cylinder table (bundled with the package)."""
+    return bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv")
 
 
 @pytest.fixture(scope="session")

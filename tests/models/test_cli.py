@@ -73,7 +73,7 @@ def test_generate_writes_mesh_table_and_truth(tmp_path: Path, capsys) -> None:
     assert len(parts["leaf"].faces) == truth["n_triangles_leaf"]
     wood = expected.wood_mesh(32)
     np.testing.assert_allclose(
-        np.sort(parts["wood"].vertices[:, 2]), np.sort(wood.vertices[:, 2]), atol=1e-12
+        np.sort(parts["wood"].vertices[:, 2]), np.sort(wood.vertices[:, 2]), atol=1e-12, rtol=0
     )
 
 

@@ -103,13 +103,15 @@ def test_coffee_simpleforest(simpleforest_csv: Path) -> None:
     ids = [int(r["ID"]) for r in rows]
     # Derived lengths agree with the file's own length column (6 decimals there).
     file_length = np.array([float(r["length"]) for r in rows])
-    np.testing.assert_allclose(table.length_m, file_length, atol=1e-5)
+    np.testing.assert_allclose(table.length_m, file_length, atol=1e-5, rtol=0)
     # parentID is mapped ID -> row; SimpleForest children start where their parent ends.
     for i, r in enumerate(rows):
         pid = int(r["parentID"])
         assert table.parent[i] == (-1 if pid == -1 else ids.index(pid))
     child = table.parent >= 0
-    np.testing.assert_allclose(table.start[child], table.end[table.parent[child]], atol=1e-5)
+    np.testing.assert_allclose(
+        table.start[child], table.end[table.parent[child]], atol=1e-5, rtol=0
+    )
     assert table.branches_per_order()[0] == 1
     np.testing.assert_array_equal(table.branch_order, [int(r["branchOrder"]) for r in rows])
 

@@ -113,7 +113,7 @@ def test_any_axis_gives_an_outward_prism(axis: list[float]) -> None:
     rel = vertices[:24] - table.start[0]
     along = rel @ unit
     radial = np.linalg.norm(rel - along[:, None] * unit, axis=1)
-    np.testing.assert_allclose(along, [0.0] * 12 + [0.8] * 12, atol=1e-12)
+    np.testing.assert_allclose(along, [0.0] * 12 + [0.8] * 12, atol=1e-12, rtol=0)
     np.testing.assert_allclose(radial, [0.05] * 12 + [0.03] * 12, rtol=1e-12)
 
 

@@ -240,7 +240,7 @@ def test_a_cylindrical_trunk_is_exact() -> None:
     table = tree.cylinders
     assert table.n_cylinders == 4
     np.testing.assert_allclose(table.radius_m, 0.2, rtol=1e-15)
-    np.testing.assert_allclose(table.unit_axis, [[0, 0, 1]] * 4, atol=1e-15)
+    np.testing.assert_allclose(table.unit_axis, [[0, 0, 1]] * 4, atol=1e-15, rtol=0)
     s = table.summary()
     assert s["volume_total_m3"] == pytest.approx(math.pi * 0.2**2 * 10.0, rel=1e-12)
     assert s["dbh_m"] == pytest.approx(0.4, rel=1e-12)
@@ -311,9 +311,9 @@ def test_weber_penn_rules_for_the_first_level() -> None:
     assert (table.radius_m[rows] < r0 * (child_len / length) ** 1.5).sum() >= 1  # capped
     # Down angle exactly 70 degrees; azimuths 137.5 degrees apart.
     axis = table.unit_axis[rows]
-    np.testing.assert_allclose(np.degrees(np.arccos(axis[:, 2])), 70.0, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arccos(axis[:, 2])), 70.0, atol=1e-9, rtol=0)
     az = np.degrees(np.arctan2(axis[:, 1], axis[:, 0]))
-    np.testing.assert_allclose(np.diff(az) % 360.0, 137.5, atol=1e-9)
+    np.testing.assert_allclose(np.diff(az) % 360.0, 137.5, atol=1e-9, rtol=0)
 
 
 def test_splits_make_clones_one_order_up_that_fit_inside() -> None:

@@ -209,7 +209,7 @@ def test_ground_removal_is_off_by_default():
 def test_normals_on_a_cylinder_point_outward(radius):
     pts, radial = tube(radius=radius, height=1.0, n=int(4000 + 40000 * radius), noise_m=0.0003)
     normals = estimate_normals(pts, 24)
-    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12, rtol=0)
     outward = np.einsum("nd,nd->n", normals, radial) > 0
     assert outward.mean() >= 0.98
 
@@ -245,8 +245,8 @@ def test_georeferenced_input_prepares_like_local_input():
     local = prepare(pts)
     geo = prepare(pts + GEO)
     assert len(local) == len(geo)
-    np.testing.assert_allclose(geo.global_points - GEO, local.global_points, atol=1e-6)
-    np.testing.assert_allclose(geo.normals, local.normals, atol=1e-6)
+    np.testing.assert_allclose(geo.global_points - GEO, local.global_points, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(geo.normals, local.normals, atol=1e-6, rtol=0)
     assert geo.frame.origin[0] == pytest.approx(GEO[0], abs=1.0)
 
 

@@ -3,7 +3,9 @@ QSM, scored against the generator's own cylinder table (issue 5's targets)."""
 
 from __future__ import annotations
 
+import re
 from functools import cache
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +17,42 @@ from pipeline.scan import ScannerSpec, ring_layout, scan
 from pipeline.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
+README = Path(__file__).resolve().parents[2] / "README.md"
+README_COLUMNS = ("dbh_mm", "stem_pct", "total_pct", "height_pct")
+
+
+def readme_qsm_table() -> dict[str, dict[str, tuple[float, float]]]:
+    """The README's QSM table (section "the cylinder QSM"): per preset, per column, the
+    printed figure and half its last printed digit (the figure's own rounding)."""
+    text = README.read_text(encoding="utf-8")
+    head = "| preset | DBH error | stem volume | total volume | height |"
+    assert head in text, "the README's QSM table header changed; update this test with it"
+    rows = {}
+    for line in text[text.index(head) :].splitlines()[2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        name = cells[0].strip("`")
+        figures = {}
+        for col, cell in zip(README_COLUMNS, cells[1:], strict=True):
+            m = re.fullmatch(r"([+\u2212-]?)(\d+)(?:\.(\d+))? ?(mm|%)", cell)
+            assert m, f"unparsed README cell {cell!r} ({name}, {col})"
+            sign = -1.0 if m.group(1) in ("-", "\u2212") else 1.0
+            value = sign * float(m.group(2) + "." + (m.group(3) or "0"))
+            half_digit = 0.5 * 10.0 ** -len(m.group(3) or "")
+            figures[col] = (value, half_digit)
+        rows[name] = figures
+    return rows
+
+
+def measured(truth: dict, fig: dict) -> dict[str, float]:
+    """The table's figures: DBH error in mm, the others in % of the truth."""
+    return {
+        "dbh_mm": (fig["dbh_m"] - truth["dbh_m"]) * 1e3,
+        "stem_pct": (fig["volume_stem_m3"] / truth["volume_stem_m3"] - 1) * 100,
+        "total_pct": (fig["volume_total_m3"] / truth["volume_total_m3"] - 1) * 100,
+        "height_pct": (fig["height_m"] / truth["height_m"] - 1) * 100,
+    }
 
 
 def scan_preset(name: str):
@@ -59,6 +97,26 @@ def test_qsm_meets_the_targets_on_every_leaf_off_preset(name):
 def test_qsm_stem_volume_within_5_percent(name):
     truth, fig = rebuilt(name)
     assert fig["volume_stem_m3"] == pytest.approx(truth["volume_stem_m3"], rel=0.05)
+
+
+def test_readme_qsm_table_lists_every_leaf_off_preset():
+    assert sorted(readme_qsm_table()) == sorted(LEAF_OFF)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", LEAF_OFF)
+def test_qsm_reproduces_the_readme_table(name):
+    # deterministic code: each figure must round to what the README prints, so the
+    # tolerance is half the printed last digit (0.05 mm, 0.05 %) and nothing more
+    printed = readme_qsm_table()[name]
+    got = measured(*rebuilt(name))
+    print(name, {k: round(v, 3) for k, v in got.items()})
+    off = {
+        col: (round(got[col], 3), value)
+        for col, (value, half_digit) in printed.items()
+        if abs(got[col] - value) > half_digit
+    }
+    assert not off, f"{name}: measured vs README {off}"
 
 
 def test_qsm_is_deterministic_on_a_preset():

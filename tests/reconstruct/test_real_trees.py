@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from pipeline.io import read_cloud
 from pipeline.reconstruct import ReconstructParams, reconstruct
-from tests.conftest import shared_path
+from tests.conftest import bundled_path, shared_path
 
 TREES = [
     ("coffee_tree", "cloud.txt"),
@@ -16,6 +19,24 @@ TREES = [
     ("archi_tree2", "Tree_2_point_cloud.las"),
     ("treels_pine", "pine.laz"),
 ]
+
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def readme_coffee_figures() -> tuple[float, float]:
+    """(litres, DBH cm) the README prints for treesim on the coffee tree."""
+    text = " ".join(README.read_text(encoding="utf-8").split())
+    m = re.search(r"On the real coffee tree: treesim ([0-9.]+) L, DBH ([0-9.]+) cm", text)
+    assert m, "the README's coffee-tree sentence changed; update this test with it"
+    return float(m.group(1)), float(m.group(2))
+
+
+def tree_path(folder: str, name: str):
+    """The bundled copy where the repository has one (the coffee tree), else shared data."""
+    if folder == "coffee_tree":
+        return bundled_path(folder, name)
+    return shared_path("trees", folder, name)
 
 
 def stem_width_m(points: np.ndarray, height_m: float = 1.3, band_m: float = 0.1) -> float:
@@ -34,7 +55,7 @@ def stem_width_m(points: np.ndarray, height_m: float = 1.3, band_m: float = 0.1)
 @pytest.mark.parametrize("method", ["qsm", "poisson", "bpa"])
 @pytest.mark.parametrize("tree", TREES, ids=[t[1] for t in TREES])
 def test_real_tree_reconstructs_sanely(tree, method):
-    path = shared_path("trees", *tree)
+    path = tree_path(*tree)
     cloud = read_cloud(path)
     params = ReconstructParams(method=method, timeout_s=300)
     model = reconstruct(cloud, params)
@@ -60,7 +81,7 @@ def test_real_tree_reconstructs_sanely(tree, method):
 
 
 def test_coffee_tree_beside_the_published_qsms(capsys):
-    path = shared_path("trees", "coffee_tree", "cloud.txt")
+    path = tree_path("coffee_tree", "cloud.txt")
     fig = reconstruct(read_cloud(path)).figures
     with capsys.disabled():
         print(
@@ -71,3 +92,8 @@ def test_coffee_tree_beside_the_published_qsms(capsys):
     # neighbourhood and the DBH near both tools' 7.35 cm
     assert 15.0 <= fig["volume_total_m3"] * 1000 <= 35.0
     assert abs(fig["dbh_m"] - 0.0735) < 0.005
+    # and, deterministic, exactly what the README prints: within half its last digit
+    # (20.1 L: 0.05 L; 7.27 cm: 0.005 cm)
+    litres, dbh_cm = readme_coffee_figures()
+    assert fig["volume_total_m3"] * 1000 == pytest.approx(litres, abs=0.05)
+    assert fig["dbh_m"] * 100 == pytest.approx(dbh_cm, abs=0.005)

@@ -21,6 +21,13 @@ from pipeline.params import (
 from pipeline.params import run_preset as preset
 from pipeline.run import STAGES, run_tree
 from pipeline.scan import station_distance_m
+from tests.run.conftest import (
+    PINNED_DBH_ROUNDING_M,
+    README_DBH_ROUNDING_M,
+    README_SAPLING_DBH_M,
+    SAPLING0_DRAFT_DBH_M,
+    sapling_cloud,
+)
 
 ARTEFACTS = (
     "tree.ply",
@@ -93,7 +100,13 @@ def test_the_simulated_cloud_lies_on_the_mesh_and_near_the_field_cloud(sapling_r
     assert vs_field["reference"]["kind"] == "cloud"
     assert vs_field["accuracy"]["p95_m"] < 0.02  # a sapling modelled within 2 cm
     rec = result.reconstruction
-    assert rec["dbh_m"] == pytest.approx(0.031, abs=0.005)  # the sapling's DBH is 3.1 cm
+    # deterministic: the draft preset's DBH on this fixture, to its pinned 0.01 mm
+    assert rec["dbh_m"] == pytest.approx(SAPLING0_DRAFT_DBH_M, abs=PINNED_DBH_ROUNDING_M)
+
+
+def test_the_sapling_truth_is_the_readme_figure():
+    tree, _ = sapling_cloud(0)
+    assert tree.truth(16)["dbh_m"] == pytest.approx(README_SAPLING_DBH_M, abs=README_DBH_ROUNDING_M)
 
 
 def test_stations_follow_the_size_rule(sapling_run):
