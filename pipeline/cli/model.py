@@ -15,20 +15,18 @@ import math
 from pathlib import Path
 
 from ..errors import InputFormatError, InvalidParameterError
+from ..io.mesh import MESH_WRITE_SUFFIXES
 from ..jsonio import write_json as _write_json
 from ..params import merge
 from ..params.models import ModelParams
-from ._options import collect, param_option
-
-#: Mesh suffixes ``generate`` and ``from-qsm`` write.
-MESH_SUFFIXES = (".obj", ".ply")
+from ._options import collect, param_option, param_options
 
 
 def _check_output(path: Path) -> None:
-    if path.suffix.lower() not in MESH_SUFFIXES:
+    if path.suffix.lower() not in MESH_WRITE_SUFFIXES:
         raise InputFormatError(
             f"{path.name}: cannot write a mesh as {path.suffix or 'no suffix'!r}; "
-            f"use one of {', '.join(MESH_SUFFIXES)}"
+            f"use one of {', '.join(MESH_WRITE_SUFFIXES)}"
         )
 
 
@@ -141,11 +139,6 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     return 0
 
 
-def param_options_model(parser: argparse.ArgumentParser, names: list[str]) -> None:
-    for name in names:
-        param_option(parser, ModelParams, name)
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``model`` command and its subcommands to ``treesim``'s parser."""
     from ..models import FORMATS
@@ -166,7 +159,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "reference figures (OUT.truth.json).",
     )
     param_option(gen, ModelParams, "species", metavar="NAME", required=True)
-    param_options_model(gen, ["leaves", "seed", "facets"])
+    param_options(gen, ModelParams, ["leaves", "seed", "facets"])
     gen.add_argument("-o", "--output", required=True, metavar="tree.obj", help=".obj or .ply")
     gen.set_defaults(func=cmd_generate)
 
@@ -175,7 +168,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="list the species presets with their key figures",
         description="Generate each species preset and list its figures.",
     )
-    param_options_model(ls, ["seed", "facets"])
+    param_options(ls, ModelParams, ["seed", "facets"])
     ls.add_argument("--sources", action="store_true", help="show where parameters come from")
     ls.set_defaults(func=cmd_list)
 
@@ -186,7 +179,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     fq.add_argument("table", metavar="TABLE")
     fq.add_argument("-o", "--output", required=True, metavar="tree.ply", help=".ply or .obj")
-    param_options_model(fq, ["facets", "joints"])
+    param_options(fq, ModelParams, ["facets", "joints"])
     fq.add_argument("--format", choices=FORMATS, help="table format (default: detected)")
     fq.set_defaults(func=cmd_from_qsm)
     md.set_defaults(func=lambda a: (md.print_help(), 2)[1])
