@@ -1,11 +1,21 @@
 #!/usr/bin/env bash
-# Install what treesim needs on a fresh Debian/Ubuntu machine: the shared libraries that
-# open3d and pymeshlab load, a virtualenv in .venv, and treesim with its dev and dask extras.
-# Safe to re-run; skips apt when the libraries are already there.
+# Install what treesim needs on a fresh Debian/Ubuntu machine. Safe to re-run; skips apt
+# when the libraries are already there.
+#
+#   scripts/setup.sh demo   the shared libraries open3d and pymeshlab load, a virtualenv in
+#                           $VENV (.venv) and treesim itself: what `make demo` needs, quietly
+#   scripts/setup.sh test   (the default) all of that, plus the dev, dask and e57 extras and
+#                           headless Chromium: what the test suite needs (`make test`)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+MODE="${1:-test}"
+case "$MODE" in
+  demo|test) ;;
+  *) echo "usage: scripts/setup.sh [demo|test]" >&2; exit 2 ;;
+esac
 VENV="${VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
+say() { if [ "$MODE" = test ]; then echo "setup: $*"; fi; }
 
 need_pkgs=()
 for pair in "libusb-1.0.so.0:libusb-1.0-0" "libGL.so.1:libgl1" "libglib-2.0.so.0:libglib2.0-0" \
@@ -19,11 +29,13 @@ apt_updated=0
 if [ "${#need_pkgs[@]}" -gt 0 ]; then
   echo "setup: installing system libraries: ${need_pkgs[*]}"
   $SUDO apt-get update -qq && apt_updated=1
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need_pkgs[@]}"
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
+    "${need_pkgs[@]}" >/dev/null
 fi
-# Headless Chromium renders the HTML report in the tests; optional (those tests skip
+# Headless Chromium renders the HTML report in the tests only; optional (those tests skip
 # with a reason without it), so a failure here only warns. TREESIM_NO_BROWSER=1 skips it.
-if [ "${TREESIM_NO_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null 2>&1; then
+if [ "$MODE" = test ] && [ "${TREESIM_NO_BROWSER:-0}" != "1" ] \
+   && ! command -v chromium >/dev/null 2>&1; then
   echo "setup: installing chromium (for the report rendering tests)"
   { [ "$apt_updated" = 1 ] || $SUDO apt-get update -qq; } \
     && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends chromium \
@@ -31,11 +43,17 @@ if [ "${TREESIM_NO_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null 2>&
 fi
 
 if [ ! -x "$VENV/bin/python" ]; then
-  echo "setup: creating virtualenv $VENV"
+  say "creating virtualenv $VENV"
   "$PYTHON" -m venv "$VENV"
 fi
-"$VENV/bin/python" -m pip install -q --upgrade pip
-"$VENV/bin/python" -m pip install -q -e ".[dev,dask,e57]"
+PIP=("$VENV/bin/python" -m pip install -q --disable-pip-version-check)
+if [ "$MODE" = demo ]; then
+  echo "setup: installing treesim into $VENV (a minute on a fresh machine)"
+  "${PIP[@]}" -q -e .  # -qq: errors only
+else
+  "${PIP[@]}" --upgrade pip
+  "${PIP[@]}" -e ".[dev,dask,e57]"
+fi
 "$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
-echo "setup: ready ($("$VENV/bin/python" --version), treesim in $VENV)"
+say "ready ($("$VENV/bin/python" --version), treesim in $VENV)"
