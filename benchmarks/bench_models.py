@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.models import (  # noqa: E402
-    PRESETS,
+    SPECIES,
     cylinders_to_mesh,
     generate_tree,
     mesh_volume,
@@ -66,7 +66,7 @@ def main() -> None:
         f"{'species':13} {'gen s':>6} {'cyl':>6} {'leaves':>7} {'facets':>6} {'mesh s':>7} "
         f"{'wood tris':>10} {'leaf tris':>10} {'vol error':>10} {'polygon':>9} {'rest ppm':>9}"
     )
-    for name in PRESETS:
+    for name in SPECIES:
         gen_s, tree = timed(lambda n=name: generate_tree(n, seed=0), args.repeat)
         table = tree.cylinders
         for facets in facet_counts:

@@ -42,7 +42,7 @@ def machine() -> str:
     """CPU model, cores, Python and open3d versions, for the table's heading."""
     import open3d
 
-    from pipeline.run import cpu_count
+    from pipeline._system import cpu_count
 
     cpu = platform.processor() or platform.machine()
     try:
@@ -62,7 +62,7 @@ def settings_rows(names: list[str]) -> list[str]:
     """What each preset sets, from the presets themselves."""
     import math
 
-    from pipeline.run import preset
+    from pipeline.params import run_preset as preset
 
     rows = ["  preset    scan step  facets  mesh volume vs cylinders  voxel  mesh samples"]
     for name in names:
