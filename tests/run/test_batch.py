@@ -395,7 +395,7 @@ def _run_tree(path, *args, **kwargs):
 batch.run_tree = _run_tree
 
 if __name__ == "__main__":
-    from pipeline.run import load_config
+    from pipeline.params import load_config
 
     out = Path(sys.argv[1])
     params = load_config(sys.argv[2])
