@@ -121,7 +121,10 @@ def param_option(
         kw["metavar"] = metavar or _metavar(info)
     help_text = info.help_text()
     if info.optional and t not in ("bool|None",):
-        help_text = help_text[:-1] + "; 0 or none: " + (info.none_means or "none") + ")"
+        if info.default is None:
+            help_text = help_text[:-1] + "; also given as 0 or none)"
+        else:
+            help_text = help_text[:-1] + "; 0 or none: " + (info.none_means or "none") + ")"
     if required:
         kw["required"] = True
         help_text = info.help

@@ -39,7 +39,7 @@ def _preset_default(path: tuple[str, ...]) -> str:
             node = getattr(node, k)
         values.append(f"{name} {'none' if node is None else node}")
     if len({v.split(" ", 1)[1] for v in values}) == 1:
-        return f"{info_at(RunParams, path).default_text()}"
+        return f"{info_at(RunParams, path).default_text(with_unit=False)}"
     return "the preset's: " + ", ".join(values)
 
 

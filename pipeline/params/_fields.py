@@ -104,7 +104,7 @@ class ParamInfo:
         """The command-line flag that sets this field."""
         return self.flag or "--" + self.name.replace("_", "-")
 
-    def default_text(self) -> str:
+    def default_text(self, *, with_unit: bool = True) -> str:
         """The default as a reader sees it: ``"0.04 deg"``, ``"derived from ..."``."""
         d = self.default
         if d is None:
@@ -119,12 +119,12 @@ class ParamInfo:
             text = str(d)
         else:
             text = str(d)
-        return f"{text} {self.unit}" if self.unit else text
+        return f"{text} {self.unit}" if self.unit and with_unit else text
 
     def help_text(self) -> str:
         """``help (unit; default ...)``: the line ``--help`` prints."""
         unit = f"{self.unit}; " if self.unit else ""
-        return f"{self.help} ({unit}default {self.default_text()})"
+        return f"{self.help} ({unit}default {self.default_text(with_unit=False)})"
 
 
 def _default(f: dataclasses.Field) -> Any:
