@@ -107,11 +107,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
     """ScanParams from the defaults, the instrument, then the flags; and the threads."""
     given = collect(args)
-    threads = (
-        merge(RunParams(), {"threads": given.pop("threads")}).threads
-        if ("threads" in given)
-        else RunParams().threads
-    )
+    # --threads is RunParams.threads (validated there); the rest is ScanParams
+    threads = merge(RunParams(), {k: given.pop(k) for k in ("threads",) if k in given}).threads
     scanner_given = given.pop("scanner", {})
     if args.resolution_deg is not None:
         for k, v in resolution_fields(args.resolution_deg).items():
