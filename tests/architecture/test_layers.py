@@ -22,32 +22,7 @@ import pytest
 
 PKG = Path(__file__).resolve().parents[2] / "pipeline"
 
-BASE = {
-    "errors",
-    "_version",
-    "_system",
-    "atomic",
-    "jsonio",
-    "frame",
-    "cloud",
-    "scene",
-    "geometry",
-    "io",
-    "params",
-}
-STAGES = {"scan", "compare", "reconstruct", "models"}
-LAYER = {
-    **{m: 0 for m in BASE},
-    **{m: 1 for m in STAGES},
-    "report": 2,
-    "run": 3,
-    "batch": 3,
-    "executors": 3,
-    "cli": 4,
-}
-#: The one allowed arrow between stages.
-STAGE_ARROWS = {("reconstruct", "models")}
-#: Arrows inside the base layer that are allowed (the base is ordered too).
+#: The base layer, bottom first: a base module imports only those listed before it.
 BASE_ORDER = [
     "errors",
     "_version",
@@ -61,6 +36,19 @@ BASE_ORDER = [
     "params",
     "io",
 ]
+BASE = set(BASE_ORDER)
+STAGES = {"scan", "compare", "reconstruct", "models"}
+LAYER = {
+    **{m: 0 for m in BASE},
+    **{m: 1 for m in STAGES},
+    "report": 2,
+    "run": 3,
+    "batch": 3,
+    "executors": 3,
+    "cli": 4,
+}
+#: The one allowed arrow between stages.
+STAGE_ARROWS = {("reconstruct", "models")}
 #: Order inside the top library layer: a batch runs trees on executors.
 TOP_ORDER = ["executors", "run", "batch"]
 WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
