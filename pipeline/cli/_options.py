@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..params import ParamInfo, Setting, field_info, set_path
+from ..params._fields import read_int
 
 #: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
 PARAM = "treesim_param"
@@ -39,45 +40,12 @@ def floats(text: str, n: int, what: str) -> tuple[float, ...]:
     return vals
 
 
-def integer(text: str) -> int:
-    """An integer, also written as ``1e9`` or ``2e6``."""
-    try:
-        return int(text)
-    except ValueError:
-        v = float(text)
-        if not v.is_integer():
-            raise ValueError(f"not an integer: {text!r}") from None
-        return int(v)
-
-
-def _number_type(info: ParamInfo) -> Any:
-    t = info.type.replace(" ", "")
-    base = t.split("|")[0]
-    if base == "int":
-        return integer
-    if base == "float":
-        return float
-    return str
-
-
 def _metavar(info: ParamInfo) -> str:
-    convert = _number_type(info)
-    if convert is integer:
+    if info.scalar is read_int:
         return "N"
-    if convert is float:
+    if info.scalar is float:
         return (info.unit or "x").upper()
     return info.name.upper()
-
-
-def _optional(convert: Any) -> Any:
-    def read(text: str) -> Any:
-        if text.strip().lower() in ("none", "off", "auto"):
-            return None
-        v = convert(text)
-        return None if v == 0 else v
-
-    read.__name__ = getattr(convert, "__name__", "value")
-    return read
 
 
 def param_option(
@@ -97,9 +65,9 @@ def param_option(
     model's help, unit and default. Optional fields read ``0`` and ``none`` as ``None``.
     """
     info = field_info(cls, name, path=path)
-    t = info.type.replace(" ", "")
+    t = info.base_type
     kw: dict[str, Any] = {"dest": "param:" + ".".join(info.path), "default": argparse.SUPPRESS}
-    if t in ("bool", "bool|None"):
+    if t == "bool":
         kw["action"] = argparse.BooleanOptionalAction if info.optional else "store_const"
         if not info.optional:
             kw["const"] = True
@@ -116,11 +84,10 @@ def param_option(
     elif info.choices:
         kw["choices"] = list(info.choices)
     else:
-        convert = _number_type(info)
-        kw["type"] = _optional(convert) if info.optional else convert
+        kw["type"] = info.read if info.optional else info.scalar
         kw["metavar"] = metavar or _metavar(info)
     help_text = info.help_text()
-    if info.optional and t not in ("bool|None",):
+    if info.optional and t != "bool":
         if info.default is None:
             help_text = help_text[:-1] + "; also given as 0 or none)"
         else:
@@ -149,7 +116,7 @@ def setting_option(group: Any, setting: Setting, *, default_text: str) -> argpar
     if info.choices:
         kw["choices"] = list(info.choices)
     else:
-        kw["type"] = _number_type(info)
+        kw["type"] = info.scalar
         kw["metavar"] = _metavar(info)
     help_text = f"{setting.help or info.help} ({unit}default {default_text}{zero})"
     action = group.add_argument(setting.flag, help=help_text, **kw)

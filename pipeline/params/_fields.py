@@ -16,7 +16,32 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 
-__all__ = ["ParamInfo", "describe", "field_info", "finite", "param", "walk"]
+__all__ = [
+    "NONE_WORDS",
+    "ParamInfo",
+    "describe",
+    "field_info",
+    "finite",
+    "param",
+    "read_int",
+    "walk",
+]
+
+#: Words that stand for ``None`` ("the rule", "off") in text settings.
+NONE_WORDS = ("none", "off", "auto")
+
+
+def read_int(value: Any) -> int:
+    """An integer from a number, or from text also written as ``1e9`` or ``2e6``."""
+    if not isinstance(value, str):
+        return int(value)
+    try:
+        return int(value)
+    except ValueError:
+        v = float(value)
+        if not v.is_integer():
+            raise ValueError(f"not an integer: {value!r}") from None
+        return int(v)
 
 
 def param(
@@ -98,6 +123,30 @@ class ParamInfo:
     def optional(self) -> bool:
         """Whether ``None`` is an allowed value."""
         return "None" in self.type
+
+    @property
+    def base_type(self) -> str:
+        """The annotation without spaces and ``| None``: ``"int"``, ``"tuple[float,float]"``."""
+        return self.type.replace(" ", "").replace("|None", "")
+
+    @property
+    def scalar(self) -> Callable[[Any], Any] | None:
+        """How one value is read from text (:func:`read_int`, ``float``, ``str``), or
+        ``None`` for booleans, tuples, tables and nested dataclasses."""
+        t = self.base_type
+        if t.startswith(("bool", "tuple", "dict")) or is_dataclass(self.default):
+            return None
+        return {"int": read_int, "float": float}.get(t, str)
+
+    def read(self, value: Any) -> Any:
+        """The field's value from text (a flag, a manifest cell) or a number; optional
+        fields read :data:`NONE_WORDS` and ``0`` as ``None``."""
+        if isinstance(value, str):
+            value = value.strip()
+            if self.optional and value.lower() in NONE_WORDS:
+                return None
+        v = (self.scalar or str)(value)
+        return None if self.optional and v == 0 else v
 
     @property
     def cli_flag(self) -> str:

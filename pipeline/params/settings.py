@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFormatError, InvalidParameterError
-from ._fields import ParamInfo, field_info, walk
+from ._fields import ParamInfo, describe, field_info, walk
 from .run import RunParams, run_preset
 
 __all__ = [
@@ -62,23 +62,9 @@ class Setting:
         return "--" + self.name.replace("_", "-")
 
     def convert(self, value: Any) -> Any:
-        """The value for the field(s), from text (a flag, a manifest cell) or a number.
-
-        Optional fields read ``0`` and ``none`` as ``None`` ("the rule", "off")."""
-        info = self.info
-        if isinstance(value, str):
-            value = value.strip()
-            if info.optional and value.lower() in ("none", "off", "auto"):
-                return None
-        if "int" in info.type and "float" not in info.type:
-            v: Any = int(value)
-        elif "float" in info.type:
-            v = float(value)
-        else:
-            v = str(value)
-        if info.optional and v == 0:
-            return None
-        return v
+        """The value for the field(s), from text (a flag, a manifest cell) or a number
+        (:meth:`ParamInfo.read`: optional fields read ``0`` and ``none`` as ``None``)."""
+        return self.info.read(value)
 
 
 def info_at(cls: type, path: tuple[str, ...]) -> ParamInfo:
@@ -154,17 +140,13 @@ def set_path(nested: dict[str, Any], path: tuple[str, ...], value: Any) -> None:
     node[path[-1]] = value
 
 
-def _annotation_allows_none(f: Any) -> bool:
-    return "None" in str(f.type)
-
-
-def _coerce(value: Any, current: Any, f: Any, name: str) -> Any:
+def _coerce(value: Any, current: Any, info: ParamInfo, name: str) -> Any:
     if value is None or (isinstance(value, str) and value.lower() in ("none", "auto")):
-        if _annotation_allows_none(f):
+        if info.optional:
             return None
         if value is None:
             raise InvalidParameterError(f"{name} needs a value")
-    if isinstance(current, bool) or str(f.type) == "bool":
+    if isinstance(current, bool) or info.type == "bool":
         if not isinstance(value, bool):
             raise InvalidParameterError(f"{name} must be true or false, got {value!r}")
         return value
@@ -173,9 +155,10 @@ def _coerce(value: Any, current: Any, f: Any, name: str) -> Any:
     if isinstance(current, (int, float)) and not isinstance(current, bool):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InvalidParameterError(f"{name} must be a number, got {value!r}")
-        if isinstance(current, int) and "float" not in str(f.type) and value != int(value):
+        integer = isinstance(current, int) and "float" not in info.type
+        if integer and value != int(value):
             raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
-        return int(value) if isinstance(current, int) and "float" not in str(f.type) else value
+        return int(value) if integer else value
     return value
 
 
@@ -199,7 +182,7 @@ def merge(obj: Any, mapping: Mapping[str, Any], where: str = "", prefix: str = "
                 raise InvalidParameterError(f"{where}{name} must be a table ([{name}])")
             changes[key] = merge(current, value, where, f"{name}.")
         else:
-            changes[key] = _coerce(value, current, known[key], name)
+            changes[key] = _coerce(value, current, field_info(type(obj), key), name)
     if not changes:
         return obj
     try:
@@ -316,15 +299,14 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
     :func:`merge` refuses them. The schema describes; :func:`merge` still decides.
     """
     props: dict[str, Any] = {}
-    for f in fields(cls):
-        info = field_info(cls, f.name)
+    for info in describe(cls):
         d = info.default
         if is_dataclass(d) and not isinstance(d, type):
             sub = json_schema(type(d))
             sub["description"] = info.help
-            props[f.name] = sub
+            props[info.name] = sub
             continue
-        t = info.type.replace(" ", "")
+        t = info.base_type
         if t.startswith("tuple") or t.startswith("list"):
             item = "integer" if "int" in t.split("[", 1)[1] else "number"
             schema: dict[str, Any] = {"type": "array", "items": {"type": item}}
@@ -336,8 +318,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         elif info.choices:
             schema = {"type": "string", "enum": list(info.choices)}
         else:
-            base = t.split("|")[0]
-            schema = {"type": _JSON_TYPES.get(base, "string")}
+            schema = {"type": _JSON_TYPES.get(info.base_type, "string")}
         if info.optional:
             schema = {"anyOf": [schema, {"type": "null"}]}
         schema["description"] = info.help + (
@@ -346,7 +327,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         if info.unit:
             schema["x-unit"] = info.unit
         schema["default"] = json.loads(json.dumps(d if not isinstance(d, tuple) else list(d)))
-        props[f.name] = schema
+        props[info.name] = schema
     return {
         "title": cls.__name__,
         "description": (cls.__doc__ or "").strip().splitlines()[0],
