@@ -102,12 +102,6 @@ def software_versions() -> dict[str, str]:
     return base("pymeshlab", "trimesh", "matplotlib")
 
 
-def _scene_from_model(model: Any) -> Scene:
-    return Scene.from_labelled_mesh(
-        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
-    )
-
-
 def _sub(progress: Progress | None, lo: float, hi: float) -> Progress | None:
     if progress is None:
         return None
@@ -200,7 +194,9 @@ def run_tree(
 
     # -- scan ------------------------------------------------------------------------------
     t0 = time.perf_counter()
-    scene = _scene_from_model(model)
+    scene = Scene.from_labelled_mesh(
+        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
+    )
     sp = params.scan
     stations, station_rule = stations_for(scene.bounds, sp)
     say(0.35, "scanning")

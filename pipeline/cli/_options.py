@@ -13,7 +13,7 @@ import argparse
 from typing import Any
 
 from ..errors import InvalidParameterError
-from ..params import ParamInfo, Setting, field_info, set_path
+from ..params import ParamInfo, Setting, describe, field_info, set_path
 from ..params._fields import read_int
 
 #: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
@@ -100,10 +100,19 @@ def param_option(
     return action
 
 
-def param_options(group: Any, cls: type, names: list[str], *, path: tuple[str, ...] = ()) -> None:
-    """:func:`param_option` for each of ``names``."""
-    for name in names:
-        param_option(group, cls, name, path=path)
+def param_options(
+    group: Any,
+    cls: type,
+    names: list[str] | None = None,
+    *,
+    path: tuple[str, ...] = (),
+    exclude: tuple[str, ...] = (),
+) -> None:
+    """:func:`param_option` for each of ``names`` (default: every field of ``cls`` but
+    ``exclude``)."""
+    for name in names if names is not None else [i.name for i in describe(cls)]:
+        if name not in exclude:
+            param_option(group, cls, name, path=path)
 
 
 def setting_option(group: Any, setting: Setting, *, default_text: str) -> argparse.Action:

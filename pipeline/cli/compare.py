@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputFormatError
 from ..params import CompareParams, merge
-from ._options import collect, param_option
+from ._options import collect, param_options
 
 
 def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:
@@ -115,7 +114,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("reference", metavar="REFERENCE", help="the reference mesh or cloud")
     cp.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder")
     g = cp.add_argument_group("comparison")
-    for f in fields(CompareParams):
-        param_option(g, CompareParams, f.name)
+    param_options(g, CompareParams)
     cp.add_argument("--report", action="store_true", help="also write the report into OUTDIR")
     cp.set_defaults(func=cmd_compare)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import fields
 
 from ..errors import InvalidParameterError
 from ..params import ReportParams, merge
-from ._options import collect, param_option
+from ._options import collect, param_options
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -45,6 +44,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-o", "--output", metavar="DIR", help="where to write (default: beside comparison.json)"
     )
     g = rp.add_argument_group("report")
-    for f in fields(ReportParams):
-        param_option(g, ReportParams, f.name)
+    param_options(g, ReportParams)
     rp.set_defaults(func=cmd_report)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Sequence
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -90,9 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
     )
-    for f in fields(ScannerSpec):
-        if f.name not in _NO_FLAG:
-            param_option(s, ScannerSpec, f.name, path=("scanner",))
+    param_options(s, ScannerSpec, path=("scanner",), exclude=_NO_FLAG)
     x = p.add_argument_group("execution")
     x.add_argument(
         "--full-fov",
