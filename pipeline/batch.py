@@ -540,7 +540,7 @@ def run_batch(
     t_start = time.perf_counter()
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
-    params = params or run_preset("standard")
+    params = params or run_preset()
     trees, skipped_files = discover_inputs(inputs)
     if not trees:
         raise InputFormatError("no point clouds found in the inputs; nothing to run")

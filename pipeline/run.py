@@ -153,7 +153,7 @@ def run_tree(
     from .report import build_report
     from .scan import scan, stations_for
 
-    params = params or run_preset("standard")
+    params = params or run_preset()
     if not isinstance(params, RunParams):
         raise InvalidParameterError(f"params must be RunParams, got {type(params).__name__}")
     say = progress or (lambda f, m: None)

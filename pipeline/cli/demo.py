@@ -23,7 +23,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     result = run_tree(
         cloud,
-        run_preset("standard"),
+        run_preset(),
         Path(args.output),
         name="coffee_tree",
         progress=progress_printer(),

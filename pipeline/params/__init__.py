@@ -33,7 +33,15 @@ from importlib import resources
 from ._fields import ParamInfo, describe, field_info, param, walk
 from .compare import CompareParams, ReportParams
 from .reconstruct import METHODS, PrepareParams, QSMParams, ReconstructParams
-from .run import RUN_PRESETS, RunParams, ScanParams, execution_only_paths, params_hash, run_preset
+from .run import (
+    DEFAULT_RUN_PRESET,
+    RUN_PRESETS,
+    RunParams,
+    ScanParams,
+    execution_only_paths,
+    params_hash,
+    run_preset,
+)
 from .scanner import (
     DEFAULT_REFLECTANCE,
     INSTRUMENTS,
@@ -58,6 +66,7 @@ from .settings import (
 
 __all__ = [
     "DEFAULT_REFLECTANCE",
+    "DEFAULT_RUN_PRESET",
     "INSTRUMENTS",
     "METHODS",
     "RETURN_MODES",

@@ -17,6 +17,7 @@ from .reconstruct import PrepareParams, ReconstructParams
 from .scanner import ScannerSpec, resolution_fields
 
 __all__ = [
+    "DEFAULT_RUN_PRESET",
     "RUN_PRESETS",
     "RunParams",
     "ScanParams",
@@ -222,8 +223,13 @@ def _run_presets() -> dict[str, RunParams]:
 RUN_PRESETS: dict[str, RunParams] = _run_presets()
 
 
-def run_preset(name: str) -> RunParams:
-    """The run preset called ``name`` (``draft``, ``standard`` or ``fine``)."""
+#: The run preset used when none is named (the CLI, ``run_tree``, ``run_batch``, TOML).
+DEFAULT_RUN_PRESET = "standard"
+
+
+def run_preset(name: str = DEFAULT_RUN_PRESET) -> RunParams:
+    """The run preset called ``name`` (``draft``, ``standard`` or ``fine``; default
+    :data:`DEFAULT_RUN_PRESET`)."""
     try:
         return RUN_PRESETS[name]
     except KeyError:

@@ -21,7 +21,7 @@ from typing import Any
 
 from ..errors import InputFormatError, InvalidParameterError
 from ._fields import ParamInfo, describe, field_info, walk
-from .run import RunParams, run_preset
+from .run import DEFAULT_RUN_PRESET, RunParams, run_preset
 
 __all__ = [
     "SETTINGS",
@@ -207,7 +207,7 @@ def params_from_dict(
     data = dict(data)
     name = data.pop("preset", None)
     if base is None:
-        base = run_preset(str(name)) if name is not None else run_preset("standard")
+        base = run_preset(str(name)) if name is not None else run_preset()
     return merge(base, data, where)
 
 
@@ -247,7 +247,9 @@ def to_toml(params: RunParams) -> str:
     help text and unit from the parameter model (``None`` is written as ``"none"``)."""
     d = params.to_dict()
     d.pop("preset", None)
-    lines = [f'preset = "{params.preset}"' if params.preset else '# preset = "standard"']
+    lines = [
+        f'preset = "{params.preset}"' if params.preset else f'# preset = "{DEFAULT_RUN_PRESET}"'
+    ]
     docs = {info.path: info for info in walk(RunParams)}
 
     def value(v: Any) -> str:
