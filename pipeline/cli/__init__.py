@@ -6,13 +6,17 @@ to see a traceback for unexpected errors.
 
 A new command is a module here with ``register(subparsers)`` and its ``cmd_*`` function,
 added to :data:`COMMANDS`; its options that set parameters come from
-:mod:`pipeline.cli._options` (``param_option``), never typed by hand.
+:mod:`pipeline.cli._options` (``param_option``), never typed by hand. Packages above the
+library add commands through the ``treesim.commands`` entry point group (a
+``register(subparsers)`` callable): the service's ``serve`` and ``worker`` come that way,
+so this package never imports web code.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import os
 import sys
 from collections.abc import Sequence
@@ -23,7 +27,10 @@ from ._options import Parser
 #: The command modules, in the order ``treesim --help`` lists them.
 COMMANDS = ("scan", "model", "reconstruct", "compare", "report", "run", "batch", "demo")
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+#: Entry point group through which other packages add commands (``register(subparsers)``).
+PLUGIN_GROUP = "treesim.commands"
+
+__all__ = ["COMMANDS", "PLUGIN_GROUP", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)
+    for ep in sorted(importlib.metadata.entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
+        ep.load()(sub)
     return p
 
 

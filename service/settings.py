@@ -1,0 +1,119 @@
+"""The service's settings, typed: ``TREESIM_*`` environment variables, then command-line flags.
+
+Every setting is a field of :class:`Settings`; its environment variable is ``TREESIM_`` and
+the field's name in capitals (``data_dir`` → ``TREESIM_DATA_DIR``). ``treesim serve`` and
+``treesim worker`` pass their flags as keyword arguments, which win over the environment.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["ENV_PREFIX", "Settings"]
+
+ENV_PREFIX = "TREESIM_"
+
+
+class Settings(BaseSettings):
+    """What a treesim service process needs to know: where its data and job store are, who
+    may call it, and how it runs jobs."""
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
+
+    data_dir: Path = Field(
+        Path("treesim-data"),
+        description="folder for uploads, job results and the default SQLite job store "
+        "(shared by every worker of one service)",
+    )
+    database_url: str | None = Field(
+        None,
+        description="job store URL (postgresql://user:pass@host/db for several machines); "
+        "default: a SQLite file treesim.db in the data folder",
+    )
+    api_token: SecretStr | None = Field(
+        None,
+        description="if set, every /v1 request must send 'Authorization: Bearer <token>'",
+    )
+    max_upload_bytes: int = Field(
+        4 * 1024**3, gt=0, description="largest upload accepted, in bytes (larger: 413)"
+    )
+    job_time_limit_s: float = Field(
+        6 * 3600.0, gt=0, description="a job running longer than this is stopped and failed (s)"
+    )
+    max_attempts: int = Field(
+        3,
+        ge=1,
+        le=100,
+        description="attempts per job: a job whose process crashed or whose worker died is "
+        "retried until it has started this many times, then failed",
+    )
+    lease_s: float = Field(
+        30.0,
+        ge=2.0,
+        description="a worker renews its claim on a running job at least this often; a job "
+        "whose lease ran out is taken up again (s)",
+    )
+    workers: int = Field(
+        1,
+        ge=0,
+        le=256,
+        description="jobs this process runs at once (serve: its embedded worker; 0: the API alone)",
+    )
+    job_threads: int = Field(
+        0, ge=0, description="threads per job (0: the machine's cores divided by workers)"
+    )
+    executor: Literal["local", "dask"] = Field(
+        "local",
+        description="where a job's compute runs: local (a child process per job) or dask",
+    )
+    scheduler: str | None = Field(
+        None, description="the Dask scheduler's address (tcp://host:8786) for executor dask"
+    )
+    poll_interval_s: float = Field(
+        1.0,
+        gt=0,
+        le=60,
+        description="how often a worker looks for new jobs and reports progress (s)",
+    )
+    cors_origins: list[str] = Field(
+        default_factory=list,
+        description="origins allowed to call the API from a browser (CORS off when empty)",
+    )
+
+    @field_validator("data_dir")
+    @classmethod
+    def _absolute(cls, v: Path) -> Path:
+        return v.expanduser().resolve()
+
+    @property
+    def db_url(self) -> str:
+        """The job store's SQLAlchemy URL (the SQLite default resolved)."""
+        if self.database_url:
+            url = self.database_url
+            # plain postgres URLs mean the psycopg 3 driver (the one treesim installs)
+            for prefix in ("postgresql://", "postgres://"):
+                if url.startswith(prefix):
+                    return "postgresql+psycopg://" + url[len(prefix) :]
+            return url
+        return f"sqlite:///{self.data_dir / 'treesim.db'}"
+
+    @property
+    def threads_per_job(self) -> int:
+        """Threads each job uses: :attr:`job_threads`, or cores // workers."""
+        if self.job_threads:
+            return self.job_threads
+        from pipeline._system import cpu_count
+
+        return max(1, cpu_count() // max(1, self.workers))
+
+    def token(self) -> str | None:
+        return self.api_token.get_secret_value() if self.api_token else None
+
+    @classmethod
+    def env_names(cls) -> dict[str, str]:
+        """Field name → its environment variable."""
+        return {name: ENV_PREFIX + name.upper() for name in cls.model_fields}
