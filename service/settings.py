@@ -79,6 +79,11 @@ class Settings(BaseSettings):
         le=60,
         description="how often a worker looks for new jobs and reports progress (s)",
     )
+    heartbeat_file: Path | None = Field(
+        None,
+        description="a worker touches this file every poll (a container healthcheck reads "
+        "its age)",
+    )
     cors_origins: list[str] = Field(
         default_factory=list,
         description="origins allowed to call the API from a browser (CORS off when empty)",
@@ -88,6 +93,12 @@ class Settings(BaseSettings):
     @classmethod
     def _absolute(cls, v: Path) -> Path:
         return v.expanduser().resolve()
+
+    @field_validator("database_url", "scheduler", "api_token", "heartbeat_file", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: object) -> object:
+        # compose files pass ${VAR:-} through as an empty string: that means "not set"
+        return None if isinstance(v, str) and not v.strip() else v
 
     @property
     def db_url(self) -> str:
