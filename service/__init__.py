@@ -1,7 +1,14 @@
-"""treesim's HTTP service (FastAPI + jobs): a thin adapter over :mod:`pipeline`.
+"""treesim's HTTP service: a thin adapter over :mod:`pipeline` (FastAPI, a SQL job store,
+workers that run each job in its own process).
 
-Not built yet: no issue covers it so far. The intended shape is in the project's
-DESIGN notes (``create_app(settings)``, jobs in a SQL table claimed with a lease,
-native work in child processes, RFC 9457 problem responses). Until then, use the
-``treesim`` command line or the ``pipeline`` library.
+* :func:`service.app.create_app` builds the app from :class:`service.settings.Settings`
+  (``TREESIM_*`` environment variables); ``treesim serve`` runs it with an embedded
+  worker, ``treesim worker`` runs workers alone (:mod:`service.cli`).
+* :mod:`service.processes`: the processes ``run``, ``reconstruct``, ``scan``, ``compare``,
+  their inputs and the JSON Schemas of their parameters, from the parameter model.
+* :mod:`service.jobs`: the job store (:mod:`~service.jobs.store`, Alembic migrations),
+  the worker (:mod:`~service.jobs.worker`) and what runs in a job's process
+  (:mod:`~service.jobs.runner`).
+* :mod:`service.problems`: one table from treesim's errors to problem objects and HTTP
+  statuses.
 """

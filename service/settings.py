@@ -81,8 +81,7 @@ class Settings(BaseSettings):
     )
     heartbeat_file: Path | None = Field(
         None,
-        description="a worker touches this file every poll (a container healthcheck reads "
-        "its age)",
+        description="a worker touches this file every poll (a container healthcheck reads its age)",
     )
     cors_origins: list[str] = Field(
         default_factory=list,

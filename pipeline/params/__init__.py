@@ -41,6 +41,7 @@ from .run import (
     execution_only_paths,
     params_hash,
     run_preset,
+    scan_params,
 )
 from .scanner import (
     DEFAULT_REFLECTANCE,
@@ -98,6 +99,7 @@ __all__ = [
     "preset_measurements",
     "resolution_fields",
     "run_preset",
+    "scan_params",
     "set_path",
     "to_toml",
     "walk",

@@ -1,0 +1,209 @@
+"""``/v1/uploads``: clouds and meshes, streamed to disk, checked, stored once by content."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import unicodedata
+import uuid
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+
+from pipeline.errors import EmptyInputError
+
+from ..problems import ServiceProblem
+from ..schemas import Link, UploadList, UploadOut, iso
+from .deps import SettingsDep, StoreDep
+from .responses import PROBLEM_RESPONSES
+
+router = APIRouter(tags=["uploads"])
+
+CHUNK = 1 << 20
+
+
+def check_filename(name: str | None) -> str:
+    """The upload's name, which is metadata only: a plain file name, never a path."""
+    if name is None or not name.strip():
+        return "upload"
+    name = unicodedata.normalize("NFC", name.strip())
+    bad = (
+        "/" in name
+        or "\\" in name
+        or name in (".", "..")
+        or name.startswith("..")
+        or any(unicodedata.category(c).startswith("C") for c in name)
+        or len(name.encode("utf-8")) > 255
+    )
+    if bad:
+        raise ServiceProblem(
+            "invalid-parameter",
+            f"filename {name!r} must be a plain file name (no folders, no '..', no control "
+            "characters, at most 255 bytes); it is kept as a label only",
+            field="filename",
+        )
+    return name
+
+
+def upload_out(rec: dict[str, Any]) -> UploadOut:
+    info = rec["info"] or {}
+    lo, hi = info.get("bounds", [[0, 0, 0], [0, 0, 0]])
+    return UploadOut(
+        id=rec["id"],
+        filename=rec["filename"],
+        format=rec["format"],
+        kind=rec["kind"],
+        size_bytes=rec["size_bytes"],
+        sha256=rec["sha256"],
+        n_points=rec["n_points"],
+        n_triangles=rec["n_triangles"],
+        bounds={"min": list(lo), "max": list(hi)},
+        fields=list(info.get("fields", [])),
+        created=iso(rec["created"]),
+        links=[Link(href=f"/v1/uploads/{rec['id']}", rel="self", type="application/json")],
+    )
+
+
+def _tmp_dir(data_dir: Path) -> Path:
+    d = data_dir / "uploads" / "tmp"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+@router.post(
+    "/uploads",
+    status_code=201,
+    response_model=UploadOut,
+    summary="Upload a point cloud or mesh (the raw file as the body)",
+    responses={
+        200: {"model": UploadOut, "description": "the same content was uploaded before"},
+        **PROBLEM_RESPONSES(411, 413, 415, 422),
+    },
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        }
+    },
+)
+async def create_upload(
+    request: Request,
+    response: Response,
+    store: StoreDep,
+    settings: SettingsDep,
+    filename: Annotated[
+        str | None, Query(max_length=1000, description="the file's name (a label only)")
+    ] = None,
+) -> UploadOut:
+    """Stream the body to disk (never held in memory), with its SHA-256; sniff its format
+    from the bytes (LAS, LAZ, PLY, OBJ, XYZ, E57), open and check it; store it once per
+    content. 413 past ``TREESIM_MAX_UPLOAD_BYTES``, 415 for a format treesim does not read,
+    422 for a broken file; nothing is kept on error."""
+    name = check_filename(filename)
+    limit = settings.max_upload_bytes
+    length = request.headers.get("content-length")
+    if length is not None:
+        try:
+            declared = int(length)
+        except ValueError:
+            raise ServiceProblem("bad-request", "Content-Length is not a number") from None
+        if declared > limit:
+            raise ServiceProblem(
+                "payload-too-large",
+                f"the upload is {declared:,} bytes; the limit is {limit:,} "
+                "(TREESIM_MAX_UPLOAD_BYTES)",
+            )
+    elif "chunked" not in request.headers.get("transfer-encoding", "").lower():
+        raise ServiceProblem("length-required", "send Content-Length or a chunked body")
+    tmp = _tmp_dir(settings.data_dir) / f"{uuid.uuid4().hex}.part"
+    digest = hashlib.sha256()
+    size = 0
+    try:
+        with open(tmp, "wb") as fh:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > limit:
+                    raise ServiceProblem(
+                        "payload-too-large",
+                        f"the upload exceeds the limit of {limit:,} bytes "
+                        "(TREESIM_MAX_UPLOAD_BYTES)",
+                    )
+                digest.update(chunk)
+                fh.write(chunk)
+        if size == 0:
+            raise EmptyInputError(f"{name}: the body is empty; send the file's bytes")
+        info = await request.app.state.inspector.inspect(tmp, name if filename else None)
+        sha = digest.hexdigest()
+        rel = Path("uploads") / sha[:2] / f"{sha}{info['suffix']}"
+        final = settings.data_dir / rel
+
+        def place() -> None:
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
+
+        record = {
+            "sha256": sha,
+            "filename": name,
+            "format": info["format"],
+            "kind": info["kind"],
+            "size_bytes": size,
+            "n_points": info.get("n_points"),
+            "n_triangles": info.get("n_triangles"),
+            "info": {"bounds": info["bounds"], "fields": list(info.get("fields", []))},
+            "path": rel.as_posix(),
+        }
+        rec, created = await run_in_threadpool(store.add_upload, record, place)
+    finally:
+        tmp.unlink(missing_ok=True)
+    response.status_code = 201 if created else 200
+    response.headers["Location"] = f"/v1/uploads/{rec['id']}"
+    return upload_out(rec)
+
+
+@router.get("/uploads", response_model=UploadList, summary="List uploads, newest first")
+def list_uploads(
+    store: StoreDep,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
+) -> UploadList:
+    return UploadList(uploads=[upload_out(r) for r in store.list_uploads(limit, offset)])
+
+
+@router.get(
+    "/uploads/{upload_id}",
+    response_model=UploadOut,
+    responses=PROBLEM_RESPONSES(404),
+    summary="One upload",
+)
+def get_upload(upload_id: str, store: StoreDep) -> UploadOut:
+    rec = store.upload(upload_id)
+    if rec is None:
+        raise ServiceProblem("not-found", f"no upload {upload_id!r}", field="upload_id")
+    return upload_out(rec)
+
+
+@router.delete(
+    "/uploads/{upload_id}",
+    status_code=204,
+    responses=PROBLEM_RESPONSES(404, 409),
+    summary="Delete an upload (refused while a job uses it)",
+)
+def delete_upload(upload_id: str, store: StoreDep, settings: SettingsDep) -> Response:
+    def remove(rec: dict[str, Any]) -> None:
+        (settings.data_dir / rec["path"]).unlink(missing_ok=True)
+
+    rec, users = store.delete_upload(upload_id, remove)
+    if rec is None:
+        raise ServiceProblem("not-found", f"no upload {upload_id!r}", field="upload_id")
+    if users:
+        raise ServiceProblem(
+            "conflict",
+            f"upload {upload_id} is an input of {len(users)} job(s) that have not finished "
+            f"({', '.join(users[:5])}); dismiss them or wait",
+            jobs=users,
+        )
+    return Response(status_code=204)

@@ -1,0 +1,111 @@
+"""The FastAPI application: ``create_app(settings)`` builds it, no import-time singletons.
+
+Routers are composed here: ``/v1`` (uploads, processes, jobs, results; the token applies
+there), the health and metrics routes, and the pages. The lifespan opens the job store
+(creating or migrating its schema), starts the upload inspector, and, with
+``settings.workers > 0``, the embedded worker; at shutdown the worker hands its running
+jobs back.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import Depends, FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+
+from .api import errors, health, jobs, pages, uploads
+from .api.deps import require_token
+from .inspect import Inspector
+from .jobs.store import Store
+from .metrics import Metrics
+from .settings import Settings
+
+__all__ = ["create_app"]
+
+log = logging.getLogger("treesim.api")
+
+
+def _clean_tmp(data_dir: Path, older_than_s: float = 3600.0) -> None:
+    """Remove uploads interrupted more than an hour ago (a restart cut them off)."""
+    tmp = data_dir / "uploads" / "tmp"
+    if not tmp.is_dir():
+        return
+    now = time.time()
+    for p in tmp.glob("*.part"):
+        try:
+            if now - p.stat().st_mtime > older_than_s:
+                p.unlink()
+        except OSError:
+            pass
+
+
+def create_app(settings: Settings | None = None, *, store: Store | None = None) -> FastAPI:
+    """The service for ``settings`` (default: from the environment)."""
+    from pipeline._version import __version__
+
+    settings = settings or Settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    store = store or Store(settings.db_url)
+    metrics = Metrics(store, live_within_s=max(3 * settings.poll_interval_s, settings.lease_s))
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        _clean_tmp(settings.data_dir)
+        app.state.inspector.warm()
+        worker = None
+        if settings.workers > 0:
+            from .jobs.worker import Worker
+
+            worker = Worker(settings, store)
+            worker.start()
+        app.state.worker = worker
+        try:
+            yield
+        finally:
+            if worker is not None:
+                worker.stop()
+            app.state.inspector.close()
+
+    app = FastAPI(
+        title="treesim",
+        version=__version__,
+        summary="Reconstruct trees from field point clouds, scan them with a virtual TLS "
+        "scanner, and compare (AVOHD), as jobs over HTTP.",
+        description="Upload a cloud (`POST /v1/uploads`), start a job of a process "
+        "(`POST /v1/jobs`), follow it (`GET /v1/jobs/{id}`), and fetch its results and "
+        "report. Every error is `application/problem+json` (types at `/problems`). With "
+        "`TREESIM_API_TOKEN` set, `/v1` needs `Authorization: Bearer <token>`.",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.store = store
+    app.state.metrics = metrics
+    app.state.inspector = Inspector()
+    errors.install(app)
+    v1 = [Depends(require_token)]
+    app.include_router(uploads.router, prefix="/v1", dependencies=v1)
+    app.include_router(jobs.router, prefix="/v1", dependencies=v1)
+    app.include_router(health.router)
+    app.include_router(pages.router)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "DELETE"],
+            allow_headers=["Authorization", "Content-Type"],
+        )
+    app.add_middleware(_MetricsMiddleware, metrics=metrics)
+    return app
+
+
+class _MetricsMiddleware:
+    def __init__(self, app: object, metrics: Metrics) -> None:
+        self._app = metrics.middleware(app)
+
+    async def __call__(self, scope: dict, receive: object, send: object) -> None:
+        await self._app(scope, receive, send)

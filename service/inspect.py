@@ -1,0 +1,76 @@
+"""Opening and checking uploaded files away from the API's process.
+
+An upload is opened with treesim's own readers (:func:`pipeline.io.inspect_file`) before it
+is accepted. That runs in a small pool of ``spawn``-ed processes: a huge cloud's memory, a
+slow parse or a native reader that crashes stay out of the server, and a crash fails only
+that upload (the pool is rebuilt).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures as cf
+import multiprocessing
+import threading
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import InputFormatError
+
+__all__ = ["Inspector"]
+
+
+def _inspect(path: str, filename: str | None) -> dict[str, Any]:
+    from pipeline.io import inspect_file
+
+    return inspect_file(path, filename=filename).to_dict()
+
+
+def _warm() -> bool:
+    import pipeline.io  # noqa: F401 - import the readers once, before the first upload
+
+    return True
+
+
+class Inspector:
+    """``await inspector.inspect(path, filename)`` → the file's facts (see
+    :class:`pipeline.io.FileInfo`), or treesim's error for a bad file."""
+
+    def __init__(self, workers: int = 1) -> None:
+        self.workers = workers
+        self._pool: cf.ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def _get(self) -> cf.ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = cf.ProcessPoolExecutor(
+                    max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")
+                )
+            return self._pool
+
+    def warm(self) -> None:
+        """Start the pool's processes now rather than at the first upload."""
+        self._get().submit(_warm)
+
+    async def inspect(self, path: Path, filename: str | None) -> dict[str, Any]:
+        pool = self._get()
+        loop = asyncio.get_running_loop()
+        try:
+            return await loop.run_in_executor(pool, _inspect, str(path), filename)
+        except BrokenProcessPool:
+            with self._lock:
+                if self._pool is pool:
+                    self._pool = None
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise InputFormatError(
+                f"{filename or 'the upload'}: the reader crashed on this file; it is corrupt "
+                "or not what its format says"
+            ) from None
+
+    def close(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)

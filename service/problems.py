@@ -1,0 +1,213 @@
+"""One table from treesim's errors to RFC 9457 problem details and HTTP statuses.
+
+Every error the service answers, and every error a job ends with, is a problem object
+``{"type", "title", "status", "detail", ...}`` built here: :data:`PROBLEMS` lists the
+problem types (``GET /problems`` shows them), :data:`ERROR_TABLE` maps each
+:class:`~pipeline.errors.TreesimError` subclass to one. No web framework is imported here:
+a job's own process uses it too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline import errors as e
+
+__all__ = [
+    "ERROR_TABLE",
+    "PROBLEMS",
+    "ProblemType",
+    "ServiceProblem",
+    "problem",
+    "problem_for",
+]
+
+MEDIA_TYPE = "application/problem+json"
+
+
+@dataclass(frozen=True)
+class ProblemType:
+    """A kind of problem: its slug (the type URI is ``/problems#<slug>``), title, status."""
+
+    slug: str
+    title: str
+    status: int
+    doc: str
+
+    @property
+    def uri(self) -> str:
+        return f"/problems#{self.slug}"
+
+
+#: Every problem type the service uses, by slug.
+PROBLEMS: dict[str, ProblemType] = {
+    p.slug: p
+    for p in (
+        ProblemType(
+            "invalid-parameter",
+            "Invalid parameter",
+            422,
+            "a parameter is unknown, of the wrong type, out of range, or inconsistent with another",
+        ),
+        ProblemType(
+            "unsupported-format",
+            "Unsupported file format",
+            415,
+            "the uploaded "
+            "bytes are not a format treesim reads (LAS, LAZ, PLY, OBJ, XYZ, E57), or "
+            "do not match the file name's format",
+        ),
+        ProblemType(
+            "bad-input-file",
+            "Unreadable input file",
+            422,
+            "the file is of a known format but corrupt, truncated or inconsistent",
+        ),
+        ProblemType("empty-input", "Empty input", 422, "the input holds no points or faces"),
+        ProblemType(
+            "invalid-geometry",
+            "Invalid geometry",
+            422,
+            "NaN or infinite coordinates, or a degenerate shape",
+        ),
+        ProblemType(
+            "scan-failed", "Scan not possible", 422, "the virtual scan cannot run as asked"
+        ),
+        ProblemType(
+            "resource-limit",
+            "Resource limit",
+            422,
+            "the work would exceed a configured limit (rays, memory, time)",
+        ),
+        ProblemType(
+            "reconstruction-failed",
+            "Reconstruction failed",
+            422,
+            "no tree model could be reconstructed from the cloud",
+        ),
+        ProblemType(
+            "invalid-model", "Invalid tree model", 422, "a tree model or cylinder table is invalid"
+        ),
+        ProblemType("treesim-error", "treesim error", 422, "treesim refused the input"),
+        ProblemType(
+            "validation-error",
+            "Invalid request",
+            422,
+            "the request's body or query does not match the API's schema",
+        ),
+        ProblemType("bad-request", "Bad request", 400, "the request is malformed"),
+        ProblemType(
+            "unauthorized", "Unauthorized", 401, "a valid 'Authorization: Bearer' token is required"
+        ),
+        ProblemType("not-found", "Not found", 404, "no such route, upload, job or result"),
+        ProblemType(
+            "method-not-allowed", "Method not allowed", 405, "the route does not take this method"
+        ),
+        ProblemType(
+            "conflict", "Conflict", 409, "the resource is in use or not in a state that allows this"
+        ),
+        ProblemType(
+            "payload-too-large",
+            "Upload too large",
+            413,
+            "the body exceeds TREESIM_MAX_UPLOAD_BYTES",
+        ),
+        ProblemType(
+            "length-required",
+            "Length required",
+            411,
+            "an upload must say how long it is or be sent in chunks",
+        ),
+        ProblemType("not-ready", "Not ready", 503, "a dependency of the service is down"),
+        ProblemType(
+            "time-limit",
+            "Time limit exceeded",
+            422,
+            "the job ran past TREESIM_JOB_TIME_LIMIT_S and was stopped",
+        ),
+        ProblemType(
+            "job-crashed",
+            "Job process died",
+            500,
+            "the job's process crashed or was killed (e.g. out of memory)",
+        ),
+        ProblemType(
+            "worker-lost",
+            "Worker lost",
+            500,
+            "the worker running the job stopped renewing its lease",
+        ),
+        ProblemType("out-of-memory", "Out of memory", 507, "the job ran out of memory"),
+        ProblemType(
+            "internal-error",
+            "Internal error",
+            500,
+            "a bug in treesim; the job's log has the traceback",
+        ),
+    )
+}
+
+#: treesim's error classes → problem slug; the most specific class wins.
+ERROR_TABLE: dict[type[BaseException], str] = {
+    e.InvalidParameterError: "invalid-parameter",
+    e.InputFormatError: "bad-input-file",
+    e.EmptyInputError: "empty-input",
+    e.InvalidGeometryError: "invalid-geometry",
+    e.ScanError: "scan-failed",
+    e.ResourceLimitError: "resource-limit",
+    e.ReconstructionError: "reconstruction-failed",
+    e.ModelError: "invalid-model",
+    e.TreesimError: "treesim-error",
+    MemoryError: "out-of-memory",
+}
+if hasattr(e, "UnsupportedFormatError"):
+    ERROR_TABLE[e.UnsupportedFormatError] = "unsupported-format"
+
+
+def problem(slug: str, detail: str, **extra: Any) -> dict[str, Any]:
+    """The problem object of type ``slug`` with ``detail`` and extension members."""
+    p = PROBLEMS[slug]
+    return {"type": p.uri, "title": p.title, "status": p.status, "detail": detail, **extra}
+
+
+def slug_for(exc: BaseException) -> str:
+    for cls in type(exc).__mro__:
+        if cls in ERROR_TABLE:
+            return ERROR_TABLE[cls]
+    return "internal-error"
+
+
+def problem_for(exc: BaseException) -> dict[str, Any]:
+    """The problem object for an exception (``field`` kept when the error names one)."""
+    slug = slug_for(exc)
+    detail = str(exc) or type(exc).__name__
+    if slug == "internal-error":
+        detail = f"{type(exc).__name__}: {detail}"
+    if slug == "out-of-memory":
+        detail = "out of memory; coarsen the resolution or lower chunk_rays"
+    extra = {}
+    field = getattr(exc, "field", None)
+    if field:
+        extra["field"] = field
+    return problem(slug, detail, **extra)
+
+
+class ServiceProblem(Exception):
+    """An HTTP error answered as a problem object."""
+
+    def __init__(
+        self, slug: str, detail: str, *, headers: dict[str, str] | None = None, **extra: Any
+    ) -> None:
+        super().__init__(detail)
+        self.slug = slug
+        self.detail = detail
+        self.headers = headers or {}
+        self.extra = extra
+
+    @property
+    def status(self) -> int:
+        return PROBLEMS[self.slug].status
+
+    def body(self) -> dict[str, Any]:
+        return problem(self.slug, self.detail, **self.extra)
