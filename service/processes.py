@@ -17,6 +17,7 @@ from typing import Any
 
 from pipeline.errors import InvalidParameterError
 from pipeline.params import (
+    DEFAULT_RUN_PRESET,
     INSTRUMENTS,
     RUN_PRESETS,
     CompareParams,
@@ -29,6 +30,7 @@ from pipeline.params import (
     params_from_dict,
     run_preset,
     scan_params,
+    walk,
 )
 
 __all__ = ["PROCESSES", "Input", "Process", "check_parameters"]
@@ -344,7 +346,7 @@ PROCESSES: dict[str, Process] = {
                 ("tree.json", "DBH, height, volumes and what preparation removed"),
             ),
             extra_schema=lambda: _preset_schema("reconstruction settings"),
-            base_schema=lambda: json_schema(ReconstructParams),
+            base_schema=lambda: _job_schema(ReconstructParams),
             parse=_parse_reconstruct,
             execute=_execute_reconstruct,
         ),
@@ -359,7 +361,7 @@ PROCESSES: dict[str, Process] = {
                 ("scan.json", "scanner settings, stations, rays and timings"),
             ),
             extra_schema=_scan_extra,
-            base_schema=lambda: json_schema(ScanParams),
+            base_schema=lambda: _job_schema(ScanParams),
             parse=_parse_scan,
             execute=_execute_scan,
         ),
@@ -377,7 +379,7 @@ PROCESSES: dict[str, Process] = {
                 ("report.html", "the report"),
             ),
             extra_schema=_compare_extra,
-            base_schema=lambda: json_schema(CompareParams),
+            base_schema=lambda: _job_schema(CompareParams),
             parse=_parse_compare,
             execute=_execute_compare,
         ),
@@ -385,13 +387,28 @@ PROCESSES: dict[str, Process] = {
 }
 
 
+def _job_schema(cls: type) -> dict[str, Any]:
+    """The parameter model's JSON Schema less its execution-only fields (threads): the
+    worker decides those (``TREESIM_JOB_THREADS``), and they never change a result."""
+    schema = json_schema(cls)
+    for info in walk(cls):
+        if info.execution_only:
+            node = schema
+            for key in info.path[:-1]:
+                node = node["properties"][key]
+            node["properties"].pop(info.path[-1], None)
+            if info.path[-1] in node.get("required", []):
+                node["required"].remove(info.path[-1])
+    return schema
+
+
 def _run_schema() -> dict[str, Any]:
-    schema = json_schema(RunParams)
+    schema = _job_schema(RunParams)
     schema["properties"]["preset"] = {
         "type": "string",
         "enum": list(RUN_PRESETS),
+        "default": DEFAULT_RUN_PRESET,
         "description": "the run preset to start from (as treesim run --preset); the other "
         "parameters override it",
     }
-    schema["properties"].pop("threads", None)
     return schema

@@ -184,6 +184,9 @@ class Claim:
     inputs: dict[str, Any]
     parameters: dict[str, Any]
     time_limit_s: float
+    #: the claimant: with the attempt, it fences every write (a released attempt's number
+    #: is handed out again, to another claim of another worker)
+    worker_id: str = ""
 
 
 def _row(r: Any) -> dict[str, Any] | None:
@@ -562,11 +565,15 @@ class Store:
             inputs=dict(row.inputs),
             parameters=dict(row.parameters),
             time_limit_s=float(row.time_limit_s),
+            worker_id=worker_id,
         )
 
     def _fenced(self, claim: Claim) -> Any:
         return and_(
-            jobs.c.id == claim.id, jobs.c.attempt == claim.attempt, jobs.c.status == "running"
+            jobs.c.id == claim.id,
+            jobs.c.attempt == claim.attempt,
+            jobs.c.worker_id == claim.worker_id,
+            jobs.c.status == "running",
         )
 
     def heartbeat(
@@ -671,7 +678,9 @@ class Store:
             if not self.is_sqlite:
                 q = q.with_for_update(skip_locked=True)
             for r in conn.execute(q).all():
-                claim = Claim(r.id, int(r.attempt), int(r.max_attempts), "", {}, {}, 0.0)
+                claim = Claim(
+                    r.id, int(r.attempt), int(r.max_attempts), "", {}, {}, 0.0, r.worker_id
+                )
                 reason = (
                     f"the worker running attempt {r.attempt} ({r.worker_id}) stopped renewing "
                     "its lease: it was killed or lost its connection"

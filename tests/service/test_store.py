@@ -140,7 +140,13 @@ def test_release_hands_the_job_back_without_spending_an_attempt(store):
     c = store.claim("w", 30)
     assert store.release(c, "worker stopping")
     assert store.job(job["id"])["attempt"] == 0
-    assert store.claim("w2", 30).attempt == 1
+    again = store.claim("w2", 30)
+    assert again.attempt == 1
+    # the attempt number is the same, the claimant is not: the first claim writes nothing
+    assert not store.heartbeat(c, 30, progress=50.0)
+    assert not store.succeed(c, results=[], summary={})
+    assert store.job(job["id"])["progress"] == 0.0
+    assert store.succeed(again, results=[], summary={})
 
 
 def test_dismissing_a_running_job_takes_its_lease(store):
