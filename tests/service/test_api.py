@@ -297,8 +297,9 @@ def test_job_naming_a_missing_upload(client):
 
 
 def test_job_input_errors(client, cloud_id):
-    _assert_problem(client.post("/v1/jobs", json={"process": "run", "inputs": {}}), 422,
-                    field="inputs.cloud")
+    _assert_problem(
+        client.post("/v1/jobs", json={"process": "run", "inputs": {}}), 422, field="inputs.cloud"
+    )
     _assert_problem(
         client.post("/v1/jobs", json={"process": "run", "inputs": {"cloud": cloud_id, "x": "y"}}),
         422,
@@ -388,9 +389,7 @@ def test_token_required_on_every_v1_route(locked, samples):
             assert r.headers["www-authenticate"].startswith("Bearer")
     ok = {"Authorization": "Bearer s3cret"}
     assert locked.get("/v1/uploads", headers=ok).json() == {"uploads": []}
-    r = locked.post(
-        "/v1/uploads?filename=c.xyz", headers=ok, content=samples[".xyz"].read_bytes()
-    )
+    r = locked.post("/v1/uploads?filename=c.xyz", headers=ok, content=samples[".xyz"].read_bytes())
     assert r.status_code == 201
     # health and the page stay open (they reveal nothing); the API does not
     assert locked.get("/healthz").status_code == 200
