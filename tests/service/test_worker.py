@@ -129,8 +129,7 @@ def test_dismissing_a_running_job_stops_it_and_removes_its_files(rig):
     settings, store, worker, upload = rig
     job_id = _submit(store, upload)
     worker.start()
-    _wait(store, job_id, lambda j: j["status"] == "running", 60)
-    assert len(_job_processes()) == 1
+    _wait(store, job_id, lambda j: j["status"] == "running" and len(_job_processes()) == 1, 60)
     store.dismiss(job_id)
     t0 = time.monotonic()
     while _job_processes() and time.monotonic() - t0 < 20:
