@@ -16,6 +16,10 @@ class InputFormatError(TreesimError):
     """A file could not be read: unknown suffix, corrupt content, or a missing file."""
 
 
+class UnsupportedFormatError(InputFormatError):
+    """A file's bytes are none of the formats treesim reads (known by content, not name)."""
+
+
 class EmptyInputError(TreesimError):
     """The input holds no usable geometry (no points, no faces)."""
 

@@ -16,7 +16,7 @@ from pipeline.errors import InvalidParameterError
 __all__ = ["register", "settings_from_args"]
 
 #: Flag destination → Settings field, for the flags that are settings.
-_SETTING_FLAGS = ("data_dir", "database_url", "workers", "executor", "scheduler")
+_SETTING_FLAGS = ("host", "port", "data_dir", "database_url", "workers", "executor", "scheduler")
 
 
 def settings_from_args(args: argparse.Namespace) -> Any:
@@ -49,19 +49,19 @@ def is_loopback(host: str) -> bool:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
-    if not is_loopback(args.host) and settings.api_token is None and not args.insecure:
+    if not is_loopback(settings.host) and settings.api_token is None and not args.insecure:
         raise InvalidParameterError(
-            f"refusing to serve on {args.host} without TREESIM_API_TOKEN: anyone who reaches "
-            "the port could run jobs and read results. Set a token, or give --insecure"
+            f"refusing to serve on {settings.host} without TREESIM_API_TOKEN: anyone who "
+            "reaches the port could run jobs and read results. Set a token, or give --insecure"
         )
-    if not 0 < args.port < 65536:
-        raise InvalidParameterError(f"--port must be in 1..65535, got {args.port}")
     import uvicorn
 
     from .app import create_app
 
     app = create_app(settings)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, access_log=False)
+    uvicorn.run(
+        app, host=settings.host, port=settings.port, log_level=args.log_level, access_log=False
+    )
     return 0
 
 
@@ -99,8 +99,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "compare as jobs, results and reports (OpenAPI at /docs, a jobs page at /). "
         "Settings come from TREESIM_* environment variables; flags override them.",
     )
-    s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    s.add_argument("--port", type=int, default=8000, help="port (default 8000)")
+    s.add_argument("--host", help="address to bind (TREESIM_HOST; default 127.0.0.1)")
+    s.add_argument("--port", type=int, help="port (TREESIM_PORT; default 8000)")
     _common(s)
     s.add_argument(
         "--workers",

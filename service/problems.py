@@ -151,6 +151,7 @@ PROBLEMS: dict[str, ProblemType] = {
 #: treesim's error classes → problem slug; the most specific class wins.
 ERROR_TABLE: dict[type[BaseException], str] = {
     e.InvalidParameterError: "invalid-parameter",
+    e.UnsupportedFormatError: "unsupported-format",
     e.InputFormatError: "bad-input-file",
     e.EmptyInputError: "empty-input",
     e.InvalidGeometryError: "invalid-geometry",
@@ -161,8 +162,6 @@ ERROR_TABLE: dict[type[BaseException], str] = {
     e.TreesimError: "treesim-error",
     MemoryError: "out-of-memory",
 }
-if hasattr(e, "UnsupportedFormatError"):
-    ERROR_TABLE[e.UnsupportedFormatError] = "unsupported-format"
 
 
 def problem(slug: str, detail: str, **extra: Any) -> dict[str, Any]:

@@ -138,7 +138,8 @@ def check_parameters(process: Process, parameters: Mapping[str, Any]) -> Any:
     try:
         return process.parse(parameters)
     except InvalidParameterError as exc:
-        raise _field_error("parameters", str(exc)) from None
+        path = getattr(exc, "field", None)
+        raise _field_error(f"parameters.{path}" if path else "parameters", str(exc)) from None
 
 
 def _field_error(field: str, message: str) -> InvalidParameterError:

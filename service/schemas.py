@@ -51,7 +51,9 @@ class UploadOut(BaseModel):
 
     id: str
     filename: str
-    format: str = Field(description="las, laz, ply, obj, xyz or e57, from the content")
+    format: str = Field(
+        description="las, laz, ply, e57, xyz, obj, stl, off or glb: from the content"
+    )
     kind: Literal["cloud", "mesh"]
     size_bytes: int
     sha256: str

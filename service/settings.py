@@ -24,6 +24,12 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
 
+    host: str = Field(
+        "127.0.0.1",
+        min_length=1,
+        description="address treesim serve binds (a non-loopback one needs a token)",
+    )
+    port: int = Field(8000, ge=1, le=65535, description="port treesim serve listens on")
     data_dir: Path = Field(
         Path("treesim-data"),
         description="folder for uploads, job results and the default SQLite job store "

@@ -9,6 +9,10 @@ dispatch through it (suffixes are matched case-insensitively).
 * ``.ply``: :mod:`pipeline.io.ply` (plyfile)
 * ``.e57``: :mod:`pipeline.io.e57` (read only; needs the optional ``pye57``)
 
+A file without a trustworthy name (an upload) is known by its bytes:
+:func:`sniff_format`, and :func:`inspect_file` reads and checks all of it
+(:mod:`pipeline.io.sniff`).
+
 Meshes (:mod:`pipeline.io.mesh`): :func:`load_mesh` / :func:`load_scene` read them into
 labelled parts and a :class:`~pipeline.scene.Scene`, :func:`write_mesh` writes them;
 :func:`read_reference` reads a comparison reference, mesh or cloud, by content.
@@ -26,15 +30,19 @@ from ..errors import InputFormatError, InvalidParameterError
 from ..scene import Scene
 from . import e57, las, ply, text
 from .mesh import MESH_SUFFIXES, load_mesh, load_scene, write_mesh
+from .sniff import FileInfo, inspect_file, sniff_format
 
 __all__ = [
     "FORMATS",
     "MESH_SUFFIXES",
     "CloudFormat",
+    "FileInfo",
+    "inspect_file",
     "load_mesh",
     "load_scene",
     "read_cloud",
     "read_reference",
+    "sniff_format",
     "supported_suffixes",
     "write_cloud",
     "write_mesh",

@@ -41,7 +41,6 @@ from .run import (
     execution_only_paths,
     params_hash,
     run_preset,
-    scan_params,
 )
 from .scanner import (
     DEFAULT_REFLECTANCE,
@@ -61,6 +60,7 @@ from .settings import (
     load_config,
     merge,
     params_from_dict,
+    scan_params,
     set_path,
     to_toml,
 )

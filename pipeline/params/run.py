@@ -7,7 +7,6 @@ import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, replace
-from collections.abc import Mapping
 from typing import Any
 
 from ..errors import InvalidParameterError
@@ -25,7 +24,6 @@ __all__ = [
     "execution_only_paths",
     "params_hash",
     "run_preset",
-    "scan_params",
 ]
 
 
@@ -238,47 +236,3 @@ def run_preset(name: str = DEFAULT_RUN_PRESET) -> RunParams:
         raise InvalidParameterError(
             f"unknown preset {name!r}; the run presets are {', '.join(RUN_PRESETS)}"
         ) from None
-
-
-def scan_params(
-    settings: Mapping[str, Any] | None = None,
-    *,
-    base: ScanParams | None = None,
-    instrument: str | None = None,
-    beam: bool = False,
-    noise: bool = False,
-    resolution_deg: float | None = None,
-) -> ScanParams:
-    """ScanParams the way ``treesim scan`` builds them: ``base`` (default the model's), its
-    scanner replaced by an instrument's figures (with its beam and noise models only when
-    asked), both angular steps from ``resolution_deg``, then the nested ``settings``
-    (field names of :class:`ScanParams`, ``scanner`` a table) checked by
-    :func:`~pipeline.params.merge`.
-
-    Raises
-    ------
-    InvalidParameterError
-        Unknown instrument or setting, a value out of range, or ``beam``/``noise`` without
-        an instrument.
-    """
-    from .scanner import INSTRUMENTS
-    from .settings import merge
-
-    params = base or ScanParams()
-    given = dict(settings or {})
-    scanner_given = dict(given.pop("scanner", None) or {})
-    if resolution_deg is not None:
-        for k, v in resolution_fields(resolution_deg).items():
-            scanner_given.setdefault(k, v)
-    if instrument:
-        if instrument not in INSTRUMENTS:
-            raise InvalidParameterError(
-                f"unknown instrument {instrument!r}; the instruments are {', '.join(INSTRUMENTS)}"
-            )
-        params = replace(params, scanner=INSTRUMENTS[instrument].spec(beam=beam, noise=noise))
-    elif beam or noise:
-        raise InvalidParameterError(
-            "beam and noise take their figures from an instrument; name the instrument or "
-            "set beam_divergence_mrad / range_noise_sd_m directly"
-        )
-    return merge(params, {**given, "scanner": scanner_given} if scanner_given else given)

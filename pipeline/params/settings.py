@@ -21,7 +21,8 @@ from typing import Any
 
 from ..errors import InputFormatError, InvalidParameterError
 from ._fields import ParamInfo, describe, field_info, walk
-from .run import DEFAULT_RUN_PRESET, RunParams, run_preset
+from .run import DEFAULT_RUN_PRESET, RunParams, ScanParams, run_preset
+from .scanner import INSTRUMENTS, resolution_fields
 
 __all__ = [
     "SETTINGS",
@@ -182,18 +183,30 @@ def merge(obj: Any, mapping: Mapping[str, Any], where: str = "", prefix: str = "
                 raise InvalidParameterError(f"{where}{name} must be a table ([{name}])")
             changes[key] = merge(current, value, where, f"{name}.")
         else:
-            changes[key] = _coerce(value, current, field_info(type(obj), key), name)
+            try:
+                changes[key] = _coerce(value, current, field_info(type(obj), key), name)
+            except InvalidParameterError as exc:
+                raise _at(exc, name) from None
     if not changes:
         return obj
     try:
         return replace(obj, **changes)
     except InvalidParameterError as exc:
         section = f" in [{prefix[:-1]}]" if prefix else ""
-        raise InvalidParameterError(f"{where}{exc}{section}") from None
+        raise _at(InvalidParameterError(f"{where}{exc}{section}"), prefix[:-1]) from None
     except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(
-            f"{where}bad value in [{prefix[:-1] or 'top'}]: {exc}"
+        raise _at(
+            InvalidParameterError(f"{where}bad value in [{prefix[:-1] or 'top'}]: {exc}"),
+            prefix[:-1],
         ) from None
+
+
+def _at(exc: InvalidParameterError, path: str) -> InvalidParameterError:
+    """``exc`` with ``.field``: the dotted path of the setting (or section) it is about,
+    unless a deeper level named one already ("" for the top level)."""
+    if getattr(exc, "field", None) is None:
+        exc.field = path  # type: ignore[attr-defined]
+    return exc
 
 
 def params_from_dict(
@@ -337,3 +350,44 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         "properties": props,
         "additionalProperties": False,
     }
+
+
+def scan_params(
+    settings: Mapping[str, Any] | None = None,
+    *,
+    base: ScanParams | None = None,
+    instrument: str | None = None,
+    beam: bool = False,
+    noise: bool = False,
+    resolution_deg: float | None = None,
+) -> ScanParams:
+    """ScanParams the way ``treesim scan`` builds them: ``base`` (default the model's), its
+    scanner replaced by an instrument's figures (with its beam and noise models only when
+    asked), both angular steps from ``resolution_deg``, then the nested ``settings``
+    (field names of :class:`ScanParams`, ``scanner`` a table) checked by
+    :func:`~pipeline.params.merge`.
+
+    Raises
+    ------
+    InvalidParameterError
+        Unknown instrument or setting, a value out of range, or ``beam``/``noise`` without
+        an instrument.
+    """
+    params = base or ScanParams()
+    given = dict(settings or {})
+    scanner_given = dict(given.pop("scanner", None) or {})
+    if resolution_deg is not None:
+        for k, v in resolution_fields(resolution_deg).items():
+            scanner_given.setdefault(k, v)
+    if instrument:
+        if instrument not in INSTRUMENTS:
+            raise InvalidParameterError(
+                f"unknown instrument {instrument!r}; the instruments are {', '.join(INSTRUMENTS)}"
+            )
+        params = replace(params, scanner=INSTRUMENTS[instrument].spec(beam=beam, noise=noise))
+    elif beam or noise:
+        raise InvalidParameterError(
+            "beam and noise take their figures from an instrument; name the instrument or "
+            "set beam_divergence_mrad / range_noise_sd_m directly"
+        )
+    return merge(params, {**given, "scanner": scanner_given} if scanner_given else given)

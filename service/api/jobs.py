@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 from pipeline.errors import InvalidParameterError
 from pipeline.io import MESH_SUFFIXES
 
-from ..jobs.store import STATUSES, Store
+from ..jobs.store import STATUSES, Store, decode_cursor
 from ..problems import ServiceProblem
 from ..processes import PROCESSES, Process, check_parameters
 from ..schemas import (
@@ -346,6 +346,12 @@ def list_jobs(
                 f"status {s!r} is not one of {', '.join(STATUSES)}",
                 field="status",
             )
+    if cursor is not None and decode_cursor(cursor) is None:
+        raise ServiceProblem(
+            "invalid-parameter",
+            "cursor is not one this service made: take it from a 'next' link",
+            field="cursor",
+        )
     rows, nxt = store.list_jobs(status=wanted, limit=limit, cursor=cursor)
     links = []
     if nxt:
