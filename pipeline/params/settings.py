@@ -32,6 +32,7 @@ __all__ = [
     "load_config",
     "params_from_dict",
     "to_toml",
+    "scan_params",
 ]
 
 
