@@ -3,36 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-from typing import Any
 
-from ..errors import InputFormatError
 from ..params import CompareParams, merge
 from ._options import collect, param_options
-
-
-def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:
-    """The scan settings ``treesim scan`` wrote beside a cloud (``OUT.json``), if any."""
-    side = cloud_path.with_suffix(".json")
-    if not side.is_file():
-        return None
-    try:
-        info = json.loads(side.read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(info, dict) or "stations" not in info:
-        return None
-    return {
-        "source": side.name,
-        "scanner": info.get("scanner"),
-        "models_active": info.get("models_active"),
-        "stations": [
-            {k: st.get(k) for k in ("index", "position_m", "points")}
-            for st in info.get("stations", [])
-            if isinstance(st, dict)
-        ],
-    }
 
 
 def _fmt_mm(x: float | None) -> str:
@@ -40,23 +14,20 @@ def _fmt_mm(x: float | None) -> str:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from ..compare import compare, write_comparison
-    from ..io import read_cloud, read_reference
+    from ..params import ReportParams
     from ..report.text import length, percent
+    from ..steps import compare_files
 
     cloud_path = Path(args.cloud)
     params = merge(CompareParams(), collect(args))
-    if not cloud_path.exists():
-        raise InputFormatError(f"{cloud_path} not found; check the path")
-    cloud = read_cloud(cloud_path)
-    reference, kind = read_reference(args.reference)
-    result = compare(cloud, reference, params=params)
-    inputs: dict[str, Any] = {"cloud": str(cloud_path), "reference": str(args.reference)}
-    sidecar = scan_sidecar(cloud_path)
-    if sidecar:
-        inputs["scan"] = sidecar
-    written = write_comparison(result, args.output, inputs=inputs)
-
+    step = compare_files(
+        cloud_path,
+        args.reference,
+        params,
+        args.output,
+        report=ReportParams() if args.report else None,
+    )
+    result, kind = step.result, step.details["kind"]
     ref = result.reference_info
     what = (
         f"mesh, {ref['triangles']:,} triangles, {ref['area_m2']:.3g} m², "
@@ -65,7 +36,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         else f"cloud, {ref['points']:,} points"
     )
     print(
-        f"compared {cloud_path.name} ({len(cloud):,} points, spacing "
+        f"compared {cloud_path.name} ({step.details['points']:,} points, spacing "
         f"{length(result.point_spacing_m)}) with {Path(args.reference).name} ({what})"
     )
     head = "".join(f"{h:>9}" for h in ("mean", "RMS", "median", "p95", "p99", "max"))
@@ -90,14 +61,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"  station {k}: {e['points']:,} points, p95 {length(e['accuracy']['p95_m'])}, "
             f"coverage alone {percent(e['coverage'])}"
         )
-    out = Path(args.output)
-    names = ", ".join(p.name for key, p in written.items() if key != "comparison")
+    written = step.outputs
+    names = ", ".join(
+        p.name for key, p in written.items() if key not in ("comparison", "report")
+    )
     print(f"wrote {written['comparison']} and {names}")
-    if args.report:
-        from ..report import build_report
-
-        files = build_report(out)
-        print(f"wrote {files['report_html']} (open it in a browser; it works offline)")
+    if "report" in written:
+        print(f"wrote {written['report']} (open it in a browser; it works offline)")
     return 0
 
 

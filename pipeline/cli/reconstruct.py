@@ -54,18 +54,21 @@ def params_from_args(args: argparse.Namespace) -> ReconstructParams:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from ..io import read_cloud
-    from ..reconstruct import reconstruct
+    from ..steps import reconstruct_files
 
     columns = None
     if args.columns:
         columns = [c.strip() or None for c in args.columns.split(",")]
         if not {"x", "y", "z"} <= {c for c in columns if c}:
             raise InvalidParameterError("--columns must name x, y and z (e.g. x,y,z,intensity)")
-    params = params_from_args(args)
-    cloud = read_cloud(args.cloud, columns=columns) if columns else read_cloud(args.cloud)
-    model = reconstruct(cloud, params, progress=progress_printer())
-    paths = model.write(args.output)
+    step = reconstruct_files(
+        args.cloud,
+        params_from_args(args),
+        args.output,
+        columns=columns,
+        progress=progress_printer(),
+    )
+    model, paths = step.result, step.outputs
     fig = model.figures
     print(
         f"{Path(args.cloud).name}: {fig['points_input']:,} points -> {fig['points_used']:,} "

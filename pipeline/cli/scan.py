@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from ..errors import InvalidParameterError
-from ..jsonio import write_json
 from ..params import (
     INSTRUMENTS,
     SETTINGS,
@@ -18,7 +15,7 @@ from ..params import (
     ScannerSpec,
     ScanParams,
     merge,
-    resolution_fields,
+    scan_params,
 )
 from ._options import collect, floats, param_option, param_options
 from .progress import progress_printer
@@ -103,79 +100,57 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
-    """ScanParams from the defaults, the instrument, then the flags; and the threads."""
+    """ScanParams from the defaults, the instrument, then the flags (the rule is
+    :func:`pipeline.params.scan_params`'s); and the threads."""
     given = collect(args)
     # --threads is RunParams.threads (validated there); the rest is ScanParams
     threads = merge(RunParams(), {k: given.pop(k) for k in ("threads",) if k in given}).threads
-    scanner_given = given.pop("scanner", {})
-    if args.resolution_deg is not None:
-        for k, v in resolution_fields(args.resolution_deg).items():
-            scanner_given.setdefault(k, v)
-    base = ScanParams()
-    if args.instrument:
-        spec = INSTRUMENTS[args.instrument].spec(beam=args.beam, noise=args.noise)
-        base = replace(base, scanner=spec)
-    elif args.beam or args.noise:
-        raise InvalidParameterError(
-            "--beam and --noise take their figures from --instrument; "
-            "give --instrument or set --beam-divergence-mrad / "
-            "--range-noise-sd-m directly"
+    try:
+        params = scan_params(
+            given,
+            instrument=args.instrument,
+            beam=args.beam,
+            noise=args.noise,
+            resolution_deg=args.resolution_deg,
         )
-    return merge(base, {**given, "scanner": scanner_given}), threads
+    except InvalidParameterError as exc:
+        if (args.beam or args.noise) and not args.instrument:
+            raise InvalidParameterError(
+                "--beam and --noise take their figures from --instrument; give --instrument "
+                "or set --beam-divergence-mrad / --range-noise-sd-m directly"
+            ) from exc
+        raise
+    return params, threads
 
 
-def _stations(args: argparse.Namespace, scene: Any, sp: ScanParams) -> tuple[list, dict | None]:
-    from ..scan import Station, stations_for
-
+def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | None:
     if args.station and args.layout == "ring":
         raise InvalidParameterError("give either --layout ring or --station positions, not both")
     if args.station:
-        return [Station(position_m=floats(s, 3, "--station")) for s in args.station], None
+        return [floats(s, 3, "--station") for s in args.station]
     if args.layout == "list":
         raise InvalidParameterError("--layout list needs at least one --station X,Y,Z")
-    return stations_for(scene.bounds, sp)
+    return None
 
 
 def run_scan(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
-    """Load, scan, write the cloud and ``<out>.json``; print a per-station table."""
-    from ..io import write_cloud
-    from ..scan import load_scene, scan
+    """Scan (:func:`pipeline.steps.scan_files`), then print a per-station table."""
+    from ..steps import scan_files
 
-    out_suffix = out.suffix.lower()
-    if out_suffix not in (".laz", ".las", ".ply", ".xyz", ".txt", ".csv"):
-        raise InvalidParameterError(f"-o {out}: write .laz, .las, .ply, .xyz, .txt or .csv")
     sp, threads = params_from_args(args)
-    t0 = time.perf_counter()
-    scene = load_scene(meshes, labels=[label] * len(meshes) if label else None)
-    t_load = time.perf_counter() - t0
-    stations, rule = _stations(args, scene, sp)
-    result = scan(
-        scene,
-        stations,
-        sp.scanner,
+    step = scan_files(
+        meshes,
+        sp,
+        out,
+        stations=_stations(args),
+        label=label,
         window=not args.full_fov,
-        chunk_rays=int(sp.chunk_rays),
-        max_rays=int(sp.max_rays),
-        nthreads=threads,
+        threads=threads,
         progress=progress_printer(),
     )
-    t1 = time.perf_counter()
-    write_cloud(out, result.cloud)
-    t_write = time.perf_counter() - t1
-    summary = {
-        "meshes": [str(m) for m in meshes],
-        "triangles": scene.n_triangles,
-        "degenerate_triangles_dropped": scene.dropped_degenerate,
-        "labels_in_scene": scene.labels_present(),
-        "output": str(out),
-        **({"station_rule": rule} if rule else {}),
-        **result.summary(),
-        "timings_s": {"load": t_load, "scan": result.total_s, "write": t_write},
-    }
-    summary_path = out.with_name(out.stem + ".json")
-    write_json(summary_path, summary)
+    result, scene = step.result, step.details["scene"]
     print(
         f"scanned {', '.join(Path(m).name for m in meshes)}: {scene.n_triangles:,} triangles "
         f"({', '.join(scene.labels_present())})"
@@ -192,8 +167,8 @@ def run_scan(
         f"(full field of view would be {result.rays_full_fov:,}) in {result.total_s:.2f} s; "
         f"models: {models}"
     )
-    print(f"wrote {out} and {summary_path}")
-    return summary
+    print(f"wrote {step.outputs['cloud']} and {step.outputs['json']}")
+    return step.summary
 
 
 def cmd_scan(args: argparse.Namespace) -> int:

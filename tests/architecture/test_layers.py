@@ -8,7 +8,8 @@ is imported. The layers, bottom to top (README, "Layout"):
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
   another, except ``reconstruct → models`` (cylinders to mesh);
 * ``report``, above ``compare``;
-* ``run``, ``batch``, ``executors``: one tree, many trees, where they run;
+* ``steps``, ``run``, ``batch``, ``executors``: one stage on files, one tree, many trees,
+  where they run;
 * ``cli``, on top. The facade (``pipeline/__init__.py``) is imported by nobody inside.
 """
 
@@ -42,6 +43,7 @@ LAYER = {
     **{m: 0 for m in BASE},
     **{m: 1 for m in STAGES},
     "report": 2,
+    "steps": 3,
     "run": 3,
     "batch": 3,
     "executors": 3,
@@ -49,8 +51,9 @@ LAYER = {
 }
 #: The one allowed arrow between stages.
 STAGE_ARROWS = {("reconstruct", "models")}
-#: Order inside the top library layer: a batch runs trees on executors.
-TOP_ORDER = ["executors", "run", "batch"]
+#: Order inside the top library layer: a batch runs trees on executors; steps are the
+#: single stages on files, beside run.
+TOP_ORDER = ["executors", "steps", "run", "batch"]
 WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
 
 
