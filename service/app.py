@@ -100,7 +100,45 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
             allow_headers=["Authorization", "Content-Type"],
         )
     app.add_middleware(_MetricsMiddleware, metrics=metrics)
+    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     return app
+
+
+def _openapi(app: FastAPI) -> dict:
+    """FastAPI's schema, with every error response documented as what it is: a problem
+    object (``application/problem+json``), including the 422 FastAPI adds by itself, and
+    401 on ``/v1`` (a token may be set)."""
+    if app.openapi_schema:
+        return app.openapi_schema
+    from fastapi.openapi.utils import get_openapi
+
+    from .problems import MEDIA_TYPE
+    from .schemas import Problem
+
+    schema = get_openapi(
+        title=app.title,
+        version=app.version,
+        summary=app.summary,
+        description=app.description,
+        routes=app.routes,
+    )
+    components = schema.setdefault("components", {}).setdefault("schemas", {})
+    components.setdefault(
+        "Problem", Problem.model_json_schema(ref_template="#/components/schemas/{model}")
+    )
+    for name in ("HTTPValidationError", "ValidationError"):
+        components.pop(name, None)
+    problem = {MEDIA_TYPE: {"schema": {"$ref": "#/components/schemas/Problem"}}}
+    for path, item in schema.get("paths", {}).items():
+        for op in item.values():
+            responses = op.setdefault("responses", {})
+            if path.startswith("/v1"):
+                responses.setdefault("401", {"description": "missing or wrong token"})
+            for code, resp in responses.items():
+                if code[0] in "45" and path != "/readyz":  # readyz's 503 is its report
+                    resp["content"] = dict(problem)
+    app.openapi_schema = schema
+    return schema
 
 
 class _MetricsMiddleware:

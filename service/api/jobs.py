@@ -346,6 +346,7 @@ def list_jobs(
                 f"status {s!r} is not one of {', '.join(STATUSES)}",
                 field="status",
             )
+    cursor = cursor or None  # an empty cursor= is the first page
     if cursor is not None and decode_cursor(cursor) is None:
         raise ServiceProblem(
             "invalid-parameter",

@@ -7,7 +7,7 @@ import html
 from importlib import resources
 
 from fastapi import APIRouter
-from fastapi.responses import HTMLResponse
+from fastapi.responses import HTMLResponse, Response
 
 from ..problems import PROBLEMS
 
@@ -18,6 +18,12 @@ router = APIRouter(include_in_schema=False)
 def index() -> HTMLResponse:
     page = (resources.files("service") / "static" / "index.html").read_text("utf-8")
     return HTMLResponse(page, headers={"Cache-Control": "no-store"})
+
+
+@router.get("/favicon.ico")
+def favicon() -> Response:
+    """No icon (204), so that browsers opening reports log no 404."""
+    return Response(status_code=204)
 
 
 @router.get("/problems", response_class=HTMLResponse)
