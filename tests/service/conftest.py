@@ -37,8 +37,9 @@ def _fresh_postgres(url: str) -> str:
     import psycopg
 
     schema = f"t_{uuid.uuid4().hex[:12]}"
+    plain = url.replace("postgresql+psycopg://", "postgresql://", 1)
     try:
-        with psycopg.connect(url, connect_timeout=3, autocommit=True) as conn:
+        with psycopg.connect(plain, connect_timeout=3, autocommit=True) as conn:
             conn.execute(f"CREATE SCHEMA {schema}")
     except psycopg.OperationalError as exc:
         pytest.skip(f"Postgres at TREESIM_TEST_DATABASE_URL is not reachable: {exc}")
