@@ -1,0 +1,194 @@
+"""``docker/compose.yaml`` and ``docker/Dockerfile`` without a Docker engine: the compose
+file is valid against the Compose Specification's JSON Schema (kept in the repo), and it
+agrees with the code: its commands parse with the real ``treesim`` parser, every
+``TREESIM_*`` variable is a setting, the ports, the data volume, the healthchecks' routes
+and heartbeat file, the token and the profiles are what the service and the image use."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+yaml = pytest.importorskip("yaml", reason="needs pyyaml (dev extra)")
+jsonschema = pytest.importorskip("jsonschema")
+
+DOCKER = Path(__file__).resolve().parents[2] / "docker"
+COMPOSE = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+COMPOSE_TEXT = (DOCKER / "compose.yaml").read_text()
+DOCKERFILE = (DOCKER / "Dockerfile").read_text()
+SERVICES = COMPOSE["services"]
+#: Services that run the treesim command (the image's entrypoint unchanged).
+TREESIM_SERVICES = [n for n, s in SERVICES.items() if "entrypoint" not in s and "build" in s]
+
+
+def _validator():
+    schema = json.loads((DOCKER / "compose-spec.json").read_text())
+    cls = jsonschema.validators.validator_for(schema)
+    cls.check_schema(schema)
+    return cls(schema)
+
+
+def _dockerfile(instruction: str) -> list[str]:
+    """The arguments of every line starting with ``instruction`` (continuations joined)."""
+    text = re.sub(r"\\\n\s*", " ", DOCKERFILE)
+    return [ln.split(None, 1)[1] for ln in text.splitlines() if ln.startswith(instruction + " ")]
+
+
+def _env(service: str) -> dict[str, str]:
+    return {k: str(v) for k, v in (SERVICES[service].get("environment") or {}).items()}
+
+
+def test_the_vendored_schema_is_the_recorded_one():
+    digest = hashlib.sha256((DOCKER / "compose-spec.json").read_bytes()).hexdigest()
+    assert digest in (DOCKER / "compose-spec.PROVENANCE.md").read_text()
+
+
+def test_compose_file_is_valid_against_the_compose_spec():
+    errors = sorted(_validator().iter_errors(COMPOSE), key=lambda e: e.json_path)
+    assert not errors, [f"{e.json_path}: {e.message}" for e in errors]
+
+
+def test_the_schema_would_catch_a_mistake():
+    bad = copy.deepcopy(COMPOSE)
+    bad["services"]["api"]["comand"] = ["serve"]
+    assert list(_validator().iter_errors(bad))
+    bad = copy.deepcopy(COMPOSE)
+    bad["services"]["worker"]["depends_on"]["api"]["condition"] = "when_ready"
+    assert list(_validator().iter_errors(bad))
+
+
+def test_the_roles_are_there():
+    assert {"api", "worker"} <= set(TREESIM_SERVICES)
+    profiles = {p for s in SERVICES.values() for p in s.get("profiles", [])}
+    assert profiles == {"postgres", "dask"}
+    assert "postgres" in SERVICES["postgres"]["profiles"]
+    assert SERVICES["postgres"]["image"].startswith("postgres:16")
+    for name in ("dask-scheduler", "dask-worker"):
+        assert SERVICES[name]["profiles"] == ["dask"]
+        assert SERVICES[name]["entrypoint"][0] == "dask"
+
+
+@pytest.mark.parametrize("service", ["api", "worker"])
+def test_commands_parse_with_the_real_cli(service):
+    from pipeline.cli import build_parser
+
+    cmd = SERVICES[service]["command"]
+    argv = shlex.split(cmd) if isinstance(cmd, str) else list(cmd)
+    args = build_parser().parse_args(argv)
+    assert args.command == argv[0]
+    assert callable(args.func)
+
+
+def test_every_treesim_variable_is_a_setting():
+    from service.settings import Settings
+
+    known = set(Settings.env_names().values())
+    named = set(re.findall(r"\b(TREESIM_[A-Z_]+)\b", COMPOSE_TEXT))
+    assert named, "compose.yaml sets no TREESIM_* variable"
+    assert named <= known, f"not settings: {sorted(named - known)}"
+
+
+def test_the_token_is_required_and_the_api_listens_on_all_addresses():
+    # serve refuses a public host without a token: compose must require one
+    assert re.search(r"TREESIM_API_TOKEN: \$\{TREESIM_API_TOKEN:\?", COMPOSE_TEXT)
+    from pipeline.cli import build_parser
+
+    args = build_parser().parse_args(SERVICES["api"]["command"])
+    assert args.host == "0.0.0.0" and not args.insecure
+
+
+def test_ports_agree_with_the_api_and_the_image():
+    from pipeline.cli import build_parser
+
+    args = build_parser().parse_args(SERVICES["api"]["command"])
+    published = SERVICES["api"]["ports"]
+    assert len(published) == 1
+    host_ip, host_port, container_port = published[0].split(":")
+    assert host_ip == "127.0.0.1", "publish on loopback by default; a proxy does TLS"
+    assert int(container_port) == args.port
+    assert str(args.port) in " ".join(_dockerfile("EXPOSE"))
+
+
+def test_every_treesim_service_mounts_the_data_volume_at_the_data_dir():
+    data_dir = next(
+        v for line in _dockerfile("ENV") for k, v in re.findall(r"(\w+)=(\S+)", line)
+        if k == "TREESIM_DATA_DIR"
+    )  # fmt: skip
+    assert data_dir in " ".join(_dockerfile("VOLUME"))
+    for name in [*TREESIM_SERVICES, "dask-worker"]:
+        mounts = SERVICES[name].get("volumes", [])
+        assert f"treesim-data:{data_dir}" in mounts, name
+        assert _env(name).get("TREESIM_DATA_DIR", data_dir) == data_dir, name
+    assert "treesim-data" in COMPOSE["volumes"]
+
+
+def _python_check(test: list[str]) -> str:
+    assert test[:3] == ["CMD", "python", "-c"], test
+    return test[3]
+
+
+def test_healthchecks_ask_routes_the_app_answers(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    app = create_app(Settings(data_dir=tmp_path, workers=0, database_url=None))
+    client = TestClient(app)  # no lifespan: what a fresh container's API answers first
+    checks = [_python_check(SERVICES["api"]["healthcheck"]["test"])]
+    checks.append(_dockerfile("HEALTHCHECK")[0])
+    for code in checks:
+        urls = re.findall(r"http://127\.0\.0\.1:(\d+)(/[\w/]*)", code)
+        assert urls, code
+        for port, path in urls:
+            assert client.get(path).status_code == 200, path
+            assert port == "8000"
+
+
+def test_the_worker_healthcheck_reads_the_heartbeat_file_it_sets():
+    beat = _env("worker")["TREESIM_HEARTBEAT_FILE"]
+    code = _python_check(SERVICES["worker"]["healthcheck"]["test"])
+    assert repr(beat) in code
+    from service.settings import Settings
+
+    s = Settings(heartbeat_file=beat)
+    assert str(s.heartbeat_file) == beat
+
+
+def test_profiles_point_at_their_services():
+    text = COMPOSE_TEXT
+    url = re.search(r"postgresql://(\w+):(\w+)@([\w-]+):(\d+)/(\w+)", text)
+    assert url, "the postgres profile's URL is documented in compose.yaml"
+    user, password, host, port, db = url.groups()
+    env = SERVICES["postgres"]["environment"]
+    assert (env["POSTGRES_USER"], env["POSTGRES_PASSWORD"], env["POSTGRES_DB"]) == (
+        user,
+        password,
+        db,
+    )
+    assert host in SERVICES and port == "5432"
+    scheduler = re.search(r"TREESIM_SCHEDULER=tcp://([\w-]+):(\d+)", text)
+    assert scheduler and scheduler.group(1) in SERVICES
+    assert f"tcp://{scheduler.group(1)}:{scheduler.group(2)}" in SERVICES["dask-worker"]["command"]
+    assert scheduler.group(2) in SERVICES["dask-scheduler"]["command"]
+
+
+def test_the_image_installs_extras_that_exist_and_runs_treesim():
+    import tomllib
+
+    pyproject = tomllib.loads((DOCKER.parent / "pyproject.toml").read_text())
+    extras = set(pyproject["project"]["optional-dependencies"])
+    installs = " ".join(line for line in _dockerfile("RUN") if "pip install" in line)
+    wanted = re.findall(r"\.\[([\w,]+)\]", installs)
+    assert wanted, installs
+    assert set(wanted[0].split(",")) <= extras
+    assert {"postgres", "dask"} <= set(wanted[0].split(","))
+    assert _dockerfile("ENTRYPOINT") == ['["treesim"]']
+    assert _dockerfile("FROM")[0].startswith("python:3.11")
+    assert any(line.strip() != "root" for line in _dockerfile("USER"))
