@@ -62,9 +62,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"coverage alone {percent(e['coverage'])}"
         )
     written = step.outputs
-    names = ", ".join(
-        p.name for key, p in written.items() if key not in ("comparison", "report")
-    )
+    names = ", ".join(p.name for key, p in written.items() if key not in ("comparison", "report"))
     print(f"wrote {written['comparison']} and {names}")
     if "report" in written:
         print(f"wrote {written['report']} (open it in a browser; it works offline)")

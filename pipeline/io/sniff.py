@@ -31,6 +31,7 @@ from ..errors import (
     TreesimError,
     UnsupportedFormatError,
 )
+from .text import _is_number
 
 __all__ = ["FORMAT_SUFFIX", "MESH_FORMATS", "FileInfo", "inspect_file", "sniff_format"]
 
@@ -54,14 +55,6 @@ _OBJ_KEYWORDS = frozenset(
     "v vt vn vp f l p o g s mtllib usemtl cstype deg curv surf parm end".split()
 )
 _NAMES = "LAS, LAZ, PLY, E57, OBJ, STL, OFF, GLB or XYZ text"
-
-
-def _is_number(token: str) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
 
 
 def _text_lines(head: bytes) -> list[str] | None:

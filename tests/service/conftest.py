@@ -132,18 +132,21 @@ def service_env(data_dir: Path, **extra: str) -> dict[str, str]:
     return env
 
 
-def wait_ready(base: str, proc: subprocess.Popen, log: Path, timeout_s: float = 60) -> None:
+def wait_ready(
+    base: str, proc: subprocess.Popen, log: Path, path: str = "/readyz", timeout_s: float = 60
+) -> None:
+    """Until ``path`` answers 200 (``/readyz``: with a live worker; ``/healthz``: the API)."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout_s:
         if proc.poll() is not None:
             raise AssertionError(f"the server exited ({proc.returncode}):\n{log.read_text()}")
         try:
-            if httpx.get(f"{base}/readyz", timeout=2).status_code == 200:
+            if httpx.get(f"{base}{path}", timeout=2).status_code == 200:
                 return
         except httpx.HTTPError:
             pass
         time.sleep(0.2)
-    raise AssertionError(f"the server was not ready within {timeout_s} s:\n{log.read_text()}")
+    raise AssertionError(f"no 200 from {path} within {timeout_s} s:\n{log.read_text()}")
 
 
 @pytest.fixture
@@ -162,26 +165,12 @@ def serve(tmp_path) -> Iterator:
         started.append(srv)
         base = f"http://127.0.0.1:{port}"
         if wait:
-            wait_ready(base, srv.proc, log) if workers else _wait_health(base, srv, log)
+            wait_ready(base, srv.proc, log, "/readyz" if workers else "/healthz")
         return base, srv
 
     yield start
     for s in started:
         s.stop()
-
-
-def _wait_health(base: str, srv: Server, log: Path, timeout_s: float = 60) -> None:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout_s:
-        if srv.proc.poll() is not None:
-            raise AssertionError(f"the server exited:\n{log.read_text()}")
-        try:
-            if httpx.get(f"{base}/healthz", timeout=2).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
-    raise AssertionError(f"no /healthz within {timeout_s} s:\n{log.read_text()}")
 
 
 def wait_job(client: httpx.Client, job_id: str, timeout_s: float = 240, until=None) -> dict:
