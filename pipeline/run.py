@@ -44,6 +44,7 @@ from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
 from .report.run_page import STAGES, run_page
 from .scene import Scene
+from .steps import scale_progress
 
 __all__ = ["STAGES", "RunResult", "file_sha256", "run_tree", "software_versions"]
 
@@ -100,16 +101,6 @@ def software_versions() -> dict[str, str]:
     from ._version import software_versions as base
 
     return base("pymeshlab", "trimesh", "matplotlib")
-
-
-def _sub(progress: Progress | None, lo: float, hi: float) -> Progress | None:
-    if progress is None:
-        return None
-
-    def say(fraction: float, message: str) -> None:
-        progress(lo + (hi - lo) * min(max(fraction, 0.0), 1.0), message)
-
-    return say
 
 
 def run_tree(
@@ -188,7 +179,7 @@ def run_tree(
     # -- reconstruct -----------------------------------------------------------------------
     t0 = time.perf_counter()
     rp = replace(params.reconstruct, prepare=replace(params.reconstruct.prepare, threads=threads))
-    model = reconstruct(field_cloud, rp, progress=_sub(say, 0.02, 0.35))
+    model = reconstruct(field_cloud, rp, progress=scale_progress(say, 0.02, 0.35))
     written = model.write(out)
     timings["reconstruct"] = time.perf_counter() - t0
 
@@ -207,7 +198,7 @@ def run_tree(
         chunk_rays=int(sp.chunk_rays),
         max_rays=int(sp.max_rays),
         nthreads=threads,
-        progress=_sub(say, 0.35, 0.5),
+        progress=scale_progress(say, 0.35, 0.5),
     )
     sim = result.cloud
     scan_path = write_cloud(out / "scan.laz", sim)

@@ -27,6 +27,7 @@ __all__ = [
     "SCAN_OUTPUT_SUFFIXES",
     "StepResult",
     "compare_files",
+    "scale_progress",
     "reconstruct_files",
     "scan_files",
     "scan_sidecar",
@@ -64,7 +65,10 @@ def _say(progress: Progress | None) -> Progress:
     return progress or (lambda fraction, message: None)
 
 
-def _scaled(progress: Progress, lo: float, hi: float) -> Progress:
+def scale_progress(progress: Progress | None, lo: float, hi: float) -> Progress | None:
+    """``progress`` for a part of the work: its 0..1 mapped onto ``lo``..``hi``."""
+    if progress is None:
+        return None
     return lambda f, m: progress(lo + (hi - lo) * min(max(f, 0.0), 1.0), m)
 
 
@@ -100,7 +104,7 @@ def reconstruct_files(
     path = _existing(cloud_path)
     say(0.0, "reading")
     cloud = read_cloud(path, columns=columns) if columns else read_cloud(path)
-    model = reconstruct(cloud, params, progress=_scaled(say, 0.05, 0.95))
+    model = reconstruct(cloud, params, progress=scale_progress(say, 0.05, 0.95))
     outputs = model.write(outdir)
     summary = json_ready(
         {
@@ -163,7 +167,7 @@ def scan_files(
         chunk_rays=int(params.chunk_rays),
         max_rays=int(params.max_rays),
         nthreads=int(threads),
-        progress=_scaled(say, 0.05, 0.9),
+        progress=scale_progress(say, 0.05, 0.9),
     )
     say(0.9, "writing the cloud")
     t1 = time.perf_counter()

@@ -396,6 +396,12 @@ def dismiss_job(job_id: str, store: StoreDep, settings: SettingsDep) -> StatusIn
 
 
 # -- results ----------------------------------------------------------------------------------
+_REPORT_CSP = (
+    "default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
+    "img-src 'self' data: blob:; connect-src 'none'; frame-ancestors 'self'"
+)
+
+
 def _successful(store: Store, job_id: str) -> dict[str, Any]:
     job = _job(store, job_id)
     if job["status"] != "successful":
@@ -445,8 +451,12 @@ def get_result(job_id: str, name: str, store: StoreDep, settings: SettingsDep) -
     path = settings.data_dir / "jobs" / job_id / "results" / clean
     if not path.is_file():
         raise ServiceProblem("not-found", f"result {name!r} of job {job_id} is gone", field="name")
-    headers = {}
-    if items[clean]["media_type"] != "text/html":
+    headers = {"X-Content-Type-Options": "nosniff"}
+    if items[clean]["media_type"] == "text/html":
+        # reports are self-contained: they may run their own inline code and show data:
+        # images, but never call out (nor back to the API with the reader's cookie)
+        headers["Content-Security-Policy"] = _REPORT_CSP
+    else:
         headers["Content-Disposition"] = f'attachment; filename="{PurePosixPath(clean).name}"'
     return FileResponse(path, media_type=items[clean]["media_type"], headers=headers)
 

@@ -63,6 +63,11 @@ def test_jobs_page_uploads_runs_and_links_the_report(serve, tmp_path):
             page.wait_for_load_state()
             assert "/results/report.html" in page.url
             assert page.locator("html").count() == 1 and page.title()
+            # a comparison's report, with its 3D view, runs under the results' CSP
+            page.goto(page.url.replace("/report.html", "/vs_mesh/report.html"))
+            body = page.locator("body")
+            sync_api.expect(body).to_have_attribute("data-viewer", "ready", timeout=30_000)
+            assert page.locator("html").get_attribute("data-errors") == "0"
         finally:
             browser.close()
     assert outside == [], f"the page loaded outside resources: {outside}"
