@@ -4,9 +4,11 @@ per hour.
 Starts the real ``treesim serve`` (uvicorn, 127.0.0.1, a free port) in a fresh temporary
 data folder, and measures:
 
-* **status polls**: 50 concurrent clients (asyncio + httpx, one connection each) each
-  polling ``GET /v1/jobs/{id}`` in a loop; latency p50/p90/p99/max and requests per second
-  (the API alone, no job running, then again while a job runs on the embedded worker);
+* **status polls**: 50 concurrent clients (asyncio + httpx, one open connection each, in
+  this same process, so they share the machine's 2 cores with the server) each polling
+  ``GET /v1/jobs/{id}`` in a loop; latency p50/p90/p99/max and requests per second (the API
+  alone, no job running, then again while a job runs on the embedded worker), and one
+  client alone for the floor;
 * **uploads**: ``POST /v1/uploads`` of a generated LAS file (streamed, hashed, sniffed,
   opened and checked, stored) in MB/s, side by side with a plain file copy of the same
   file on the same disk (``shutil.copyfile``);
@@ -91,33 +93,41 @@ def _pct(values: list[float], q: float) -> float:
 
 
 async def _polls(base: str, job_id: str, clients: int, polls: int) -> tuple[list[float], float]:
+    """``clients`` clients, each on its own open connection (made and used once before the
+    clock starts: building 50 httpx clients costs the client process about a second of CPU
+    on this machine, which is not the server's latency), poll at once; (latencies, wall)."""
     import httpx
 
     latencies: list[float] = []
     errors = 0
+    pool = [httpx.AsyncClient(base_url=base, timeout=30) for _ in range(clients)]
+    try:
+        await asyncio.gather(*(c.get("/healthz") for c in pool))
 
-    async def client() -> None:
-        nonlocal errors
-        async with httpx.AsyncClient(base_url=base, timeout=30) as c:
+        async def client(c: httpx.AsyncClient) -> None:
+            nonlocal errors
             for _ in range(polls):
                 t = time.perf_counter()
                 r = await c.get(f"/v1/jobs/{job_id}")
                 latencies.append(time.perf_counter() - t)
                 errors += r.status_code != 200
 
-    t0 = time.perf_counter()
-    await asyncio.gather(*(client() for _ in range(clients)))
-    wall = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        await asyncio.gather(*(client(c) for c in pool))
+        wall = time.perf_counter() - t0
+    finally:
+        await asyncio.gather(*(c.aclose() for c in pool))
     if errors:
         raise SystemExit(f"{errors} status polls failed")
     return latencies, wall
 
 
-def _print_polls(what: str, lat: list[float], wall: float) -> None:
+def _print_polls(what: str, polled: tuple[list[float], float]) -> None:
+    lat, wall = polled
     ms = [x * 1000 for x in lat]
     print(
         f"  {what:28} p50 {_pct(ms, 50):6.1f} ms  p90 {_pct(ms, 90):6.1f} ms  "
-        f"p99 {_pct(ms, 99):6.1f} ms  max {max(ms):6.1f} ms  {len(ms) / wall:7.0f} req/s"
+        f"p99 {_pct(ms, 99):6.1f} ms  max {max(ms):6.1f} ms  {len(ms) / wall:5.0f} req/s"
     )
 
 
@@ -127,7 +137,7 @@ def _las_file(path: Path, target_mb: float) -> Path:
     from pipeline.cloud import Cloud
     from pipeline.io import write_cloud
 
-    n = int(target_mb * 1e6 / 20)  # point format 0 ≈ 20 bytes a point
+    n = int(target_mb * 1e6 / 30)  # treesim's LAS records are 30 bytes a point
     rng = np.random.default_rng(0)
     xyz = rng.uniform(0, 30, (n, 3)) + [500_000.0, 5_200_000.0, 300.0]
     return write_cloud(path, Cloud(xyz))
@@ -168,8 +178,10 @@ def main() -> int:
                     "/v1/jobs", json={"process": "run", "inputs": {"cloud": up.json()["id"]}}
                 ).json()
                 print(f"\nstatus polls: {args.clients} clients × {args.polls} polls")
-                lat, wall = asyncio.run(_polls(svc.base, job["jobID"], args.clients, args.polls))
-                _print_polls("API alone (job queued)", lat, wall)
+                polled = asyncio.run(_polls(svc.base, job["jobID"], args.clients, args.polls))
+                _print_polls(f"{args.clients} clients, API alone", polled)
+                alone = asyncio.run(_polls(svc.base, job["jobID"], 1, args.polls))
+                _print_polls("1 client, API alone", alone)
 
                 las = _las_file(tmp_path / "big.las", args.upload_mb)
                 size_mb = las.stat().st_size / 1e6
@@ -192,6 +204,13 @@ def main() -> int:
                 print(f"  plain file copy on the same disk:                            "
                       f"{t_copy:6.2f} s  {size_mb / t_copy:7.0f} MB/s")  # fmt: skip
                 print(f"  upload / copy throughput: {t_copy / t_up:.2f}")
+                from pipeline.io import inspect_file
+
+                t = time.perf_counter()
+                inspect_file(las)
+                t_inspect = time.perf_counter() - t
+                print(f"  of which opening and checking the file (inspect_file, in-process): "
+                      f"{t_inspect:.2f} s ({100 * t_inspect / t_up:.0f} %)")  # fmt: skip
         finally:
             svc.stop()
 
@@ -222,9 +241,7 @@ def main() -> int:
                     states = [c.get(f"/v1/jobs/{j}").json() for j in ids]
                     if not polled and any(s["status"] == "running" for s in states):
                         polled = True
-                        lat, wall = asyncio.run(
-                            _polls(svc.base, ids[-1], args.clients, args.polls // 2)
-                        )
+                        busy = asyncio.run(_polls(svc.base, ids[-1], args.clients, args.polls // 2))
                     if all(s["status"] in ("successful", "failed") for s in states):
                         break
                     time.sleep(0.2)
@@ -235,7 +252,7 @@ def main() -> int:
         finally:
             svc.stop()
         print(f"\nstatus polls while a job runs ({args.clients} clients × {args.polls // 2}):")
-        _print_polls("API + worker (job running)", lat, wall)
+        _print_polls(f"{args.clients} clients, job running", busy)
         per_job = wall_jobs / args.jobs
         print(f"\njobs: {args.jobs} × run --preset {args.preset} of the bundled tree, 1 slot:")
         print(f"  service: {wall_jobs:6.1f} s in all, {per_job:5.1f} s a job, "
