@@ -8,6 +8,7 @@ expiries, live workers.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -99,9 +100,28 @@ class Metrics:
             try:
                 await app(scope, receive, send_status)
             finally:
-                route = scope.get("route")
-                path = getattr(route, "path", None) or "unmatched"
+                path = route_template(scope)
                 metrics.requests.labels(scope.get("method", ""), path, str(status[0])).inc()
                 metrics.latency.labels(path).observe(time.perf_counter() - t0)
 
         return wrapped
+
+
+_PARAM = re.compile(r"{(\w+)(?::\w+)?}")
+
+
+def route_template(scope: dict[str, Any]) -> str:
+    """The matched route's path template with its router's prefix (``/v1/jobs/{job_id}``),
+    so that labels stay few; ``unmatched`` for a path no route took."""
+    route = scope.get("route")
+    template = getattr(route, "path", None)
+    if not template:
+        return "unmatched"
+    params = scope.get("path_params") or {}
+    try:
+        rendered = _PARAM.sub(lambda m: str(params[m.group(1)]), template)
+    except KeyError:
+        return template
+    path = scope.get("path", "")
+    prefix = path[: len(path) - len(rendered)] if path.endswith(rendered) else ""
+    return prefix + template

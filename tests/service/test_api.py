@@ -364,9 +364,16 @@ def test_health_ready_metrics_and_pages(client):
     # no worker in this app: not ready, and it says why
     assert ready.status_code == 503
     assert "worker" in ready.text
+    client.get("/v1/jobs/no-such-job")
     m = client.get("/metrics").text
-    assert "treesim_http_requests_total" in m
-    assert 'treesim_jobs{status="accepted"}' in m or "treesim_jobs" in m
+    # requests by route template (prefix included, ids not) and status
+    assert 'treesim_http_requests_total{method="GET",route="/v1/jobs/{job_id}",status="404"}' in m
+    assert "no-such-job" not in m
+    accepted = len(client.get("/v1/jobs?status=accepted&limit=1000").json()["jobs"])
+    assert f'treesim_jobs{{status="accepted"}} {float(accepted)}' in m
+    assert f"treesim_queue_depth {float(accepted)}" in m
+    for name in ("treesim_lease_expiries", "treesim_workers_alive", "treesim_stage_duration"):
+        assert name in m, name
     page = client.get("/")
     assert page.status_code == 200 and "<form" in page.text
     assert "http://" not in page.text and "https://" not in page.text  # no external resources

@@ -72,6 +72,12 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
         # a range request, as a client resuming a big cloud's download sends
         part = c.get(results["scan.laz"]["href"], headers={"Range": "bytes=100-199"})
         assert part.status_code == 206 and part.content == laz.content[100:200]
+        metrics = c.get("/metrics").text
+        for stage in ("reconstruct", "scan", "compare_mesh", "report"):
+            assert (
+                f'treesim_stage_duration_seconds_count{{process="run",stage="{stage}"}} 1.0'
+                in metrics
+            ), stage
 
     # the same run by the command line, with the same threads as the service's job
     cli = tmp_path / "cli"
@@ -135,6 +141,7 @@ def test_kill_9_mid_job_then_restart_loses_nothing(serve, tmp_path):
             }
             assert on_disk == listed_names
         assert c.get(f"/v1/jobs/{victim}/report", follow_redirects=True).status_code == 200
+        assert "treesim_lease_expiries_total 1.0" in c.get("/metrics").text
 
 
 def _small_tree_mesh(path: Path) -> Path:
