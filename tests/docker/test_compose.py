@@ -192,3 +192,17 @@ def test_the_image_installs_extras_that_exist_and_runs_treesim():
     assert _dockerfile("ENTRYPOINT") == ['["treesim"]']
     assert _dockerfile("FROM")[0].startswith("python:3.11")
     assert any(line.strip() != "root" for line in _dockerfile("USER"))
+
+
+def test_references_between_services_and_volumes_resolve():
+    """What the schema cannot check: every depends_on names a service, every named volume a
+    service mounts is declared."""
+    declared = set(COMPOSE.get("volumes") or {})
+    for name, svc in SERVICES.items():
+        deps = svc.get("depends_on") or []
+        for dep in deps if isinstance(deps, list) else deps.keys():
+            assert dep in SERVICES, f"{name} depends on unknown service {dep!r}"
+        for mount in svc.get("volumes") or []:
+            source = mount.split(":", 1)[0] if isinstance(mount, str) else mount.get("source")
+            if source and not source.startswith((".", "/", "~", "$")):
+                assert source in declared, f"{name} mounts undeclared volume {source!r}"
