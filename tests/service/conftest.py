@@ -32,6 +32,22 @@ def postgres_or_skip() -> str:
     return url
 
 
+_SCHEMAS: list[tuple[str, str]] = []
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _drop_test_schemas() -> Iterator[None]:
+    """Drop the Postgres schemas the tests made, at the end of the session."""
+    yield
+    if not _SCHEMAS:
+        return
+    import psycopg
+
+    with psycopg.connect(_SCHEMAS[0][0], connect_timeout=3, autocommit=True) as conn:
+        for _, schema in _SCHEMAS:
+            conn.execute(f"DROP SCHEMA IF EXISTS {schema} CASCADE")
+
+
 def _fresh_postgres(url: str) -> str:
     """A new empty schema in the test database, so tests do not see each other's rows."""
     import psycopg
@@ -41,6 +57,7 @@ def _fresh_postgres(url: str) -> str:
     try:
         with psycopg.connect(plain, connect_timeout=3, autocommit=True) as conn:
             conn.execute(f"CREATE SCHEMA {schema}")
+        _SCHEMAS.append((plain, schema))
     except psycopg.OperationalError as exc:
         pytest.skip(f"Postgres at TREESIM_TEST_DATABASE_URL is not reachable: {exc}")
     sep = "&" if "?" in url else "?"
