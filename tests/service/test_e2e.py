@@ -4,8 +4,8 @@ temporary data folder, driven as a user's script would drive it.
 - the bundled tree through ``run`` with the draft preset: the figures equal ``treesim run``'s;
 - kill -9 of the whole service mid-job, then a restart: the job is retried and succeeds, every
   upload and job is still listed, no result folder is half-written;
-- twenty concurrent uploads and ten concurrent jobs on two worker processes: all complete,
-  none lost, none run twice;
+- twenty concurrent uploads and ten concurrent jobs on two worker processes, on SQLite and
+  on Postgres: all complete, none lost, none run twice;
 - reconstruct → scan → compare chained over HTTP.
 """
 
@@ -21,7 +21,7 @@ import httpx
 import numpy as np
 import pytest
 
-from .conftest import BUNDLED_CLOUD, Server, service_env, wait_job
+from .conftest import BUNDLED_CLOUD, Server, service_env, store_url, wait_job
 
 pytestmark = pytest.mark.slow
 
@@ -156,12 +156,15 @@ def _small_tree_mesh(path: Path) -> Path:
     return path
 
 
-def test_twenty_uploads_and_ten_jobs_at_once(serve, tmp_path):
+@pytest.mark.parametrize("backend", ["sqlite", "postgres"])
+def test_twenty_uploads_and_ten_jobs_at_once(serve, tmp_path, backend):
     data = tmp_path / "data"
+    url = store_url(backend, tmp_path) if backend == "postgres" else ""
+    db = {"TREESIM_DATABASE_URL": url} if url else {}
     # the API with one embedded worker slot, and a second worker process on the same store
-    base, _ = serve(data, workers=1)
+    base, _ = serve(data, workers=1, **db)
     log = tmp_path / "worker.log"
-    other = Server(["worker", "--workers", "1"], service_env(data), log).start()
+    other = Server(["worker", "--workers", "1"], service_env(data, **db), log).start()
     try:
         rng = np.random.default_rng(3)
         files = []
@@ -205,7 +208,7 @@ def test_twenty_uploads_and_ten_jobs_at_once(serve, tmp_path):
     # both worker processes took jobs: the claims really raced
     from service.jobs.store import Store
 
-    store = Store(f"sqlite:///{data / 'treesim.db'}")
+    store = Store(url or f"sqlite:///{data / 'treesim.db'}")
     try:
         claimants = {store.job(j)["worker_id"] for j in ids}
     finally:
