@@ -94,3 +94,19 @@ def test_every_setting_is_documented_in_the_readme():
     readme = (REPO / "README.md").read_text()
     missing = [env for env in Settings.env_names().values() if f"`{env}`" not in readme]
     assert missing == [], f"README's settings table lacks {missing}"
+
+
+def test_the_flags_help_states_the_settings_defaults():
+    from pipeline.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if hasattr(a, "choices") and a.choices)
+    serve = sub.choices["serve"]
+    helps = {a.dest: a.help for a in serve._actions}
+    fields = Settings.model_fields
+    assert f"default {fields['host'].default}" in helps["host"]
+    assert f"default {fields['port'].default}" in helps["port"]
+    assert f"default {fields['workers'].default}" in helps["workers"]
+    assert f"default ./{fields['data_dir'].default}" in helps["data_dir"]
+    for dest in ("host", "port", "workers", "data_dir", "database_url"):
+        assert Settings.env_names()[dest] in helps[dest], dest
