@@ -30,6 +30,8 @@ __all__ = [
 
 ReturnMode = Literal["first", "last", "strongest", "all"]
 RETURN_MODES: tuple[str, ...] = ("first", "last", "strongest", "all")
+BeamSampling = Literal["adaptive", "full"]
+BEAM_SAMPLINGS: tuple[str, ...] = ("adaptive", "full")
 
 #: Near-infrared reflectance per hit label used by the intensity proxy (1550 nm-ish
 #: figures: bark ~0.45, leaves ~0.25 because water absorbs at 1550 nm, soil ~0.3).
@@ -55,6 +57,10 @@ class ScannerSpec:
         the beam cone with ``subrays`` rays, which can give several returns per pulse.
     subrays : int
         Rays per pulse when the beam model is on (>= 2; a centre ray and rings).
+    beam_sampling : {"adaptive", "full"}
+        ``"adaptive"`` (default) casts each pulse's central ray and gives the sub-rays
+        only to pulses whose footprint can straddle an edge; ``"full"`` casts every
+        sub-ray of every pulse (brute force). See :mod:`pipeline.scan.trace`.
     range_resolution_m : float
         Two echoes of one pulse closer than this merge into one return (beam model only).
     range_noise_sd_m : float
@@ -90,6 +96,12 @@ class ScannerSpec:
         0.0, help="full-angle beam divergence; > 0 turns the beam model on", unit="mrad"
     )
     subrays: int = param(7, help="rays per pulse with the beam model")
+    beam_sampling: BeamSampling = param(
+        "adaptive",
+        help="adaptive: sub-rays only for pulses whose footprint can straddle an edge; "
+        "full: sub-rays for every pulse (brute force)",
+        choices=BEAM_SAMPLINGS,
+    )
     range_resolution_m: float = param(
         0.3, help="echo separation for multiple returns (beam model)", unit="m"
     )
@@ -142,6 +154,11 @@ class ScannerSpec:
             raise InvalidParameterError(
                 f"subrays must be an integer in [2, 256], got {self.subrays}"
             )
+        if self.beam_sampling not in BEAM_SAMPLINGS:
+            raise InvalidParameterError(
+                f"beam_sampling must be one of {', '.join(BEAM_SAMPLINGS)}, "
+                f"got {self.beam_sampling!r}"
+            )
         if self.return_mode not in RETURN_MODES:
             raise InvalidParameterError(
                 f"return_mode must be one of {', '.join(RETURN_MODES)}, got {self.return_mode!r}"
@@ -184,7 +201,8 @@ class ScannerSpec:
         out = []
         if self.beam_model:
             out.append(
-                f"beam divergence {self.beam_divergence_mrad} mrad × {self.subrays} sub-rays"
+                f"beam divergence {self.beam_divergence_mrad} mrad × {self.subrays} sub-rays "
+                f"({self.beam_sampling} sampling)"
             )
         if self.range_noise_sd_m > 0:
             out.append(f"range noise σ {self.range_noise_sd_m} m")
@@ -207,6 +225,7 @@ class ScannerSpec:
             "max_range_m": self.max_range_m,
             "beam_divergence_mrad": self.beam_divergence_mrad,
             "subrays": self.subrays,
+            "beam_sampling": self.beam_sampling,
             "range_resolution_m": self.range_resolution_m,
             "range_noise_sd_m": self.range_noise_sd_m,
             "angular_jitter_sd_deg": self.angular_jitter_sd_deg,

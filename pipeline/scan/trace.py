@@ -12,6 +12,7 @@ bounded (about 200 bytes per ray in flight) whatever the resolution.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -26,6 +27,7 @@ from ..frame import LocalFrame
 from ..params import ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
+from .occupancy import occupancy_grid, thin_mask
 from .rays import (
     PulseGrid,
     box_window,
@@ -40,6 +42,8 @@ from .rays import (
 from .stations import Station
 
 Progress = Callable[[float, str], None]
+#: Receives each chunk of a scan: points (n, 3) float64 and per-point fields.
+Sink = Callable[[np.ndarray, dict[str, np.ndarray]], None]
 
 #: Rays Open3D casts per second per core on this kind of machine (measured, hits and
 #: misses mixed); used only for the estimate printed when a scan is refused.
@@ -55,18 +59,23 @@ class StationStats:
     index: int
     position_m: tuple[float, float, float]
     pulses_full_fov: int
+    pulses_window: int
     pulses_cast: int
     rays_cast: int
     points: int
     azimuth_window_deg: tuple[float, float] | None
     elevation_window_deg: tuple[float, float]
     time_s: float
+    #: pulses given sub-rays (beam model), and why (adaptive sampling)
+    pulses_subrays: int = 0
+    subray_reasons: dict[str, int] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "index": self.index,
             "position_m": list(self.position_m),
             "pulses_full_fov": self.pulses_full_fov,
+            "pulses_window": self.pulses_window,
             "pulses_cast": self.pulses_cast,
             "rays_cast": self.rays_cast,
             "points": self.points,
@@ -75,6 +84,8 @@ class StationStats:
             else None,
             "elevation_window_deg": list(self.elevation_window_deg),
             "time_s": self.time_s,
+            "pulses_subrays": self.pulses_subrays,
+            **({"subray_reasons": dict(self.subray_reasons)} if self.subray_reasons else {}),
         }
 
 
@@ -97,7 +108,14 @@ class ScanResult:
     bvh_build_s: float
     total_s: float
     window: bool
+    cull: bool = False
+    points_written: int = 0
     models: list[str] = field(default_factory=list)
+
+    @property
+    def n_points(self) -> int:
+        """Points made: in ``cloud``, or handed to the sink."""
+        return len(self.cloud) + self.points_written
 
     @property
     def rays_cast(self) -> int:
@@ -109,10 +127,13 @@ class ScanResult:
 
     def summary(self) -> dict[str, Any]:
         return {
-            "points": len(self.cloud),
+            "points": self.n_points,
             "rays_cast": self.rays_cast,
             "rays_full_fov": self.rays_full_fov,
+            "pulses_window": sum(s.pulses_window for s in self.station_stats),
+            "pulses_cast": sum(s.pulses_cast for s in self.station_stats),
             "window": self.window,
+            "cull": self.cull,
             "bvh_build_s": self.bvh_build_s,
             "total_s": self.total_s,
             "models_active": self.models,
@@ -141,6 +162,10 @@ class _Caster:
         self.nthreads = int(nthreads)
         v = frame.to_local(scene.vertices)
         f = scene.faces
+        self.v, self.faces = v, f
+        self._thickness: np.ndarray | None = None
+        used = np.unique(f)
+        self.radius = float(np.linalg.norm(v[used], axis=1).max()) if len(used) else 0.0
         self.v0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0)
         self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -156,6 +181,21 @@ class _Caster:
         # Open3D builds its BVH lazily on the first query: build it now, timed apart.
         self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
         self.build_s = time.perf_counter() - t0
+
+    def thickness_m(self) -> np.ndarray:
+        """Local thickness of the geometry behind each triangle (m): the distance from
+        its centroid, inwards along its normal, to the next surface (a branch's
+        diameter on a tube); inf where nothing is behind it (a leaf, an open sheet)."""
+        if self._thickness is None:
+            f = self.faces
+            centroid = (self.v[f[:, 0]] + self.v[f[:, 1]] + self.v[f[:, 2]]) / 3.0
+            inset = 1e-5 + 1e-7 * np.linalg.norm(centroid, axis=1)
+            rays = np.empty((len(f), 6), dtype=np.float32)
+            rays[:, :3] = centroid - (inset[:, None] * self.normal)
+            rays[:, 3:] = -self.normal
+            t, _ = self.cast_f32(rays)
+            self._thickness = np.where(np.isfinite(t), t.astype(np.float64) + inset, np.inf)
+        return self._thickness
 
     #: Stations nearer the scene's bounds than this cast from their own position;
     #: farther ones start every ray this close to the bounds (float32 keeps ~1e-7 of
@@ -236,17 +276,119 @@ def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
         )
 
 
+def _grid_plan(
+    caster: _Caster,
+    verts_local: np.ndarray,
+    o: np.ndarray,
+    rot: np.ndarray,
+    spec: ScannerSpec,
+    window: bool,
+    cull: bool,
+) -> tuple[Any, Any, int, np.ndarray | None]:
+    """The pulses one station casts: the whole field of view, the scene's window, or
+    (``cull``) the window's cells that some triangle can reach. Returns (grid, window
+    bounds, pulses in the window rectangle, the thin-geometry mask of adaptive beam
+    sampling or None)."""
+    grid, win = _grid_for(verts_local, o, rot, spec, window)
+    n_window = grid.n_pulses
+    if not (window and cull) or n_window == 0:
+        return grid, win, n_window, None
+    tri = ((caster.v - o) @ rot)[caster.faces]
+    t0 = caster.entry_distance(o)
+    abs_err = 1e-5 * (caster.radius + float(np.linalg.norm(o)) + t0) + 1e-7
+    h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
+    ang = np.sort((h0 + grid.columns * hres) % 360.0)
+    gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
+    g = int(np.argmax(gaps))
+    a_ref = ang[g] + 0.5 * gaps[g]
+    cast = occupancy_grid(tri, spec, grid, a_ref, abs_error_m=abs_err)
+    thin = None
+    if spec.beam_model and spec.beam_sampling == "adaptive":
+        thin = thin_mask(
+            tri,
+            spec,
+            grid,
+            a_ref,
+            abs_error_m=abs_err,
+            thickness_m=caster.thickness_m(),
+            max_pulses=4 * cast.n_pulses,
+        )
+    return cast, win, n_window, thin
+
+
+class _RayTables:
+    """Per-station float32 cosines and sines of every column's azimuth and every line's
+    elevation: a pulse's direction is gathered from them, so the rays of a pulse are the
+    same bits whichever other pulses are cast with it."""
+
+    def __init__(self, spec: ScannerSpec, heading_deg: float) -> None:
+        az = column_azimuth_rad(spec, np.arange(spec.n_azimuth), heading_deg)
+        el = line_elevation_rad(spec, np.arange(spec.n_elevation))
+        self.cz, self.sz = np.cos(az).astype(np.float32), np.sin(az).astype(np.float32)
+        self.ce, self.se = np.cos(el).astype(np.float32), np.sin(el).astype(np.float32)
+
+
+def _cast_central(
+    caster: _Caster,
+    spec: ScannerSpec,
+    tables: _RayTables,
+    lines: np.ndarray,
+    cols: np.ndarray,
+    o: np.ndarray,
+    t0: float,
+    rot: np.ndarray,
+    heading_deg: float,
+    level: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cast the grid rays of pulses (``lines``, ``cols``) without per-pulse randomness.
+
+    Rays are built in float32 from the per-station tables; only hits get float64
+    directions and refined ranges. Returns (hit index into the pulses, t, primitive)
+    and leaves the float64 directions to the caller.
+    """
+    n = len(lines)
+    rays = np.empty((n, 6), dtype=np.float32)
+    ce = tables.ce[lines]
+    np.multiply(tables.cz[cols], ce, out=rays[:, 3])
+    np.multiply(tables.sz[cols], ce, out=rays[:, 4])
+    rays[:, 5] = tables.se[lines]
+    if not level:
+        rays[:, 3:] = rays[:, 3:] @ rot.T.astype(np.float32)
+    if t0 > 0:
+        np.multiply(rays[:, 3:], np.float32(t0), out=rays[:, :3])
+        rays[:, :3] += o.astype(np.float32)
+    else:
+        rays[:, :3] = o.astype(np.float32)
+    th, pr = caster.cast_f32(rays)
+    hidx = np.flatnonzero(np.isfinite(th))
+    return hidx, th[hidx].astype(np.float64), pr[hidx].astype(np.int64)
+
+
+def _grid_directions(
+    spec: ScannerSpec,
+    lines: np.ndarray,
+    cols: np.ndarray,
+    rot: np.ndarray,
+    hdeg: float,
+    level: bool,
+) -> np.ndarray:
+    d = directions(column_azimuth_rad(spec, cols, hdeg), line_elevation_rad(spec, lines))
+    return d if level else d @ rot.T
+
+
 def scan(
     scene: Scene,
     stations: Sequence[Station],
     spec: ScannerSpec | None = None,
     *,
     window: bool = True,
+    cull: bool = True,
     chunk_rays: int = 1 << 19,
     max_rays: int = 1_000_000_000,
     nthreads: int = 0,
     check_inside: bool = True,
     progress: Progress | None = None,
+    sink: Sink | None = None,
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -261,6 +403,10 @@ def scan(
     window : bool
         Cast only the pulses whose direction can reach the scene's bounds (default), or
         the whole field of view (``False``; same points, many more rays).
+    cull : bool
+        Within the window, cast only the cells some triangle can reach
+        (:mod:`pipeline.scan.occupancy`; default). Conservative: the same points, bit for
+        bit, as casting the whole window.
     chunk_rays : int
         Rays cast per batch; bounds peak memory to about ``chunk_rays × 200`` bytes.
     max_rays : int
@@ -271,6 +417,10 @@ def scan(
         Refuse stations enclosed by the geometry.
     progress : callable(fraction, message), optional
         Called after each chunk.
+    sink : callable(points, fields), optional
+        Receives each chunk's points (float64, the scene's coordinates) and fields as
+        they are made (e.g. a :func:`pipeline.io.open_cloud_writer`'s ``write``); the
+        result's cloud then holds no points, so memory does not grow with the output.
 
     Returns
     -------
@@ -287,17 +437,18 @@ def scan(
     frame = LocalFrame.around(scene.used_vertices)
     verts_used = frame.to_local(scene.used_vertices)
     s = spec.rays_per_pulse
-    plans = []
+    adaptive = s > 1 and spec.beam_sampling == "adaptive"
+    windows = []
     for st in stations:
         o = frame.to_local(st.position)
-        rot = st.rotation
-        grid, win = _grid_for(verts_used, o, rot, spec, window)
-        plans.append((o, rot, grid, win))
-    total_rays = sum(p[2].n_pulses for p in plans) * s
-    if total_rays > max_rays:
-        secs = total_rays / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
+        grid, win = _grid_for(verts_used, o, st.rotation, spec, window)
+        windows.append(grid.n_pulses)
+    # the limit is checked on the window (an upper bound), before any triangle is read
+    upper = sum(windows) * (1 if adaptive else s)
+    if upper > max_rays:
+        secs = upper / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
         raise ResourceLimitError(
-            f"this scan needs {total_rays:.3g} rays ({len(stations)} station"
+            f"this scan needs {upper:.3g} rays at most ({len(stations)} station"
             f"{'s' if len(stations) > 1 else ''} at "
             f"{spec.horizontal_resolution_deg}°×{spec.vertical_resolution_deg}°"
             f"{f', {s} sub-rays per pulse' if s > 1 else ''}), about "
@@ -305,9 +456,16 @@ def scan(
             "resolution or raise max_rays (--max-rays); memory stays bounded either way"
         )
     caster = _Caster(scene, frame, nthreads)
+    plans = []
+    for st in stations:
+        o = frame.to_local(st.position)
+        grid, win, n_window, thin = _grid_plan(
+            caster, verts_used, o, st.rotation, spec, window, cull
+        )
+        plans.append((o, st.rotation, grid, win, n_window, thin))
     if check_inside:
-        for k, (o, _, _, _) in enumerate(plans):
-            _check_inside(caster, o, k, stations[k])
+        for k, plan in enumerate(plans):
+            _check_inside(caster, plan[0], k, stations[k])
     offsets, weights = (
         beam_model.subray_pattern(s, spec.beam_divergence_mrad) if s > 1 else (None, None)
     )
@@ -317,34 +475,57 @@ def scan(
     out: dict[str, list[np.ndarray]] = {k: [] for k in _FIELDS}
     pts: list[np.ndarray] = []
     stats: list[StationStats] = []
-    done_rays = 0
-    per_chunk = max(1, int(chunk_rays) // s)
-    for k, (o, rot, grid, win) in enumerate(plans):
+    total_pulses = max(1, sum(p[2].n_pulses for p in plans))
+    done_pulses = 0
+    n_written = 0
+    for k, (o, rot, grid, win, n_window, thin) in enumerate(plans):
         t_st = time.perf_counter()
         n_points = 0
-        fast = s == 1 and spec.angular_jitter_sd_deg == 0
-        t0 = caster.entry_distance(o)
+        rays_cast = 0
         station = stations[k]
         level = station.pitch_deg == 0 and station.roll_deg == 0
-        for a in range(0, grid.n_pulses, per_chunk):
-            b = min(grid.n_pulses, a + per_chunk)
-            if fast:
-                t, prim, lines_r, cols_r, d_r = _fast_block(
-                    caster, spec, grid, a, b, o, t0, rot, station.heading_deg, level
-                )
-                rec = _single_returns(spec, t, prim)
+        hdeg = station.heading_deg if level else 0.0
+        t0 = caster.entry_distance(o)
+        tables = _RayTables(spec, hdeg)
+        fast = s == 1 and spec.angular_jitter_sd_deg == 0
+        # thin geometry nearly everywhere: every pulse needs its sub-rays anyway
+        station_adaptive = adaptive and thin is not None
+        per_chunk = max(1, int(chunk_rays) // (1 if station_adaptive else s))
+        if station_adaptive:
+            chunks = _AdaptiveBeam(caster, spec, grid, tables, o, t0, rot, hdeg, level, k, thin)
+            blocks = chunks.blocks(per_chunk, offsets, weights)
+        else:
+            blocks = (
+                (a, min(grid.n_pulses, a + per_chunk)) for a in range(0, grid.n_pulses, per_chunk)
+            )
+        for block in blocks:
+            if station_adaptive:
+                rec, lines_r, cols_r, d_r, n_pulses, n_rays = block
             else:
+                a, b = block
                 lines, cols = grid.indices(a, b)
-                az, el = pulse_angles(spec, k, lines, cols)
-                d = directions(az, el) @ rot.T
-                if s == 1:
-                    t, prim = caster.cast(o, d)
+                n_pulses, n_rays = b - a, (b - a) * s
+                if fast:
+                    hidx, th, prim = _cast_central(
+                        caster, spec, tables, lines, cols, o, t0, rot, hdeg, level
+                    )
+                    lines_r, cols_r = lines[hidx], cols[hidx]
+                    d_r = _grid_directions(spec, lines_r, cols_r, rot, hdeg, level)
+                    t = caster.refine(o, d_r, t0 + th, prim)
                     rec = _single_returns(spec, t, prim)
                 else:
-                    sd = beam_model.subray_directions(d, offsets).reshape(-1, 3)
-                    t, prim = caster.cast(o, sd)
-                    rec = _beam_returns(spec, t.reshape(-1, s), prim.reshape(-1, s), sd, weights)
-                lines_r, cols_r, d_r = lines, cols, d
+                    az, el = pulse_angles(spec, k, lines, cols)
+                    d = directions(az, el) @ rot.T
+                    if s == 1:
+                        t, prim = caster.cast(o, d)
+                        rec = _single_returns(spec, t, prim)
+                    else:
+                        sd = beam_model.subray_directions(d, offsets).reshape(-1, 3)
+                        t, prim = caster.cast(o, sd)
+                        rec = _beam_returns(
+                            spec, t.reshape(-1, s), prim.reshape(-1, s), sd, weights
+                        )
+                    lines_r, cols_r, d_r = lines, cols, d
             n_rec = len(rec["pulse"])
             if n_rec:
                 pi = rec["pulse"]
@@ -354,40 +535,59 @@ def scan(
                     rng = rng + spec.range_noise_sd_m * hashed_normal(
                         spec.seed, 1, k, lines_r[pi], cols_r[pi], sub=rec["return_number"]
                     )
-                ray_d = rec["direction"] if rec["direction"] is not None else d_r[pi]
+                rd = rec["direction"]
+                ray_d = d_r[pi] if rd is None else np.where(np.isnan(rd[:, :1]), d_r[pi], rd)
                 p_local = o + rng[:, None] * d_r[pi]
-                pts.append(p_local)
                 prim = rec["primitive"]
                 lab = caster.label[prim]
                 cosi = np.abs(np.einsum("ij,ij->i", ray_d, caster.normal[prim]))
                 inc = np.degrees(np.arccos(np.clip(cosi, 0.0, 1.0)))
                 ref10 = np.minimum(1.0, (10.0 / np.maximum(rng, 1e-9)) ** 2)
                 inten = np.clip(reflect[lab] * cosi * rec["energy"] * ref10, 0.0, 1.0)
-                out["station"].append(np.full(n_rec, k, dtype=np.uint16))
-                out["range_m"].append(rng.astype(np.float64))
-                out["incidence_deg"].append(inc.astype(np.float32))
-                out["label"].append(lab.astype(np.uint8))
-                out["return_number"].append(rec["return_number"].astype(np.uint8))
-                out["number_of_returns"].append(rec["number_of_returns"].astype(np.uint8))
-                out["intensity"].append(np.round(inten * 65535).astype(np.uint16))
-                out["scan_line"].append(lines_r[pi].astype(np.int32))
-                out["scan_column"].append(cols_r[pi].astype(np.int32))
+                chunk_fields = {
+                    "station": np.full(n_rec, k, dtype=np.uint16),
+                    "range_m": rng.astype(np.float64),
+                    "incidence_deg": inc.astype(np.float32),
+                    "label": lab.astype(np.uint8),
+                    "return_number": rec["return_number"].astype(np.uint8),
+                    "number_of_returns": rec["number_of_returns"].astype(np.uint8),
+                    "intensity": np.round(inten * 65535).astype(np.uint16),
+                    "scan_line": lines_r[pi].astype(np.int32),
+                    "scan_column": cols_r[pi].astype(np.int32),
+                }
+                if sink is not None:
+                    sink(frame.to_global(p_local), chunk_fields)
+                    n_written += n_rec
+                else:
+                    pts.append(p_local)
+                    for name, values in chunk_fields.items():
+                        out[name].append(values)
                 n_points += n_rec
-            done_rays += (b - a) * s
+            rays_cast += n_rays
+            done_pulses += n_pulses
             if progress is not None:
-                progress(done_rays / max(total_rays, 1), f"station {k + 1}/{len(stations)}")
+                progress(done_pulses / total_pulses, f"station {k + 1}/{len(stations)}")
         full = spec.n_azimuth * spec.n_elevation
         stats.append(
             StationStats(
                 index=k,
                 position_m=stations[k].position_m,
                 pulses_full_fov=full,
+                pulses_window=n_window,
                 pulses_cast=grid.n_pulses,
-                rays_cast=grid.n_pulses * s,
+                rays_cast=rays_cast,
                 points=n_points,
                 azimuth_window_deg=win.azimuth_deg,
                 elevation_window_deg=win.elevation_deg,
                 time_s=time.perf_counter() - t_st,
+                pulses_subrays=(
+                    chunks.subrays_pulses if station_adaptive else (grid.n_pulses if s > 1 else 0)
+                ),
+                subray_reasons=(
+                    dict(chunks.reasons)
+                    if station_adaptive
+                    else ({"thin geometry everywhere": grid.n_pulses} if adaptive else None)
+                ),
             )
         )
     if pts:
@@ -414,6 +614,8 @@ def scan(
         bvh_build_s=caster.build_s,
         total_s=time.perf_counter() - t_all,
         window=window,
+        cull=window and cull,
+        points_written=n_written,
         models=spec.active_models(),
     )
 
@@ -429,59 +631,267 @@ _FIELDS: dict[str, Any] = {
     "scan_line": np.int32,
     "scan_column": np.int32,
 }
+#: The fields of a simulated cloud and their types (what a streaming writer declares).
+SCAN_FIELDS: dict[str, np.dtype] = {k: np.dtype(v) for k, v in _FIELDS.items()}
 
 
-def _fast_block(
-    caster: _Caster,
-    spec: ScannerSpec,
-    grid: PulseGrid,
-    a: int,
-    b: int,
-    o: np.ndarray,
-    t0: float,
-    rot: np.ndarray,
-    heading_deg: float,
-    level: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Cast pulses ``a:b`` of a grid with no per-pulse randomness.
+#: A neighbour's hit farther than this from the plane of a pulse's hit triangle means a
+#: different surface may lie inside the pulse's footprint (adaptive beam sampling).
+ADAPTIVE_PLANE_TOL_M = 1e-3
+#: Hits within this fraction of a range limit get sub-rays (the beam may straddle it).
+_RANGE_LIMIT_FRACTION = 0.02
 
-    The grid is separable (azimuth × elevation), so float32 rays are built by
-    broadcasting column and line terms, and the float64 work (directions, refinement)
-    is done for the hits only. Returns (t, primitive, line, column, direction) of hits.
+
+class _AdaptiveBeam:
+    """Beam divergence at the price of one ray where one ray is enough.
+
+    Every pulse's central ray is cast first. A pulse gets its sub-rays (the same
+    sub-rays, cast the same way, as ``beam_sampling="full"``) only where its footprint
+    can straddle an edge: a neighbour within ``k`` steps (``k`` from the beam's
+    half-angle over the angular step) missed while it hit, or hit while it missed, or hit
+    another part label, or hit a point farther than :data:`ADAPTIVE_PLANE_TOL_M` from the
+    plane of this pulse's triangle (another surface in front or behind); or its range is
+    near a range limit. Elsewhere every sub-ray would hit the same plane: the pulse keeps
+    its central hit as one return of full energy, which differs from the full model's
+    energy-weighted range by the beam's first moment on that plane (microns; the README
+    states the measured agreement).
+
+    Work goes column by column so that neighbours are known: each block of columns is
+    cast with a halo of ``k`` columns on each side (cast again by the next block).
     """
-    nl = len(grid.lines)
-    ca, cb = a // nl, (b - 1) // nl + 1
-    off = a - ca * nl
-    hdeg = heading_deg if level else 0.0
-    az = column_azimuth_rad(spec, grid.columns[ca:cb], hdeg)
-    el = line_elevation_rad(spec, grid.lines)
-    ce, se = np.cos(el).astype(np.float32), np.sin(el).astype(np.float32)
-    cz, sz = np.cos(az).astype(np.float32), np.sin(az).astype(np.float32)
-    rays = np.empty((cb - ca, nl, 6), dtype=np.float32)
-    np.multiply(cz[:, None], ce[None, :], out=rays[:, :, 3])
-    np.multiply(sz[:, None], ce[None, :], out=rays[:, :, 4])
-    rays[:, :, 5] = se[None, :]
-    if not level:
-        rays[:, :, 3:] = rays[:, :, 3:] @ rot.T.astype(np.float32)
-    if t0 > 0:
-        np.multiply(rays[:, :, 3:], np.float32(t0), out=rays[:, :, :3])
-        rays[:, :, :3] += o.astype(np.float32)
+
+    def __init__(
+        self,
+        caster: _Caster,
+        spec: ScannerSpec,
+        grid: Any,
+        tables: _RayTables,
+        o: np.ndarray,
+        t0: float,
+        rot: np.ndarray,
+        hdeg: float,
+        level: bool,
+        station_index: int,
+        thin: np.ndarray | None,
+    ) -> None:
+        self.thin = thin
+        self.caster, self.spec, self.grid, self.tables = caster, spec, grid, tables
+        self.o, self.t0, self.rot, self.hdeg, self.level = o, t0, rot, hdeg, level
+        self.k_station = station_index
+        half = 0.5 * spec.beam_divergence_mrad * 1e-3
+        step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+        self.k = int(min(3, max(1, math.ceil(1.01 * half / step))))
+        self.n_lines = spec.n_elevation
+        self.n_az = spec.n_azimuth
+        self.full_turn = spec.full_turn
+        self.col_offsets = _column_offsets(grid)
+        self.subrays_pulses = 0
+        #: pulses given sub-rays, by the first reason that applied
+        self.reasons = {"edge": 0, "surface": 0, "thin": 0, "range_limit": 0}
+
+    def _pulses_of_columns(self, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lines, columns) the grid casts in the given columns (any, present or not)."""
+        gc = self.grid.columns
+        pos = np.searchsorted(gc, columns)
+        ok = pos < len(gc)
+        ok[ok] = gc[pos[ok]] == columns[ok]
+        parts_l, parts_c = [], []
+        for p in pos[ok]:
+            ln, cl = self.grid.indices(int(self.col_offsets[p]), int(self.col_offsets[p + 1]))
+            parts_l.append(ln)
+            parts_c.append(cl)
+        if not parts_l:
+            return np.empty(0, np.int64), np.empty(0, np.int64)
+        return np.concatenate(parts_l), np.concatenate(parts_c)
+
+    def _directions(self, lines: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        spec = self.spec
+        if spec.angular_jitter_sd_deg > 0:
+            az, el = pulse_angles(spec, self.k_station, lines, cols)
+            return directions(az, el) @ self.rot.T
+        return _grid_directions(spec, lines, cols, self.rot, self.hdeg, self.level)
+
+    def _central(self, lines: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Central ray of each pulse: (t, primitive), inf / -1 on a miss."""
+        n = len(lines)
+        t = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
+        if self.spec.angular_jitter_sd_deg > 0:
+            return self.caster.cast(self.o, self._directions(lines, cols))
+        hidx, th, pr = _cast_central(
+            self.caster,
+            self.spec,
+            self.tables,
+            lines,
+            cols,
+            self.o,
+            self.t0,
+            self.rot,
+            self.hdeg,
+            self.level,
+        )
+        d = self._directions(lines[hidx], cols[hidx])
+        t[hidx] = self.caster.refine(self.o, d, self.t0 + th, pr)
+        prim[hidx] = pr
+        return t, prim
+
+    def _flags(
+        self,
+        lines: np.ndarray,
+        cols: np.ndarray,
+        t: np.ndarray,
+        prim: np.ndarray,
+        n_core: int,
+    ) -> np.ndarray:
+        """Which of the first ``n_core`` pulses need sub-rays (see the class notes)."""
+        spec, caster = self.spec, self.caster
+        key = cols * self.n_lines + lines
+        order = np.argsort(key, kind="stable")
+        skey = key[order]
+        hit = np.isfinite(t)
+        d_hit = np.zeros((len(t), 3))
+        d_hit[hit] = self._directions(lines[hit], cols[hit])
+        x = self.o + np.where(hit, t, 0.0)[:, None] * d_hit
+        cl, cc = lines[:n_core], cols[:n_core]
+        hit_p = hit[:n_core]
+        pp = np.where(hit_p, prim[:n_core], 0)
+        n_p = caster.normal[pp]
+        v0_p = caster.v0[pp]
+        lab_p = caster.label[pp]
+        flag = np.zeros(n_core, dtype=bool)
+        surface = np.zeros(n_core, dtype=bool)
+        k = self.k
+        for dc in range(-k, k + 1):
+            qc = cc + dc
+            if self.full_turn:
+                qc = qc % self.n_az
+                col_ok = np.ones(n_core, dtype=bool)
+            else:
+                col_ok = (qc >= 0) & (qc < self.n_az)
+            for dl in range(-k, k + 1):
+                if dc == 0 and dl == 0:
+                    continue
+                ql = cl + dl
+                ok = col_ok & (ql >= 0) & (ql < self.n_lines)
+                qkey = qc * self.n_lines + ql
+                pos = np.minimum(np.searchsorted(skey, qkey), len(skey) - 1)
+                found = ok & (skey[pos] == qkey)
+                q = order[pos]
+                q_hit = found & hit[q]
+                # a hit beside a miss, or a miss beside a hit
+                flag |= hit_p != q_hit
+                both = hit_p & q_hit
+                if both.any():
+                    qb = q[both]
+                    other = caster.label[prim[qb]] != lab_p[both]
+                    dev = np.abs(np.einsum("ij,ij->i", x[qb] - v0_p[both], n_p[both]))
+                    surface[both] |= other | (dev > ADAPTIVE_PLANE_TOL_M)
+        tc = t[:n_core]
+        near_limit = hit_p & (
+            (np.abs(tc - spec.max_range_m) < _RANGE_LIMIT_FRACTION * spec.max_range_m)
+            | (np.abs(tc - spec.min_range_m) < _RANGE_LIMIT_FRACTION * max(spec.min_range_m, 1.0))
+        )
+        thin = np.zeros(n_core, dtype=bool)
+        if self.thin is None:  # no mask (the whole window, or too large): all are near
+            thin[:] = True
+        elif len(self.thin):
+            ck = key[:n_core]
+            pos = np.minimum(np.searchsorted(self.thin, ck), len(self.thin) - 1)
+            thin = self.thin[pos] == ck
+        st = self.reasons
+        st["edge"] += int(flag.sum())
+        st["surface"] += int((surface & ~flag).sum())
+        st["thin"] += int((thin & ~flag & ~surface).sum())
+        st["range_limit"] += int((near_limit & ~flag & ~surface & ~thin).sum())
+        return flag | surface | thin | near_limit
+
+    def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
+        """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
+        spec, grid, caster = self.spec, self.grid, self.caster
+        s = spec.rays_per_pulse
+        off = self.col_offsets
+        n_cols = len(grid.columns)
+        ca = 0
+        while ca < n_cols:
+            cb = int(np.searchsorted(off, off[ca] + per_chunk, side="right")) - 1
+            cb = max(ca + 1, min(cb, n_cols))
+            lines, cols = grid.indices(int(off[ca]), int(off[cb]))
+            core_cols = grid.columns[ca:cb]
+            near = (core_cols[:, None] + np.arange(-self.k, self.k + 1)[None, :]).reshape(-1)
+            if self.full_turn:
+                near = near % self.n_az
+            halo = np.setdiff1d(near, core_cols)
+            hl, hc = self._pulses_of_columns(halo)
+            n_core = len(lines)
+            all_l = np.concatenate([lines, hl])
+            all_c = np.concatenate([cols, hc])
+            t, prim = self._central(all_l, all_c)
+            n_rays = len(all_l)
+            flag = self._flags(all_l, all_c, t, prim, n_core)
+            t, prim = t[:n_core], prim[:n_core]
+            # pulses kept whole: their central hit is their one return
+            single = np.flatnonzero(~flag & _in_range(spec, t) & (prim >= 0))
+            cand = np.flatnonzero(flag)
+            self.subrays_pulses += len(cand)
+            parts = [
+                {
+                    "pulse": single,
+                    "range_m": t[single],
+                    "primitive": prim[single],
+                    "direction": None,
+                    "energy": np.ones(len(single)),
+                    "return_number": np.ones(len(single), np.int64),
+                    "number_of_returns": np.ones(len(single), np.int64),
+                }
+            ]
+            step = max(1, per_chunk // s)
+            for a in range(0, len(cand), step):
+                cp = cand[a : a + step]
+                d = self._directions(lines[cp], cols[cp])
+                sd = beam_model.subray_directions(d, offsets).reshape(-1, 3)
+                ts, ps = caster.cast(self.o, sd)
+                n_rays += len(sd)
+                rec = _beam_returns(spec, ts.reshape(-1, s), ps.reshape(-1, s), sd, weights)
+                rec["pulse"] = cp[rec["pulse"]]
+                parts.append(rec)
+            rec = _merge_records(parts)
+            used = np.unique(rec["pulse"])
+            rec["pulse"] = np.searchsorted(used, rec["pulse"])
+            d_used = self._directions(lines[used], cols[used])
+            yield rec, lines[used], cols[used], d_used, n_core, n_rays
+            ca = cb
+
+
+def _column_offsets(grid: Any) -> np.ndarray:
+    """Pulse offsets of each column of a grid (n_columns + 1)."""
+    if isinstance(grid, PulseGrid):
+        return np.arange(len(grid.columns) + 1, dtype=np.int64) * len(grid.lines)
+    return grid.offsets
+
+
+def _merge_records(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """Concatenate return records and order them by pulse, then return number."""
+    out: dict[str, Any] = {}
+    n = sum(len(p["pulse"]) for p in parts)
+    for name in ("pulse", "range_m", "primitive", "energy", "return_number", "number_of_returns"):
+        out[name] = np.concatenate([p[name] for p in parts]) if n else np.empty(0)
+    dirs = [p["direction"] for p in parts]
+    if any(d is not None for d in dirs):
+        out["direction"] = np.concatenate(
+            [
+                d if d is not None else np.full((len(p["pulse"]), 3), np.nan)
+                for p, d in zip(parts, dirs, strict=True)
+            ]
+        )
     else:
-        rays[:, :, :3] = o.astype(np.float32)
-    rays = rays.reshape(-1, 6)[off : off + (b - a)]
-    th, pr = caster.cast_f32(np.ascontiguousarray(rays))
-    hidx = np.flatnonzero(np.isfinite(th))
-    f = hidx + off
-    lines = grid.lines[f % nl]
-    cols = grid.columns[ca + f // nl]
-    az_h = column_azimuth_rad(spec, cols, hdeg)
-    el_h = line_elevation_rad(spec, lines)
-    d = directions(az_h, el_h)
-    if not level:
-        d = d @ rot.T
-    pid = pr[hidx].astype(np.int64)
-    t = caster.refine(o, d, t0 + th[hidx].astype(np.float64), pid)
-    return t, pid, lines, cols, d
+        out["direction"] = None
+    order = np.lexsort((out["return_number"], out["pulse"]))
+    for name, v in out.items():
+        if v is not None:
+            out[name] = v[order]
+    out["pulse"] = out["pulse"].astype(np.int64)
+    out["primitive"] = out["primitive"].astype(np.int64)
+    return out
 
 
 def _in_range(spec: ScannerSpec, t: np.ndarray) -> np.ndarray:

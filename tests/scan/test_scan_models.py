@@ -202,7 +202,8 @@ def test_billions_of_rays_are_refused_with_an_estimate():
 
 
 def test_a_large_scan_runs_in_bounded_memory():
-    # ~6M rays, almost all misses inside the window (two poles far apart): with
+    # ~6M rays, almost all misses inside the window (two poles far apart; cull=False
+    # casts the whole window rectangle, not only where the poles can be): with
     # chunking the peak stays far below what casting them in one batch would take
     code = textwrap.dedent(
         """
@@ -215,7 +216,8 @@ def test_a_large_scan_runs_in_bounded_memory():
             v, f = cylinder_arrays(0.05, 3.0, 64, (10.0, y, 0.0))
             parts.append(MeshPart(vertices=v, faces=f, label="wood"))
         spec = ScannerSpec(horizontal_resolution_deg=0.015, vertical_resolution_deg=0.015)
-        r = scan(Scene(parts), [Station(position_m=(0.0, 0.0, 1.5))], spec, chunk_rays=1 << 17)
+        r = scan(Scene(parts), [Station(position_m=(0.0, 0.0, 1.5))], spec, chunk_rays=1 << 17,
+                 cull=False)
         # VmHWM: this process's own peak (ru_maxrss inherits the parent's across exec)
         hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
         print(r.rays_cast, len(r.cloud), hwm)

@@ -1,0 +1,439 @@
+"""Where the scene can be: a conservative raster of each station's angular window.
+
+A station's window (:func:`~pipeline.scan.rays.windowed_grid`) is the rectangle of scan
+lines × columns that the scene's bounding box subtends. For a tree most of that rectangle
+is sky between the branches. This module finds, per station, the cells of the window that
+some triangle can occupy, so that the scanner casts the fine grid only there.
+
+**Conservative bounds.** For a triangle seen from the station (scanner frame, station at
+the origin) the directions to its points form a spherical triangle. Its bounds are
+computed without approximation in the safe direction:
+
+* azimuth: the triangle's projection on the horizontal plane is convex; if it contains
+  the vertical axis through the station every azimuth is possible, otherwise its
+  azimuths lie between those of its vertices (a span < 180°);
+* elevation: over the triangle ``z ∈ [z_min, z_max]`` and the horizontal distance
+  ``r ∈ [r_min, r_max]``, ``r_min`` the exact distance from the axis to the projected
+  triangle and ``r_max`` the largest vertex distance; ``atan2(z_max, r_min)`` (or
+  ``r_max`` when ``z_max < 0``) bounds the elevation from above, and likewise below.
+
+Each bound is widened by a margin covering every way a cast ray can depart from its
+grid direction: float32 directions (~1e-7 rad), float32 vertices and ray origins (an
+absolute error divided by the triangle's nearest distance), the beam's half-angle (its
+sub-rays) and the largest angular jitter the hashed normal generator can draw
+(:data:`JITTER_BOUND_SD`). A pulse outside every widened triangle cannot hit anything,
+so skipping it changes no point: the tests compare with casting the whole window, bit
+for bit.
+
+**Long thin triangles** (tube facets, seen diagonally) have bounding boxes far larger than
+themselves; pieces whose box covers more than :data:`MAX_PIECE_CELLS` raster cells are
+bisected at their longest edge (the union of the halves is the triangle, so bounds stay
+conservative) until the boxes are small.
+
+**The raster** has at most :data:`MAX_CELLS` cells per station (cells of ``k × k`` grid
+pulses when the window is larger), so its memory is bounded at any resolution; the pulses
+are generated from it a chunk at a time (:class:`SparseGrid`), never all at once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..params import ScannerSpec
+from .rays import PulseGrid
+
+#: Largest |hashed normal| the noise generator can return: its uniforms are at least
+#: 2^-54, so sqrt(-2 ln u) <= 8.64; angular jitter never exceeds this many σ.
+JITTER_BOUND_SD = 8.65
+#: Largest raster per station (cells); larger windows get cells of k × k pulses.
+MAX_CELLS = 1 << 22
+#: Pieces whose box covers more cells than this are bisected (if not too many pieces).
+MAX_PIECE_CELLS = 512
+#: Cap on pieces after bisection (memory: ~200 B each).
+MAX_PIECES = 1 << 21
+#: Relative float32 error budget for vertices and ray origins (~80 float32 ulps).
+_REL_F32 = 1e-5
+#: Direction error of float32 unit vectors and their products (rad), with room to spare.
+_DIR_EPS_RAD = 1e-6
+
+
+def pointing_margin_rad(spec: ScannerSpec) -> float:
+    """How far (rad) a cast ray of ``spec`` can depart from its grid direction: float32
+    rounding, the beam's half-angle (sub-rays) and the largest possible jitter."""
+    half_beam = 0.5 * spec.beam_divergence_mrad * 1e-3 if spec.beam_model else 0.0
+    jitter = JITTER_BOUND_SD * math.radians(spec.angular_jitter_sd_deg) * math.sqrt(2.0)
+    return _DIR_EPS_RAD + 1.01 * half_beam + jitter
+
+
+@dataclass(frozen=True)
+class TriangleBounds:
+    """Conservative angular bounds of triangles seen from a station (radians).
+
+    ``az_lo``/``az_hi`` are meaningful where ``full_az`` is False (``az_hi - az_lo`` <
+    π); ``d_min`` is a lower bound of each triangle's distance from the station.
+    """
+
+    az_lo: np.ndarray
+    az_hi: np.ndarray
+    full_az: np.ndarray
+    el_lo: np.ndarray
+    el_hi: np.ndarray
+    d_min: np.ndarray
+
+
+def _min_dist_to_origin_2d(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Exact distance from (0, 0) to each 2-D triangle (rows of ``x``, ``y``: (n, 3));
+    0 where a triangle contains the origin."""
+    best = np.full(len(x), np.inf)
+    for i in range(3):
+        j = (i + 1) % 3
+        ax, ay = x[:, i], y[:, i]
+        ex, ey = x[:, j] - ax, y[:, j] - ay
+        ee = ex * ex + ey * ey
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.where(ee > 0, -(ax * ex + ay * ey) / ee, 0.0)
+        t = np.clip(t, 0.0, 1.0)
+        best = np.minimum(best, np.hypot(ax + t * ex, ay + t * ey))
+    # inside (or on the boundary): the three edge cross products do not change sign
+    c = [x[:, i] * y[:, (i + 1) % 3] - y[:, i] * x[:, (i + 1) % 3] for i in range(3)]
+    inside = ((c[0] >= 0) & (c[1] >= 0) & (c[2] >= 0)) | ((c[0] <= 0) & (c[1] <= 0) & (c[2] <= 0))
+    best[inside] = 0.0
+    return best
+
+
+def triangle_bounds(tri: np.ndarray) -> TriangleBounds:
+    """Conservative azimuth/elevation bounds of triangles ``tri`` (n, 3, 3) float64 in
+    the scanner frame (station at the origin). See the module notes."""
+    x, y, z = tri[:, :, 0], tri[:, :, 1], tri[:, :, 2]
+    r = np.hypot(x, y)
+    r_max = r.max(axis=1)
+    r_min = _min_dist_to_origin_2d(x, y)
+    z_min, z_max = z.min(axis=1), z.max(axis=1)
+    el_hi = np.arctan2(z_max, np.where(z_max >= 0, r_min, r_max))
+    el_lo = np.arctan2(z_min, np.where(z_min >= 0, r_max, r_min))
+    full = r_min <= 0.0
+    az = np.arctan2(y, x)
+    rel = (az - az[:, :1] + np.pi) % (2 * np.pi) - np.pi
+    az_lo = az[:, 0] + rel.min(axis=1)
+    az_hi = az[:, 0] + rel.max(axis=1)
+    dz = np.where((z_min <= 0) & (z_max >= 0), 0.0, np.minimum(np.abs(z_min), np.abs(z_max)))
+    return TriangleBounds(az_lo, az_hi, full, el_lo, el_hi, np.hypot(r_min, dz))
+
+
+def _bisect_longest(tri: np.ndarray) -> np.ndarray:
+    """Split each triangle (n, 3, 3) at the midpoint of its longest edge: (2n, 3, 3)."""
+    e = np.stack(
+        [
+            np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1),
+            np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+            np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1),
+        ],
+        axis=1,
+    )
+    k = e.argmax(axis=1)  # edge k runs from vertex k to vertex k+1
+    idx = np.arange(len(tri))
+    a = tri[idx, k]
+    b = tri[idx, (k + 1) % 3]
+    c = tri[idx, (k + 2) % 3]
+    m = 0.5 * (a + b)
+    return np.concatenate([np.stack([a, m, c], axis=1), np.stack([m, b, c], axis=1)])
+
+
+@dataclass(frozen=True)
+class _Raster:
+    """The window's geometry in raster terms."""
+
+    line0: int  # first line of the window
+    n_lines: int
+    cell: int  # pulses per cell side
+    rel_deg: np.ndarray  # (nc,) column angles from the window's start, sorted
+    order: np.ndarray  # (nc,) window column indices in that (angular) order
+    v0: float
+    vres: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (-(-self.n_lines // self.cell), -(-len(self.order) // self.cell))
+
+
+def _raster_for(spec: ScannerSpec, grid: PulseGrid, a_ref_deg: float) -> _Raster:
+    h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
+    rel = (h0 + grid.columns * hres - a_ref_deg) % 360.0
+    order = np.argsort(rel, kind="stable")
+    n_l, n_c = len(grid.lines), len(grid.columns)
+    cell = max(1, math.ceil(math.sqrt(n_l * n_c / MAX_CELLS)))
+    return _Raster(
+        int(grid.lines[0]),
+        n_l,
+        cell,
+        rel[order],
+        order,
+        spec.vertical_fov_deg[0],
+        spec.vertical_resolution_deg,
+    )
+
+
+def _cell_boxes(
+    b: TriangleBounds, margin_rad: np.ndarray, ras: _Raster, a_ref_deg: float
+) -> tuple[np.ndarray, ...]:
+    """Cell-index boxes of bounded pieces: (row0, row1, col0, col1, wrap_col1, keep);
+    ``wrap_col1`` >= 0 adds the columns ``0..wrap_col1`` (an interval past 360°)."""
+    m = margin_rad
+    el_lo = np.degrees(b.el_lo - m)
+    el_hi = np.degrees(b.el_hi + m)
+    i_lo = np.floor((el_lo - ras.v0) / ras.vres) - ras.line0
+    i_hi = np.ceil((el_hi - ras.v0) / ras.vres) - ras.line0
+    keep = (i_hi >= 0) & (i_lo <= ras.n_lines - 1)
+    i_lo = np.clip(i_lo, 0, ras.n_lines - 1).astype(np.int64)
+    i_hi = np.clip(i_hi, 0, ras.n_lines - 1).astype(np.int64)
+    # azimuth margin grows as 1/cos(elevation) towards the poles
+    el_abs = np.maximum(np.abs(b.el_lo), np.abs(b.el_hi)) + m
+    cos_el = np.cos(np.minimum(el_abs, np.pi / 2))
+    with np.errstate(divide="ignore"):
+        m_az = np.where(cos_el > 1e-3, (m + 1e-12) / cos_el, np.inf)
+    a_lo = np.degrees(b.az_lo - m_az)
+    span = np.degrees(b.az_hi - b.az_lo + 2 * m_az)
+    full = b.full_az | ~np.isfinite(span) | (span >= 360.0 - 1e-9)
+    with np.errstate(invalid="ignore"):
+        rl = np.where(full, 0.0, (a_lo - a_ref_deg) % 360.0)
+    rh = np.where(full, 360.0, rl + np.where(full, 0.0, span))
+    rel = ras.rel_deg
+    n_c = len(rel)
+    c_lo = np.searchsorted(rel, rl, side="left")
+    c_hi = np.searchsorted(rel, np.minimum(rh, 360.0), side="right") - 1
+    wrap = np.where(~full & (rh >= 360.0), np.searchsorted(rel, rh - 360.0, side="right") - 1, -1)
+    keep &= (c_hi >= c_lo) | (wrap >= 0)
+    c_lo = np.minimum(c_lo, n_c - 1)
+    c_hi = np.maximum(c_hi, -1)
+    k = ras.cell
+    return (i_lo // k, i_hi // k, c_lo // k, np.where(c_hi >= 0, c_hi // k, -1), wrap, keep)
+
+
+def occupancy_grid(
+    tri: np.ndarray,
+    spec: ScannerSpec,
+    window: PulseGrid,
+    a_ref_deg: float,
+    *,
+    abs_error_m: float,
+) -> SparseGrid:
+    """The window's pulses that some triangle can reach.
+
+    Parameters
+    ----------
+    tri : (n, 3, 3) float64
+        Triangles in the scanner frame (station at the origin).
+    spec : ScannerSpec
+    window : PulseGrid
+        The station's window (contiguous lines; columns sorted).
+    a_ref_deg : float
+        An azimuth (deg, scanner frame) at or before the window's first column, from
+        which column angles are measured without wrapping inside the window.
+    abs_error_m : float
+        Bound of the absolute position error of float32 vertices and ray origins.
+    """
+    if window.n_pulses == 0 or len(tri) == 0:
+        return SparseGrid.empty(window)
+    ras = _raster_for(spec, window, a_ref_deg)
+    n_rows, n_cols = ras.shape
+    m_ray = pointing_margin_rad(spec)
+    rows0, rows1, cols0, cols1, wraps = [], [], [], [], []
+    pieces = tri
+    for _ in range(40):
+        b = triangle_bounds(pieces)
+        margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
+        r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
+        area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
+        big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
+        if len(pieces) + int(big.sum()) > MAX_PIECES:
+            big[:] = False
+        done = keep & ~big
+        rows0.append(r0[done])
+        rows1.append(r1[done])
+        cols0.append(c0[done])
+        cols1.append(c1[done])
+        wraps.append(w[done])
+        if not big.any():
+            break
+        pieces = _bisect_longest(pieces[big])
+    else:  # pragma: no cover - 40 halvings shrink any box below a cell
+        raise AssertionError("occupancy: bisection did not converge")
+    r0, r1 = np.concatenate(rows0), np.concatenate(rows1)
+    c0, c1, w = np.concatenate(cols0), np.concatenate(cols1), np.concatenate(wraps)
+    k = ras.cell
+    wc = np.where(w >= 0, w // k, -1)
+    # boxes: [r0..r1] × [c0..c1] (if c1 >= c0), plus [r0..r1] × [0..wc] where it wraps
+    boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
+    diff = np.zeros((n_rows + 1) * (n_cols + 1), dtype=np.int64)
+    stride = n_cols + 1
+    for a0, a1, b0, b1, ok in boxes:
+        a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
+        for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
+            diff += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
+    occ = diff.reshape(n_rows + 1, n_cols + 1).cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
+    return SparseGrid.from_raster(window, ras, occ)
+
+
+class SparseGrid:
+    """Some pulses of a window, in the window's order (column by column, lines rising).
+
+    Built from an occupancy raster: each window column carries the lines of the occupied
+    cells of its raster column. Behaves like :class:`~pipeline.scan.rays.PulseGrid`
+    (``n_pulses``, ``indices(start, stop)``) without ever holding every pulse.
+    """
+
+    def __init__(
+        self,
+        columns: np.ndarray,
+        col_lines: np.ndarray,
+        indptr: np.ndarray,
+        lines: np.ndarray,
+    ) -> None:
+        self.columns = columns  # (nc,) window columns, in output order
+        self.col_set = col_lines  # (nc,) which line set each column uses
+        self.indptr = indptr  # (n_sets + 1,) CSR pointers into ``lines``
+        self.lines_data = lines  # concatenated line sets
+        counts = (indptr[1:] - indptr[:-1])[col_lines]
+        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+    @classmethod
+    def empty(cls, window: PulseGrid) -> SparseGrid:
+        return cls(np.empty(0, np.int64), np.empty(0, np.int64), np.zeros(1, np.int64), np.empty(0))
+
+    @classmethod
+    def from_raster(cls, window: PulseGrid, ras: _Raster, occ: np.ndarray) -> SparseGrid:
+        k = ras.cell
+        n_rows, n_cols = occ.shape
+        indptr = [0]
+        data = []
+        for c in range(n_cols):
+            rows = np.flatnonzero(occ[:, c])
+            if len(rows):
+                ln = (rows[:, None] * k + np.arange(k)[None, :]).reshape(-1)
+                ln = ln[ln < ras.n_lines] + ras.line0
+            else:
+                ln = np.empty(0, np.int64)
+            data.append(ln.astype(np.int64))
+            indptr.append(indptr[-1] + len(ln))
+        # column (window order) -> raster column: through its angular position
+        pos = np.empty(len(ras.order), np.int64)
+        pos[ras.order] = np.arange(len(ras.order))
+        col_set = pos // k
+        lines = np.concatenate(data) if data else np.empty(0, np.int64)
+        return cls(window.columns, col_set, np.asarray(indptr, np.int64), lines)
+
+    @property
+    def n_pulses(self) -> int:
+        return int(self.offsets[-1])
+
+    def indices(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        """(line, column) of pulses ``start:stop``."""
+        k = np.arange(start, stop, dtype=np.int64)
+        ci = np.searchsorted(self.offsets, k, side="right") - 1
+        within = k - self.offsets[ci]
+        line = self.lines_data[self.indptr[self.col_set[ci]] + within]
+        return line, self.columns[ci]
+
+
+#: Pieces of thin triangles are bisected until their box covers at most this many pulses.
+THIN_PIECE_PULSES = 16
+#: Cap on the pulses a thin-geometry mask enumerates (beyond it every cast pulse counts).
+THIN_MAX_PULSES = 1 << 25
+
+
+def angular_inradius_rad(tri: np.ndarray) -> np.ndarray:
+    """Angular inradius (rad) of each triangle ``tri`` (n, 3, 3) seen from the origin:
+    the inradius of the triangle of its unit direction vectors (small-angle). A triangle
+    whose inradius is at least the angular step contains a grid direction."""
+    u = tri / np.maximum(np.linalg.norm(tri, axis=2, keepdims=True), 1e-300)
+    area2 = np.linalg.norm(np.cross(u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]), axis=1)
+    perimeter = (
+        np.linalg.norm(u[:, 1] - u[:, 0], axis=1)
+        + np.linalg.norm(u[:, 2] - u[:, 1], axis=1)
+        + np.linalg.norm(u[:, 0] - u[:, 2], axis=1)
+    )
+    return area2 / np.maximum(perimeter, 1e-300)
+
+
+def thin_mask(
+    tri: np.ndarray,
+    spec: ScannerSpec,
+    window: PulseGrid,
+    a_ref_deg: float,
+    *,
+    abs_error_m: float,
+    thickness_m: np.ndarray,
+    max_pulses: int = THIN_MAX_PULSES,
+) -> np.ndarray | None:
+    """Pulses whose beam footprint can touch *thin* geometry, which central rays can
+    miss between them while the beam's sub-rays hit it: a triangle of a closed part
+    whose local thickness (``thickness_m``, e.g. a branch's diameter) subtends less than
+    1.5 angular steps from the station (a twig thinner than the point spacing), or of an
+    open part (``thickness_m`` inf: a leaf) whose own angular inradius is under a step.
+
+    Returns sorted unique keys ``column * n_elevation + line`` (int64), or None when
+    the pieces' boxes add up to more than ``max_pulses`` (at most
+    :data:`THIN_MAX_PULSES`): then every pulse must be treated as near thin geometry.
+    The bounds are those of :func:`occupancy_grid` (the margin includes the beam's
+    half-angle), at pulse resolution.
+    """
+    if window.n_pulses == 0 or len(tri) == 0:
+        return np.empty(0, np.int64)
+    step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+    centroid_m = np.linalg.norm(tri.mean(axis=1), axis=1)
+    with np.errstate(invalid="ignore"):
+        thin = np.where(
+            np.isfinite(thickness_m),
+            thickness_m < 1.5 * step * centroid_m,
+            angular_inradius_rad(tri) < step,
+        )
+    pieces = tri[thin]
+    if len(pieces) == 0:
+        return np.empty(0, np.int64)
+    max_pulses = min(int(max_pulses), THIN_MAX_PULSES)
+    ras = _raster_for(spec, window, a_ref_deg)
+    ras = _Raster(ras.line0, ras.n_lines, 1, ras.rel_deg, ras.order, ras.v0, ras.vres)
+    n_cols = len(ras.order)
+    m_ray = pointing_margin_rad(spec)
+    boxes: list[tuple[np.ndarray, ...]] = []
+    total = 0
+    for _ in range(60):
+        b = triangle_bounds(pieces)
+        margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
+        r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
+        width = np.where(c1 >= c0, c1 - c0 + 1, 0) + np.where(w >= 0, w + 1, 0)
+        area = (r1 - r0 + 1) * width
+        big = keep & (area > THIN_PIECE_PULSES) & (b.d_min > 0) & ~b.full_az
+        done = keep & ~big
+        total += int(area[done].sum())
+        if total > max_pulses or len(pieces) + int(big.sum()) > MAX_PIECES:
+            return None
+        boxes.append((r0[done], r1[done], c0[done], c1[done], w[done]))
+        if not big.any():
+            break
+        pieces = _bisect_longest(pieces[big])
+    else:  # pragma: no cover
+        return None
+    r0, r1, c0, c1, w = (np.concatenate(x) for x in zip(*boxes, strict=True))
+    # pieces: [r0..r1] × ([c0..c1] ∪ [0..w]) in window positions; enumerate every pulse
+    rows_n = r1 - r0 + 1
+    parts = []
+    for lo, hi in ((c0, c1), (np.zeros_like(w), w)):
+        ok = hi >= lo
+        lo, hi, rr0, rn = lo[ok], hi[ok], r0[ok], rows_n[ok]
+        cols_n = hi - lo + 1
+        n = rn * cols_n
+        if not n.sum():
+            continue
+        piece = np.repeat(np.arange(len(n)), n)
+        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        row = rr0[piece] + k % rn[piece]
+        pos = lo[piece] + k // rn[piece]
+        col = window.columns[ras.order[np.minimum(pos, n_cols - 1)]]
+        parts.append(col * spec.n_elevation + (row + ras.line0))
+    if not parts:
+        return np.empty(0, np.int64)
+    return np.unique(np.concatenate(parts))
