@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
@@ -236,9 +236,3 @@ class AtomicFile:
     def discard(self) -> None:
         """Remove the temporary file; the destination is left as it was."""
         self._stack.__exit__(_Discarded, _Discarded(), None)
-
-
-def write_binary(path: Path, write: Callable[[BinaryIO], None]) -> None:
-    """Write through ``write(stream)`` to ``path`` atomically (see :func:`atomic_output`)."""
-    with atomic_output(path) as tmp, open(tmp, "wb") as stream:
-        write(stream)
