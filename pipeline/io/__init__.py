@@ -1,8 +1,12 @@
 """Point cloud files: read and write :class:`~pipeline.cloud.Cloud` by file suffix.
 
 One module per format family (``text``, ``las``, ``ply``); :data:`FORMATS` maps each
-lower-case suffix to its reader and writer, and :func:`read_cloud` / :func:`write_cloud`
+lower-case suffix to its reader and writers, and :func:`read_cloud` / :func:`write_cloud`
 dispatch through it (suffixes are matched case-insensitively).
+
+:func:`open_cloud_writer` writes a cloud that arrives in chunks (a scan, as it is cast)
+without holding it: a :class:`CloudWriter` per format, with the same output as
+:func:`write_cloud` (which is one chunk through the same writers).
 
 * ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`pipeline.io.text`
 * ``.las`` ``.laz``: :mod:`pipeline.io.las` (laspy, LAZ through lazrs)
@@ -20,10 +24,12 @@ labelled parts and a :class:`~pipeline.scene.Scene`, :func:`write_mesh` writes t
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from numpy.typing import ArrayLike, DTypeLike
 
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidParameterError
@@ -31,15 +37,18 @@ from ..scene import Scene
 from . import e57, las, ply, text
 from .mesh import MESH_SUFFIXES, load_mesh, load_scene, write_mesh
 from .sniff import FileInfo, inspect_file, sniff_format
+from .writer import CloudWriter
 
 __all__ = [
     "FORMATS",
     "MESH_SUFFIXES",
     "CloudFormat",
+    "CloudWriter",
     "FileInfo",
     "inspect_file",
     "load_mesh",
     "load_scene",
+    "open_cloud_writer",
     "read_cloud",
     "read_reference",
     "sniff_format",
@@ -51,7 +60,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class CloudFormat:
-    """A point cloud file format: its reader, its writer and the options each accepts.
+    """A point cloud file format: its reader, its writers and the options each accepts.
 
     Parameters
     ----------
@@ -61,29 +70,48 @@ class CloudFormat:
         ``read(path, **read_options) -> Cloud``.
     write : callable
         ``write(path, cloud, **write_options) -> Path``.
+    open_writer : callable
+        ``open_writer(path, *, fields, metadata, **writer_options) -> CloudWriter``.
     read_options : frozenset of str
         Keyword options of :func:`read_cloud` that ``read`` accepts.
     write_options : frozenset of str
         Keyword options of :func:`write_cloud` that ``write`` accepts.
+    writer_options : frozenset of str
+        Keyword options of :func:`open_cloud_writer` that ``open_writer`` accepts.
     """
 
     name: str
     read: Callable[..., Cloud]
     write: Callable[..., Path]
+    open_writer: Callable[..., CloudWriter]
     read_options: frozenset[str] = field(default_factory=frozenset)
     write_options: frozenset[str] = field(default_factory=frozenset)
+    writer_options: frozenset[str] = field(default_factory=frozenset)
 
 
-_TEXT = CloudFormat("text", text.read_text, text.write_text, frozenset({"columns"}))
-_LAS = CloudFormat("LAS/LAZ", las.read_las, las.write_las, write_options=frozenset({"las_scale_m"}))
-_PLY = CloudFormat("PLY", ply.read_ply, ply.write_ply)
+_TEXT = CloudFormat(
+    "text", text.read_text, text.write_text, text.TextCloudWriter, frozenset({"columns"})
+)
+_LAS = CloudFormat(
+    "LAS/LAZ",
+    las.read_las,
+    las.write_las,
+    las.LasCloudWriter,
+    write_options=frozenset({"las_scale_m"}),
+    writer_options=frozenset({"las_scale_m", "origin_hint_m", "threads"}),
+)
+_PLY = CloudFormat("PLY", ply.read_ply, ply.write_ply, ply.PlyCloudWriter)
 
 
 def _e57_write(path: str | Path, cloud: Cloud, **_: Any) -> Path:
     raise InputFormatError(f"{path}: writing E57 is not supported; write .laz or .ply")
 
 
-_E57 = CloudFormat("E57", e57.read_e57, _e57_write)
+def _e57_open_writer(path: str | Path, **_: Any) -> CloudWriter:
+    raise InputFormatError(f"{path}: writing E57 is not supported; write .laz or .ply")
+
+
+_E57 = CloudFormat("E57", e57.read_e57, _e57_write, _e57_open_writer)
 
 #: Lower-case suffix -> format.
 FORMATS: dict[str, CloudFormat] = {
@@ -163,7 +191,8 @@ def write_cloud(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) ->
         Destination; its suffix (any case) selects the format. Written atomically:
         a failed write leaves no partial file.
     cloud : Cloud
-        The points, fields and metadata to write.
+        The points, fields and metadata to write; may be empty (an empty file of the
+        format, which :func:`read_cloud` reads back as an empty cloud).
     las_scale_m : float, optional
         LAS/LAZ only: coordinate resolution in metres (default 0.1 mm); ignored by the
         other formats, which store coordinates as float64.
@@ -184,6 +213,71 @@ def write_cloud(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) ->
     fmt = _format_for(path)
     options = {"las_scale_m": las_scale_m} if "las_scale_m" in fmt.write_options else {}
     return fmt.write(path, cloud, **options)
+
+
+def open_cloud_writer(
+    path: str | Path,
+    *,
+    fields: Mapping[str, DTypeLike],
+    metadata: Mapping[str, Any] | None = None,
+    origin_hint_m: ArrayLike | None = None,
+    las_scale_m: float = 1e-4,
+    threads: int = 0,
+) -> CloudWriter:
+    """Open a point cloud file to write in chunks, choosing the writer by suffix.
+
+    The file holds what :func:`write_cloud` would write for the concatenated chunks
+    (LAS/LAZ: up to the offsets, see ``origin_hint_m``). Memory does not grow with the
+    number of points: PLY and text write each chunk as it comes, LAS/LAZ buffer at most
+    :data:`pipeline.io.las.BATCH_POINTS` points.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; its suffix (any case) selects the format. Written atomically: a
+        temporary file beside it is moved onto it on close; on abort or any error
+        nothing is left and an existing file is untouched.
+    fields : mapping of str -> dtype
+        The per-point fields every chunk must carry, in file order; values are cast to
+        these dtypes.
+    metadata : mapping, optional
+        ``Cloud.metadata`` of the result (stored by LAS/LAZ and PLY; text drops it).
+    origin_hint_m : (3,) float, optional
+        LAS/LAZ only: a point inside the scene (e.g. its bounds' minimum); the offsets
+        are its floor. Without it, the floor of the first non-empty chunk's minimum.
+    las_scale_m : float, optional
+        LAS/LAZ only: coordinate resolution in metres (default 0.1 mm).
+    threads : int, optional
+        LAZ only: compression threads; 0 (default) all cores, 1 a single one (see
+        :class:`pipeline.io.las.LasCloudWriter`).
+
+    Returns
+    -------
+    CloudWriter
+        A context manager: ``write(points, fields)`` each chunk, then ``close()`` (or
+        leave the ``with`` block); ``abort()`` to give up.
+
+    Raises
+    ------
+    InputFormatError
+        If the suffix is not supported or not writable (E57), or the file cannot be
+        created.
+    InvalidGeometryError
+        If a field cannot be stored in that format (see the format modules).
+    InvalidParameterError
+        If ``las_scale_m``, ``origin_hint_m`` or ``threads`` is invalid.
+
+    Notes
+    -----
+    The options that do not apply to the format (``origin_hint_m``, ``las_scale_m``,
+    ``threads`` for PLY and text) are ignored, so that a caller can pass the same
+    options whatever the format it is asked to write.
+    """
+    path = Path(path)
+    fmt = _format_for(path)
+    given = {"origin_hint_m": origin_hint_m, "las_scale_m": las_scale_m, "threads": threads}
+    options = {k: v for k, v in given.items() if k in fmt.writer_options}
+    return fmt.open_writer(path, fields=fields, metadata=metadata, **options)
 
 
 def read_reference(path: str | Path) -> tuple[Scene | Cloud, str]:

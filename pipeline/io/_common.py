@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Iterator, Mapping
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +24,32 @@ FILE_METADATA_KEYS = frozenset(
 
 #: Names that cannot be used for fields: they are the coordinates.
 COORDINATE_NAMES = frozenset({"x", "y", "z"})
+
+
+def check_field(name: str, dtype: np.dtype) -> None:
+    """Raise unless a field of this name and dtype can be written to a point cloud file.
+
+    Parameters
+    ----------
+    name : str
+        The field's name.
+    dtype : numpy.dtype
+        The dtype of its values.
+
+    Raises
+    ------
+    InvalidGeometryError
+        If the field is named like a coordinate or is not numeric/boolean.
+    """
+    if name.lower() in COORDINATE_NAMES:
+        raise InvalidGeometryError(
+            f"field {name!r} clashes with the coordinate of the same name; rename the field"
+        )
+    if dtype.kind not in "biuf":
+        raise InvalidGeometryError(
+            f"field {name!r} has dtype {dtype}; only numeric and boolean fields can be "
+            "written to a point cloud file: convert it or drop it from cloud.fields"
+        )
 
 
 def field_columns(cloud: Cloud) -> list[tuple[str, np.ndarray]]:
@@ -51,19 +77,11 @@ def field_columns(cloud: Cloud) -> list[tuple[str, np.ndarray]]:
     columns: list[tuple[str, np.ndarray]] = []
     for name, values in cloud.fields.items():
         arr = np.asarray(values)
-        if name.lower() in COORDINATE_NAMES:
-            raise InvalidGeometryError(
-                f"field {name!r} clashes with the coordinate of the same name; rename the field"
-            )
-        if arr.dtype.kind not in "biuf":
-            raise InvalidGeometryError(
-                f"field {name!r} has dtype {arr.dtype}; only numeric and boolean fields can be "
-                "written to a point cloud file: convert it or drop it from cloud.fields"
-            )
-        flat = arr.reshape(n, -1)
+        check_field(name, arr.dtype)
         if arr.ndim == 1:
             columns.append((name, arr))
-        else:
+        else:  # not reshape(n, -1): that fails for n = 0
+            flat = arr.reshape(n, int(np.prod(arr.shape[1:])))
             columns.extend((f"{name}_{i}", flat[:, i]) for i in range(flat.shape[1]))
     return columns
 
@@ -173,13 +191,48 @@ def atomic_output(path: Path) -> Iterator[Path]:
         with atomic_path(path) as tmp:
             yield tmp
     except OSError as exc:
-        raise InputFormatError(
-            f"could not write {path}: {exc.strerror or exc}; check that the folder exists "
-            "and is writable"
-        ) from exc
+        raise write_error(path, exc) from exc
 
 
-def write_binary(path: Path, write: Callable[[BinaryIO], None]) -> None:
-    """Write through ``write(stream)`` to ``path`` atomically (see :func:`atomic_output`)."""
-    with atomic_output(path) as tmp, open(tmp, "wb") as stream:
-        write(stream)
+def write_error(path: Path, exc: OSError) -> InputFormatError:
+    """The :class:`InputFormatError` that reports an OS error while writing ``path``."""
+    return InputFormatError(
+        f"could not write {path}: {exc.strerror or exc}; check that the folder exists "
+        "and is writable"
+    )
+
+
+class _Discarded(Exception):
+    """Thrown into :func:`atomic_output` to make it drop the temporary file."""
+
+
+class AtomicFile:
+    """:func:`atomic_output` held open across calls: commit or discard later.
+
+    For writers whose output outlives one ``with`` block (streaming writers): the
+    temporary path is chosen now; :meth:`commit` moves it onto the destination and
+    :meth:`discard` removes it, both exactly as :func:`atomic_output` does at the end of
+    its ``with`` block (OS errors become :class:`InputFormatError`).
+
+    Parameters
+    ----------
+    path : Path
+        The destination file; its folder must exist.
+
+    Attributes
+    ----------
+    tmp : Path
+        Where to write the content (``.<name>.tmp`` beside ``path``).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._stack = ExitStack()
+        self.tmp: Path = self._stack.enter_context(atomic_output(path))
+
+    def commit(self) -> None:
+        """Move the temporary file onto the destination."""
+        self._stack.close()
+
+    def discard(self) -> None:
+        """Remove the temporary file; the destination is left as it was."""
+        self._stack.__exit__(_Discarded, _Discarded(), None)

@@ -7,8 +7,10 @@ point format has it, ``gps_time``; any other standard dimension that is not all 
 own name and dtype.
 
 Writing uses point format 6 (LAS 1.4) with the same scale on every axis (``las_scale_m``,
-0.1 mm by default) and offsets at the floor of the per-axis minimum, so georeferenced
-coordinates keep the scale's precision. Fields named like a format-6 standard dimension
+0.1 mm by default) and offsets at the floor of a point of the cloud, so georeferenced
+coordinates keep the scale's precision: the per-axis minimum for a whole cloud
+(:func:`write_las`), the caller's ``origin_hint_m`` or else the first chunk's minimum for
+a streamed one (:class:`LasCloudWriter`). Fields named like a format-6 standard dimension
 go there (cast to its type: ``intensity`` rounded and clipped to 0..65535,
 ``return_number`` / ``number_of_returns`` clipped to 1..15, ``classification`` to 0..255);
 every other field becomes an extra dimension with its own name and dtype (bool as uint8)
@@ -20,11 +22,13 @@ and a short description. ``Cloud.metadata`` is stored as JSON in a VLR (user id
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import laspy
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidGeometryError, InvalidParameterError
@@ -35,7 +39,7 @@ from ._common import (
     format_label_names,
     parse_label_names,
 )
-from ._common import write_binary as _write_binary
+from .writer import CloudWriter
 
 #: Suffixes handled by this module.
 SUFFIXES: tuple[str, ...] = (".las", ".laz")
@@ -219,9 +223,9 @@ def _to_standard(values: np.ndarray, dtype: np.dtype, lo: float, hi: float) -> n
     return np.clip(values, lo, hi).astype(dtype)
 
 
-def _extra_dtype(values: np.ndarray) -> np.dtype:
-    """The dtype an extra dimension stores ``values`` in (bool as uint8, half as float32)."""
-    dtype = values.dtype
+def _extra_dtype(dtype: np.dtype) -> np.dtype:
+    """The dtype an extra dimension stores a field of ``dtype`` in (bool as uint8, half as
+    float32, little-endian)."""
     if dtype.kind == "b":
         return np.dtype(np.uint8)
     if dtype.kind == "f" and dtype.itemsize < 4:
@@ -268,40 +272,292 @@ def _metadata_vlr(metadata: dict[str, Any]) -> laspy.VLR | None:
     )
 
 
-def _integer_coordinates(points: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets (floor of the per-axis minimum) and the (n, 3) int32 scaled coordinates."""
-    if len(points) == 0:
-        return np.zeros(3), np.empty((0, 3), dtype=np.int32)
-    finite = np.isfinite(points).all(axis=1)
-    if not finite.all():
-        first = int(np.flatnonzero(~finite)[0])
-        raise InvalidGeometryError(
-            f"{int((~finite).sum())} points have NaN or infinite coordinates (first at row "
-            f"{first}); LAS cannot store them: drop those rows before writing"
+#: Points buffered before they go to laspy in one ``write_points`` call. The parallel LAZ
+#: compressor splits each call into LAZ chunks (50 000 points) and compresses those on
+#: all cores, so it pays only on big calls; 1 000 000 points is 20 whole chunks. The
+#: buffer is one point record of at most this many points: 30 bytes a point in format 6
+#: plus the extra dimensions (53 bytes with the scanner's fields: about 53 MB). It grows
+#: to that size only as points arrive, so small files keep a small buffer.
+BATCH_POINTS = 1_000_000
+
+#: Standard dimensions set to 1 when the cloud has no such field (format 6 wants >= 1).
+_DEFAULT_ONE = ("return_number", "number_of_returns")
+
+
+def _write_backends(threads: int) -> tuple[laspy.LazBackend, ...]:
+    """LAZ backends to try, best first: lazrs in parallel unless ``threads`` is 1.
+
+    lazrs compresses in parallel on rayon's global thread pool, which takes its size from
+    ``RAYON_NUM_THREADS`` or the number of cores when it is first used; lazrs (0.8)
+    exposes no thread count, so ``threads`` > 1 cannot be honoured exactly: 0 and > 1
+    both give the parallel backend (all cores), 1 the sequential one.
+    """
+    parallel, sequential = laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs
+    preferred = (sequential,) if threads == 1 else (parallel, sequential)
+    available = tuple(laspy.LazBackend.detect_available())
+    ordered = [b for b in preferred if b in available]
+    ordered += [b for b in available if b not in ordered]
+    return tuple(ordered) or preferred
+
+
+def _check_scale(las_scale_m: float) -> float:
+    try:
+        scale = float(las_scale_m)
+    except (TypeError, ValueError):
+        scale = float("nan")
+    if not np.isfinite(scale) or scale <= 0:
+        raise InvalidParameterError(
+            f"las_scale_m must be a positive number of metres, got {las_scale_m!r}"
         )
-    offsets = np.floor(points.min(axis=0))
-    counts = np.rint((points - offsets) / scale)
-    limit = np.iinfo(np.int32).max
-    span = counts.max(axis=0)
-    if (span > limit).any():
-        extent = points.max(axis=0) - offsets
-        raise InvalidGeometryError(
-            f"the cloud extends {extent.max():.6g} m from its minimum, which does not fit "
-            f"LAS's 32-bit integers at las_scale_m={scale:g} (at most {limit * scale:.6g} m); "
-            "use a coarser las_scale_m"
+    return scale
+
+
+def _check_origin(origin_hint_m: Any) -> np.ndarray:
+    try:
+        origin = np.asarray(origin_hint_m, dtype=np.float64)
+    except (TypeError, ValueError):
+        origin = np.full(1, np.nan)
+    if origin.shape != (3,) or not np.isfinite(origin).all():
+        raise InvalidParameterError(
+            f"origin_hint_m must be 3 finite coordinates (a point inside the scene), "
+            f"got {origin_hint_m!r}"
         )
-    return offsets, counts.astype(np.int32)
+    return origin
+
+
+class LasCloudWriter(CloudWriter):
+    """Stream points into a LAS (``.las``) or LAZ (``.laz``) file, point format 6 (LAS 1.4).
+
+    What :func:`write_las` writes, in chunks (see :class:`~pipeline.io.writer.CloudWriter`
+    for the protocol): the same header, extra dimensions, descriptions, metadata VLR, scale
+    and defaults. Chunks are packed into a buffer of at most :data:`BATCH_POINTS` points
+    that goes to laspy's streaming writer when full and at close; laspy completes the
+    header (point count, bounds, points by return) on close.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; compressed when the suffix is ``.laz`` (any case).
+    fields : mapping of str -> dtype
+        Fields named like a format-6 standard dimension go there (rounded and clipped to
+        its type); the others become extra dimensions of their dtype (bool as uint8).
+    metadata : mapping, optional
+        Stored as JSON in a VLR; ``label_names`` also in the ``label`` description.
+    origin_hint_m : (3,) float, optional
+        A point inside the scene (e.g. its bounds' minimum): the offsets are its floor.
+        Without it they are the floor of the first non-empty chunk's minimum.
+    las_scale_m : float, optional
+        Coordinate resolution in metres (the LAS scale, same on every axis).
+    threads : int, optional
+        LAZ only: 1 compresses on one core (lazrs), 0 (default) or more on all cores
+        (lazrs in parallel; see :func:`_write_backends` for why not exactly ``threads``).
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``las_scale_m``, ``origin_hint_m`` or ``threads`` is invalid.
+    InvalidGeometryError
+        If a field cannot be stored (non-numeric, name longer than 32 bytes); from
+        ``write``: if coordinates are not finite or do not fit int32 at the scale.
+    InputFormatError
+        If laspy or the file system fails to write the file.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        fields: Mapping[str, DTypeLike],
+        metadata: Mapping[str, Any] | None = None,
+        origin_hint_m: Any = None,
+        las_scale_m: float = 1e-4,
+        threads: int = 0,
+    ) -> None:
+        super().__init__(path, fields, metadata)
+        self._scale = _check_scale(las_scale_m)
+        self._offsets: np.ndarray | None = (
+            None if origin_hint_m is None else np.floor(_check_origin(origin_hint_m))
+        )
+        threads = int(threads)
+        if threads < 0:
+            raise InvalidParameterError(f"threads must be >= 0 (0: all cores), got {threads}")
+        self._compress = self.path.suffix.lower() == ".laz"
+        self._backends = _write_backends(threads) if self._compress else None
+        self._standard = _standard_targets()
+        extras: list[laspy.ExtraBytesParams] = []
+        for name, dtype in self._fields.items():
+            if name in self._standard:
+                continue
+            if not name.isascii() or len(name.encode()) > _NAME_MAX:
+                raise InvalidGeometryError(
+                    f"field name {name!r} cannot be a LAS extra dimension (ASCII, at most "
+                    f"{_NAME_MAX} characters); rename the field"
+                )
+            extras.append(
+                laspy.ExtraBytesParams(
+                    name=name,
+                    type=_extra_dtype(dtype),
+                    description=_description(name, self._metadata),
+                )
+            )
+        try:
+            header = laspy.LasHeader(point_format=POINT_FORMAT, version=LAS_VERSION)
+            if extras:
+                header.add_extra_dims(extras)
+            header.scales = np.array([self._scale] * 3)
+            vlr = _metadata_vlr(self._metadata)
+            if vlr is not None:
+                header.vlrs.append(vlr)
+        except laspy.errors.LaspyException as exc:
+            raise InputFormatError(f"could not write {self.path} as LAS/LAZ: {exc}") from exc
+        self._header = header
+        self._defaults = [name for name in _DEFAULT_ONE if name not in self._fields]
+        self._batch = int(BATCH_POINTS)
+        self._buffer: laspy.PackedPointRecord | None = None
+        self._fill = 0
+        self._stream: BinaryIO | None = None
+        self._laspy: laspy.LasWriter | None = None
+        self._start()
+
+    @property
+    def offsets(self) -> np.ndarray | None:
+        """(3,) float64: the LAS offsets, once known (from the hint or the first chunk)."""
+        return None if self._offsets is None else self._offsets.copy()
+
+    @property
+    def laz_backend(self) -> laspy.LazBackend | None:
+        """The LAZ backend compressing the points (None for LAS or before the first
+        batch is handed to laspy)."""
+        if self._laspy is None or not self._compress:
+            return None
+        writer = self._laspy.point_writer
+        if type(writer).__name__ == "LazrsPointWriter":
+            parallel = getattr(writer, "parallel", False)
+            return laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
+        return laspy.LazBackend.Laszip
+
+    def _open(self, tmp: Path) -> None:
+        self._stream = open(tmp, "wb")
+
+    def _write(self, points: np.ndarray, columns: dict[str, np.ndarray]) -> None:
+        finite = np.isfinite(points).all(axis=1)
+        if not finite.all():
+            first = self.points_written + int(np.flatnonzero(~finite)[0])
+            raise InvalidGeometryError(
+                f"{int((~finite).sum())} points have NaN or infinite coordinates (first at row "
+                f"{first}); LAS cannot store them: drop those rows before writing"
+            )
+        if self._offsets is None:
+            self._offsets = np.floor(points.min(axis=0))
+        start = 0
+        while start < len(points):
+            stop = start + min(self._batch - self._fill, len(points) - start)
+            self._pack(points[start:stop], {k: v[start:stop] for k, v in columns.items()}, start)
+            start = stop
+            if self._fill == self._batch:
+                self._flush()
+
+    def _pack(self, points: np.ndarray, columns: dict[str, np.ndarray], row: int) -> None:
+        """Convert part of a chunk (the points from ``row`` on) into the buffer."""
+        ints = self._integers(points, self.points_written + row)
+        n = len(points)
+        self._reserve(self._fill + n)
+        assert self._buffer is not None
+        slot = self._buffer[self._fill : self._fill + n]
+        slot["X"][:] = ints[:, 0]
+        slot["Y"][:] = ints[:, 1]
+        slot["Z"][:] = ints[:, 2]
+        for name in self._defaults:
+            slot[name][:] = np.ones(n, dtype=np.uint8)
+        for name, values in columns.items():
+            if name in self._standard:
+                slot[name][:] = _to_standard(values, *self._standard[name])
+            else:
+                slot[name][:] = values.astype(_extra_dtype(values.dtype), copy=False)
+        self._fill += n
+
+    def _integers(self, points: np.ndarray, first_row: int) -> np.ndarray:
+        """(n, 3) int32 scaled coordinates, or raise if some do not fit int32."""
+        assert self._offsets is not None
+        counts = np.rint((points - self._offsets) / self._scale)
+        info = np.iinfo(np.int32)
+        bad = ((counts < info.min) | (counts > info.max)).any(axis=1)
+        if bad.any():
+            extent = float(np.abs(points - self._offsets).max())
+            offsets = ", ".join(f"{v:.15g}" for v in self._offsets)
+            raise InvalidGeometryError(
+                f"the cloud extends {extent:.6g} m from the LAS offsets ({offsets}) (first "
+                f"at row {first_row + int(np.flatnonzero(bad)[0])}), which does not fit LAS's "
+                f"32-bit integers at las_scale_m={self._scale:g} (at most "
+                f"{info.max * self._scale:.6g} m); use a coarser las_scale_m"
+            )
+        return counts.astype(np.int32)
+
+    def _reserve(self, size: int) -> None:
+        """Make the buffer hold at least ``size`` points (at most :data:`BATCH_POINTS`)."""
+        have = 0 if self._buffer is None else len(self._buffer)
+        if size <= have:
+            return
+        grown = laspy.PackedPointRecord.zeros(
+            min(self._batch, max(size, 2 * have)), self._header.point_format
+        )
+        if self._buffer is not None and self._fill:
+            grown.array[: self._fill] = self._buffer.array[: self._fill]
+        self._buffer = grown
+
+    def _laspy_writer(self) -> laspy.LasWriter:
+        """laspy's writer, created once the offsets are known (or at close)."""
+        if self._laspy is None:
+            assert self._stream is not None
+            self._header.offsets = self._offsets if self._offsets is not None else np.zeros(3)
+            self._laspy = laspy.open(
+                self._stream,
+                mode="w",
+                header=self._header,
+                do_compress=self._compress,
+                laz_backend=self._backends,
+                closefd=False,
+            )
+        return self._laspy
+
+    def _flush(self) -> None:
+        if self._fill:
+            assert self._buffer is not None
+            self._laspy_writer().write_points(self._buffer[: self._fill])
+            self._fill = 0
+
+    def _finish(self) -> None:
+        self._flush()
+        self._laspy_writer().close()
+        self._buffer = None
+        assert self._stream is not None
+        self._stream.close()
+
+    def _discard(self) -> None:
+        # Drop laspy's writer before closing the file: its compressor may hold the stream.
+        self._laspy = None
+        self._buffer = None
+        if self._stream is not None:
+            self._stream.close()
+
+    def _translate(self, exc: BaseException) -> BaseException:
+        if isinstance(exc, laspy.errors.LaspyException) or type(exc).__name__ == "LazrsError":
+            return InputFormatError(f"could not write {self.path} as LAS/LAZ: {exc}")
+        return super()._translate(exc)
 
 
 def write_las(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) -> Path:
     """Write a LAS (``.las``) or LAZ (``.laz``) file, point format 6 (LAS 1.4).
+
+    One chunk through :class:`LasCloudWriter`; the offsets are the floor of the per-axis
+    minimum, so georeferenced coordinates keep the scale's precision.
 
     Parameters
     ----------
     path : str or Path
         Destination; compressed when the suffix is ``.laz`` (any case).
     cloud : Cloud
-        The points, fields and metadata to write.
+        The points, fields and metadata to write (may be empty).
     las_scale_m : float, optional
         Coordinate resolution in metres (the LAS scale, same on every axis).
 
@@ -320,62 +576,13 @@ def write_las(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) -> P
     InputFormatError
         If laspy or the file system fails to write the file.
     """
-    path = Path(path)
-    scale = float(las_scale_m)
-    if not np.isfinite(scale) or scale <= 0:
-        raise InvalidParameterError(
-            f"las_scale_m must be a positive number of metres, got {las_scale_m!r}"
-        )
-    offsets, ints = _integer_coordinates(cloud.points, scale)
-    columns = field_columns(cloud)
-
-    standard = _standard_targets()
-    extras: list[laspy.ExtraBytesParams] = []
-    for name, values in columns:
-        if name in standard:
-            continue
-        if not name.isascii() or len(name.encode()) > _NAME_MAX:
-            raise InvalidGeometryError(
-                f"field name {name!r} cannot be a LAS extra dimension (ASCII, at most "
-                f"{_NAME_MAX} characters); rename the field"
-            )
-        extras.append(
-            laspy.ExtraBytesParams(
-                name=name,
-                type=_extra_dtype(values),
-                description=_description(name, cloud.metadata),
-            )
-        )
-
-    try:
-        header = laspy.LasHeader(point_format=POINT_FORMAT, version=LAS_VERSION)
-        if extras:
-            header.add_extra_dims(extras)
-        header.scales = np.array([scale, scale, scale])
-        header.offsets = offsets
-        vlr = _metadata_vlr(cloud.metadata)
-        if vlr is not None:
-            header.vlrs.append(vlr)
-        record = laspy.ScaleAwarePointRecord.zeros(len(cloud), header=header)
-        las = laspy.LasData(header, points=record)
-        las.X = ints[:, 0]
-        las.Y = ints[:, 1]
-        las.Z = ints[:, 2]
-        names = {name for name, _ in columns}
-        if len(cloud):
-            for default in ("return_number", "number_of_returns"):
-                if default not in names:
-                    las[default] = np.ones(len(cloud), dtype=np.uint8)
-        for name, values in columns:
-            if name in standard:
-                las[name] = _to_standard(values, *standard[name])
-            else:
-                las[name] = values.astype(_extra_dtype(values), copy=False)
-        compress = path.suffix.lower() == ".laz"
-        _write_binary(
-            path,
-            lambda stream: las.write(stream, do_compress=compress, laz_backend=_backends()),
-        )
-    except laspy.errors.LaspyException as exc:
-        raise InputFormatError(f"could not write {path} as LAS/LAZ: {exc}") from exc
-    return path
+    columns = dict(field_columns(cloud))
+    writer = LasCloudWriter(
+        path,
+        fields={name: values.dtype for name, values in columns.items()},
+        metadata=cloud.metadata,
+        las_scale_m=las_scale_m,
+    )
+    with writer:
+        writer.write(cloud.points, columns)
+    return writer.path

@@ -27,14 +27,17 @@ Metadata is not written: use PLY or LAS/LAZ to keep it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..cloud import Cloud
 from ..errors import InputFormatError, InvalidGeometryError
-from ._common import atomic_output, field_columns
+from ._common import field_columns
+from .writer import CloudWriter
 
 #: Suffixes handled by this module.
 SUFFIXES: tuple[str, ...] = (".xyz", ".txt", ".csv", ".asc", ".pts")
@@ -243,24 +246,94 @@ def read_text(path: str | Path, *, columns: Sequence[str | None] | None = None) 
     return Cloud(points, fields, metadata)
 
 
-def _format_for(values: np.ndarray) -> str:
-    kind = values.dtype.kind
-    if kind in "biu":
+def _format_for(dtype: np.dtype) -> str:
+    """The printf format of a column of ``dtype``."""
+    if dtype.kind in "biu":
         return "%d"
-    if values.dtype.itemsize <= 4:
+    if dtype.itemsize <= 4:
         return "%.9g"
     return "%.15g"
 
 
+class TextCloudWriter(CloudWriter):
+    """Stream points into a delimited text file, one line per point.
+
+    What :func:`write_text` writes, in chunks (see :class:`~pipeline.io.writer.CloudWriter`
+    for the protocol): the header line ``x y z field...`` when opened, then each chunk's
+    rows as they come, formatted :data:`_WRITE_CHUNK` rows at a time.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; ``.csv`` is written comma-separated, other suffixes space-separated.
+    fields : mapping of str -> dtype
+        One column each, formatted by dtype (see the module docstring).
+    metadata : mapping, optional
+        Ignored: text files do not store metadata.
+
+    Raises
+    ------
+    InvalidGeometryError
+        If a field name contains the delimiter or whitespace, or a field is not numeric.
+    InputFormatError
+        If the file cannot be written.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        fields: Mapping[str, DTypeLike],
+        metadata: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__(path, fields, metadata)
+        for name in self._fields:
+            if not name or any(c.isspace() or c in ",;#" for c in name):
+                raise InvalidGeometryError(
+                    f"field name {name!r} cannot be written to a text header (it contains "
+                    "whitespace, ',', ';' or '#'); rename the field"
+                )
+        self._delimiter = "," if self.path.suffix.lower() == ".csv" else " "
+        self._row = self._delimiter.join(
+            ["%.9f"] * 3 + [_format_for(dtype) for dtype in self._fields.values()]
+        )
+        self._stream: TextIO | None = None
+        self._start()
+
+    def _open(self, tmp: Path) -> None:
+        self._stream = open(tmp, "w", encoding="utf-8", newline="\n")
+        self._stream.write(self._delimiter.join(["x", "y", "z", *self._fields]) + "\n")
+
+    def _write(self, points: np.ndarray, columns: dict[str, np.ndarray]) -> None:
+        values = [points[:, 0], points[:, 1], points[:, 2]]
+        values += [v.astype(np.int64) if v.dtype.kind == "b" else v for v in columns.values()]
+        assert self._stream is not None
+        for start in range(0, len(points), _WRITE_CHUNK):
+            chunk = [v[start : start + _WRITE_CHUNK].tolist() for v in values]
+            self._stream.write("\n".join(self._row % row for row in zip(*chunk, strict=True)))
+            self._stream.write("\n")
+
+    def _finish(self) -> None:
+        assert self._stream is not None
+        self._stream.close()
+
+    def _discard(self) -> None:
+        if self._stream is not None:
+            self._stream.close()
+
+
 def write_text(path: str | Path, cloud: Cloud) -> Path:
     """Write a delimited text point cloud with a header line.
+
+    One chunk through :class:`TextCloudWriter`.
 
     Parameters
     ----------
     path : str or Path
         Destination; ``.csv`` is written comma-separated, other suffixes space-separated.
     cloud : Cloud
-        The points and fields to write (metadata is not written).
+        The points and fields to write (metadata is not written); may be empty (the file
+        then holds the header line only).
 
     Returns
     -------
@@ -274,24 +347,8 @@ def write_text(path: str | Path, cloud: Cloud) -> Path:
     InputFormatError
         If the file cannot be written.
     """
-    path = Path(path)
-    delimiter = "," if path.suffix.lower() == ".csv" else " "
-    columns = field_columns(cloud)
-    for name, _ in columns:
-        if not name or any(c.isspace() or c in ",;#" for c in name):
-            raise InvalidGeometryError(
-                f"field name {name!r} cannot be written to a text header (it contains "
-                "whitespace, ',', ';' or '#'); rename the field"
-            )
-    names = ["x", "y", "z"] + [name for name, _ in columns]
-    fmt = delimiter.join(["%.9f"] * 3 + [_format_for(v) for _, v in columns])
-    values = [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
-    values += [v.astype(np.int64) if v.dtype.kind == "b" else v for _, v in columns]
-
-    with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as out:
-        out.write(delimiter.join(names) + "\n")
-        for start in range(0, len(cloud), _WRITE_CHUNK):
-            chunk = [v[start : start + _WRITE_CHUNK].tolist() for v in values]
-            out.write("\n".join(fmt % row for row in zip(*chunk, strict=True)))
-            out.write("\n")
-    return path
+    columns = dict(field_columns(cloud))
+    writer = TextCloudWriter(path, fields={name: values.dtype for name, values in columns.items()})
+    with writer:
+        writer.write(cloud.points, columns)
+    return writer.path
