@@ -4,6 +4,8 @@
   SimpleForest, treesim CSV), validated, measured and written;
 * :mod:`.mesh`: tables as triangle meshes, a closed prism per cylinder or a closed,
   mitred tube per branch (:func:`tubes_to_mesh`);
+* :mod:`.lod`: level of detail, facets per cylinder from the point spacing a scanner
+  gets at it (:func:`lod_facets`, :func:`plan_lod`);
 * :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`SPECIES`) whose
   cylinder table is the exact truth of their mesh.
 """
@@ -20,13 +22,16 @@ from .cylinders import (
     read_cylinders,
     write_cylinders,
 )
+from .lod import LOD_MIN_FACETS, LOD_TOLERANCE, LodPlan, lod_facets, plan_lod
 from .mesh import (
     JOINTS,
     TubeMesh,
     cylinder_mesh,
     cylinders_to_mesh,
     faces_per_cylinder,
+    mesh_triangle_count,
     mesh_volume,
+    meshed_facets,
     tubes_to_mesh,
     vertices_per_cylinder,
 )
@@ -49,12 +54,15 @@ __all__ = [
     "FORMATS",
     "JOINTS",
     "LEAF_SHAPES",
+    "LOD_MIN_FACETS",
+    "LOD_TOLERANCE",
     "SPECIES",
     "SHAPES",
     "TREEQSM_TEXT_COLUMNS",
     "TREESIM_COLUMNS",
     "CylinderTable",
     "LeafParams",
+    "LodPlan",
     "ProceduralTree",
     "StemLevel",
     "TreeParams",
@@ -63,7 +71,11 @@ __all__ = [
     "cylinders_to_mesh",
     "faces_per_cylinder",
     "generate_tree",
+    "lod_facets",
+    "mesh_triangle_count",
     "mesh_volume",
+    "meshed_facets",
+    "plan_lod",
     "species_preset",
     "read_cylinders",
     "shape_ratio",

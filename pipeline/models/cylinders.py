@@ -456,15 +456,25 @@ class CylinderTable:
         r0, r1 = self.radius_m, self.end_radius_m
         return math.pi * self.length_m * (r0 * r0 + r0 * r1 + r1 * r1) / 3.0
 
-    def prism_volume_m3(self, facets: int) -> np.ndarray:
+    def prism_volume_m3(self, facets: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """(n,) float64: volume of each cylinder as meshed with ``facets`` sides, m^3.
 
         The mesh inscribes a regular polygon of ``facets`` sides in each disc, whose area
         is ``facets / 2 * r^2 * sin(2 pi / facets)``; this is :attr:`volume_m3` scaled by
-        that area over pi r^2.
+        that area over pi r^2. ``facets`` is one count (>= 3) or one per row ((n,) int,
+        as :func:`~pipeline.models.mesh.cylinders_to_mesh` accepts).
         """
-        facets = _check_facets(facets)
-        return self.volume_m3 * (facets * math.sin(2.0 * math.pi / facets) / (2.0 * math.pi))
+        if np.ndim(facets) == 0:
+            f = _check_facets(facets)  # type: ignore[arg-type]
+            return self.volume_m3 * (f * math.sin(2.0 * math.pi / f) / (2.0 * math.pi))
+        arr = np.asarray(facets)
+        if arr.shape != (self.n_cylinders,) or arr.dtype.kind not in "iu" or arr.min() < 3:
+            raise InvalidParameterError(
+                f"facets must be an integer >= 3 or one per row ({self.n_cylinders}), got a "
+                f"{arr.dtype} array of shape {arr.shape}"
+            )
+        f_arr = arr.astype(np.float64)
+        return self.volume_m3 * (f_arr * np.sin(2.0 * np.pi / f_arr) / (2.0 * np.pi))
 
     @property
     def total_volume_m3(self) -> float:

@@ -17,6 +17,16 @@ accuracy knob) and both closed, outward-oriented and watertight:
   mitre plane. A chain starts and ends with flat caps; a branch's first cap is wherever
   the table starts it (inside its parent for :mod:`pipeline.models.procedural` trees).
 
+``facets`` may also be one count per table row (level of detail, see
+:mod:`pipeline.models.lod`). Separate prisms take each row's count. A tube's rings must
+all have the same count (its side quads and annuli join ring vertex ``k`` to ring vertex
+``k``), so a tube takes the largest count of its rows: no row gets fewer facets than it
+asked for, tubes of different counts share no vertices, and every guarantee above holds
+per tube at its own count (closed, outward, the prisms' volume; a procedural child's base
+disc stays inside its parent's tube whenever the parent has at least
+:data:`~pipeline.models.procedural.MIN_JUNCTION_FACETS`). One count, or an array of equal
+counts, gives the same mesh bit for bit as before per-row counts existed.
+
 A regular ``facets``-gon inscribed in a circle holds ``(facets / 2 pi) sin(2 pi / facets)``
 of the circle's area: -0.64 % at 32 facets, -2.6 % at 16, -10 % at 8. Enclosed volumes
 are summed by :func:`mesh_volume`; where pieces overlap (a branch starting inside its
@@ -111,8 +121,75 @@ def _ring_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
+def _facets_arg(facets: object) -> int | np.ndarray:
+    """``facets`` checked: an int >= 3, or a 1-D int64 array of them (length not checked)."""
+    if isinstance(facets, np.ndarray) and facets.ndim == 0 and facets.dtype.kind in "iu":
+        facets = facets.item()
+    if np.ndim(facets) == 0:
+        return _check_facets(facets)  # type: ignore[arg-type]
+    arr = np.asarray(facets)
+    if arr.ndim != 1 or arr.dtype.kind not in "iu" or (arr.size and int(arr.min()) < 3):
+        low = f", smallest {arr.min()}" if arr.size and arr.dtype.kind in "iuf" else ""
+        raise InvalidParameterError(
+            "facets must be an integer >= 3 (sides of the polygon around each cylinder) or "
+            f"a 1-D integer array of them, one per cylinder; got a {arr.dtype} array of "
+            f"shape {arr.shape}{low}"
+        )
+    return arr.astype(np.int64)
+
+
+def _facets_per_row(facets: object, n: int) -> int | np.ndarray:
+    """``facets`` as an int when uniform, else as an (n,) int64 array (checked)."""
+    checked = _facets_arg(facets)
+    if isinstance(checked, int):
+        return checked
+    if checked.shape != (n,):
+        raise InvalidParameterError(
+            f"facets per cylinder must have one value per table row ({n}), got {checked.shape[0]}"
+        )
+    if n and (checked == checked[0]).all():
+        return int(checked[0])
+    return checked
+
+
+def _prism_vertices(
+    axis: np.ndarray,
+    start: np.ndarray,
+    end: np.ndarray,
+    radius: np.ndarray,
+    end_radius: np.ndarray,
+    facets: int,
+    caps: bool,
+    out: np.ndarray,
+) -> None:
+    """Fill ``out`` (m, vertices_per_cylinder, 3) with m prisms' vertices (local numbering
+    of :func:`_template_faces`)."""
+    f = facets
+    m = axis.shape[0]
+    angle = 2.0 * np.pi * np.arange(f) / f
+    cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
+    # In blocks of cylinders, so that the (block, f, 3) temporaries stay in cache.
+    for lo in range(0, m, _MESH_BLOCK):
+        hi = min(lo + _MESH_BLOCK, m)
+        u, v = _ring_basis(axis[lo:hi])
+        ring = cos * u[:, None, :]  # unit offsets from the axis to the ring vertices
+        ring += sin * v[:, None, :]
+        block = out[lo:hi]
+        np.multiply(ring, radius[lo:hi, None, None], out=block[:, :f])
+        block[:, :f] += start[lo:hi, None, :]
+        np.multiply(ring, end_radius[lo:hi, None, None], out=block[:, f : 2 * f])
+        block[:, f : 2 * f] += end[lo:hi, None, :]
+    if caps:
+        out[:, 2 * f] = start
+        out[:, 2 * f + 1] = end
+
+
 def cylinders_to_mesh(
-    table: CylinderTable, *, facets: int = 32, caps: bool = True, joints: str = "separate"
+    table: CylinderTable,
+    *,
+    facets: int | Sequence[int] | np.ndarray = 32,
+    caps: bool = True,
+    joints: str = "separate",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate a table: a closed prism per cylinder, or a mitred tube per branch.
 
@@ -120,8 +197,12 @@ def cylinders_to_mesh(
     ----------
     table : CylinderTable
         Validated first (radii and lengths > 0, unit axes), so no triangle is degenerate.
-    facets : int
-        Sides of the polygon around each cylinder, >= 3.
+    facets : int or (n,) int array
+        Sides of the polygon around each cylinder, >= 3: one count for all, or one per
+        table row (e.g. from :func:`pipeline.models.lod.lod_facets`). Separate prisms
+        honour each row's count; mitred tubes use, per tube, the largest count of its rows
+        (a tube's rings must match, see :func:`tubes_to_mesh`). An array whose values are
+        all equal gives exactly the mesh of that single count.
     caps : bool
         Close the end discs with fans around their centres. Without caps each cylinder
         is an open tube (not watertight). Only for ``joints="separate"``: tubes always
@@ -136,51 +217,75 @@ def cylinders_to_mesh(
     -------
     vertices : (v, 3) float64
         In the table's coordinates. Separate: per cylinder the base ring, the top ring,
-        then (with caps) the base and top centres (``n * vertices_per_cylinder`` rows).
+        then (with caps) the base and top centres (``vertices_per_cylinder`` rows each,
+        at that cylinder's facet count).
     faces : (f, 3) int64
         Triangles, counter-clockwise seen from outside (outward normals). Separate:
-        grouped by cylinder in table order (see :func:`faces_per_cylinder`).
+        grouped by cylinder in table order, ``faces_per_cylinder`` each (with per-row
+        facets, row ``i``'s faces start at ``faces_per_cylinder(facets[:i]).sum()``).
     """
     if joints not in JOINTS:
         raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
-    facets = _check_facets(facets)
+    checked = _facets_arg(facets)
     if joints == "miter":
         if not caps:
             raise InvalidParameterError(
                 "joints='miter' builds closed tubes; caps=False is only for joints='separate'"
             )
-        tubes = tubes_to_mesh(table, facets=facets)
+        tubes = tubes_to_mesh(table, facets=checked)
         return tubes.vertices, tubes.faces
     table.validate()
     n = table.n_cylinders
-    f = facets
-    vpc = vertices_per_cylinder(f, caps)
-
-    angle = 2.0 * np.pi * np.arange(f) / f
-    cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
+    per_row = _facets_per_row(checked, n)
     axis = table.unit_axis
     start = table.start
     end = start + table.length_m[:, None] * axis
+    if not isinstance(per_row, int):
+        return _varied_prisms(table, axis, start, end, per_row, caps)
+    f = per_row
+    vpc = vertices_per_cylinder(f, caps)
     vertices = np.empty((n, vpc, 3), dtype=np.float64)
-    # In blocks of cylinders, so that the (block, f, 3) temporaries stay in cache.
-    for lo in range(0, n, _MESH_BLOCK):
-        hi = min(lo + _MESH_BLOCK, n)
-        u, v = _ring_basis(axis[lo:hi])
-        ring = cos * u[:, None, :]  # unit offsets from the axis to the ring vertices
-        ring += sin * v[:, None, :]
-        block = vertices[lo:hi]
-        np.multiply(ring, table.radius_m[lo:hi, None, None], out=block[:, :f])
-        block[:, :f] += start[lo:hi, None, :]
-        np.multiply(ring, table.end_radius_m[lo:hi, None, None], out=block[:, f : 2 * f])
-        block[:, f : 2 * f] += end[lo:hi, None, :]
-    if caps:
-        vertices[:, 2 * f] = start
-        vertices[:, 2 * f + 1] = end
-
+    _prism_vertices(axis, start, end, table.radius_m, table.end_radius_m, f, caps, vertices)
     template = _template_faces(f, caps)
     offsets = np.arange(n, dtype=np.int64) * vpc
     faces = template[None, :, :] + offsets[:, None, None]
     return vertices.reshape(-1, 3), faces.reshape(-1, 3)
+
+
+def _varied_prisms(
+    table: CylinderTable,
+    axis: np.ndarray,
+    start: np.ndarray,
+    end: np.ndarray,
+    facets: np.ndarray,
+    caps: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Separate prisms with one facet count per row, in table order (vertices and faces)."""
+    vpc = 2 * facets + (2 if caps else 0)
+    fpc = (4 if caps else 2) * facets
+    v_off = np.cumsum(vpc) - vpc
+    f_off = np.cumsum(fpc) - fpc
+    vertices = np.empty((int(vpc.sum()), 3), dtype=np.float64)
+    faces = np.empty((int(fpc.sum()), 3), dtype=np.int64)
+    for f in np.unique(facets).tolist():
+        rows = np.flatnonzero(facets == f)
+        nv, nf = vertices_per_cylinder(f, caps), faces_per_cylinder(f, caps)
+        block = np.empty((len(rows), nv, 3), dtype=np.float64)
+        _prism_vertices(
+            axis[rows],
+            start[rows],
+            end[rows],
+            table.radius_m[rows],
+            table.end_radius_m[rows],
+            f,
+            caps,
+            block,
+        )
+        vertices[v_off[rows][:, None] + np.arange(nv)] = block
+        faces[f_off[rows][:, None] + np.arange(nf)] = (
+            _template_faces(f, caps)[None, :, :] + v_off[rows][:, None, None]
+        )
+    return vertices, faces
 
 
 def cylinder_mesh(
@@ -293,6 +398,9 @@ class TubeMesh:
     joined : (n,) bool
         Whether each row is mitred to the row before it in its tube (False for the
         first row of a tube).
+    tube_facets : (n_tubes,) int64
+        Vertices per ring of each tube (all equal for a single ``facets``; with per-row
+        facets, the largest of the tube's rows).
     """
 
     vertices: np.ndarray
@@ -301,6 +409,7 @@ class TubeMesh:
     face_tube: np.ndarray
     tube_of_row: np.ndarray
     joined: np.ndarray
+    tube_facets: np.ndarray
 
     @property
     def n_tubes(self) -> int:
@@ -372,10 +481,139 @@ def _chain_links(
         pred[drop_start] = -1
 
 
+@dataclass(frozen=True, eq=False)
+class _Tubes:
+    """How :func:`tubes_to_mesh` chains a table's rows into tubes (facet-independent)."""
+
+    pred: np.ndarray  # (n,) row each row continues, -1 at a tube's first row
+    row_j: np.ndarray  # rows joined to their predecessor ...
+    par_j: np.ndarray  # ... and those predecessors
+    succ: np.ndarray  # (n,) row continuing each row, -1 at a tube's last row
+    depth: np.ndarray  # (n,) rows before each row in its tube
+    head: np.ndarray  # (n,) first row of each row's tube
+    n_tubes: int
+    tube_of_row: np.ndarray  # (n,) tube of each row, 0 .. n_tubes - 1
+    same: np.ndarray  # per joint (row_j): the two radii are equal (one shared ring)
+
+
+def _tube_structure(
+    table: CylinderTable,
+    axis: np.ndarray,
+    end: np.ndarray,
+    max_bend_deg: float,
+    max_gap_ratio: float,
+) -> _Tubes:
+    n = table.n_cylinders
+    pred = _chain_links(table, axis, end, max_bend_deg, max_gap_ratio)
+    row_j = np.flatnonzero(pred >= 0)
+    par_j = pred[row_j]
+    succ = np.full(n, -1, dtype=np.int64)
+    succ[par_j] = row_j
+    depth, head, _ = _walk_to_roots(pred)
+    heads, tube_of_row = np.unique(head, return_inverse=True)
+    r_a, r_b = table.end_radius_m[par_j], table.radius_m[row_j]
+    return _Tubes(
+        pred=pred,
+        row_j=row_j,
+        par_j=par_j,
+        succ=succ,
+        depth=depth,
+        head=head,
+        n_tubes=len(heads),
+        tube_of_row=tube_of_row.reshape(-1).astype(np.int64),
+        same=np.abs(r_a - r_b) <= _SAME_RADIUS_RTOL * np.maximum(r_a, r_b),
+    )
+
+
+def _check_tube_options(max_bend_deg: float, max_gap_ratio: float) -> None:
+    if not (math.isfinite(max_bend_deg) and 0.0 < max_bend_deg < 180.0):
+        raise InvalidParameterError(
+            f"max_bend_deg must be a number in (0, 180), got {max_bend_deg!r}"
+        )
+    if not (math.isfinite(max_gap_ratio) and max_gap_ratio >= 0.0):
+        raise InvalidParameterError(f"max_gap_ratio must be >= 0, got {max_gap_ratio!r}")
+
+
+def _tube_facets(facets: int | np.ndarray, tubes: _Tubes) -> np.ndarray:
+    """(n_tubes,) int64: one facet count per tube, the largest of its rows'."""
+    if isinstance(facets, int):
+        return np.full(tubes.n_tubes, facets, dtype=np.int64)
+    out = np.zeros(tubes.n_tubes, dtype=np.int64)
+    np.maximum.at(out, tubes.tube_of_row, facets)
+    return out
+
+
+def meshed_facets(
+    table: CylinderTable,
+    *,
+    facets: int | Sequence[int] | np.ndarray = 32,
+    joints: str = "separate",
+    max_bend_deg: float = MAX_MITER_BEND_DEG,
+    max_gap_ratio: float = MAX_JOINT_GAP_RATIO,
+) -> np.ndarray:
+    """(n,) int64: the facet count each row gets in :func:`cylinders_to_mesh`'s mesh.
+
+    Separate prisms: ``facets`` itself (broadcast). Mitred tubes: per row, the largest
+    count of the rows of its tube (see :func:`tubes_to_mesh`). Parameters as there.
+    """
+    if joints not in JOINTS:
+        raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
+    checked = _facets_arg(facets)
+    table.validate()
+    n = table.n_cylinders
+    per_row = _facets_per_row(checked, n)
+    if joints == "separate":
+        return np.broadcast_to(np.asarray(per_row, dtype=np.int64), n).copy()
+    _check_tube_options(max_bend_deg, max_gap_ratio)
+    tubes = _tube_structure(table, table.unit_axis, table.end, max_bend_deg, max_gap_ratio)
+    return _tube_facets(per_row, tubes)[tubes.tube_of_row]
+
+
+def mesh_triangle_count(
+    table: CylinderTable,
+    *,
+    facets: int | Sequence[int] | np.ndarray = 32,
+    caps: bool = True,
+    joints: str = "separate",
+    max_bend_deg: float = MAX_MITER_BEND_DEG,
+    max_gap_ratio: float = MAX_JOINT_GAP_RATIO,
+) -> int:
+    """Triangles :func:`cylinders_to_mesh` (or :func:`tubes_to_mesh`) would make, without
+    meshing.
+
+    Parameters are those of :func:`cylinders_to_mesh` and, for ``joints="miter"``,
+    :func:`tubes_to_mesh`. Separate prisms: ``(4 if caps else 2) * facets`` per row.
+    Tubes: per tube of ``f`` facets, ``2 f`` per row, ``f`` per end cap and ``2 f`` per
+    radius step.
+    """
+    if joints not in JOINTS:
+        raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
+    checked = _facets_arg(facets)
+    table.validate()
+    n = table.n_cylinders
+    per_row = _facets_per_row(checked, n)
+    if joints == "separate":
+        return int(np.sum(np.broadcast_to(per_row, n))) * (4 if caps else 2)
+    if not caps:
+        raise InvalidParameterError(
+            "joints='miter' builds closed tubes; caps=False is only for joints='separate'"
+        )
+    _check_tube_options(max_bend_deg, max_gap_ratio)
+    tubes = _tube_structure(table, table.unit_axis, table.end, max_bend_deg, max_gap_ratio)
+    row_f = _tube_facets(per_row, tubes)[tubes.tube_of_row]
+    steps = tubes.row_j[~tubes.same]
+    return int(
+        2 * row_f.sum()
+        + row_f[tubes.pred < 0].sum()
+        + row_f[tubes.succ < 0].sum()
+        + 2 * row_f[steps].sum()
+    )
+
+
 def tubes_to_mesh(
     table: CylinderTable,
     *,
-    facets: int = 32,
+    facets: int | Sequence[int] | np.ndarray = 32,
     max_bend_deg: float = MAX_MITER_BEND_DEG,
     max_gap_ratio: float = MAX_JOINT_GAP_RATIO,
 ) -> TubeMesh:
@@ -395,8 +633,15 @@ def tubes_to_mesh(
     ----------
     table : CylinderTable
         Validated first.
-    facets : int
-        Vertices per ring, >= 3.
+    facets : int or (n,) int array
+        Vertices per ring, >= 3: one count for all tubes, or one per table row (e.g.
+        from :func:`pipeline.models.lod.lod_facets`). All rings of a tube share one count
+        (side quads and annuli join ring vertex ``k`` to ring vertex ``k``), so each tube
+        gets the largest count of its rows (:attr:`TubeMesh.tube_facets`): a row never
+        gets fewer facets than asked. Tubes of different counts share no vertices, so
+        every tube stays closed and its volume is that of its rows' inscribed prisms at
+        the tube's count. An array whose values are all equal gives exactly the mesh of
+        that single count.
     max_bend_deg : float
         Largest bend that is mitred, in (0, 180); sharper joints start a new tube.
     max_gap_ratio : float
@@ -408,30 +653,25 @@ def tubes_to_mesh(
     -------
     TubeMesh
         ``(2 * rows + 2 * tubes) * facets`` triangles (plus ``2 * facets`` per radius
-        step); every tube is closed and outward.
+        step), summed per tube at its own count (:func:`mesh_triangle_count`); every tube
+        is closed and outward. Faces come in groups of tubes of equal facet count
+        (increasing), in row order within each group.
     """
-    facets = _check_facets(facets)
-    if not (math.isfinite(max_bend_deg) and 0.0 < max_bend_deg < 180.0):
-        raise InvalidParameterError(
-            f"max_bend_deg must be a number in (0, 180), got {max_bend_deg!r}"
-        )
-    if not (math.isfinite(max_gap_ratio) and max_gap_ratio >= 0.0):
-        raise InvalidParameterError(f"max_gap_ratio must be >= 0, got {max_gap_ratio!r}")
+    checked = _facets_arg(facets)
+    _check_tube_options(max_bend_deg, max_gap_ratio)
     table.validate()
-    n, f = table.n_cylinders, facets
+    n = table.n_cylinders
+    per_row = _facets_per_row(checked, n)
     axis = table.unit_axis
     start, end = table.start, table.end
     r0, r1 = table.radius_m, table.end_radius_m
 
-    pred = _chain_links(table, axis, end, max_bend_deg, max_gap_ratio)
+    tubes = _tube_structure(table, axis, end, max_bend_deg, max_gap_ratio)
+    pred, row_j, par_j, succ = tubes.pred, tubes.row_j, tubes.par_j, tubes.succ
+    depth, head, tube_of_row = tubes.depth, tubes.head, tubes.tube_of_row
     joined = pred >= 0
-    row_j = np.flatnonzero(joined)
-    par_j = pred[row_j]
-    succ = np.full(n, -1, dtype=np.int64)
-    succ[par_j] = row_j
-    depth, head, _ = _walk_to_roots(pred)
-    heads, tube_of_row = np.unique(head, return_inverse=True)
-    tube_of_row = tube_of_row.reshape(-1).astype(np.int64)
+    tube_facets = _tube_facets(per_row, tubes)
+    row_facets = tube_facets[tube_of_row]
 
     # Parallel-transported ring frames: psi is each row's frame angle relative to the
     # reference basis of its axis, summed along the chain from its first row.
@@ -463,68 +703,85 @@ def tubes_to_mesh(
     centre_s[row_j], normal_s[row_j] = joint, bisector
     centre_e[par_j], normal_e[par_j] = joint, bisector
 
-    angle = 2.0 * np.pi * np.arange(f) / f
-    cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
-    n_heads, n_tails = len(heads), int((succ < 0).sum())
-    vertices = np.empty((2 * n * f + n_heads + n_tails, 3), dtype=np.float64)
-    ring_s = vertices[: n * f].reshape(n, f, 3)
-    ring_e = vertices[n * f : 2 * n * f].reshape(n, f, 3)
-    for lo in range(0, n, _MESH_BLOCK):
-        hi = min(lo + _MESH_BLOCK, n)
-        a = axis[lo:hi]
-        d = cos * e1[lo:hi, None, :] + sin * e2[lo:hi, None, :]  # unit, perpendicular to a
-        for out, centre, normal, radius in (
-            (ring_s, centre_s, normal_s, r0),
-            (ring_e, centre_e, normal_e, r1),
-        ):
-            nrm = normal[lo:hi]
-            # Slide each circle point along the axis onto the ring's plane.
-            lam = np.einsum("kfj,kj->kf", d, nrm) / np.einsum("kj,kj->k", nrm, a)[:, None]
-            offset = d - lam[:, :, None] * a[:, None, :]
-            np.multiply(offset, radius[lo:hi, None, None], out=out[lo:hi])
-            out[lo:hi] += centre[lo:hi, None, :]
+    # Vertices: per facet count (increasing), its rows' start rings then their end rings;
+    # then the centres of the first caps, then those of the last caps.
     is_head = ~joined
     is_tail = succ < 0
-    vertices[2 * n * f : 2 * n * f + n_heads] = start[is_head]
-    vertices[2 * n * f + n_heads :] = end[is_tail]
+    n_heads, n_tails = int(is_head.sum()), int(is_tail.sum())
+    n_ring = int(row_facets.sum())
+    vertices = np.empty((2 * n_ring + n_heads + n_tails, 3), dtype=np.float64)
+    vertices[2 * n_ring : 2 * n_ring + n_heads] = start[is_head]
+    vertices[2 * n_ring + n_heads :] = end[is_tail]
+    head_vertex = 2 * n_ring + np.cumsum(is_head) - 1
+    tail_vertex = 2 * n_ring + n_heads + np.cumsum(is_tail) - 1
+    local = np.empty(n, dtype=np.int64)  # position of each row within its facet group
+    parts: list[tuple[np.ndarray, np.ndarray, int]] = []
+    first = 0
+    for f in np.unique(tube_facets).tolist():
+        rows = np.flatnonzero(row_facets == f)
+        m = len(rows)
+        local[rows] = np.arange(m)
+        ring_s = vertices[first : first + m * f].reshape(m, f, 3)
+        ring_e = vertices[first + m * f : first + 2 * m * f].reshape(m, f, 3)
+        angle = 2.0 * np.pi * np.arange(f) / f
+        cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
+        for lo in range(0, m, _MESH_BLOCK):
+            hi = min(lo + _MESH_BLOCK, m)
+            sel = slice(lo, hi) if m == n else rows[lo:hi]
+            a = axis[sel]
+            d = cos * e1[sel][:, None, :] + sin * e2[sel][:, None, :]  # unit, perpendicular to a
+            for out, centre, normal, radius in (
+                (ring_s, centre_s, normal_s, r0),
+                (ring_e, centre_e, normal_e, r1),
+            ):
+                nrm = normal[sel]
+                # Slide each circle point along the axis onto the ring's plane.
+                lam = np.einsum("kfj,kj->kf", d, nrm) / np.einsum("kj,kj->k", nrm, a)[:, None]
+                offset = d - lam[:, :, None] * a[:, None, :]
+                np.multiply(offset, radius[sel][:, None, None], out=out[lo:hi])
+                out[lo:hi] += centre[sel][:, None, :]
 
-    idx_s = np.arange(n * f, dtype=np.int64).reshape(n, f)
-    idx_e = idx_s + n * f
-    r_a, r_b = r1[par_j], r0[row_j]
-    same = np.abs(r_a - r_b) <= _SAME_RADIUS_RTOL * np.maximum(r_a, r_b)
-    idx_s[row_j[same]] = idx_e[par_j[same]]
-    step_rows, step_pars = row_j[~same], par_j[~same]
+        idx_s = first + np.arange(m * f, dtype=np.int64).reshape(m, f)
+        idx_e = idx_s + m * f
+        in_group = row_facets[row_j] == f
+        g_row, g_par, g_same = row_j[in_group], par_j[in_group], tubes.same[in_group]
+        idx_s[local[g_row[g_same]]] = idx_e[local[g_par[g_same]]]
+        step_rows, step_pars = g_row[~g_same], g_par[~g_same]
 
-    k = np.arange(f, dtype=np.int64)
-    k1 = (k + 1) % f
-    rows = np.arange(n, dtype=np.int64)
-    s, e = idx_s, idx_e
-    head_rows, tail_rows = rows[is_head], rows[is_tail]
-    c_s = (2 * n * f + np.arange(n_heads, dtype=np.int64))[:, None]
-    c_e = (2 * n * f + n_heads + np.arange(n_tails, dtype=np.int64))[:, None]
-    sa, sb = e[step_pars], s[step_rows]  # ring before and after a radius step
-    parts = [
-        (np.stack([s[:, k], s[:, k1], e[:, k1]], axis=2), rows),
-        (np.stack([s[:, k], e[:, k1], e[:, k]], axis=2), rows),
-        (
-            np.stack(
-                [np.broadcast_to(c_s, (n_heads, f)), s[head_rows][:, k1], s[head_rows][:, k]],
-                axis=2,
+        k = np.arange(f, dtype=np.int64)
+        k1 = (k + 1) % f
+        s, e = idx_s, idx_e
+        head_local = np.flatnonzero(is_head[rows])
+        tail_local = np.flatnonzero(is_tail[rows])
+        c_s = head_vertex[rows[head_local]][:, None]
+        c_e = tail_vertex[rows[tail_local]][:, None]
+        n_h, n_t = len(head_local), len(tail_local)
+        sa, sb = e[local[step_pars]], s[local[step_rows]]  # ring before and after a step
+        parts += [
+            (np.stack([s[:, k], s[:, k1], e[:, k1]], axis=2), rows, f),
+            (np.stack([s[:, k], e[:, k1], e[:, k]], axis=2), rows, f),
+            (
+                np.stack(
+                    [np.broadcast_to(c_s, (n_h, f)), s[head_local][:, k1], s[head_local][:, k]],
+                    axis=2,
+                ),
+                rows[head_local],
+                f,
             ),
-            head_rows,
-        ),
-        (
-            np.stack(
-                [np.broadcast_to(c_e, (n_tails, f)), e[tail_rows][:, k], e[tail_rows][:, k1]],
-                axis=2,
+            (
+                np.stack(
+                    [np.broadcast_to(c_e, (n_t, f)), e[tail_local][:, k], e[tail_local][:, k1]],
+                    axis=2,
+                ),
+                rows[tail_local],
+                f,
             ),
-            tail_rows,
-        ),
-        (np.stack([sa[:, k], sa[:, k1], sb[:, k1]], axis=2), step_rows),
-        (np.stack([sa[:, k], sb[:, k1], sb[:, k]], axis=2), step_rows),
-    ]
-    faces = np.concatenate([p.reshape(-1, 3) for p, _ in parts])
-    face_cylinder = np.concatenate([np.repeat(r, f) for _, r in parts])
+            (np.stack([sa[:, k], sa[:, k1], sb[:, k1]], axis=2), step_rows, f),
+            (np.stack([sa[:, k], sb[:, k1], sb[:, k]], axis=2), step_rows, f),
+        ]
+        first += 2 * m * f
+    faces = np.concatenate([p.reshape(-1, 3) for p, _, _ in parts])
+    face_cylinder = np.concatenate([np.repeat(r, f) for _, r, f in parts])
 
     # Drop the start rings that were merged into their predecessors' end rings.
     used = np.zeros(len(vertices), dtype=bool)
@@ -537,4 +794,5 @@ def tubes_to_mesh(
         face_tube=tube_of_row[face_cylinder],
         tube_of_row=tube_of_row,
         joined=joined,
+        tube_facets=tube_facets,
     )
