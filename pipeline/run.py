@@ -103,6 +103,50 @@ def software_versions() -> dict[str, str]:
     return base("pymeshlab", "trimesh", "matplotlib")
 
 
+#: Level of detail of QSM meshes in a run: facets whose sagitta is at most this fraction
+#: of the point spacing at the nearest station (:func:`pipeline.models.plan_lod`). A
+#: tenth keeps the inscribed polygon's one-sided offset (about 2/3 of the sagitta) under
+#: 7 % of the spacing, so a cylinder fitted to the simulated cloud is not biased thinner
+#: by more than that, while twigs, whose sagitta is tiny at any count, drop to 8 facets.
+RUN_LOD_TOLERANCE = 0.1
+
+
+def _lod_scene(
+    model: Any, stations: list[Any], params: RunParams
+) -> tuple[Scene, dict[str, Any] | None]:
+    """The scene a run scans under ``lod="auto"``: the QSM table meshed with facets from
+    the projected size at the nearest station; None when that changes nothing."""
+    import math
+
+    from .cloud import LABEL_CODES
+    from .models import cylinders_to_mesh, plan_lod
+
+    spec = params.scan.scanner
+    spacing = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+    plan = plan_lod(
+        model.cylinders,
+        np.array([st.position_m for st in stations]),
+        spacing,
+        max_facets=int(params.reconstruct.facets),
+        tolerance=RUN_LOD_TOLERANCE,
+    )
+    full = Scene.from_labelled_mesh(
+        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
+    )
+    if (plan.facets == int(params.reconstruct.facets)).all():
+        return full, None
+    v, f = cylinders_to_mesh(model.cylinders, facets=plan.facets)
+    label = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
+    scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
+    info = plan.describe()
+    info["why"] = (
+        f"QSM mesh for the scan: {len(f):,} triangles instead of {len(model.faces):,}, "
+        f"each cylinder with the fewest facets (>= {int(plan.facets.min())}) whose sagitta is "
+        f"at most {RUN_LOD_TOLERANCE:g} of the point spacing at the nearest station"
+    )
+    return scene, info
+
+
 def run_tree(
     cloud: Cloud | np.ndarray | str | Path,
     params: RunParams | None = None,
@@ -139,7 +183,7 @@ def run_tree(
     """
     from ._version import __version__
     from .compare import compare, write_comparison
-    from .io import read_cloud, write_cloud
+    from .io import read_cloud, write_cloud, write_mesh
     from .reconstruct import reconstruct
     from .report import build_report
     from .scan import scan, stations_for
@@ -190,6 +234,13 @@ def run_tree(
     )
     sp = params.scan
     stations, station_rule = stations_for(scene.bounds, sp)
+    scanned_mesh = written["mesh"].name
+    facet_lod = None
+    if sp.lod == "auto" and model.cylinders is not None:
+        scene, facet_lod = _lod_scene(model, stations, params)
+        if facet_lod is not None:
+            scanned_mesh = "scan_mesh.ply"
+            write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
     say(0.35, "scanning")
     result = scan(
         scene,
@@ -199,11 +250,14 @@ def run_tree(
         max_rays=int(sp.max_rays),
         nthreads=threads,
         progress=scale_progress(say, 0.35, 0.5),
+        lod=sp.lod,
     )
+    if facet_lod is not None:
+        result.lod["facets"] = facet_lod
     sim = result.cloud
     scan_path = write_cloud(out / "scan.laz", sim)
     scan_summary = {
-        "mesh": written["mesh"].name,
+        "mesh": scanned_mesh,
         "triangles": scene.n_triangles,
         "labels_in_scene": scene.labels_present(),
         "output": scan_path.name,
@@ -216,6 +270,7 @@ def run_tree(
         "source": "scan.json",
         "scanner": sp.scanner.to_dict(),
         "models_active": result.models,
+        "lod": result.lod,
         "stations": [
             {"index": s.index, "position_m": list(s.position_m), "points": s.points}
             for s in result.station_stats
@@ -229,7 +284,7 @@ def run_tree(
     vs_mesh = compare(sim, scene, params=cp)
     in_mesh = {
         "cloud": "../scan.laz",
-        "reference": f"../{written['mesh'].name}",
+        "reference": f"../{scanned_mesh}",
         "scan": scan_inputs,
     }
     write_comparison(vs_mesh, out / "vs_mesh", inputs=in_mesh, formats=(".laz",))
@@ -268,6 +323,7 @@ def run_tree(
             "stations": [s.to_dict() for s in result.station_stats],
             "station_rule": scan_summary["station_rule"],
             "models_active": result.models,
+            "lod": result.lod,
         },
         "vs_mesh": mesh_fig,
         "vs_field": field_fig,

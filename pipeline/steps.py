@@ -136,8 +136,8 @@ def scan_files(
     label on every mesh; ``window`` casts rays only towards the scene (False: the full
     field of view).
     """
-    from .io import write_cloud
-    from .scan import Station, load_scene, scan, stations_for
+    from .io import open_cloud_writer
+    from .scan import SCAN_FIELDS, Station, load_scene, scan, scan_metadata, stations_for
 
     say = _say(progress)
     params = params or ScanParams()
@@ -159,21 +159,32 @@ def scan_files(
     else:
         placed, rule = stations_for(scene.bounds, params)
     say(0.05, "scanning")
-    result = scan(
-        scene,
-        placed,
-        params.scanner,
-        window=window,
-        chunk_rays=int(params.chunk_rays),
-        max_rays=int(params.max_rays),
-        nthreads=int(threads),
-        progress=scale_progress(say, 0.05, 0.9),
-    )
-    say(0.9, "writing the cloud")
-    t1 = time.perf_counter()
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_cloud(out, result.cloud)
-    t_write = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    # the cloud is written while it is cast: memory does not grow with the points
+    with open_cloud_writer(
+        out,
+        fields=SCAN_FIELDS,
+        metadata=scan_metadata(placed),
+        origin_hint_m=scene.bounds[0],
+        threads=int(threads),
+    ) as writer:
+        result = scan(
+            scene,
+            placed,
+            params.scanner,
+            window=window,
+            chunk_rays=int(params.chunk_rays),
+            max_rays=int(params.max_rays),
+            nthreads=int(threads),
+            progress=scale_progress(say, 0.05, 0.95),
+            sink=writer.write,
+            lod=params.lod,
+        )
+        say(0.95, "writing the cloud")
+        t2 = time.perf_counter()
+    t_write = time.perf_counter() - t2
+    t_scan = t2 - t1
     summary = json_ready(
         {
             "meshes": [str(m) for m in meshes],
@@ -183,7 +194,8 @@ def scan_files(
             "output": str(out),
             **({"station_rule": rule} if rule else {}),
             **result.summary(),
-            "timings_s": {"load": t_load, "scan": result.total_s, "write": t_write},
+            # scan: casting and writing as it goes; write: finishing the file
+            "timings_s": {"load": t_load, "scan": t_scan, "write": t_write},
         }
     )
     side = write_json(out.with_name(out.stem + ".json"), summary)
@@ -208,6 +220,7 @@ def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:
         "source": side.name,
         "scanner": info.get("scanner"),
         "models_active": info.get("models_active"),
+        "lod": info.get("lod"),
         "stations": [
             {k: st.get(k) for k in ("index", "position_m", "points")}
             for st in info.get("stations", [])

@@ -88,6 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
     )
     param_options(s, ScannerSpec, path=("scanner",), exclude=_NO_FLAG)
+    param_option(s, ScanParams, "lod")
     x = p.add_argument_group("execution")
     x.add_argument(
         "--full-fov",
@@ -163,7 +164,7 @@ def run_scan(
         print(f"{s.index:>7}  {pos:>34}  {s.rays_cast:>11,}  {s.points:>9,}  {s.time_s:>8.2f}")
     models = ", ".join(result.models) or "none (geometry only)"
     print(
-        f"total: {len(result.cloud):,} points from {result.rays_cast:,} rays "
+        f"total: {result.n_points:,} points from {result.rays_cast:,} rays "
         f"(full field of view would be {result.rays_full_fov:,}) in {result.total_s:.2f} s; "
         f"models: {models}"
     )

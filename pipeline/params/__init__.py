@@ -35,6 +35,7 @@ from .compare import CompareParams, ReportParams
 from .reconstruct import METHODS, PrepareParams, QSMParams, ReconstructParams
 from .run import (
     DEFAULT_RUN_PRESET,
+    LODS,
     RUN_PRESETS,
     RunParams,
     ScanParams,
@@ -43,6 +44,7 @@ from .run import (
     run_preset,
 )
 from .scanner import (
+    BEAM_SAMPLINGS,
     DEFAULT_REFLECTANCE,
     INSTRUMENTS,
     RETURN_MODES,
@@ -66,7 +68,9 @@ from .settings import (
 )
 
 __all__ = [
+    "BEAM_SAMPLINGS",
     "DEFAULT_REFLECTANCE",
+    "LODS",
     "DEFAULT_RUN_PRESET",
     "INSTRUMENTS",
     "METHODS",

@@ -7,7 +7,7 @@ import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import Any, Literal
 
 from ..errors import InvalidParameterError
 from ..jsonio import json_ready
@@ -18,6 +18,7 @@ from .scanner import ScannerSpec, resolution_fields
 
 __all__ = [
     "DEFAULT_RUN_PRESET",
+    "LODS",
     "RUN_PRESETS",
     "RunParams",
     "ScanParams",
@@ -25,6 +26,10 @@ __all__ = [
     "params_hash",
     "run_preset",
 ]
+
+Lod = Literal["auto", "full"]
+#: Levels of detail of a scan (:attr:`ScanParams.lod`).
+LODS: tuple[str, ...] = ("auto", "full")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,6 +52,10 @@ class ScanParams:
         Polar angle of the first station, counter-clockwise from +x.
     scanner : ScannerSpec
         Angular resolution, fields of view, ranges, optional beam and noise models.
+    lod : {"auto", "full"}
+        Level of detail (:func:`pipeline.scan.scan`): ``"auto"`` models only what the
+        scene requires and says why in the scan's summary; ``"full"`` models everything
+        everywhere (every beam sub-ray, every triangle, the QSM mesh's full facets).
     chunk_rays : int
         Rays cast per batch (bounds memory at ~200 B per ray; results do not depend on it).
     max_rays : int
@@ -66,6 +75,14 @@ class ScanParams:
         0.0, help="polar angle of the first station, counter-clockwise from +x", unit="deg"
     )
     scanner: ScannerSpec = param(help="the scanner", factory=ScannerSpec)
+    lod: Lod = param(
+        "auto",
+        help="level of detail: auto models only what the scene requires (rays where "
+        "geometry can be, beam sub-rays where footprints straddle edges, no geometry no "
+        "station can record, QSM facets from the projected size); full models everything "
+        "everywhere",
+        choices=LODS,
+    )
     chunk_rays: int = param(
         1 << 19, help="rays per batch; bounds memory at ~200 B per ray", execution_only=True
     )
@@ -91,6 +108,8 @@ class ScanParams:
                 raise InvalidParameterError(f"{name} must be a finite number")
         if int(self.chunk_rays) < 1 or int(self.max_rays) < 1:
             raise InvalidParameterError("chunk_rays and max_rays must be >= 1")
+        if self.lod not in LODS:
+            raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {self.lod!r}")
         if not isinstance(self.scanner, ScannerSpec):
             raise InvalidParameterError("scanner must be a ScannerSpec")
 

@@ -19,6 +19,7 @@ from ..errors import InvalidParameterError
 from ._fields import finite, param
 
 __all__ = [
+    "BEAM_SAMPLINGS",
     "DEFAULT_REFLECTANCE",
     "INSTRUMENTS",
     "InstrumentPreset",

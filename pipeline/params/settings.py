@@ -93,6 +93,7 @@ SETTINGS: dict[str, Setting] = {
         _setting(("scan", "n_stations")),
         _setting(("scan", "distance_m")),
         _setting(("scan", "height_m")),
+        _setting(("scan", "lod")),
         Setting(
             "resolution_deg",
             (

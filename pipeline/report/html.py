@@ -12,7 +12,7 @@ import numpy as np
 
 from . import assets, figures
 from .data import ReportData
-from .text import length, mm, percent
+from .text import length, lod_reasons, mm, percent
 
 
 def _b64(data: bytes) -> str:
@@ -236,6 +236,8 @@ def _parameter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
         rows.append(("scanner resolution", f"{res[0]}° × {res[1]}° (horizontal × vertical)"))
         models = scan.get("models_active")
         rows.append(("scanner models", escape(", ".join(models) if models else "geometry only")))
+        for what, why in lod_reasons(scan.get("lod")):
+            rows.append((f"level of detail: {what}", escape(why)))
     if scan.get("stations"):
         rows.append(("stations", str(len(scan["stations"]))))
     return rows

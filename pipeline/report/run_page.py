@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 from typing import Any
 
-from .text import cell, length, percent
+from .text import cell, length, lod_reasons, percent
 
 __all__ = ["PAGE_CSS", "STAGES", "run_page"]
 
@@ -77,6 +77,7 @@ def run_page(s: dict[str, Any], version: str) -> str:
         ("rays cast", cell(sc["rays_cast"])),
         ("simulated points", cell(sc["points"])),
         ("models", esc(", ".join(sc["models_active"]) or "geometry only")),
+        *((f"level of detail: {what}", esc(why)) for what, why in lod_reasons(sc.get("lod"))),
     ]
     t = s["timings_s"]
     rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]

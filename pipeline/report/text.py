@@ -7,6 +7,19 @@ import math
 from typing import Any
 
 
+def lod_reasons(lod: Any) -> list[tuple[str, str]]:
+    """(what, why) lines of a scan's level-of-detail account (``ScanResult.lod``): which
+    models ran, where, and why; empty for older scans that have none."""
+    if not isinstance(lod, dict):
+        return []
+    out = []
+    for key in ("rays", "geometry", "beam", "facets"):
+        entry = lod.get(key)
+        if isinstance(entry, dict) and isinstance(entry.get("why"), str):
+            out.append((key, f"{entry['why']} (lod {lod.get('mode', '?')})"))
+    return out
+
+
 def length(x: float | None) -> str:
     """A distance in metres as short text: ``"4.2 mm"``, ``"0.283 m"``, ``"< 0.001 mm"``."""
     if x is None or not math.isfinite(x):

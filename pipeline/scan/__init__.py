@@ -12,11 +12,12 @@ from ..io.mesh import load_mesh, load_scene
 from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
 from ..scene import MeshPart, Scene, label_from_name
 from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
-from .trace import ScanResult, StationStats, scan
+from .trace import SCAN_FIELDS, ScanResult, StationStats, scan, scan_metadata
 
 __all__ = [
     "INSTRUMENTS",
     "RETURN_MODES",
+    "SCAN_FIELDS",
     "InstrumentPreset",
     "MeshPart",
     "ScanResult",
@@ -31,6 +32,7 @@ __all__ = [
     "ring_around",
     "ring_layout",
     "scan",
+    "scan_metadata",
     "station_distance_m",
     "stations_for",
 ]

@@ -437,3 +437,30 @@ def thin_mask(
     if not parts:
         return np.empty(0, np.int64)
     return np.unique(np.concatenate(parts))
+
+
+def reachable(tri: np.ndarray, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:
+    """Which triangles (n, 3, 3; scanner frame) a station of ``spec`` can record.
+
+    False only where no ray can produce a point: the whole triangle lies beyond
+    ``max_range_m``, or its widened angular bounds miss the field of view. Nearer than
+    ``min_range_m`` is kept (a near triangle records nothing but still occludes).
+    """
+    if len(tri) == 0:
+        return np.zeros(0, dtype=bool)
+    b = triangle_bounds(tri)
+    m = pointing_margin_rad(spec) + abs_error_m / np.maximum(b.d_min, 1e-300)
+    v0, v1 = (math.radians(a) for a in spec.vertical_fov_deg)
+    ok = (b.d_min <= spec.max_range_m) & (b.el_hi + m >= v0) & (b.el_lo - m <= v1)
+    if spec.full_turn:
+        return ok
+    h0, h1 = spec.horizontal_fov_deg
+    el_abs = np.maximum(np.abs(b.el_lo), np.abs(b.el_hi)) + m
+    cos_el = np.cos(np.minimum(el_abs, np.pi / 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m_az = np.where(cos_el > 1e-3, m / cos_el, np.inf)
+        a_lo = np.degrees(b.az_lo - m_az)
+        span = np.degrees(b.az_hi - b.az_lo + 2 * m_az)
+        rel = (a_lo - h0) % 360.0
+    full = b.full_az | ~np.isfinite(span) | (span >= 360.0)
+    return ok & (full | (rel <= h1 - h0) | (rel + span >= 360.0))

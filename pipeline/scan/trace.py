@@ -24,10 +24,10 @@ from .._system import cpu_count
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
-from ..params import ScannerSpec
+from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
-from .occupancy import occupancy_grid, thin_mask
+from .occupancy import occupancy_grid, reachable, thin_mask, triangle_bounds
 from .rays import (
     PulseGrid,
     box_window,
@@ -110,6 +110,7 @@ class ScanResult:
     window: bool
     cull: bool = False
     points_written: int = 0
+    lod: dict[str, Any] = field(default_factory=dict)
     models: list[str] = field(default_factory=list)
 
     @property
@@ -134,6 +135,7 @@ class ScanResult:
             "pulses_cast": sum(s.pulses_cast for s in self.station_stats),
             "window": self.window,
             "cull": self.cull,
+            "lod": self.lod,
             "bvh_build_s": self.bvh_build_s,
             "total_s": self.total_s,
             "models_active": self.models,
@@ -155,13 +157,15 @@ def _grid_for(
 class _Caster:
     """The Open3D scene plus float64 triangle data for refinement."""
 
-    def __init__(self, scene: Scene, frame: LocalFrame, nthreads: int) -> None:
+    def __init__(
+        self, scene: Scene, frame: LocalFrame, nthreads: int, keep: np.ndarray | None = None
+    ) -> None:
         import open3d as o3d
 
         self.o3d = o3d
         self.nthreads = int(nthreads)
         v = frame.to_local(scene.vertices)
-        f = scene.faces
+        f = scene.faces if keep is None else scene.faces[keep]
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
         used = np.unique(f)
@@ -169,7 +173,7 @@ class _Caster:
         self.v0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0)
         self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
-        self.label = scene.face_label
+        self.label = scene.face_label if keep is None else scene.face_label[keep]
         self.lo, self.hi = frame.to_local(scene.bounds)
         diag = float(np.linalg.norm(self.hi - self.lo))
         self.pad = 1e-3 + 1e-5 * diag
@@ -274,6 +278,94 @@ def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
             f"{label} geometry (nearest surface {t[hit].min():.3f} m away in every "
             "direction); move it outside the mesh"
         )
+
+
+def _reachable_triangles(
+    scene: Scene, frame: LocalFrame, stations: Sequence[Station], spec: ScannerSpec, lod: str
+) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """The triangles to load (None: all) and what was left out, and why."""
+    n = scene.n_triangles
+    info: dict[str, Any] = {"triangles": n, "loaded": n, "beyond_range": 0, "outside_fov": 0}
+    if lod != "auto" or n == 0:
+        return None, info
+    v = frame.to_local(scene.vertices)
+    f = scene.faces
+    radius = float(np.linalg.norm(v[np.unique(f)], axis=1).max())
+    keep = np.zeros(n, dtype=bool)
+    near = np.zeros(n, dtype=bool)
+    for st in stations:
+        o = frame.to_local(st.position)
+        tri = ((v - o) @ st.rotation)[f]
+        abs_err = 2e-5 * (radius + float(np.linalg.norm(o))) + 1e-7
+        keep |= reachable(tri, spec, abs_error_m=abs_err)
+        near |= triangle_bounds(tri).d_min <= spec.max_range_m
+    info.update(
+        loaded=int(keep.sum()),
+        beyond_range=int((~near).sum()),
+        outside_fov=int((near & ~keep).sum()),
+    )
+    return (None if keep.all() else keep), info
+
+
+def _lod_summary(
+    lod: str,
+    spec: ScannerSpec,
+    stats: list[StationStats],
+    geometry: dict[str, Any],
+    culled: bool,
+    adaptive: bool,
+) -> dict[str, Any]:
+    """JSON-ready account of which models ran, where, and why."""
+    window = sum(s.pulses_window for s in stats)
+    cast = sum(s.pulses_cast for s in stats)
+    out: dict[str, Any] = {"mode": lod}
+    out["rays"] = {
+        "pulses_window": window,
+        "pulses_cast": cast,
+        "why": (
+            f"cast only the cells of each station's window that some triangle can reach: "
+            f"{cast:,} of {window:,} pulses"
+            if culled
+            else "cast the whole window rectangle"
+        ),
+    }
+    left = geometry["triangles"] - geometry["loaded"]
+    out["geometry"] = {
+        **geometry,
+        "why": (
+            f"{left:,} of {geometry['triangles']:,} triangles not loaded: "
+            f"{geometry['beyond_range']:,} beyond {spec.max_range_m:g} m from every station, "
+            f"{geometry['outside_fov']:,} outside every field of view"
+            if left
+            else "every triangle can be recorded by some station: all loaded"
+        ),
+    }
+    if spec.beam_model:
+        pulses = sum(s.pulses_cast for s in stats)
+        sub = sum(s.pulses_subrays for s in stats)
+        reasons: dict[str, int] = {}
+        for s in stats:
+            for key, value in (s.subray_reasons or {}).items():
+                reasons[key] = reasons.get(key, 0) + value
+        step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+        ratio = spec.beam_divergence_mrad * 1e-3 / step
+        out["beam"] = {
+            "sampling": "adaptive" if adaptive else "full",
+            "pulses_cast": pulses,
+            "pulses_subrays": sub,
+            "reasons": reasons,
+            "footprint_over_spacing": ratio,
+            "why": (
+                f"{spec.subrays} sub-rays for {sub:,} of {pulses:,} pulses whose footprint "
+                f"can straddle an edge, another surface or geometry thinner than the point "
+                f"spacing (the footprint is {ratio:.2f}× the spacing at any range); the "
+                "others keep their central ray"
+                if adaptive
+                else f"{spec.subrays} sub-rays for every pulse"
+                + (" (lod full)" if lod == "full" else " (beam_sampling full)")
+            ),
+        }
+    return out
 
 
 def _grid_plan(
@@ -389,6 +481,7 @@ def scan(
     check_inside: bool = True,
     progress: Progress | None = None,
     sink: Sink | None = None,
+    lod: str = "auto",
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -421,6 +514,12 @@ def scan(
         Receives each chunk's points (float64, the scene's coordinates) and fields as
         they are made (e.g. a :func:`pipeline.io.open_cloud_writer`'s ``write``); the
         result's cloud then holds no points, so memory does not grow with the output.
+    lod : {"auto", "full"}
+        Level of detail. ``"auto"`` (default) models only what the scene requires:
+        triangles that no station can record (beyond ``max_range_m`` or outside every
+        field of view) are never loaded into the ray-casting scene, and the beam model
+        follows ``spec.beam_sampling``. ``"full"`` loads everything and gives every
+        pulse its sub-rays. ``result.lod`` says what ran and why.
 
     Returns
     -------
@@ -437,7 +536,9 @@ def scan(
     frame = LocalFrame.around(scene.used_vertices)
     verts_used = frame.to_local(scene.used_vertices)
     s = spec.rays_per_pulse
-    adaptive = s > 1 and spec.beam_sampling == "adaptive"
+    if lod not in LODS:
+        raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {lod!r}")
+    adaptive = s > 1 and spec.beam_sampling == "adaptive" and lod == "auto"
     windows = []
     for st in stations:
         o = frame.to_local(st.position)
@@ -455,15 +556,21 @@ def scan(
             f"{_human_time(secs)} here, over the limit of {max_rays:.3g}; coarsen the "
             "resolution or raise max_rays (--max-rays); memory stays bounded either way"
         )
-    caster = _Caster(scene, frame, nthreads)
+    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod)
+    caster = _Caster(scene, frame, nthreads, keep) if geometry["loaded"] else None
     plans = []
     for st in stations:
         o = frame.to_local(st.position)
-        grid, win, n_window, thin = _grid_plan(
-            caster, verts_used, o, st.rotation, spec, window, cull
-        )
+        if caster is None:  # nothing any station can record: a valid empty scan
+            grid, win = _grid_for(verts_used, o, st.rotation, spec, window)
+            n_window, thin = grid.n_pulses, None
+            grid = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64))
+        else:
+            grid, win, n_window, thin = _grid_plan(
+                caster, verts_used, o, st.rotation, spec, window, cull
+            )
         plans.append((o, st.rotation, grid, win, n_window, thin))
-    if check_inside:
+    if check_inside and caster is not None:
         for k, plan in enumerate(plans):
             _check_inside(caster, plan[0], k, stations[k])
     offsets, weights = (
@@ -485,7 +592,7 @@ def scan(
         station = stations[k]
         level = station.pitch_deg == 0 and station.roll_deg == 0
         hdeg = station.heading_deg if level else 0.0
-        t0 = caster.entry_distance(o)
+        t0 = caster.entry_distance(o) if caster is not None else 0.0
         tables = _RayTables(spec, hdeg)
         fast = s == 1 and spec.angular_jitter_sd_deg == 0
         # thin geometry nearly everywhere: every pulse needs its sub-rays anyway
@@ -596,28 +703,30 @@ def scan(
     else:
         points = np.empty((0, 3))
         fields = {k: np.empty(0, dtype=_FIELDS[k]) for k in _FIELDS}
-    cloud = Cloud(
-        points,
-        fields,
-        {
-            "label_names": dict(LABEL_NAMES),
-            "source": "treesim scan",
-            "stations": [st.to_dict() for st in stations],
-        },
-    )
+    cloud = Cloud(points, fields, scan_metadata(stations))
     return ScanResult(
         cloud=cloud,
         spec=spec,
         stations=stations,
         station_stats=stats,
         frame=frame,
-        bvh_build_s=caster.build_s,
+        bvh_build_s=caster.build_s if caster is not None else 0.0,
         total_s=time.perf_counter() - t_all,
         window=window,
         cull=window and cull,
         points_written=n_written,
+        lod=_lod_summary(lod, spec, stats, geometry, window and cull, adaptive),
         models=spec.active_models(),
     )
+
+
+def scan_metadata(stations: Sequence[Station]) -> dict[str, Any]:
+    """The metadata of a simulated cloud (what a writer records before the points)."""
+    return {
+        "label_names": dict(LABEL_NAMES),
+        "source": "treesim scan",
+        "stations": [st.to_dict() for st in stations],
+    }
 
 
 _FIELDS: dict[str, Any] = {
@@ -944,4 +1053,4 @@ def _human_time(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
-__all__ = ["scan", "ScanResult", "StationStats", "BYTES_PER_RAY"]
+__all__ = ["BYTES_PER_RAY", "SCAN_FIELDS", "ScanResult", "StationStats", "scan", "scan_metadata"]
