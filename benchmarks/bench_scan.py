@@ -1,18 +1,28 @@
-"""Scan throughput and memory: treesim's pipeline against raw Open3D casting.
+"""Scan throughput, beam cost and memory: ``treesim scan`` against a plain Open3D cast.
 
-Measures, in one run on a ~100k-triangle tree (the bundled coffee tree's TreeQSM model
-meshed at 24 facets per ring):
+Measured in one run, side by side, on the same trees and stations:
 
-1. ``pipeline.scan`` (what ``treesim scan`` runs) at 0.02°, three stations: rays/s, points/s;
-2. raw ``RaycastingScene.cast_rays`` on exactly the same rays (the windowed pulses from
-   the same stations, float32, near the origin), in the same chunk size: rays/s;
-3. the ratio (target: the pipeline keeps >= 70 % of the raw rate);
-4. the whole-field-of-view cast for comparison (rays it would cast, and its time at a
-   coarser resolution so it stays short);
-5. peak memory (max RSS of a fresh process) of a three-station scan at 0.005°
-   (target: < 2 GiB), and of ``treesim scan`` end to end at that resolution.
+1. **Single ray per pulse.** A sparse tree (the ``aspen`` species, leaf-off, meshed at 8
+   facets: ~41k triangles, close to the 39k-triangle birch of issue 11) scanned from one
+   station 15 m away at 0.01°:
 
-Usage: ``python benchmarks/bench_scan.py [--quick]``. Prints measured figures only.
+   * a plain Open3D load-and-cast in this process: read the mesh file, build the
+     ``RaycastingScene``, cast every pulse of the exact window rectangle (what the scene's
+     bounding box subtends), in chunks; its rate is window pulses per second;
+   * ``treesim scan`` end to end in a fresh process (start-up, load, cast, LAZ written);
+     its rate is the same window's pulses per second of wall time;
+   * the ratio (target >= 0.7) and the ratio to HELIOS++ 2.2.2's single-ray rate as
+     measured for issue 11 (~358k pulses/s; target >= 10).
+2. **Beam divergence at 19 sub-rays** (0.3 mrad), in this process: adaptive sampling
+   against treesim's own single-ray scan of the same scene (target >= 0.5×), on the
+   aspen and on the bundled coffee tree's TreeQSM model (24 facets, 10 m, 0.01°), with
+   how many pulses got sub-rays and why; and the brute force (``beam_sampling="full"``)
+   on the coffee tree, with the agreement figures (``tests/scan/beam_agreement.py``).
+3. **Memory.** Peak RSS of ``treesim scan`` (fresh process each) at 0.04°, 0.01° and
+   0.005°: it must not grow with the number of points written.
+
+Usage: ``python benchmarks/bench_scan.py [--quick]`` (``--quick``: coarser settings, for a
+smoke run). Prints measured figures only.
 """
 
 from __future__ import annotations
@@ -20,10 +30,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import subprocess
 import sys
 import tempfile
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
@@ -31,65 +43,69 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.models import cylinders_to_mesh, read_cylinders  # noqa: E402
-from pipeline.scan import ScannerSpec, ring_layout, scan  # noqa: E402
-from pipeline.scan.rays import box_window, directions, pulse_angles, windowed_grid  # noqa: E402
+from pipeline.io.mesh import write_mesh  # noqa: E402
+from pipeline.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
+from pipeline.scan import ScannerSpec, Station, scan  # noqa: E402
+from pipeline.scan.rays import box_window, windowed_grid  # noqa: E402
 from pipeline.scene import MeshPart, Scene  # noqa: E402
+from tests.scan.beam_agreement import agreement  # noqa: E402
 
-SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
+COFFEE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
+#: HELIOS++ 2.2.2, one ray per pulse, on a comparable scene (issue 11's measurement).
+HELIOS_PULSES_PER_S = 358e3
 
 
-def tree_scene(facets: int = 24) -> Scene:
-    v, f = cylinders_to_mesh(read_cylinders(SAMPLE), facets=facets)
+def aspen_scene() -> Scene:
+    v, f, _ = generate_tree("aspen", seed=0).mesh(facets=8)
+    return Scene([MeshPart(vertices=v, faces=f, label="wood", name="aspen")])
+
+
+def coffee_scene() -> Scene:
+    v, f = cylinders_to_mesh(read_cylinders(COFFEE), facets=24, joints="miter")
     return Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
 
 
-def stations_for(scene: Scene):
+def station_at(scene: Scene, distance_m: float) -> Station:
     lo, hi = scene.bounds
-    return ring_layout(
-        3,
-        distance_m=10.0,
-        height_m=1.5,
-        centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
-        base_z_m=lo[2],
-    )
+    c = 0.5 * (lo + hi)
+    return Station(position_m=(c[0] + distance_m, c[1], lo[2] + 1.5))
 
 
-def raw_cast(scene: Scene, stations, spec: ScannerSpec, chunk: int) -> tuple[int, float, int]:
-    """Cast the pipeline's windowed pulses with bare Open3D; returns (rays, seconds, hits)."""
+def plain_open3d(mesh_path: Path, station: Station, spec: ScannerSpec, chunk: int) -> dict:
+    """Read the mesh, build the scene, cast the exact window rectangle; timed whole."""
     import open3d as o3d
+    import trimesh
 
-    origin = 0.5 * (scene.bounds[0] + scene.bounds[1])
-    v = scene.vertices - origin
+    t0 = time.perf_counter()
+    m = trimesh.load(mesh_path, force="mesh", process=False)
+    v = np.asarray(m.vertices, dtype=np.float64)
+    origin = 0.5 * (v.min(axis=0) + v.max(axis=0))
     rc = o3d.t.geometry.RaycastingScene()
     rc.add_triangles(
-        o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(scene.faces.astype(np.uint32))
+        o3d.core.Tensor((v - origin).astype(np.float32)),
+        o3d.core.Tensor(np.asarray(m.faces, dtype=np.uint32)),
     )
-    rc.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 0, 0, 1]], np.float32)))  # build BVH
-    total, hits, elapsed = 0, 0, 0.0
-    for k, st in enumerate(stations):
-        o = st.position - origin
-        rel = (v - o) @ st.rotation
-        grid = windowed_grid(spec, box_window(rel.min(axis=0), rel.max(axis=0)))
-        for a in range(0, grid.n_pulses, chunk):
-            lines, cols = grid.indices(a, min(grid.n_pulses, a + chunk))
-            az, el = pulse_angles(spec, k, lines, cols)
-            d = directions(az, el) @ st.rotation.T
-            rays = np.empty((len(d), 6), np.float32)
-            rays[:, :3] = o
-            rays[:, 3:] = d
-            t = o3d.core.Tensor(rays)
-            t0 = time.perf_counter()
-            ans = rc.cast_rays(t)
-            elapsed += time.perf_counter() - t0
-            hits += int(np.isfinite(ans["t_hit"].numpy()).sum())
-            total += len(d)
-    return total, elapsed, hits
+    o = np.asarray(station.position_m) - origin
+    rel = (v - origin) - o
+    grid = windowed_grid(spec, box_window(rel.min(axis=0), rel.max(axis=0)), margin_steps=0)
+    el = np.radians(spec.vertical_fov_deg[0] + grid.lines * spec.vertical_resolution_deg)
+    az = np.radians(spec.horizontal_fov_deg[0] + grid.columns * spec.horizontal_resolution_deg)
+    hits = 0
+    per_col = max(1, chunk // len(el))
+    ce, se = np.cos(el), np.sin(el)
+    for a in range(0, len(az), per_col):
+        cz, sz = np.cos(az[a : a + per_col]), np.sin(az[a : a + per_col])
+        rays = np.empty((len(cz), len(el), 6), dtype=np.float32)
+        rays[..., :3] = o
+        rays[..., 3] = cz[:, None] * ce[None, :]
+        rays[..., 4] = sz[:, None] * ce[None, :]
+        rays[..., 5] = se[None, :]
+        ans = rc.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))
+        hits += int(np.isfinite(ans["t_hit"].numpy()).sum())
+    secs = time.perf_counter() - t0
+    return {"pulses": grid.n_pulses, "hits": hits, "s": secs}
 
 
-#: Appended to a child's code: print the child's own peak resident memory (VmHWM, KiB) as
-#: its last line. Not ``getrusage(RUSAGE_CHILDREN)`` in the parent: Linux carries the
-#: parent's ``ru_maxrss`` (which holds the mesh already) into a child across fork and exec.
 _PRINT_PEAK = (
     "\nimport pathlib\n"
     "print('VmHWM', [l.split()[1] for l in pathlib.Path('/proc/self/status').read_text()"
@@ -97,123 +113,118 @@ _PRINT_PEAK = (
 )
 
 
-def peak_rss_of(code: str) -> tuple[float, str]:
-    """Run ``code`` in a fresh interpreter (it loads what it needs itself); return its own
-    peak RSS in GiB and its other output."""
-    out = subprocess.run(
-        [sys.executable, "-c", code + _PRINT_PEAK],
-        capture_output=True,
-        text=True,
-        cwd=str(ROOT),
-        check=True,
+def cli_scan(mesh: Path, out: Path, station: Station, res: float, extra=()) -> dict:
+    """``treesim scan`` in a fresh interpreter: wall time, its own peak RSS, its summary."""
+    argv = ["treesim", "scan", str(mesh), "-o", str(out), "--resolution-deg", str(res)]
+    argv += ["--station", ",".join(f"{c:.6f}" for c in station.position_m), *extra]
+    code = (
+        "import runpy, sys\n"
+        f"sys.argv = {argv!r}\n"
+        "try:\n"
+        "    runpy.run_module('pipeline.cli', run_name='__main__')\n"
+        "except SystemExit as e:\n"
+        "    assert not e.code, e.code\n"
+    ) + _PRINT_PEAK
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), check=True
     )
-    lines = out.stdout.strip().splitlines()
-    assert lines[-1].startswith("VmHWM "), out.stdout + out.stderr
-    return int(lines[-1].split()[1]) / 2**20, "\n".join(lines[:-1]).strip()
+    wall = time.perf_counter() - t0
+    peak = int(done.stdout.strip().splitlines()[-1].split()[1]) / 2**20
+    summary = json.loads(out.with_suffix(".json").read_text())
+    return {"s": wall, "peak_gib": peak, "summary": summary}
+
+
+def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool) -> None:
+    base = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
+    beam = base.with_(beam_divergence_mrad=0.3, subrays=19, return_mode="all")
+    scan(scene, [station], base.with_(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0))
+    t0 = time.perf_counter()
+    one = scan(scene, [station], base)
+    t_one = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ada = scan(scene, [station], beam)
+    t_ada = time.perf_counter() - t0
+    window = one.summary()["pulses_window"]
+    b = ada.lod["beam"]
+    print(f"\n== beam 0.3 mrad x 19 sub-rays, {name} ({scene.n_triangles:,} triangles), {res}°")
+    print(
+        f"single ray: {one.rays_cast:,} rays, {len(one.cloud):,} points, {t_one:.2f} s "
+        f"({window / t_one / 1e6:.2f} M window pulses/s)"
+    )
+    print(
+        f"adaptive:   {ada.rays_cast:,} rays, {len(ada.cloud):,} returns, {t_ada:.2f} s; "
+        f"{b['pulses_subrays']:,} of {b['pulses_cast']:,} pulses got sub-rays "
+        f"({json.dumps(b['reasons'])})"
+    )
+    print(f"adaptive / single-ray rate: {t_one / t_ada:.2f} (target >= 0.5)")
+    if brute:
+        t0 = time.perf_counter()
+        full = scan(scene, [station], beam.with_(beam_sampling="full"))
+        t_full = time.perf_counter() - t0
+        g = agreement(ada.cloud, full.cloud)
+        print(
+            f"brute force: {full.rays_cast:,} rays, {t_full:.2f} s; adaptive / brute-force "
+            f"rate {t_full / t_ada:.2f}"
+        )
+        print(
+            "agreement with brute force: "
+            f"same returns per pulse {g['same_count']:.4%} of {int(g['pulses']):,} pulses; "
+            f"ranges within 0.1 mm {g['range_within_0.1mm']:.3%}, max {g['range_max_m'] * 1e3:.3f} mm; "
+            f"intensity identical {g['intensity_same']:.4%}, max diff {int(g['intensity_max'])}"
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="coarser settings, for a smoke run")
     args = ap.parse_args()
-    res = 0.05 if args.quick else 0.02
-    fine = 0.02 if args.quick else 0.005
-    print(f"machine: {os.cpu_count()} cores; python {sys.version.split()[0]}")
-    t0 = time.perf_counter()
-    scene = tree_scene()
+    res = 0.04 if args.quick else 0.01
     print(
-        f"tree: coffee TreeQSM mesh, {scene.n_triangles:,} triangles "
-        f"(built in {time.perf_counter() - t0:.2f} s)"
+        f"date: {date.today()}; machine: {platform.machine()}, {os.cpu_count()} cores; "
+        f"python {sys.version.split()[0]}"
     )
-    stations = stations_for(scene)
+    scene = aspen_scene()
+    st = station_at(scene, 15.0)
     spec = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
-    chunk = 1 << 19
-
-    scan(
-        scene, stations[:1], spec.with_(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0)
-    )  # warm imports
-    best = None
-    for _ in range(2):
-        t0 = time.perf_counter()
-        r = scan(scene, stations, spec, chunk_rays=chunk)
-        wall = time.perf_counter() - t0
-        best = (wall, r) if best is None or wall < best[0] else best
-    wall, r = best
-    cast_s = wall - r.bvh_build_s
-    raw_best = None
-    for _ in range(2):
-        rays, raw_s, raw_hits = raw_cast(scene, stations, spec, chunk)
-        raw_best = raw_s if raw_best is None else min(raw_best, raw_s)
-    print(f"\n== scan at {res}° from 3 stations (10 m, 1.5 m high), best of 2")
-    print(
-        f"pipeline.scan: {r.rays_cast:,} rays, {len(r.cloud):,} points, {wall:.2f} s "
-        f"(BVH build {r.bvh_build_s:.2f} s)"
-    )
-    print(
-        f"  throughput: {r.rays_cast / cast_s / 1e6:.2f} M rays/s, "
-        f"{len(r.cloud) / cast_s / 1e6:.2f} M points/s (excluding BVH build)"
-    )
-    print(
-        f"raw cast_rays on the same rays: {rays:,} rays, {raw_hits:,} hits, {raw_best:.2f} s, "
-        f"{rays / raw_best / 1e6:.2f} M rays/s"
-    )
-    print(f"ratio pipeline / raw rate: {raw_best / cast_s:.2f} (target >= 0.70)")
-    print(
-        f"full field of view would cast {r.rays_full_fov:,} rays "
-        f"({r.rays_full_fov / r.rays_cast:.0f}x the windowed count)"
-    )
-    coarse = spec.with_(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1)
-    t0 = time.perf_counter()
-    rf = scan(scene, stations, coarse, window=False)
-    tf = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    rw = scan(scene, stations, coarse, window=True)
-    tw = time.perf_counter() - t0
-    print(
-        f"at 0.1°: full FOV {rf.rays_cast:,} rays {tf:.2f} s vs window {rw.rays_cast:,} rays "
-        f"{tw:.2f} s (same points: {len(rf.cloud) == len(rw.cloud)})"
-    )
-
-    print(f"\n== peak memory at {fine}° (3 stations), fresh process each")
-    code = (
-        "import time, sys; sys.path.insert(0, '.');"
-        "from benchmarks.bench_scan import tree_scene, stations_for;"
-        "from pipeline.scan import ScannerSpec, scan;"
-        "s = tree_scene(); t = time.perf_counter();"
-        f"r = scan(s, stations_for(s), ScannerSpec(horizontal_resolution_deg={fine}, "
-        f"vertical_resolution_deg={fine}));"
-        "print(r.rays_cast, len(r.cloud), round(time.perf_counter() - t, 2))"
-    )
-    rss, out = peak_rss_of(code)
-    n_rays, n_pts, secs = out.split()
-    print(
-        f"pipeline.scan: {int(n_rays):,} rays, {int(n_pts):,} points in {secs} s; "
-        f"peak RSS {rss:.2f} GiB (target < 2 GiB; unchunked would need "
-        f"~{int(n_rays) * 200 / 2**30:.1f} GiB for rays alone)"
-    )
     with tempfile.TemporaryDirectory() as tmp:
-        from pipeline.io.mesh import write_mesh
-
-        mesh = write_mesh(Path(tmp) / "tree.ply", scene.vertices, scene.faces)
-        argv = ["treesim", "scan", str(mesh), "-o", str(Path(tmp) / "scan.laz")]
-        argv += ["--resolution-deg", str(fine)]
-        # the CLI in a fresh interpreter that loads the mesh itself, then reports its peak
-        code = (
-            "import runpy, sys\n"
-            f"sys.argv = {argv!r}\n"
-            "try:\n"
-            "    runpy.run_module('pipeline.cli', run_name='__main__')\n"
-            "except SystemExit as e:\n"
-            "    assert not e.code, e.code\n"
-        )
-        t0 = time.perf_counter()
-        cli_rss, _ = peak_rss_of(code)
-        cli_s = time.perf_counter() - t0
-        summary = json.loads((Path(tmp) / "scan.json").read_text())
+        mesh = write_mesh(Path(tmp) / "aspen.ply", scene.vertices, scene.faces)
+        print(f"tree: aspen (seed 0, 8 facets), {scene.n_triangles:,} triangles; station 15 m out")
+        plain = min((plain_open3d(mesh, st, spec, 1 << 19) for _ in range(2)), key=lambda r: r["s"])
+        runs = [cli_scan(mesh, Path(tmp) / "scan.laz", st, res) for _ in range(2)]
+        cli = min(runs, key=lambda r: r["s"])
+        sm = cli["summary"]
+        window = sm["pulses_window"]
+        print(f"\n== one ray per pulse at {res}°, best of 2")
         print(
-            f"treesim scan (CLI, incl. start-up, load, LAZ write): {cli_s:.1f} s, "
-            f"{summary['points']:,} points; peak RSS {cli_rss:.2f} GiB"
+            f"plain Open3D load-and-cast of the window: {plain['pulses']:,} pulses, "
+            f"{plain['hits']:,} hits, {plain['s']:.2f} s: {plain['pulses'] / plain['s'] / 1e6:.2f} "
+            "M pulses/s"
         )
+        rate = window / cli["s"]
+        print(
+            f"treesim scan end to end (process, load, cast, LAZ written): {window:,} window "
+            f"pulses, {sm['pulses_cast']:,} cast, {sm['points']:,} points, {cli['s']:.2f} s "
+            f"(load {sm['timings_s']['load']:.2f}, scan+write {sm['timings_s']['scan']:.2f}, "
+            f"finish {sm['timings_s']['write']:.2f}): {rate / 1e6:.2f} M pulses/s"
+        )
+        print(
+            f"ratio treesim / plain cast: {rate / (plain['pulses'] / plain['s']):.2f} "
+            f"(target >= 0.7); vs HELIOS++ single ray (~358k pulses/s): "
+            f"{rate / HELIOS_PULSES_PER_S:.1f}x (target >= 10)"
+        )
+
+        print("\n== peak memory of treesim scan (fresh process each)")
+        for r in (0.04, 0.01, 0.005) if not args.quick else (0.08, 0.04):
+            m = cli_scan(mesh, Path(tmp) / "mem.laz", st, r)
+            s = m["summary"]
+            print(
+                f"{r}°: {s['points']:>10,} points, {s['rays_cast']:>11,} rays, {m['s']:6.1f} s, "
+                f"peak RSS {m['peak_gib']:.2f} GiB"
+            )
+    beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, brute=False)
+    coffee = coffee_scene()
+    beam_case("coffee tree TreeQSM", coffee, station_at(coffee, 10.0), res, brute=True)
 
 
 if __name__ == "__main__":

@@ -375,7 +375,7 @@ def thin_mask(
     open part (``thickness_m`` inf: a leaf) whose own angular inradius is under a step.
 
     Returns sorted unique keys ``column * n_elevation + line`` (int64), or None when
-    the pieces' boxes add up to more than ``max_pulses`` (at most
+    they would be more than ``max_pulses`` (or one round of pieces' boxes more than
     :data:`THIN_MAX_PULSES`): then every pulse must be treated as near thin geometry.
     The bounds are those of :func:`occupancy_grid` (the margin includes the beam's
     half-angle), at pulse resolution.
@@ -393,13 +393,11 @@ def thin_mask(
     pieces = tri[thin]
     if len(pieces) == 0:
         return np.empty(0, np.int64)
-    max_pulses = min(int(max_pulses), THIN_MAX_PULSES)
     ras = _raster_for(spec, window, a_ref_deg)
     ras = _Raster(ras.line0, ras.n_lines, 1, ras.rel_deg, ras.order, ras.v0, ras.vres)
     n_cols = len(ras.order)
     m_ray = pointing_margin_rad(spec)
-    boxes: list[tuple[np.ndarray, ...]] = []
-    total = 0
+    keys = np.empty(0, np.int64)
     for _ in range(60):
         b = triangle_bounds(pieces)
         margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
@@ -408,24 +406,38 @@ def thin_mask(
         area = (r1 - r0 + 1) * width
         big = keep & (area > THIN_PIECE_PULSES) & (b.d_min > 0) & ~b.full_az
         done = keep & ~big
-        total += int(area[done].sum())
-        if total > max_pulses or len(pieces) + int(big.sum()) > MAX_PIECES:
+        if int(area[done].sum()) > THIN_MAX_PULSES or len(pieces) + int(big.sum()) > MAX_PIECES:
             return None
-        boxes.append((r0[done], r1[done], c0[done], c1[done], w[done]))
+        # the facets of a twig share its pulses: merge as we go, so the set stays small
+        new = _box_keys(r0[done], r1[done], c0[done], c1[done], w[done], ras, window, spec)
+        keys = np.union1d(keys, new)
+        if len(keys) > max_pulses:
+            return None
         if not big.any():
-            break
+            return keys
         pieces = _bisect_longest(pieces[big])
-    else:  # pragma: no cover
-        return None
-    r0, r1, c0, c1, w = (np.concatenate(x) for x in zip(*boxes, strict=True))
-    # pieces: [r0..r1] × ([c0..c1] ∪ [0..w]) in window positions; enumerate every pulse
+    return None  # pragma: no cover - 60 halvings shrink any box below a pulse
+
+
+def _box_keys(
+    r0: np.ndarray,
+    r1: np.ndarray,
+    c0: np.ndarray,
+    c1: np.ndarray,
+    w: np.ndarray,
+    ras: _Raster,
+    window: PulseGrid,
+    spec: ScannerSpec,
+) -> np.ndarray:
+    """Unique keys ``column * n_elevation + line`` of every pulse in the boxes
+    ``[r0..r1] × ([c0..c1] ∪ [0..w])`` (window positions, cells of one pulse)."""
+    n_cols = len(ras.order)
     rows_n = r1 - r0 + 1
     parts = []
     for lo, hi in ((c0, c1), (np.zeros_like(w), w)):
         ok = hi >= lo
         lo, hi, rr0, rn = lo[ok], hi[ok], r0[ok], rows_n[ok]
-        cols_n = hi - lo + 1
-        n = rn * cols_n
+        n = rn * (hi - lo + 1)
         if not n.sum():
             continue
         piece = np.repeat(np.arange(len(n)), n)
@@ -434,9 +446,7 @@ def thin_mask(
         pos = lo[piece] + k // rn[piece]
         col = window.columns[ras.order[np.minimum(pos, n_cols - 1)]]
         parts.append(col * spec.n_elevation + (row + ras.line0))
-    if not parts:
-        return np.empty(0, np.int64)
-    return np.unique(np.concatenate(parts))
+    return np.unique(np.concatenate(parts)) if parts else np.empty(0, np.int64)
 
 
 def reachable(tri: np.ndarray, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:

@@ -403,7 +403,7 @@ def _grid_plan(
             a_ref,
             abs_error_m=abs_err,
             thickness_m=caster.thickness_m(),
-            max_pulses=4 * cast.n_pulses,
+            max_pulses=2 * cast.n_pulses,
         )
     return cast, win, n_window, thin
 
@@ -914,6 +914,20 @@ class _AdaptiveBeam:
         st["range_limit"] += int((near_limit & ~flag & ~surface & ~thin).sum())
         return flag | surface | thin | near_limit
 
+    def _plane_range(
+        self, d: np.ndarray, prim: np.ndarray, offsets: np.ndarray, weights: np.ndarray
+    ) -> np.ndarray:
+        """The full model's range of pulses (directions ``d``) whose every sub-ray meets
+        the plane of triangle ``prim``: the weighted mean of the sub-rays' ranges to it
+        (the sunflower pattern is not symmetric, so this differs from the central range
+        by the pattern's first moment times the incidence's tangent)."""
+        caster = self.caster
+        sd = beam_model.subray_directions(d, offsets)
+        n = caster.normal[prim]
+        num = np.einsum("ij,ij->i", caster.v0[prim] - self.o, n)
+        den = np.einsum("ikj,ij->ik", sd, n)
+        return (num[:, None] / den) @ weights / weights.sum()
+
     def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
         """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
         spec, grid, caster = self.spec, self.grid, self.caster
@@ -938,14 +952,22 @@ class _AdaptiveBeam:
             n_rays = len(all_l)
             flag = self._flags(all_l, all_c, t, prim, n_core)
             t, prim = t[:n_core], prim[:n_core]
-            # pulses kept whole: their central hit is their one return
+            # pulses whose footprint lies on one plane: one return of full energy, at
+            # the range the full model gives there (its sub-rays' weighted mean range)
             single = np.flatnonzero(~flag & _in_range(spec, t) & (prim >= 0))
             cand = np.flatnonzero(flag)
             self.subrays_pulses += len(cand)
+            step = max(1, per_chunk // s)
+            r_single = np.empty(len(single))
+            for a in range(0, len(single), step):
+                sp = single[a : a + step]
+                r_single[a : a + step] = self._plane_range(
+                    self._directions(lines[sp], cols[sp]), prim[sp], offsets, weights
+                )
             parts = [
                 {
                     "pulse": single,
-                    "range_m": t[single],
+                    "range_m": r_single,
                     "primitive": prim[single],
                     "direction": None,
                     "energy": np.ones(len(single)),
@@ -953,7 +975,6 @@ class _AdaptiveBeam:
                     "number_of_returns": np.ones(len(single), np.int64),
                 }
             ]
-            step = max(1, per_chunk // s)
             for a in range(0, len(cand), step):
                 cp = cand[a : a + step]
                 d = self._directions(lines[cp], cols[cp])

@@ -91,6 +91,48 @@ def test_scan_files_places_a_ring_without_stations(tmp_path, box):
     assert len(step.summary["stations"]) == 3 and "station_rule" in step.summary
 
 
+@pytest.mark.parametrize("suffix", [".laz", ".ply", ".xyz"])
+def test_scan_files_streams_what_the_scanner_makes(tmp_path, box, suffix):
+    # the cloud is written chunk by chunk while it is cast: what is read back is the
+    # in-memory scan of the same scene, whatever the chunk size
+    from pipeline.scan import Station, load_scene, scan
+
+    path, _ = box
+    params = merge(
+        ScanParams(),
+        {"chunk_rays": 777, "scanner": {"horizontal_resolution_deg": 0.4,
+                                        "vertical_resolution_deg": 0.4}},
+    )  # fmt: skip
+    stations = [GEO + [6.0, 0.0, 1.5], GEO + [-5.0, 3.0, 0.5]]
+    step = scan_files([path], params, tmp_path / f"scan{suffix}", stations=stations)
+    back = read_cloud(step.outputs["cloud"])
+    ref = scan(
+        load_scene([path]), [Station(position_m=tuple(s)) for s in stations], params.scanner
+    ).cloud
+    assert len(back) == len(ref) == step.summary["points"] > 1000
+    tol = {".laz": 0.5e-4 + 1e-9, ".ply": 0.0, ".xyz": 1e-6}[suffix]
+    np.testing.assert_allclose(back.points, ref.points, atol=tol, rtol=0)
+    for name in ("station", "scan_line", "scan_column", "return_number", "label"):
+        np.testing.assert_array_equal(back.fields[name], ref.fields[name], err_msg=name)
+
+
+def test_scan_files_of_nothing_in_range_writes_an_empty_cloud(tmp_path, box):
+    path, _ = box
+    params = merge(
+        ScanParams(),
+        {
+            "scanner": {
+                "max_range_m": 3.0,
+                "horizontal_resolution_deg": 1.0,
+                "vertical_resolution_deg": 1.0,
+            }
+        },
+    )
+    step = scan_files([path], params, tmp_path / "none.laz", stations=[GEO + [50.0, 0, 1]])
+    assert step.summary["points"] == 0 and step.summary["lod"]["geometry"]["loaded"] == 0
+    assert len(read_cloud(step.outputs["cloud"])) == 0
+
+
 def test_compare_files_of_a_cloud_on_the_mesh(tmp_path, box):
     path, v = box
     rng = np.random.default_rng(4)
