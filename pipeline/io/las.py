@@ -498,9 +498,8 @@ class LasCloudWriter(CloudWriter):
         have = 0 if self._buffer is None else len(self._buffer)
         if size <= have:
             return
-        grown = laspy.PackedPointRecord.zeros(
-            min(self._batch, max(size, 2 * have)), self._header.point_format
-        )
+        # the whole batch at once: zeros are calloc'd, pages only touched when filled
+        grown = laspy.PackedPointRecord.zeros(self._batch, self._header.point_format)
         if self._buffer is not None and self._fill:
             grown.array[: self._fill] = self._buffer.array[: self._fill]
         self._buffer = grown

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -113,8 +114,21 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
     float64; ``None`` when the file has no such property (trimesh reads it then)."""
     from plyfile import PlyData
 
+    header = _ply_header(p)
+    face_props = header.get("face", [])
+    if not any(line.split()[-1] == "label" for line in face_props):
+        return None  # no labels: trimesh reads it (one read, not two)
+    # treesim writes triangles as 'property list uchar int vertex_indices': read the
+    # lists as fixed-length records (vectorised) when the body's size proves it
+    known = None
+    if header.get("format") == "binary_little_endian" and any(
+        line.split()[-1] == "vertex_indices" for line in face_props
+    ):
+        known = {"face": {"vertex_indices": 3}}
     try:
-        ply = PlyData.read(str(p))
+        ply = PlyData.read(str(p), known_list_len=known) if known else PlyData.read(str(p))
+        if known and not _ply_body_matches(p, ply):
+            ply = PlyData.read(str(p))
     except Exception as exc:
         raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
     names = [e.name for e in ply.elements]
@@ -124,17 +138,60 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
     if "label" not in face.dtype.names:
         return None
     vd = ply["vertex"].data
-    v = np.stack([vd["x"], vd["y"], vd["z"]], axis=1).astype(np.float64)
+    v = np.stack([np.asarray(vd[c], dtype=np.float64) for c in "xyz"], axis=1)
     key = "vertex_indices" if "vertex_indices" in face.dtype.names else face.dtype.names[0]
     polys = face[key]
-    if len(polys) and not all(len(q) == 3 for q in polys):
+    if polys.ndim == 2 and polys.shape[1] == 3:  # read as fixed-length records
+        f = np.array(polys, dtype=np.int64)
+    elif len(polys) and not all(len(q) == 3 for q in polys):
         return None
-    f = np.stack(polys).astype(np.int64) if len(polys) else np.empty((0, 3), np.int64)
-    codes = np.asarray(face["label"], dtype=np.int64)
+    else:
+        f = np.stack(polys).astype(np.int64) if len(polys) else np.empty((0, 3), np.int64)
+    codes = np.array(face["label"], dtype=np.int64)
     parts = labelled_parts(v, f, codes, name_prefix=f"{p.name}:", label=label)
     if not parts:
         raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")
     return parts
+
+
+def _ply_header(p: Path) -> dict[str, Any]:
+    """The header of a PLY file: its format and each element's property lines."""
+    out: dict[str, Any] = {}
+    element = None
+    try:
+        with open(p, "rb") as fh:
+            for raw in fh:
+                line = raw.decode("ascii", "replace").strip()
+                if line == "end_header":
+                    out["_size"] = fh.tell()
+                    break
+                words = line.split()
+                if not words:
+                    continue
+                if words[0] == "format" and len(words) > 1:
+                    out["format"] = words[1]
+                elif words[0] == "element" and len(words) > 2:
+                    element = words[1]
+                    out[element] = []
+                    out[f"{element}_count"] = int(words[2])
+                elif words[0] == "property" and element is not None:
+                    out[element].append(line)
+    except (OSError, ValueError):
+        return {}
+    return out
+
+
+def _ply_body_matches(p: Path, ply: Any) -> bool:
+    """True when the file's size is exactly what fixed-length records predict (every
+    face list held three indices)."""
+    size = _ply_header(p).get("_size")
+    if size is None:
+        return False
+    body = 0
+    for element in ply.elements:
+        body += element.data.dtype.itemsize * len(element.data)
+    # (a fixed-length list's record holds its count byte too)
+    return p.stat().st_size == size + body
 
 
 def load_scene(

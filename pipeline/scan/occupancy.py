@@ -338,9 +338,8 @@ class SparseGrid:
         return line, self.columns[ci]
 
 
-#: Pieces of thin triangles are bisected until their box covers at most this many pulses.
-THIN_PIECE_PULSES = 16
-#: Cap on the pulses a thin-geometry mask enumerates (beyond it every cast pulse counts).
+#: Cap on the samples and pulses a thin-geometry mask enumerates (beyond it every cast
+#: pulse counts as near thin geometry).
 THIN_MAX_PULSES = 1 << 25
 
 
@@ -374,11 +373,16 @@ def thin_mask(
     1.5 angular steps from the station (a twig thinner than the point spacing), or of an
     open part (``thickness_m`` inf: a leaf) whose own angular inradius is under a step.
 
+    Each thin triangle is covered by samples along its longest side's great-circle arc
+    (at most half a step apart), each widened by the triangle's angular width, half the
+    sample spacing and the margin of :func:`occupancy_grid` (which includes the beam's
+    half-angle), at pulse resolution; a twig's facets give the same samples, which are
+    merged before the boxes are enumerated.
+
     Returns sorted unique keys ``column * n_elevation + line`` (int64), or None when
-    they would be more than ``max_pulses`` (or one round of pieces' boxes more than
-    :data:`THIN_MAX_PULSES`): then every pulse must be treated as near thin geometry.
-    The bounds are those of :func:`occupancy_grid` (the margin includes the beam's
-    half-angle), at pulse resolution.
+    they would be more than ``max_pulses``, the samples more than
+    :data:`THIN_MAX_PULSES`, or a box reaches a pole: then every pulse must be treated
+    as near thin geometry.
     """
     if window.n_pulses == 0 or len(tri) == 0:
         return np.empty(0, np.int64)
@@ -390,63 +394,86 @@ def thin_mask(
             thickness_m < 1.5 * step * centroid_m,
             angular_inradius_rad(tri) < step,
         )
-    pieces = tri[thin]
-    if len(pieces) == 0:
+    idx = np.flatnonzero(thin)
+    if len(idx) == 0:
         return np.empty(0, np.int64)
-    ras = _raster_for(spec, window, a_ref_deg)
-    ras = _Raster(ras.line0, ras.n_lines, 1, ras.rel_deg, ras.order, ras.v0, ras.vres)
-    n_cols = len(ras.order)
-    m_ray = pointing_margin_rad(spec)
-    keys = np.empty(0, np.int64)
-    for _ in range(60):
-        b = triangle_bounds(pieces)
-        margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
-        r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
-        width = np.where(c1 >= c0, c1 - c0 + 1, 0) + np.where(w >= 0, w + 1, 0)
-        area = (r1 - r0 + 1) * width
-        big = keep & (area > THIN_PIECE_PULSES) & (b.d_min > 0) & ~b.full_az
-        done = keep & ~big
-        if int(area[done].sum()) > THIN_MAX_PULSES or len(pieces) + int(big.sum()) > MAX_PIECES:
-            return None
-        # the facets of a twig share its pulses: merge as we go, so the set stays small
-        new = _box_keys(r0[done], r1[done], c0[done], c1[done], w[done], ras, window, spec)
-        keys = np.union1d(keys, new)
-        if len(keys) > max_pulses:
-            return None
-        if not big.any():
-            return keys
-        pieces = _bisect_longest(pieces[big])
-    return None  # pragma: no cover - 60 halvings shrink any box below a pulse
-
-
-def _box_keys(
-    r0: np.ndarray,
-    r1: np.ndarray,
-    c0: np.ndarray,
-    c1: np.ndarray,
-    w: np.ndarray,
-    ras: _Raster,
-    window: PulseGrid,
-    spec: ScannerSpec,
-) -> np.ndarray:
-    """Unique keys ``column * n_elevation + line`` of every pulse in the boxes
-    ``[r0..r1] × ([c0..c1] ∪ [0..w])`` (window positions, cells of one pulse)."""
-    n_cols = len(ras.order)
-    rows_n = r1 - r0 + 1
-    parts = []
-    for lo, hi in ((c0, c1), (np.zeros_like(w), w)):
-        ok = hi >= lo
-        lo, hi, rr0, rn = lo[ok], hi[ok], r0[ok], rows_n[ok]
-        n = rn * (hi - lo + 1)
-        if not n.sum():
-            continue
-        piece = np.repeat(np.arange(len(n)), n)
-        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        row = rr0[piece] + k % rn[piece]
-        pos = lo[piece] + k // rn[piece]
-        col = window.columns[ras.order[np.minimum(pos, n_cols - 1)]]
-        parts.append(col * spec.n_elevation + (row + ras.line0))
-    return np.unique(np.concatenate(parts)) if parts else np.empty(0, np.int64)
+    t = tri[idx]
+    u = t / np.linalg.norm(t, axis=2, keepdims=True)
+    # the longest side of each thin triangle (as seen) and the angular distance of the
+    # opposite corner from its great circle: every direction of the triangle is within
+    # that distance of the side (the angles at the side's ends are acute)
+    side = np.stack(
+        [
+            np.linalg.norm(u[:, 1] - u[:, 0], axis=1),
+            np.linalg.norm(u[:, 2] - u[:, 1], axis=1),
+            np.linalg.norm(u[:, 0] - u[:, 2], axis=1),
+        ],
+        axis=1,
+    ).argmax(axis=1)
+    rows = np.arange(len(t))
+    ua, ub, uc = u[rows, side], u[rows, (side + 1) % 3], u[rows, (side + 2) % 3]
+    normal = np.cross(ua, ub)
+    nn = np.linalg.norm(normal, axis=1)
+    length = np.arctan2(nn, np.einsum("ij,ij->i", ua, ub))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        width = np.where(
+            nn > 0,
+            np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", uc, normal)) / nn, 0.0, 1.0)),
+            np.arccos(np.clip(np.einsum("ij,ij->i", ua, uc), -1.0, 1.0)),
+        )
+    d_min = triangle_bounds(t).d_min
+    margin = pointing_margin_rad(spec) + abs_error_m / np.maximum(d_min, 1e-300)
+    vres = math.radians(spec.vertical_resolution_deg)
+    hres = math.radians(spec.horizontal_resolution_deg)
+    gap = 0.5 * min(vres, hres)
+    n_s = np.ceil(length / gap).astype(np.int64) + 1
+    if int(n_s.sum()) > THIN_MAX_PULSES:
+        return None
+    # samples along each side's great-circle arc, at most ``gap`` apart (slerp)
+    k = np.repeat(np.arange(len(t)), n_s)
+    f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
+        n_s[k] - 1, 1
+    )
+    ang = length[k]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sa = np.where(ang > 1e-12, np.sin((1 - f) * ang) / np.sin(ang), 1 - f)
+        sb = np.where(ang > 1e-12, np.sin(f * ang) / np.sin(ang), f)
+    d = sa[:, None] * ua[k] + sb[:, None] * ub[k]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+    az = np.arctan2(d[:, 1], d[:, 0])
+    radius = margin[k] + 1.01 * width[k] + 0.5 * (length[k] / np.maximum(n_s[k] - 1, 1))
+    cos_el = np.cos(np.minimum(np.abs(el) + radius, math.pi / 2))
+    if (cos_el < 1e-3).any():
+        return None  # at the poles a box of columns is the whole turn: give up the mask
+    v0, h0 = spec.vertical_fov_deg[0], spec.horizontal_fov_deg[0]
+    line = (np.degrees(el) - v0) / spec.vertical_resolution_deg
+    col = ((np.degrees(az) - h0) % 360.0) / spec.horizontal_resolution_deg
+    l0, c0 = np.rint(line).astype(np.int64), np.rint(col).astype(np.int64)
+    rl = np.ceil(radius / vres + 0.5).astype(np.int64)
+    rc = np.ceil(radius / (hres * cos_el) + 0.5).astype(np.int64)
+    if max(rl.max(), rc.max()) >= 1 << 11 or max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
+        return None
+    l0 = np.maximum(l0, -1)  # a box centred below line -1 moved up still covers lines >= 0
+    # merge equal boxes through one integer key (lines, columns < 2^20 at any step)
+    box = np.unique((((l0 + 1) << 20 | c0) << 11 | rl) << 11 | rc)
+    l0, c0 = (box >> 42) - 1, (box >> 22) & ((1 << 20) - 1)
+    rl, rc = (box >> 11) & ((1 << 11) - 1), box & ((1 << 11) - 1)
+    n = (2 * rl + 1) * (2 * rc + 1)
+    if int(n.sum()) > THIN_MAX_PULSES:
+        return None
+    b = np.repeat(np.arange(len(box)), n)
+    j = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    lines = l0[b] - rl[b] + j % (2 * rl[b] + 1)
+    cols = c0[b] - rc[b] + j // (2 * rl[b] + 1)
+    if spec.full_turn:
+        cols %= spec.n_azimuth
+    else:  # columns past 360° wrap onto the start of the field of view
+        steps = 360.0 / spec.horizontal_resolution_deg
+        cols = np.where(cols >= spec.n_azimuth, np.rint(cols - steps).astype(np.int64), cols)
+    ok = (lines >= 0) & (lines < spec.n_elevation) & (cols >= 0) & (cols < spec.n_azimuth)
+    keys = np.unique(cols[ok] * spec.n_elevation + lines[ok])
+    return None if len(keys) > max_pulses else keys
 
 
 def reachable(tri: np.ndarray, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from pipeline.models import cylinders_to_mesh, read_cylinders
-from pipeline.scan import ScannerSpec, Station, scan, stations_for
 from pipeline.params import ScanParams
+from pipeline.scan import ScannerSpec, Station, scan, stations_for
 from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, bundled_path, cylinder_arrays
 from tests.scan.beam_agreement import agreement
@@ -95,7 +95,8 @@ def test_the_bundled_coffee_tree_with_an_instruments_beam():
     )
     a, f = both(scene, stations, spec)
     within_tolerance(a, f)
-    assert a.rays_cast < f.rays_cast
+    # branches a few samples across: most pulses are at an edge, but not all
+    assert 0 < a.lod["beam"]["pulses_subrays"] < a.lod["beam"]["pulses_cast"]
 
 
 @pytest.mark.parametrize("mode", ["first", "last", "strongest"])
