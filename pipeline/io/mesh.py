@@ -64,8 +64,6 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
     EmptyInputError
         The file holds no triangles.
     """
-    import trimesh
-
     p = Path(path)
     if not p.exists():
         raise InputFormatError(f"mesh file not found: {p}")
@@ -79,6 +77,8 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
         ply_parts = _load_labelled_ply(p, label)
         if ply_parts is not None:
             return ply_parts
+    import trimesh  # imported here: a binary triangle PLY is read without it
+
     try:
         loaded = trimesh.load(str(p), force="scene", process=False)
     except Exception as exc:  # trimesh raises many kinds; map at the boundary
@@ -116,8 +116,7 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
 
     header = _ply_header(p)
     face_props = header.get("face", [])
-    if not any(line.split()[-1] == "label" for line in face_props):
-        return None  # no labels: trimesh reads it (one read, not two)
+    labelled = any(line.split()[-1] == "label" for line in face_props)
     # treesim writes triangles as 'property list uchar int vertex_indices': read the
     # lists as fixed-length records (vectorised) when the body's size proves it
     known = None
@@ -125,9 +124,17 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
         line.split()[-1] == "vertex_indices" for line in face_props
     ):
         known = {"face": {"vertex_indices": 3}}
+    elif not labelled:
+        return None  # trimesh reads it (one read, not two)
+    if known:
+        try:  # plyfile checks every list's length against the one given
+            ply = PlyData.read(str(p), known_list_len=known)
+        except Exception:
+            known = None
+    if not labelled and not known:
+        return None  # not all triangles: trimesh triangulates
     try:
-        ply = PlyData.read(str(p), known_list_len=known) if known else PlyData.read(str(p))
-        if known and not _ply_body_matches(p, ply):
+        if not known or (labelled and not _ply_body_matches(p, ply)):
             ply = PlyData.read(str(p))
     except Exception as exc:
         raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
@@ -135,7 +142,7 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
     if "vertex" not in names or "face" not in names:
         return None
     face = ply["face"].data
-    if "label" not in face.dtype.names:
+    if not labelled and not (known and _ply_body_matches(p, ply)):
         return None
     vd = ply["vertex"].data
     v = np.stack([np.asarray(vd[c], dtype=np.float64) for c in "xyz"], axis=1)
@@ -147,6 +154,11 @@ def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
         return None
     else:
         f = np.stack(polys).astype(np.int64) if len(polys) else np.empty((0, 3), np.int64)
+    if not labelled:  # one part, named and labelled as trimesh's reading names it
+        if not len(f):
+            raise EmptyInputError(f"{p.name}: the file holds no triangles (is it a point cloud?)")
+        part_label = label or label_from_name(f"{p.name} ", default=label_from_name(p.stem))
+        return [MeshPart(vertices=v, faces=f, label=part_label, name=p.name)]
     codes = np.array(face["label"], dtype=np.int64)
     parts = labelled_parts(v, f, codes, name_prefix=f"{p.name}:", label=label)
     if not parts:

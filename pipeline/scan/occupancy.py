@@ -360,8 +360,7 @@ def angular_inradius_rad(tri: np.ndarray) -> np.ndarray:
 def thin_mask(
     tri: np.ndarray,
     spec: ScannerSpec,
-    window: PulseGrid,
-    a_ref_deg: float,
+    grid: PulseGrid | SparseGrid,
     *,
     abs_error_m: float,
     thickness_m: np.ndarray,
@@ -384,7 +383,7 @@ def thin_mask(
     :data:`THIN_MAX_PULSES`, or a box reaches a pole: then every pulse must be treated
     as near thin geometry.
     """
-    if window.n_pulses == 0 or len(tri) == 0:
+    if grid.n_pulses == 0 or len(tri) == 0:
         return np.empty(0, np.int64)
     step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
     centroid_m = np.linalg.norm(tri.mean(axis=1), axis=1)

@@ -376,31 +376,33 @@ def _grid_plan(
     spec: ScannerSpec,
     window: bool,
     cull: bool,
+    adaptive: bool,
 ) -> tuple[Any, Any, int, np.ndarray | None]:
     """The pulses one station casts: the whole field of view, the scene's window, or
     (``cull``) the window's cells that some triangle can reach. Returns (grid, window
-    bounds, pulses in the window rectangle, the thin-geometry mask of adaptive beam
-    sampling or None)."""
+    bounds, pulses in the window rectangle, and with ``adaptive`` beam sampling the
+    thin-geometry mask, else None)."""
     grid, win = _grid_for(verts_local, o, rot, spec, window)
     n_window = grid.n_pulses
-    if not (window and cull) or n_window == 0:
+    culled = window and cull
+    if n_window == 0 or not (culled or adaptive):
         return grid, win, n_window, None
     tri = ((caster.v - o) @ rot)[caster.faces]
     t0 = caster.entry_distance(o)
     abs_err = 1e-5 * (caster.radius + float(np.linalg.norm(o)) + t0) + 1e-7
-    h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
-    ang = np.sort((h0 + grid.columns * hres) % 360.0)
-    gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
-    g = int(np.argmax(gaps))
-    a_ref = ang[g] + 0.5 * gaps[g]
-    cast = occupancy_grid(tri, spec, grid, a_ref, abs_error_m=abs_err)
+    cast = grid
+    if culled:
+        h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
+        ang = np.sort((h0 + grid.columns * hres) % 360.0)
+        gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
+        g = int(np.argmax(gaps))
+        cast = occupancy_grid(tri, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err)
     thin = None
-    if spec.beam_model and spec.beam_sampling == "adaptive":
+    if adaptive:
         thin = thin_mask(
             tri,
             spec,
-            grid,
-            a_ref,
+            cast,
             abs_error_m=abs_err,
             thickness_m=caster.thickness_m(),
             max_pulses=2 * cast.n_pulses,
@@ -567,7 +569,7 @@ def scan(
             grid = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64))
         else:
             grid, win, n_window, thin = _grid_plan(
-                caster, verts_used, o, st.rotation, spec, window, cull
+                caster, verts_used, o, st.rotation, spec, window, cull, adaptive
             )
         plans.append((o, st.rotation, grid, win, n_window, thin))
     if check_inside and caster is not None:

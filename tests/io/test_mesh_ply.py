@@ -1,0 +1,52 @@
+"""Binary triangle PLY meshes are read as fixed-length records, exactly as trimesh reads
+them, and anything else (quads, ASCII) still goes through trimesh."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from pipeline.io.mesh import load_mesh, write_mesh
+
+
+def test_a_binary_triangle_ply_reads_as_trimesh_reads_it(tmp_path):
+    m = trimesh.creation.icosphere(subdivisions=3)
+    path = tmp_path / "leaves.ply"
+    m.export(path)  # binary, no label property
+    (part,) = load_mesh(path)
+    ref = trimesh.load(path, process=False)
+    np.testing.assert_array_equal(part.vertices, np.asarray(ref.vertices, dtype=np.float64))
+    np.testing.assert_array_equal(part.faces, np.asarray(ref.faces))
+    assert (part.name, part.label) == ("leaves.ply", "leaf")  # labelled from the file name
+
+
+def test_labelled_ply_round_trip_is_exact(tmp_path):
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(50, 3)) * 1e3 + [5e5, 5.5e6, 300.0]  # float64 survives
+    f = rng.integers(0, 50, size=(80, 3))
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    labels = rng.integers(1, 3, size=len(f)).astype(np.uint8)
+    path = write_mesh(tmp_path / "m.ply", v, f, face_label=labels)
+    parts = load_mesh(path)
+    assert {p.label for p in parts} == {"wood", "leaf"}
+    assert sum(len(p.faces) for p in parts) == len(f)
+    for p in parts:
+        np.testing.assert_array_equal(p.vertices, v)
+
+
+def test_quads_and_ascii_go_through_trimesh(tmp_path):
+    quad = tmp_path / "quad.ply"
+    quad.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 4\n"
+        b"property float x\nproperty float y\nproperty float z\n"
+        b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        + np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], "<f4").tobytes()
+        + bytes([4])
+        + np.array([0, 1, 2, 3], "<i4").tobytes()
+    )
+    (part,) = load_mesh(quad)
+    assert len(part.faces) == 2  # the quad, triangulated
+    m = trimesh.creation.box()
+    m.export(tmp_path / "box.ply", encoding="ascii")
+    (box,) = load_mesh(tmp_path / "box.ply")
+    assert len(box.faces) == 12
