@@ -38,18 +38,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.io import open_cloud_writer  # noqa: E402
+from pipeline.scan import SCAN_FIELDS  # noqa: E402
 
-FIELDS = {
-    "station": np.uint16,
-    "range_m": np.float64,
-    "incidence_deg": np.float32,
-    "label": np.uint8,
-    "return_number": np.uint8,
-    "number_of_returns": np.uint8,
-    "intensity": np.uint16,
-    "scan_line": np.int32,
-    "scan_column": np.int32,
-}
+#: The scanner's fields, as a scan writes them.
+FIELDS = dict(SCAN_FIELDS)
 
 CASES = {
     "LAZ, Lazrs (1 core)": ("scan.laz", 1),

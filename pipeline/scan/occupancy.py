@@ -340,7 +340,7 @@ class SparseGrid:
 
 #: Cap on the samples and pulses a thin-geometry mask enumerates (beyond it every cast
 #: pulse counts as near thin geometry).
-THIN_MAX_PULSES = 1 << 25
+THIN_MAX_PULSES = 1 << 23
 
 
 def angular_inradius_rad(tri: np.ndarray) -> np.ndarray:
@@ -378,10 +378,10 @@ def thin_mask(
     half-angle), at pulse resolution; a twig's facets give the same samples, which are
     merged before the boxes are enumerated.
 
-    Returns sorted unique keys ``column * n_elevation + line`` (int64), or None when
-    they would be more than ``max_pulses``, the samples more than
-    :data:`THIN_MAX_PULSES`, or a box reaches a pole: then every pulse must be treated
-    as near thin geometry.
+    Samples and boxes are handled in batches, so memory stays bounded. Returns sorted
+    unique keys ``column * n_elevation + line`` (int64), or None when they would be more
+    than ``max_pulses`` or :data:`THIN_MAX_PULSES`, or a box reaches a pole: then every
+    pulse must be treated as near thin geometry.
     """
     if grid.n_pulses == 0 or len(tri) == 0:
         return np.empty(0, np.int64)
@@ -426,10 +426,54 @@ def thin_mask(
     hres = math.radians(spec.horizontal_resolution_deg)
     gap = 0.5 * min(vres, hres)
     n_s = np.ceil(length / gap).astype(np.int64) + 1
-    if int(n_s.sum()) > THIN_MAX_PULSES:
+    if max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
         return None
-    # samples along each side's great-circle arc, at most ``gap`` apart (slerp)
-    k = np.repeat(np.arange(len(t)), n_s)
+    # boxes of pulses around samples, in batches of triangles (bounded memory), merged
+    # through one integer key each: a twig's facets give the same boxes
+    cum = np.cumsum(n_s)
+    cuts = np.searchsorted(cum, np.arange(_SAMPLE_BATCH, int(cum[-1]), _SAMPLE_BATCH))
+    boxes = []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
+        if hi <= lo:
+            continue
+        sel = slice(int(lo), int(hi))
+        got = _sample_boxes(ua[sel], ub[sel], length[sel], width[sel], margin[sel], n_s[sel], spec)
+        if got is None:
+            return None
+        boxes.append(got)
+    box = np.unique(np.concatenate(boxes))
+    l0, c0 = (box >> 42) - 1, (box >> 22) & ((1 << 20) - 1)
+    rl, rc = (box >> 11) & ((1 << 11) - 1), box & ((1 << 11) - 1)
+    n = (2 * rl + 1) * (2 * rc + 1)
+    cum = np.cumsum(n)
+    if int(cum[-1]) > 8 * THIN_MAX_PULSES:
+        return None
+    cuts = np.searchsorted(cum, np.arange(_SAMPLE_BATCH, int(cum[-1]), _SAMPLE_BATCH))
+    keys = np.empty(0, np.int64)
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(box)], strict=True):
+        sel = slice(int(lo), int(hi))
+        keys = np.union1d(keys, _box_pulses(l0[sel], c0[sel], rl[sel], rc[sel], spec))
+        if len(keys) > min(max_pulses, THIN_MAX_PULSES):
+            return None
+    return keys
+
+
+#: Samples (and box pulses) handled at once by :func:`thin_mask`.
+_SAMPLE_BATCH = 1 << 20
+
+
+def _sample_boxes(
+    ua: np.ndarray,
+    ub: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    margin: np.ndarray,
+    n_s: np.ndarray,
+    spec: ScannerSpec,
+) -> np.ndarray | None:
+    """Integer keys of the pulse boxes around samples along arcs ``ua`` → ``ub`` (slerp,
+    ``n_s`` samples each); None where a box would reach a pole or be too wide."""
+    k = np.repeat(np.arange(len(ua)), n_s)
     f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
         n_s[k] - 1, 1
     )
@@ -445,23 +489,28 @@ def thin_mask(
     cos_el = np.cos(np.minimum(np.abs(el) + radius, math.pi / 2))
     if (cos_el < 1e-3).any():
         return None  # at the poles a box of columns is the whole turn: give up the mask
+    vres = math.radians(spec.vertical_resolution_deg)
+    hres = math.radians(spec.horizontal_resolution_deg)
     v0, h0 = spec.vertical_fov_deg[0], spec.horizontal_fov_deg[0]
     line = (np.degrees(el) - v0) / spec.vertical_resolution_deg
     col = ((np.degrees(az) - h0) % 360.0) / spec.horizontal_resolution_deg
     l0, c0 = np.rint(line).astype(np.int64), np.rint(col).astype(np.int64)
     rl = np.ceil(radius / vres + 0.5).astype(np.int64)
     rc = np.ceil(radius / (hres * cos_el) + 0.5).astype(np.int64)
-    if max(rl.max(), rc.max()) >= 1 << 11 or max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
+    if max(rl.max(), rc.max()) >= 1 << 11:
         return None
     l0 = np.maximum(l0, -1)  # a box centred below line -1 moved up still covers lines >= 0
-    # merge equal boxes through one integer key (lines, columns < 2^20 at any step)
-    box = np.unique((((l0 + 1) << 20 | c0) << 11 | rl) << 11 | rc)
-    l0, c0 = (box >> 42) - 1, (box >> 22) & ((1 << 20) - 1)
-    rl, rc = (box >> 11) & ((1 << 11) - 1), box & ((1 << 11) - 1)
+    return np.unique((((l0 + 1) << 20 | c0) << 11 | rl) << 11 | rc)
+
+
+def _box_pulses(
+    l0: np.ndarray, c0: np.ndarray, rl: np.ndarray, rc: np.ndarray, spec: ScannerSpec
+) -> np.ndarray:
+    """Unique keys ``column * n_elevation + line`` of the pulses in boxes centred on
+    (``l0``, ``c0``) with half-sizes (``rl``, ``rc``), wrapped or clipped to the field
+    of view."""
     n = (2 * rl + 1) * (2 * rc + 1)
-    if int(n.sum()) > THIN_MAX_PULSES:
-        return None
-    b = np.repeat(np.arange(len(box)), n)
+    b = np.repeat(np.arange(len(n)), n)
     j = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
     lines = l0[b] - rl[b] + j % (2 * rl[b] + 1)
     cols = c0[b] - rc[b] + j // (2 * rl[b] + 1)
@@ -471,8 +520,7 @@ def thin_mask(
         steps = 360.0 / spec.horizontal_resolution_deg
         cols = np.where(cols >= spec.n_azimuth, np.rint(cols - steps).astype(np.int64), cols)
     ok = (lines >= 0) & (lines < spec.n_elevation) & (cols >= 0) & (cols < spec.n_azimuth)
-    keys = np.unique(cols[ok] * spec.n_elevation + lines[ok])
-    return None if len(keys) > max_pulses else keys
+    return np.unique(cols[ok] * spec.n_elevation + lines[ok])
 
 
 def reachable(tri: np.ndarray, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:
