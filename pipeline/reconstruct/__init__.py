@@ -20,7 +20,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,8 +29,11 @@ from ..errors import ReconstructionError
 from ..jsonio import write_json
 from ..models import CylinderTable, cylinders_to_mesh, mesh_volume, write_cylinders
 from ..params import METHODS, PrepareParams, QSMParams, ReconstructParams
-from .preprocess import PreparedCloud, prepare
-from .qsm import QSMResult, fit_circle, fit_qsm
+
+if TYPE_CHECKING:  # the stages import scipy: loaded when a reconstruction runs, so that
+    # `import pipeline` (every treesim command) does not pay for it
+    from .preprocess import PreparedCloud
+    from .qsm import QSMResult
 
 __all__ = [
     "METHODS",
@@ -121,6 +124,8 @@ def cloud_dbh_m(
     if sel.sum() < 10:
         return None
     q = p[sel, :2] - p[sel, :2].mean(axis=0)
+    from .qsm import fit_circle
+
     fit = fit_circle(q, np.ones(len(q)), np.random.default_rng(0), max(spacing_m, 0.001))
     if fit is None or fit.coverage_deg < 180 or fit.inlier_share < 0.5:
         return None
@@ -177,6 +182,8 @@ def reconstruct(
     say = progress or (lambda f, m: None)
     t0 = time.perf_counter()
     say(0.0, "preparing")
+    from .preprocess import prepare
+
     prepared = prepare(cloud, params.prepare)
     t_prep = time.perf_counter() - t0
     say(0.3, f"reconstructing ({params.method})")
@@ -210,6 +217,8 @@ def _common_figures(prepared: PreparedCloud) -> dict[str, Any]:
 
 
 def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
+    from .qsm import fit_qsm
+
     res: QSMResult = fit_qsm(
         prepared.points, spacing_m=prepared.spacing_m, weights=prepared.weights, params=params.qsm
     )
