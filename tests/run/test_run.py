@@ -226,3 +226,23 @@ def test_params_are_frozen():
     p = preset("draft")
     with pytest.raises(AttributeError):
         p.threads = 3  # type: ignore[misc]
+
+
+def test_lod_auto_scans_a_qsm_mesh_with_facets_from_the_projected_size(sapling_run):
+    # the run's QSM mesh for the scan: no more facets than the scanner resolves at the
+    # nearest station (and never more than asked for); run.json and the page say why
+    result, _ = sapling_run
+    run = json.loads(result.run_json.read_text())
+    lod = run["scan"]["lod"]
+    assert lod["mode"] == "auto" and "why" in lod["rays"] and "why" in lod["geometry"]
+    facets = lod["facets"]
+    asked = run["parameters"]["reconstruct"]["facets"]
+    counts = [int(k) for k in facets["facets_histogram"]]
+    assert min(counts) >= 8 and max(counts) <= asked
+    assert facets["max_sagitta_over_spacing"] <= 0.1 + 1e-9
+    assert facets["n_triangles"] < facets["n_triangles_uniform"]
+    scan = json.loads((result.outdir / "scan.json").read_text())
+    assert scan["mesh"] == "scan_mesh.ply" and (result.outdir / "scan_mesh.ply").is_file()
+    assert scan["triangles"] == facets["n_triangles"]
+    page = result.report_html.read_text()
+    assert "level of detail: facets" in page and "level of detail: rays" in page
