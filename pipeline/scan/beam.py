@@ -31,12 +31,18 @@ def subray_pattern(n: int, divergence_mrad: float) -> tuple[np.ndarray, np.ndarr
     return offsets, w / w.sum()
 
 
-def subray_directions(d: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Sub-ray unit directions (p, s, 3) around pulse directions ``d`` (p, 3)."""
+def beam_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors (p, 3) spanning the tangent plane of each pulse direction ``d``
+    (p, 3): ``e1`` horizontal unless the pulse is near vertical, ``e2 = d × e1``."""
     up = np.where(np.abs(d[:, 2:3]) < 0.99, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
     e1 = np.cross(up, d)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(d, e1)
+    return e1, np.cross(d, e1)
+
+
+def subray_directions(d: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Sub-ray unit directions (p, s, 3) around pulse directions ``d`` (p, 3)."""
+    e1, e2 = beam_basis(d)
     tu = np.tan(offsets[:, 0])[None, :, None]
     tv = np.tan(offsets[:, 1])[None, :, None]
     out = d[:, None, :] + tu * e1[:, None, :] + tv * e2[:, None, :]

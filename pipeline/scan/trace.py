@@ -924,10 +924,18 @@ class _AdaptiveBeam:
         (the sunflower pattern is not symmetric, so this differs from the central range
         by the pattern's first moment times the incidence's tangent)."""
         caster = self.caster
-        sd = beam_model.subray_directions(d, offsets)
         n = caster.normal[prim]
         num = np.einsum("ij,ij->i", caster.v0[prim] - self.o, n)
-        den = np.einsum("ikj,ij->ik", sd, n)
+        # n · (sub-ray direction), without building the sub-rays: they are
+        # (d + tan(u) e1 + tan(v) e2) / sqrt(1 + tan²u + tan²v) on the beam's orthonormal
+        # basis (:func:`~pipeline.scan.beam.subray_directions`)
+        e1, e2 = beam_model.beam_basis(d)
+        tu, tv = np.tan(offsets[:, 0]), np.tan(offsets[:, 1])
+        norm = np.sqrt(1.0 + tu * tu + tv * tv)
+        nd = np.einsum("ij,ij->i", n, d)[:, None]
+        n1 = np.einsum("ij,ij->i", n, e1)[:, None]
+        n2 = np.einsum("ij,ij->i", n, e2)[:, None]
+        den = (nd + tu[None, :] * n1 + tv[None, :] * n2) / norm[None, :]
         return (num[:, None] / den) @ weights / weights.sum()
 
     def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
