@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -168,6 +169,13 @@ def run_scan(
         f"(full field of view would be {result.rays_full_fov:,}) in {result.total_s:.2f} s; "
         f"models: {models}"
     )
+    if result.n_points == 0:  # a valid result, written as an empty cloud: say why
+        why = "; ".join(
+            f"{key}: {entry['why']}"
+            for key, entry in result.lod.items()
+            if isinstance(entry, dict) and "why" in entry
+        )
+        print(f"treesim scan: no points were recorded ({why})", file=sys.stderr)
     print(f"wrote {step.outputs['cloud']} and {step.outputs['json']}")
     return step.summary
 

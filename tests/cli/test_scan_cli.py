@@ -146,3 +146,15 @@ def test_presets_are_listed():
     res = _run(["scan", "--list-presets"])
     assert res.returncode == 0
     assert "riegl-vz400" in res.stdout and "faro-focus3d-x330" in res.stdout
+
+
+def test_nothing_in_range_writes_an_empty_cloud_and_says_why(tmp_path, capsys):
+    v, f = box_arrays((100.0, -0.5, 0.0), (101.0, 0.5, 1.0))
+    mesh = write_mesh(tmp_path / "far.ply", v, f)
+    out = tmp_path / "none.laz"
+    argv = ["scan", str(mesh), "-o", str(out), "--station", "0,0,0.5", "--max-range-m", "50"]
+    assert main([*argv, "--resolution-deg", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "no points" in err and "beyond 50 m from every station" in err
+    assert laspy.read(out).header.point_count == 0
+    assert json.loads(out.with_suffix(".json").read_text())["points"] == 0
