@@ -1,13 +1,21 @@
-"""Casting: stations × windowed pulse grids → Open3D ``RaycastingScene`` → float64 hits.
+"""Casting: stations × pulse grids → Open3D ``RaycastingScene`` → float64 hits.
+
+Which pulses: each station's window (the angular rectangle of the scene's bounding box),
+narrowed to the cells some triangle can reach (:mod:`pipeline.scan.occupancy`; the same
+points, bit for bit). Under ``lod="auto"`` triangles no station can record are never
+loaded, and the beam model's sub-rays go only to pulses whose footprint can straddle an
+edge (:class:`_AdaptiveBeam`); ``ScanResult.lod`` says what ran and why.
 
 Precision: the scene is shifted into a :class:`~pipeline.frame.LocalFrame` (float64)
 before Open3D (float32) sees it; each ray starts just before the scene's bounding box
 (moved forward in float64), so float32 never holds a long range; every hit is then
 recomputed in float64 as the intersection of the ray with the hit triangle's plane.
-Points leave in the input's coordinates as float64.
+Points leave in the input's coordinates as float64. A pulse's float32 ray is gathered
+from per-station tables, so it is the same bits whichever pulses are cast beside it.
 
-Memory: pulses are cast in chunks of at most ``chunk_rays`` rays, so peak memory is
-bounded (about 200 bytes per ray in flight) whatever the resolution.
+Memory: pulses are cast in chunks of at most ``chunk_rays`` rays (about 200 bytes per
+ray in flight), and with a ``sink`` each chunk's points leave as they are made, so peak
+memory does not grow with the resolution or the number of points.
 """
 
 from __future__ import annotations
