@@ -543,6 +543,19 @@ def _tube_facets(facets: int | np.ndarray, tubes: _Tubes) -> np.ndarray:
     return out
 
 
+def _rows_facets(
+    table: CylinderTable, facets: int | Sequence[int] | np.ndarray, joints: str
+) -> tuple[int | np.ndarray, int]:
+    """Check ``joints``, ``facets`` and ``table``; the facets per row (or one int) and
+    the number of rows."""
+    if joints not in JOINTS:
+        raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
+    checked = _facets_arg(facets)
+    table.validate()
+    n = table.n_cylinders
+    return _facets_per_row(checked, n), n
+
+
 def meshed_facets(
     table: CylinderTable,
     *,
@@ -556,12 +569,7 @@ def meshed_facets(
     Separate prisms: ``facets`` itself (broadcast). Mitred tubes: per row, the largest
     count of the rows of its tube (see :func:`tubes_to_mesh`). Parameters as there.
     """
-    if joints not in JOINTS:
-        raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
-    checked = _facets_arg(facets)
-    table.validate()
-    n = table.n_cylinders
-    per_row = _facets_per_row(checked, n)
+    per_row, n = _rows_facets(table, facets, joints)
     if joints == "separate":
         return np.broadcast_to(np.asarray(per_row, dtype=np.int64), n).copy()
     _check_tube_options(max_bend_deg, max_gap_ratio)
@@ -586,12 +594,7 @@ def mesh_triangle_count(
     Tubes: per tube of ``f`` facets, ``2 f`` per row, ``f`` per end cap and ``2 f`` per
     radius step.
     """
-    if joints not in JOINTS:
-        raise InvalidParameterError(f"joints must be one of {', '.join(JOINTS)}, got {joints!r}")
-    checked = _facets_arg(facets)
-    table.validate()
-    n = table.n_cylinders
-    per_row = _facets_per_row(checked, n)
+    per_row, n = _rows_facets(table, facets, joints)
     if joints == "separate":
         return int(np.sum(np.broadcast_to(per_row, n))) * (4 if caps else 2)
     if not caps:
