@@ -331,9 +331,15 @@ class SparseGrid:
 
     def indices(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         """(line, column) of pulses ``start:stop``."""
-        k = np.arange(start, stop, dtype=np.int64)
-        ci = np.searchsorted(self.offsets, k, side="right") - 1
-        within = k - self.offsets[ci]
+        if stop <= start:
+            return np.empty(0, np.int64), np.empty(0, np.int64)
+        # the columns the range touches, then each pulse's column by repetition
+        c0 = int(np.searchsorted(self.offsets, start, side="right")) - 1
+        c1 = int(np.searchsorted(self.offsets, stop - 1, side="right"))
+        off = self.offsets[c0 : c1 + 1]
+        counts = np.diff(np.clip(off, start, stop))
+        ci = np.repeat(np.arange(c0, c1), counts)
+        within = np.arange(start, stop, dtype=np.int64) - self.offsets[ci]
         line = self.lines_data[self.indptr[self.col_set[ci]] + within]
         return line, self.columns[ci]
 

@@ -426,8 +426,16 @@ class _RayTables:
     def __init__(self, spec: ScannerSpec, heading_deg: float) -> None:
         az = column_azimuth_rad(spec, np.arange(spec.n_azimuth), heading_deg)
         el = line_elevation_rad(spec, np.arange(spec.n_elevation))
-        self.cz, self.sz = np.cos(az).astype(np.float32), np.sin(az).astype(np.float32)
-        self.ce, self.se = np.cos(el).astype(np.float32), np.sin(el).astype(np.float32)
+        self.cz64, self.sz64 = np.cos(az), np.sin(az)
+        self.ce64, self.se64 = np.cos(el), np.sin(el)
+        self.cz, self.sz = self.cz64.astype(np.float32), self.sz64.astype(np.float32)
+        self.ce, self.se = self.ce64.astype(np.float32), self.se64.astype(np.float32)
+
+    def directions(self, lines: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Float64 unit directions (n, 3) of grid pulses, in the scanner frame: the
+        values :func:`~pipeline.scan.rays.directions` computes, gathered."""
+        ce = self.ce64[lines]
+        return np.stack([ce * self.cz64[cols], ce * self.sz64[cols], self.se64[lines]], axis=1)
 
 
 def _cast_central(
@@ -467,14 +475,11 @@ def _cast_central(
 
 
 def _grid_directions(
-    spec: ScannerSpec,
-    lines: np.ndarray,
-    cols: np.ndarray,
-    rot: np.ndarray,
-    hdeg: float,
-    level: bool,
+    tables: _RayTables, lines: np.ndarray, cols: np.ndarray, rot: np.ndarray, level: bool
 ) -> np.ndarray:
-    d = directions(column_azimuth_rad(spec, cols, hdeg), line_elevation_rad(spec, lines))
+    """Float64 directions of grid pulses in the scene's frame (the tables hold the
+    station's heading when it is level, else the rotation turns them)."""
+    d = tables.directions(lines, cols)
     return d if level else d @ rot.T
 
 
@@ -627,7 +632,7 @@ def scan(
                         caster, spec, tables, lines, cols, o, t0, rot, hdeg, level
                     )
                     lines_r, cols_r = lines[hidx], cols[hidx]
-                    d_r = _grid_directions(spec, lines_r, cols_r, rot, hdeg, level)
+                    d_r = _grid_directions(tables, lines_r, cols_r, rot, level)
                     t = caster.refine(o, d_r, t0 + th, prim)
                     rec = _single_returns(spec, t, prim)
                 else:
@@ -828,7 +833,7 @@ class _AdaptiveBeam:
         if spec.angular_jitter_sd_deg > 0:
             az, el = pulse_angles(spec, self.k_station, lines, cols)
             return directions(az, el) @ self.rot.T
-        return _grid_directions(spec, lines, cols, self.rot, self.hdeg, self.level)
+        return _grid_directions(self.tables, lines, cols, self.rot, self.level)
 
     def _central(self, lines: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Central ray of each pulse: (t, primitive), inf / -1 on a miss."""
