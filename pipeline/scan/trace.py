@@ -559,8 +559,9 @@ def scan(
         o = frame.to_local(st.position)
         grid, win = _grid_for(verts_used, o, st.rotation, spec, window)
         windows.append(grid.n_pulses)
-    # the limit is checked on the window (an upper bound), before any triangle is read
-    upper = sum(windows) * (1 if adaptive else s)
+    # the limit is checked on the window with every sub-ray (an upper bound: culling
+    # and adaptive sampling cast fewer), before any triangle is read
+    upper = sum(windows) * s
     if upper > max_rays:
         secs = upper / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
         raise ResourceLimitError(
