@@ -82,15 +82,23 @@ def group_returns(
     tv = ts[valid]
     sub = order[valid]
     w = weights[sub]
+    # groups are runs: rows in order, echo clusters in range order within a row
     key = pulse.astype(np.int64) * s + cl
-    uniq, inv = np.unique(key, return_inverse=True)
+    starts = np.ones(len(key), dtype=bool)
+    starts[1:] = key[1:] != key[:-1]
+    inv = np.cumsum(starts) - 1
+    uniq = key[starts]
     energy = np.bincount(inv, weights=w)
     rng = np.bincount(inv, weights=w * tv) / energy
-    # strongest sub-ray per group: sort by (group, -w), first of each group
-    idx = np.lexsort((-w, inv))
-    first = np.ones(len(idx), dtype=bool)
-    first[1:] = inv[idx][1:] != inv[idx][:-1]
-    strongest = sub[idx[first]]
+    # strongest sub-ray per group: the first (in range order) of its largest weight
+    if len(w):
+        w_max = np.maximum.reduceat(w, np.flatnonzero(starts))
+        top = np.flatnonzero(w == w_max[inv])
+        first = np.ones(len(top), dtype=bool)
+        first[1:] = inv[top][1:] != inv[top][:-1]
+        strongest = sub[top[first]]
+    else:
+        strongest = np.empty(0, dtype=np.int64)
     g_pulse = (uniq // s).astype(np.int64)
     g_cl = (uniq % s).astype(np.int64)
     n_per_pulse = np.bincount(g_pulse, minlength=p)

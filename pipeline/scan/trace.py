@@ -1009,8 +1009,11 @@ class _AdaptiveBeam:
                 rec["pulse"] = cp[rec["pulse"]]
                 parts.append(rec)
             rec = _merge_records(parts)
-            used = np.unique(rec["pulse"])
-            rec["pulse"] = np.searchsorted(used, rec["pulse"])
+            # pulses with returns, renumbered (records are ordered by pulse)
+            fresh = np.ones(len(rec["pulse"]), dtype=bool)
+            fresh[1:] = rec["pulse"][1:] != rec["pulse"][:-1]
+            used = rec["pulse"][fresh]
+            rec["pulse"] = np.cumsum(fresh) - 1
             d_used = self._directions(lines[used], cols[used])
             yield rec, lines[used], cols[used], d_used, n_core, n_rays
             ca = cb
