@@ -763,6 +763,8 @@ SCAN_FIELDS: dict[str, np.dtype] = {k: np.dtype(v) for k, v in _FIELDS.items()}
 #: A neighbour's hit farther than this from the plane of a pulse's hit triangle means a
 #: different surface may lie inside the pulse's footprint (adaptive beam sampling).
 ADAPTIVE_PLANE_TOL_M = 1e-3
+#: Largest dense neighbour table (cells) adaptive sampling builds per block of columns.
+_DENSE_NEIGHBOUR_CELLS = 1 << 23
 #: Hits within this fraction of a range limit get sub-rays (the beam may straddle it).
 _RANGE_LIMIT_FRACTION = 0.02
 
@@ -860,6 +862,37 @@ class _AdaptiveBeam:
         prim[hidx] = pr
         return t, prim
 
+    def _neighbour_finder(self, lines: np.ndarray, cols: np.ndarray, key: np.ndarray):
+        """A function (columns, lines, ok) -> index of that pulse among ``lines``/``cols``
+        or -1: a dense table over the block's columns and lines where it is small, a
+        search in the sorted keys otherwise."""
+        ucols = np.unique(cols)
+        lmin = int(lines.min())
+        height = int(lines.max()) - lmin + 1
+        if len(ucols) * height <= _DENSE_NEIGHBOUR_CELLS:
+            colpos = np.full(self.n_az, -1, dtype=np.int64)
+            colpos[ucols] = np.arange(len(ucols))
+            table = np.full((len(ucols), height), -1, dtype=np.int32)
+            table[colpos[cols], lines - lmin] = np.arange(len(lines), dtype=np.int32)
+
+            def dense(qc: np.ndarray, ql: np.ndarray, ok: np.ndarray) -> np.ndarray:
+                pc = colpos[qc]
+                row = ql - lmin
+                ok = ok & (pc >= 0) & (row >= 0) & (row < height)
+                out = table[np.where(ok, pc, 0), np.where(ok, row, 0)].astype(np.int64)
+                return np.where(ok, out, -1)
+
+            return dense
+        order = np.argsort(key, kind="stable")
+        skey = key[order]
+
+        def search(qc: np.ndarray, ql: np.ndarray, ok: np.ndarray) -> np.ndarray:
+            qkey = qc * self.n_lines + ql
+            pos = np.minimum(np.searchsorted(skey, qkey), len(skey) - 1)
+            return np.where(ok & (skey[pos] == qkey), order[pos], -1)
+
+        return search
+
     def _flags(
         self,
         lines: np.ndarray,
@@ -871,8 +904,7 @@ class _AdaptiveBeam:
         """Which of the first ``n_core`` pulses need sub-rays (see the class notes)."""
         spec, caster = self.spec, self.caster
         key = cols * self.n_lines + lines
-        order = np.argsort(key, kind="stable")
-        skey = key[order]
+        find = self._neighbour_finder(lines, cols, key)
         hit = np.isfinite(t)
         d_hit = np.zeros((len(t), 3))
         d_hit[hit] = self._directions(lines[hit], cols[hit])
@@ -898,10 +930,9 @@ class _AdaptiveBeam:
                     continue
                 ql = cl + dl
                 ok = col_ok & (ql >= 0) & (ql < self.n_lines)
-                qkey = qc * self.n_lines + ql
-                pos = np.minimum(np.searchsorted(skey, qkey), len(skey) - 1)
-                found = ok & (skey[pos] == qkey)
-                q = order[pos]
+                q = find(np.where(ok, qc, 0), ql, ok)
+                found = q >= 0
+                q = np.maximum(q, 0)
                 q_hit = found & hit[q]
                 # a hit beside a miss, or a miss beside a hit
                 flag |= hit_p != q_hit

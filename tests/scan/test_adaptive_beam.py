@@ -133,3 +133,33 @@ def test_lod_full_gives_every_pulse_its_subrays():
     assert full.rays_cast == brute.rays_cast == full.summary()["pulses_cast"] * spec.subrays
     assert full.lod["beam"]["sampling"] == "full" and "lod full" in full.lod["beam"]["why"]
     np.testing.assert_array_equal(full.cloud.points, brute.cloud.points)
+
+
+def test_neighbours_found_by_table_or_by_search_alike(monkeypatch):
+    # blocks small enough get a dense neighbour table, others a search in sorted keys:
+    # both must flag the same pulses
+    import sys
+
+    trace = sys.modules["pipeline.scan.trace"]
+    wall = box_arrays((8.0, -1.0, -1.0), (8.2, 1.0, 2.0))
+    pole = cylinder_arrays(0.04, 2.0, 24, (5.0, 0.1, -0.5))
+    scene = Scene(
+        [
+            MeshPart(vertices=wall[0], faces=wall[1], label="other"),
+            MeshPart(vertices=pole[0], faces=pole[1], label="wood"),
+        ]
+    )
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.1,
+        vertical_resolution_deg=0.1,
+        beam_divergence_mrad=2.0,
+        subrays=7,
+        return_mode="all",
+    )
+    st = [Station(position_m=(0.0, 0.0, 0.5))]
+    dense = scan(scene, st, spec)
+    monkeypatch.setattr(trace, "_DENSE_NEIGHBOUR_CELLS", 0)
+    searched = scan(scene, st, spec)
+    assert dense.lod["beam"]["reasons"] == searched.lod["beam"]["reasons"]
+    assert dense.lod["beam"]["reasons"]["edge"] > 0
+    np.testing.assert_array_equal(dense.cloud.points, searched.cloud.points)
