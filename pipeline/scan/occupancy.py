@@ -236,7 +236,7 @@ def occupancy_grid(
         Bound of the absolute position error of float32 vertices and ray origins.
     """
     if window.n_pulses == 0 or len(tri) == 0:
-        return SparseGrid.empty(window)
+        return SparseGrid.empty()
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
     m_ray = pointing_margin_rad(spec)
@@ -300,7 +300,7 @@ class SparseGrid:
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
     @classmethod
-    def empty(cls, window: PulseGrid) -> SparseGrid:
+    def empty(cls) -> SparseGrid:
         return cls(np.empty(0, np.int64), np.empty(0, np.int64), np.zeros(1, np.int64), np.empty(0))
 
     @classmethod
@@ -529,16 +529,14 @@ def _box_pulses(
     return np.unique(cols[ok] * spec.n_elevation + lines[ok])
 
 
-def reachable(tri: np.ndarray, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:
-    """Which triangles (n, 3, 3; scanner frame) a station of ``spec`` can record.
+def reachable(b: TriangleBounds, spec: ScannerSpec, *, abs_error_m: float) -> np.ndarray:
+    """Which triangles (their :func:`triangle_bounds` from a station) that station,
+    scanning with ``spec``, can record.
 
     False only where no ray can produce a point: the whole triangle lies beyond
     ``max_range_m``, or its widened angular bounds miss the field of view. Nearer than
     ``min_range_m`` is kept (a near triangle records nothing but still occludes).
     """
-    if len(tri) == 0:
-        return np.zeros(0, dtype=bool)
-    b = triangle_bounds(tri)
     m = pointing_margin_rad(spec) + abs_error_m / np.maximum(b.d_min, 1e-300)
     v0, v1 = (math.radians(a) for a in spec.vertical_fov_deg)
     ok = (b.d_min <= spec.max_range_m) & (b.el_hi + m >= v0) & (b.el_lo - m <= v1)

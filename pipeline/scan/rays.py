@@ -118,6 +118,11 @@ class PulseGrid:
     def n_pulses(self) -> int:
         return len(self.lines) * len(self.columns)
 
+    @property
+    def offsets(self) -> np.ndarray:
+        """(n_columns + 1,) index of each column's first pulse (and the end)."""
+        return np.arange(len(self.columns) + 1, dtype=np.int64) * len(self.lines)
+
     def indices(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         """(line, column) of pulses ``start:stop`` in column-major order (a scanner
         sweeps one vertical line per azimuth step)."""

@@ -176,8 +176,6 @@ class _Caster:
         f = scene.faces if keep is None else scene.faces[keep]
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
-        used = np.unique(f)
-        self.radius = float(np.linalg.norm(v[used], axis=1).max()) if len(used) else 0.0
         self.v0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0)
         self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -288,8 +286,20 @@ def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
         )
 
 
+def _float32_error_m(radius_m: float, o: np.ndarray) -> float:
+    """Bound of the absolute error (m) of float32 vertices and ray origins for a scene
+    within ``radius_m`` of the local frame's origin seen from ``o``: ~80 float32 ulps of
+    the largest coordinate a ray meets (a ray starts at most ``|o| + radius_m`` out)."""
+    return 2e-5 * (radius_m + float(np.linalg.norm(o))) + 1e-7
+
+
 def _reachable_triangles(
-    scene: Scene, frame: LocalFrame, stations: Sequence[Station], spec: ScannerSpec, lod: str
+    scene: Scene,
+    frame: LocalFrame,
+    stations: Sequence[Station],
+    spec: ScannerSpec,
+    lod: str,
+    radius_m: float,
 ) -> tuple[np.ndarray | None, dict[str, Any]]:
     """The triangles to load (None: all) and what was left out, and why."""
     n = scene.n_triangles
@@ -298,15 +308,13 @@ def _reachable_triangles(
         return None, info
     v = frame.to_local(scene.vertices)
     f = scene.faces
-    radius = float(np.linalg.norm(v[np.unique(f)], axis=1).max())
     keep = np.zeros(n, dtype=bool)
     near = np.zeros(n, dtype=bool)
     for st in stations:
         o = frame.to_local(st.position)
-        tri = ((v - o) @ st.rotation)[f]
-        abs_err = 2e-5 * (radius + float(np.linalg.norm(o))) + 1e-7
-        keep |= reachable(tri, spec, abs_error_m=abs_err)
-        near |= triangle_bounds(tri).d_min <= spec.max_range_m
+        bounds = triangle_bounds(((v - o) @ st.rotation)[f])
+        keep |= reachable(bounds, spec, abs_error_m=_float32_error_m(radius_m, o))
+        near |= bounds.d_min <= spec.max_range_m
     info.update(
         loaded=int(keep.sum()),
         beyond_range=int((~near).sum()),
@@ -349,7 +357,7 @@ def _lod_summary(
         ),
     }
     if spec.beam_model:
-        pulses = sum(s.pulses_cast for s in stats)
+        pulses = cast
         sub = sum(s.pulses_subrays for s in stats)
         reasons: dict[str, int] = {}
         for s in stats:
@@ -378,26 +386,21 @@ def _lod_summary(
 
 def _grid_plan(
     caster: _Caster,
-    verts_local: np.ndarray,
+    grid: PulseGrid,
     o: np.ndarray,
     rot: np.ndarray,
     spec: ScannerSpec,
-    window: bool,
-    cull: bool,
+    culled: bool,
     adaptive: bool,
-) -> tuple[Any, Any, int, np.ndarray | None]:
-    """The pulses one station casts: the whole field of view, the scene's window, or
-    (``cull``) the window's cells that some triangle can reach. Returns (grid, window
-    bounds, pulses in the window rectangle, and with ``adaptive`` beam sampling the
-    thin-geometry mask, else None)."""
-    grid, win = _grid_for(verts_local, o, rot, spec, window)
-    n_window = grid.n_pulses
-    culled = window and cull
-    if n_window == 0 or not (culled or adaptive):
-        return grid, win, n_window, None
+    radius_m: float,
+) -> tuple[Any, np.ndarray | None]:
+    """The pulses one station casts from its ``grid`` (the whole field of view or the
+    scene's window): with ``culled``, the window's cells some triangle can reach. Returns
+    them and, with ``adaptive`` beam sampling, the thin-geometry mask (else None)."""
+    if grid.n_pulses == 0 or not (culled or adaptive):
+        return grid, None
     tri = ((caster.v - o) @ rot)[caster.faces]
-    t0 = caster.entry_distance(o)
-    abs_err = 1e-5 * (caster.radius + float(np.linalg.norm(o)) + t0) + 1e-7
+    abs_err = _float32_error_m(radius_m, o)
     cast = grid
     if culled:
         h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
@@ -415,7 +418,7 @@ def _grid_plan(
             thickness_m=caster.thickness_m(),
             max_pulses=2 * cast.n_pulses,
         )
-    return cast, win, n_window, thin
+    return cast, thin
 
 
 class _RayTables:
@@ -440,14 +443,12 @@ class _RayTables:
 
 def _cast_central(
     caster: _Caster,
-    spec: ScannerSpec,
     tables: _RayTables,
     lines: np.ndarray,
     cols: np.ndarray,
     o: np.ndarray,
     t0: float,
     rot: np.ndarray,
-    heading_deg: float,
     level: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cast the grid rays of pulses (``lines``, ``cols``) without per-pulse randomness.
@@ -554,14 +555,14 @@ def scan(
     if lod not in LODS:
         raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {lod!r}")
     adaptive = s > 1 and spec.beam_sampling == "adaptive" and lod == "auto"
-    windows = []
-    for st in stations:
-        o = frame.to_local(st.position)
-        grid, win = _grid_for(verts_used, o, st.rotation, spec, window)
-        windows.append(grid.n_pulses)
+    origins = [frame.to_local(st.position) for st in stations]
+    windows = [
+        _grid_for(verts_used, o, st.rotation, spec, window)
+        for o, st in zip(origins, stations, strict=True)
+    ]
     # the limit is checked on the window with every sub-ray (an upper bound: culling
     # and adaptive sampling cast fewer), before any triangle is read
-    upper = sum(windows) * s
+    upper = sum(grid.n_pulses for grid, _ in windows) * s
     if upper > max_rays:
         secs = upper / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
         raise ResourceLimitError(
@@ -572,20 +573,18 @@ def scan(
             f"{_human_time(secs)} here, over the limit of {max_rays:.3g}; coarsen the "
             "resolution or raise max_rays (--max-rays); memory stays bounded either way"
         )
-    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod)
+    radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
+    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius)
     caster = _Caster(scene, frame, nthreads, keep) if geometry["loaded"] else None
     plans = []
-    for st in stations:
-        o = frame.to_local(st.position)
+    for o, st, (window_grid, win) in zip(origins, stations, windows, strict=True):
         if caster is None:  # nothing any station can record: a valid empty scan
-            grid, win = _grid_for(verts_used, o, st.rotation, spec, window)
-            n_window, thin = grid.n_pulses, None
-            grid = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64))
+            grid, thin = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64)), None
         else:
-            grid, win, n_window, thin = _grid_plan(
-                caster, verts_used, o, st.rotation, spec, window, cull, adaptive
+            grid, thin = _grid_plan(
+                caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
             )
-        plans.append((o, st.rotation, grid, win, n_window, thin))
+        plans.append((o, st.rotation, grid, win, window_grid.n_pulses, thin))
     if check_inside and caster is not None:
         for k, plan in enumerate(plans):
             _check_inside(caster, plan[0], k, stations[k])
@@ -615,7 +614,7 @@ def scan(
         station_adaptive = adaptive and thin is not None
         per_chunk = max(1, int(chunk_rays) // (1 if station_adaptive else s))
         if station_adaptive:
-            chunks = _AdaptiveBeam(caster, spec, grid, tables, o, t0, rot, hdeg, level, k, thin)
+            chunks = _AdaptiveBeam(caster, spec, grid, tables, o, t0, rot, level, k, thin)
             blocks = chunks.blocks(per_chunk, offsets, weights)
         else:
             blocks = (
@@ -629,9 +628,7 @@ def scan(
                 lines, cols = grid.indices(a, b)
                 n_pulses, n_rays = b - a, (b - a) * s
                 if fast:
-                    hidx, th, prim = _cast_central(
-                        caster, spec, tables, lines, cols, o, t0, rot, hdeg, level
-                    )
+                    hidx, th, prim = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
                     lines_r, cols_r = lines[hidx], cols[hidx]
                     d_r = _grid_directions(tables, lines_r, cols_r, rot, level)
                     t = caster.refine(o, d_r, t0 + th, prim)
@@ -704,7 +701,9 @@ def scan(
                 elevation_window_deg=win.elevation_deg,
                 time_s=time.perf_counter() - t_st,
                 pulses_subrays=(
-                    chunks.subrays_pulses if station_adaptive else (grid.n_pulses if s > 1 else 0)
+                    sum(chunks.reasons.values())
+                    if station_adaptive
+                    else (grid.n_pulses if s > 1 else 0)
                 ),
                 subray_reasons=(
                     dict(chunks.reasons)
@@ -796,14 +795,13 @@ class _AdaptiveBeam:
         o: np.ndarray,
         t0: float,
         rot: np.ndarray,
-        hdeg: float,
         level: bool,
         station_index: int,
         thin: np.ndarray | None,
     ) -> None:
         self.thin = thin
         self.caster, self.spec, self.grid, self.tables = caster, spec, grid, tables
-        self.o, self.t0, self.rot, self.hdeg, self.level = o, t0, rot, hdeg, level
+        self.o, self.t0, self.rot, self.level = o, t0, rot, level
         self.k_station = station_index
         half = 0.5 * spec.beam_divergence_mrad * 1e-3
         step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
@@ -811,8 +809,7 @@ class _AdaptiveBeam:
         self.n_lines = spec.n_elevation
         self.n_az = spec.n_azimuth
         self.full_turn = spec.full_turn
-        self.col_offsets = _column_offsets(grid)
-        self.subrays_pulses = 0
+        self.col_offsets = grid.offsets
         #: pulses given sub-rays, by the first reason that applied
         self.reasons = {"edge": 0, "surface": 0, "thin": 0, "range_limit": 0}
 
@@ -840,22 +837,12 @@ class _AdaptiveBeam:
 
     def _central(self, lines: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Central ray of each pulse: (t, primitive), inf / -1 on a miss."""
-        n = len(lines)
-        t = np.full(n, np.inf)
-        prim = np.full(n, -1, dtype=np.int64)
         if self.spec.angular_jitter_sd_deg > 0:
             return self.caster.cast(self.o, self._directions(lines, cols))
+        t = np.full(len(lines), np.inf)
+        prim = np.full(len(lines), -1, dtype=np.int64)
         hidx, th, pr = _cast_central(
-            self.caster,
-            self.spec,
-            self.tables,
-            lines,
-            cols,
-            self.o,
-            self.t0,
-            self.rot,
-            self.hdeg,
-            self.level,
+            self.caster, self.tables, lines, cols, self.o, self.t0, self.rot, self.level
         )
         d = self._directions(lines[hidx], cols[hidx])
         t[hidx] = self.caster.refine(self.o, d, self.t0 + th, pr)
@@ -1011,7 +998,6 @@ class _AdaptiveBeam:
             # the range the full model gives there (its sub-rays' weighted mean range)
             single = np.flatnonzero(~flag & _in_range(spec, t) & (prim >= 0))
             cand = np.flatnonzero(flag)
-            self.subrays_pulses += len(cand)
             step = max(1, per_chunk // s)
             r_single = np.empty(len(single))
             for a in range(0, len(single), step):
@@ -1048,13 +1034,6 @@ class _AdaptiveBeam:
             d_used = self._directions(lines[used], cols[used])
             yield rec, lines[used], cols[used], d_used, n_core, n_rays
             ca = cb
-
-
-def _column_offsets(grid: Any) -> np.ndarray:
-    """Pulse offsets of each column of a grid (n_columns + 1)."""
-    if isinstance(grid, PulseGrid):
-        return np.arange(len(grid.columns) + 1, dtype=np.int64) * len(grid.lines)
-    return grid.offsets
 
 
 def _merge_records(parts: list[dict[str, Any]]) -> dict[str, Any]:
