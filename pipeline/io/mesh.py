@@ -41,9 +41,9 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
     Groups or materials in the file become parts, labelled from their names (``Leaves``
     -> leaf, ``TrunkAndBranches`` -> wood, ...) unless ``label`` forces one label for
     the whole file. Quads and polygons are triangulated (trimesh), unlike Open3D's
-    legacy reader, which drops them silently. A PLY whose faces carry a ``label``
-    property (as :func:`write_mesh` writes them) is read in float64 by plyfile, one part
-    per label.
+    legacy reader, which drops them silently. A binary triangle PLY, and a PLY whose faces
+    carry a ``label`` property (as :func:`write_mesh` writes them, one part per label), are
+    read in float64 by plyfile.
 
     Parameters
     ----------
@@ -74,7 +74,7 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
     if label is not None and label not in LABEL_CODES:
         raise InvalidParameterError(f"label must be one of {', '.join(LABEL_CODES)}, got {label!r}")
     if p.suffix.lower() == ".ply":
-        ply_parts = _load_labelled_ply(p, label)
+        ply_parts = _load_ply(p, label)
         if ply_parts is not None:
             return ply_parts
     import trimesh  # imported here: a binary triangle PLY is read without it
@@ -109,41 +109,33 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
     return parts
 
 
-def _load_labelled_ply(p: Path, label: str | None) -> list[MeshPart] | None:
-    """Read a PLY whose faces carry a ``label`` property (as treesim writes them), in
-    float64; ``None`` when the file has no such property (trimesh reads it then)."""
+def _load_ply(p: Path, label: str | None) -> list[MeshPart] | None:
+    """Read a PLY in float64 with plyfile: binary triangle meshes as fixed-length records
+    (vectorised; plyfile checks that every face list holds three indices), and any PLY
+    whose faces carry a ``label`` property (as :func:`write_mesh` writes them), one part
+    per label. ``None`` for anything else: trimesh reads (and triangulates) it."""
     from plyfile import PlyData
 
     header = _ply_header(p)
-    face_props = header.get("face", [])
-    labelled = any(line.split()[-1] == "label" for line in face_props)
-    # treesim writes triangles as 'property list uchar int vertex_indices': read the
-    # lists as fixed-length records (vectorised) when the body's size proves it
-    known = None
-    if header.get("format") == "binary_little_endian" and any(
-        line.split()[-1] == "vertex_indices" for line in face_props
-    ):
-        known = {"face": {"vertex_indices": 3}}
-    elif not labelled:
-        return None  # trimesh reads it (one read, not two)
-    if known:
-        try:  # plyfile checks every list's length against the one given
-            ply = PlyData.read(str(p), known_list_len=known)
+    face_props = [line.split()[-1] for line in header.get("face", [])]
+    labelled = "label" in face_props
+    ply = None
+    if header.get("format") == "binary_little_endian" and "vertex_indices" in face_props:
+        try:
+            ply = PlyData.read(str(p), known_list_len={"face": {"vertex_indices": 3}})
         except Exception:
-            known = None
-    if not labelled and not known:
-        return None  # not all triangles: trimesh triangulates
-    try:
-        if not known or (labelled and not _ply_body_matches(p, ply)):
+            ply = None  # not all triangles (or unreadable): read as a whole below
+    if ply is None:
+        if not labelled:
+            return None
+        try:
             ply = PlyData.read(str(p))
-    except Exception as exc:
-        raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
+        except Exception as exc:
+            raise InputFormatError(f"{p.name}: could not read as PLY ({exc})") from exc
     names = [e.name for e in ply.elements]
     if "vertex" not in names or "face" not in names:
         return None
     face = ply["face"].data
-    if not labelled and not (known and _ply_body_matches(p, ply)):
-        return None
     vd = ply["vertex"].data
     v = np.stack([np.asarray(vd[c], dtype=np.float64) for c in "xyz"], axis=1)
     key = "vertex_indices" if "vertex_indices" in face.dtype.names else face.dtype.names[0]
@@ -175,7 +167,6 @@ def _ply_header(p: Path) -> dict[str, Any]:
             for raw in fh:
                 line = raw.decode("ascii", "replace").strip()
                 if line == "end_header":
-                    out["_size"] = fh.tell()
                     break
                 words = line.split()
                 if not words:
@@ -185,25 +176,11 @@ def _ply_header(p: Path) -> dict[str, Any]:
                 elif words[0] == "element" and len(words) > 2:
                     element = words[1]
                     out[element] = []
-                    out[f"{element}_count"] = int(words[2])
                 elif words[0] == "property" and element is not None:
                     out[element].append(line)
     except (OSError, ValueError):
         return {}
     return out
-
-
-def _ply_body_matches(p: Path, ply: Any) -> bool:
-    """True when the file's size is exactly what fixed-length records predict (every
-    face list held three indices)."""
-    size = _ply_header(p).get("_size")
-    if size is None:
-        return False
-    body = 0
-    for element in ply.elements:
-        body += element.data.dtype.itemsize * len(element.data)
-    # (a fixed-length list's record holds its count byte too)
-    return p.stat().st_size == size + body
 
 
 def load_scene(

@@ -50,3 +50,21 @@ def test_quads_and_ascii_go_through_trimesh(tmp_path):
     m.export(tmp_path / "box.ply", encoding="ascii")
     (box,) = load_mesh(tmp_path / "box.ply")
     assert len(box.faces) == 12
+
+
+def test_a_quad_after_triangles_is_not_read_as_a_triangle(tmp_path):
+    # plyfile checks every list against the fixed length, not only the first
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], "<f4")
+    body = v.tobytes()
+    for face in ([0, 1, 4], [1, 2, 4], [0, 1, 2, 3]):
+        body += bytes([len(face)]) + np.array(face, "<i4").tobytes()
+    path = tmp_path / "mixed.ply"
+    path.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 5\n"
+        b"property float x\nproperty float y\nproperty float z\n"
+        b"element face 3\nproperty list uchar int vertex_indices\nend_header\n" + body
+    )
+    from pipeline.io.mesh import _load_ply
+
+    # the fixed-length read refuses it: trimesh gets the file (and triangulates)
+    assert _load_ply(path, None) is None
