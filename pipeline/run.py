@@ -113,9 +113,10 @@ RUN_LOD_TOLERANCE = 0.1
 
 def _lod_scene(
     model: Any, stations: list[Any], params: RunParams
-) -> tuple[Scene, dict[str, Any] | None]:
+) -> tuple[Scene, dict[str, Any]] | None:
     """The scene a run scans under ``lod="auto"``: the QSM table meshed with facets from
-    the projected size at the nearest station; None when that changes nothing."""
+    the projected size at the nearest station, and why; None when that changes
+    nothing."""
     import math
 
     from .cloud import LABEL_CODES
@@ -130,11 +131,8 @@ def _lod_scene(
         max_facets=int(params.reconstruct.facets),
         tolerance=RUN_LOD_TOLERANCE,
     )
-    full = Scene.from_labelled_mesh(
-        model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
-    )
     if (plan.facets == int(params.reconstruct.facets)).all():
-        return full, None
+        return None
     v, f = cylinders_to_mesh(model.cylinders, facets=plan.facets)
     label = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
@@ -236,11 +234,12 @@ def run_tree(
     stations, station_rule = stations_for(scene.bounds, sp)
     scanned_mesh = written["mesh"].name
     facet_lod = None
-    if sp.lod == "auto" and model.cylinders is not None:
-        scene, facet_lod = _lod_scene(model, stations, params)
-        if facet_lod is not None:
-            scanned_mesh = "scan_mesh.ply"
-            write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
+    qsm_lod = sp.lod == "auto" and model.cylinders is not None
+    lod_scene = _lod_scene(model, stations, params) if qsm_lod else None
+    if lod_scene is not None:
+        scene, facet_lod = lod_scene
+        scanned_mesh = "scan_mesh.ply"
+        write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
     say(0.35, "scanning")
     result = scan(
         scene,

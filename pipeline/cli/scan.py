@@ -18,6 +18,7 @@ from ..params import (
     merge,
     scan_params,
 )
+from ..report.text import lod_reasons
 from ._options import collect, floats, param_option, param_options
 from .progress import progress_printer
 
@@ -170,11 +171,7 @@ def run_scan(
         f"models: {models}"
     )
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
-        why = "; ".join(
-            f"{key}: {entry['why']}"
-            for key, entry in result.lod.items()
-            if isinstance(entry, dict) and "why" in entry
-        )
+        why = "; ".join(f"{what}: {reason}" for what, reason in lod_reasons(result.lod))
         print(f"treesim scan: no points were recorded ({why})", file=sys.stderr)
     print(f"wrote {step.outputs['cloud']} and {step.outputs['json']}")
     return step.summary
