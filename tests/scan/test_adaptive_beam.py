@@ -26,6 +26,18 @@ def within_tolerance(adaptive, full) -> dict[str, float]:
     return g
 
 
+def pole_before_wall(wall_lo, wall_hi, pole_radius, pole_facets, pole_base):
+    """A wood pole (``cylinder_arrays``) in front of an ``other`` wall (a box)."""
+    wall = box_arrays(wall_lo, wall_hi)
+    pole = cylinder_arrays(pole_radius, 2.0, pole_facets, pole_base)
+    return Scene(
+        [
+            MeshPart(vertices=wall[0], faces=wall[1], label="other", name="wall"),
+            MeshPart(vertices=pole[0], faces=pole[1], label="wood", name="pole"),
+        ]
+    )
+
+
 def both(scene, stations, spec):
     a = scan(scene, stations, spec)
     f = scan(scene, stations, spec.with_(beam_sampling="full"))
@@ -33,14 +45,7 @@ def both(scene, stations, spec):
 
 
 def test_a_pole_in_front_of_a_wall():
-    wall = box_arrays((20.0, -3.0, -1.0), (20.2, 3.0, 3.0))
-    pole = cylinder_arrays(0.1, 2.0, 64, (10.0, 0.0, 0.0))
-    scene = Scene(
-        [
-            MeshPart(vertices=wall[0], faces=wall[1], label="other", name="wall"),
-            MeshPart(vertices=pole[0], faces=pole[1], label="wood", name="pole"),
-        ]
-    )
+    scene = pole_before_wall((20.0, -3.0, -1.0), (20.2, 3.0, 3.0), 0.1, 64, (10.0, 0.0, 0.0))
     spec = ScannerSpec(
         horizontal_resolution_deg=0.05,
         vertical_resolution_deg=0.05,
@@ -101,14 +106,7 @@ def test_the_bundled_coffee_tree_with_an_instruments_beam():
 
 @pytest.mark.parametrize("mode", ["first", "last", "strongest"])
 def test_return_modes_keep_one_return_per_pulse(mode):
-    wall = box_arrays((12.0, -2.0, -1.0), (12.2, 2.0, 3.0))
-    pole = cylinder_arrays(0.05, 2.0, 32, (6.0, 0.0, 0.0))
-    scene = Scene(
-        [
-            MeshPart(vertices=wall[0], faces=wall[1], label="other"),
-            MeshPart(vertices=pole[0], faces=pole[1], label="wood"),
-        ]
-    )
+    scene = pole_before_wall((12.0, -2.0, -1.0), (12.2, 2.0, 3.0), 0.05, 32, (6.0, 0.0, 0.0))
     spec = ScannerSpec(
         horizontal_resolution_deg=0.1,
         vertical_resolution_deg=0.1,
@@ -141,14 +139,7 @@ def test_neighbours_found_by_table_or_by_search_alike(monkeypatch):
     import sys
 
     trace = sys.modules["pipeline.scan.trace"]
-    wall = box_arrays((8.0, -1.0, -1.0), (8.2, 1.0, 2.0))
-    pole = cylinder_arrays(0.04, 2.0, 24, (5.0, 0.1, -0.5))
-    scene = Scene(
-        [
-            MeshPart(vertices=wall[0], faces=wall[1], label="other"),
-            MeshPart(vertices=pole[0], faces=pole[1], label="wood"),
-        ]
-    )
+    scene = pole_before_wall((8.0, -1.0, -1.0), (8.2, 1.0, 2.0), 0.04, 24, (5.0, 0.1, -0.5))
     spec = ScannerSpec(
         horizontal_resolution_deg=0.1,
         vertical_resolution_deg=0.1,
