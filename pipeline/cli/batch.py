@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ..params import SETTINGS
+from ._options import whole_number
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 
 
@@ -78,8 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="local",
         help="inline: this process; local: a process pool (default); dask: a Dask cluster",
     )
-    x.add_argument("--workers", type=int, help="worker processes (default one per core)")
-    x.add_argument("--threads", type=int, help="threads per tree (default cores // workers)")
+    x.add_argument(
+        "--workers", type=whole_number(1), help="worker processes (default one per core)"
+    )
+    x.add_argument(
+        "--threads", type=whole_number(1), help="threads per tree (default cores // workers)"
+    )
     x.add_argument(
         "--scheduler",
         metavar="ADDRESS",

@@ -30,14 +30,6 @@ def _check_output(path: Path) -> None:
         )
 
 
-def _check_facets(facets: int) -> int:
-    if facets < 3:
-        raise InvalidParameterError(
-            f"--facets must be an integer >= 3 (vertices per ring), got {facets}"
-        )
-    return facets
-
-
 def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
     """``tree.cylinders.csv`` and ``tree.truth.json`` beside ``tree.obj``."""
     p = Path(mesh_path)
@@ -52,7 +44,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(mp.facets)
+    facets = mp.facets
     if mp.species is None:
         raise InvalidParameterError(
             "give the tree species: --species NAME (see 'treesim model list')"
@@ -88,7 +80,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     from ..models import SPECIES, generate_tree
 
     mp = merge(ModelParams(), collect(args))
-    facets = _check_facets(mp.facets)
+    facets = mp.facets
     header = (
         f"{'species':13} {'DBH cm':>7} {'height m':>9} {'wood L':>8} {'stem L':>7} "
         f"{'cylinders':>9} {'triangles':>9} {'leaves':>7}  description"
@@ -117,7 +109,7 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(mp.facets)
+    facets = mp.facets
     table = read_cylinders(args.table, format=args.format)
     v, f = cylinders_to_mesh(table, facets=facets, joints=mp.joints)
     write_mesh(out, v, f)

@@ -19,7 +19,7 @@ from ..params import (
     scan_params,
 )
 from ..report.text import lod_reasons
-from ._options import collect, floats, param_option, param_options
+from ._options import collect, floats_type, number_type, param_option, param_options
 from .progress import progress_printer
 
 #: ScannerSpec fields without a flag (set them in code or a TOML file).
@@ -67,6 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--station",
         action="append",
         default=[],
+        type=floats_type(3, "--station"),
         metavar="X,Y,Z",
         help="an explicit station position in scene coordinates (repeatable)",
     )
@@ -86,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     s.add_argument(
         "--resolution-deg",
-        type=float,
+        type=number_type(SETTINGS["resolution_deg"].info),
         help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
     )
     param_options(s, ScannerSpec, path=("scanner",), exclude=_NO_FLAG)
@@ -130,7 +131,7 @@ def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | No
     if args.station and args.layout == "ring":
         raise InvalidParameterError("give either --layout ring or --station positions, not both")
     if args.station:
-        return [floats(s, 3, "--station") for s in args.station]
+        return list(args.station)
     if args.layout == "list":
         raise InvalidParameterError("--layout list needs at least one --station X,Y,Z")
     return None

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 from ..errors import InvalidParameterError
-from ._fields import finite, param
+from ._fields import check_bounds, finite, param
 
 __all__ = [
     "BEAM_SAMPLINGS",
@@ -77,10 +77,20 @@ class ScannerSpec:
     """
 
     horizontal_resolution_deg: float = param(
-        0.04, help="horizontal angular step between pulses", unit="deg", flag="--h-resolution-deg"
+        0.04,
+        help="horizontal angular step between pulses",
+        unit="deg",
+        flag="--h-resolution-deg",
+        gt=0,
+        le=45,
     )
     vertical_resolution_deg: float = param(
-        0.04, help="vertical angular step between pulses", unit="deg", flag="--v-resolution-deg"
+        0.04,
+        help="vertical angular step between pulses",
+        unit="deg",
+        flag="--v-resolution-deg",
+        gt=0,
+        le=45,
     )
     horizontal_fov_deg: tuple[float, float] = param(
         (0.0, 360.0),
@@ -91,12 +101,16 @@ class ScannerSpec:
     vertical_fov_deg: tuple[float, float] = param(
         (-40.0, 90.0), help="elevation range swept, LOW,HIGH", unit="deg", flag="--vfov-deg"
     )
-    min_range_m: float = param(0.5, help="nearest echo recorded", unit="m")
-    max_range_m: float = param(400.0, help="farthest echo recorded", unit="m")
+    min_range_m: float = param(0.5, help="nearest echo recorded", unit="m", ge=0)
+    max_range_m: float = param(400.0, help="farthest echo recorded", unit="m", gt=0)
     beam_divergence_mrad: float = param(
-        0.0, help="full-angle beam divergence; > 0 turns the beam model on", unit="mrad"
+        0.0,
+        help="full-angle beam divergence; > 0 turns the beam model on",
+        unit="mrad",
+        ge=0,
+        le=100,
     )
-    subrays: int = param(7, help="rays per pulse with the beam model")
+    subrays: int = param(7, help="rays per pulse with the beam model", ge=2, le=256)
     beam_sampling: BeamSampling = param(
         "adaptive",
         help="adaptive: sub-rays only for pulses whose footprint can straddle an edge; "
@@ -104,26 +118,21 @@ class ScannerSpec:
         choices=BEAM_SAMPLINGS,
     )
     range_resolution_m: float = param(
-        0.3, help="echo separation for multiple returns (beam model)", unit="m"
+        0.3, help="echo separation for multiple returns (beam model)", unit="m", ge=0
     )
-    range_noise_sd_m: float = param(0.0, help="Gaussian range noise σ (0: off)", unit="m")
-    angular_jitter_sd_deg: float = param(0.0, help="pointing noise σ (0: off)", unit="deg")
+    range_noise_sd_m: float = param(0.0, help="Gaussian range noise σ (0: off)", unit="m", ge=0)
+    angular_jitter_sd_deg: float = param(0.0, help="pointing noise σ (0: off)", unit="deg", ge=0)
     return_mode: ReturnMode = param(
         "first", help="which returns of a pulse are recorded", choices=RETURN_MODES
     )
-    seed: int = param(0, help="seed of the noise models")
+    seed: int = param(0, help="seed of the noise models", ge=0)
     reflectance: dict[str, float] = param(
         help="reflectance per hit label (intensity proxy only)",
         factory=lambda: dict(DEFAULT_REFLECTANCE),
     )
 
     def __post_init__(self) -> None:
-        for name in ("horizontal_resolution_deg", "vertical_resolution_deg"):
-            v = finite(name, getattr(self, name))
-            if v <= 0:
-                raise InvalidParameterError(f"{name} must be > 0, got {v}")
-            if v > 45:
-                raise InvalidParameterError(f"{name} must be <= 45 degrees, got {v}")
+        check_bounds(self)
         h0, h1 = (finite("horizontal_fov_deg", a) for a in self.horizontal_fov_deg)
         if not 0 < h1 - h0 <= 360:
             raise InvalidParameterError(
@@ -134,26 +143,10 @@ class ScannerSpec:
             raise InvalidParameterError(
                 f"vertical_fov_deg must satisfy -90 <= low < high <= 90, got ({v0}, {v1})"
             )
-        lo, hi = finite("min_range_m", self.min_range_m), finite("max_range_m", self.max_range_m)
-        if lo < 0 or hi <= lo:
+        if self.max_range_m <= self.min_range_m:
             raise InvalidParameterError(
-                f"ranges must satisfy 0 <= min_range_m < max_range_m, got {lo}, {hi}"
-            )
-        for name in (
-            "beam_divergence_mrad",
-            "range_resolution_m",
-            "range_noise_sd_m",
-            "angular_jitter_sd_deg",
-        ):
-            if finite(name, getattr(self, name)) < 0:
-                raise InvalidParameterError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if self.beam_divergence_mrad > 100:
-            raise InvalidParameterError(
-                f"beam_divergence_mrad={self.beam_divergence_mrad} is implausible (> 100 mrad)"
-            )
-        if int(self.subrays) != self.subrays or not 2 <= self.subrays <= 256:
-            raise InvalidParameterError(
-                f"subrays must be an integer in [2, 256], got {self.subrays}"
+                "ranges must satisfy 0 <= min_range_m < max_range_m, got "
+                f"{self.min_range_m}, {self.max_range_m}"
             )
         if self.beam_sampling not in BEAM_SAMPLINGS:
             raise InvalidParameterError(
@@ -164,8 +157,6 @@ class ScannerSpec:
             raise InvalidParameterError(
                 f"return_mode must be one of {', '.join(RETURN_MODES)}, got {self.return_mode!r}"
             )
-        if int(self.seed) != self.seed or self.seed < 0:
-            raise InvalidParameterError(f"seed must be a non-negative integer, got {self.seed!r}")
 
     # -- derived -----------------------------------------------------------------------
     @property

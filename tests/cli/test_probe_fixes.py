@@ -1,0 +1,207 @@
+"""The command-line fixes of issue #12 (an independent probe of the CLI): each test fails
+on the code before the fix."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import build_parser, main
+from pipeline.cli._options import PARAM, SETTING
+from pipeline.io.mesh import write_mesh
+from tests.conftest import box_arrays
+
+
+def _usage_error(capsys, argv: list[str]) -> str:
+    """Run ``treesim argv`` expecting a usage error (exit 2); its one stderr line."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("treesim: error:") and "\n" not in err, err
+    assert "Traceback" not in err
+    return err
+
+
+@pytest.fixture()
+def box_ply(tmp_path: Path) -> Path:
+    """A 1 m box standing 5 m out on +x: a scene a coarse scan finishes in well under 1 s."""
+    v, f = box_arrays((4.5, -0.5, 0.0), (5.5, 0.5, 1.0))
+    return write_mesh(tmp_path / "box.ply", v, f)
+
+
+# -- 1. numbers are checked while the flags are read, against the model's own ranges ----------
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--max-rays", "nan"],
+            "--max-rays: expected a whole number >= 1, got 'nan'",
+        ),
+        (["scan", "m.ply", "-o", "o.laz", "--max-rays", "inf"], "got 'inf'"),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--max-rays", "0"],
+            "--max-rays: expected a whole number >= 1, got '0'",
+        ),
+        (["scan", "m.ply", "-o", "o.laz", "--max-rays", "-5"], "got '-5'"),
+        (["scan", "m.ply", "-o", "o.laz", "--max-rays", "2.5"], "whole number"),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--chunk-rays", "0"],
+            "--chunk-rays: expected a whole number >= 1",
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--threads", "-1"],
+            "--threads: expected a whole number >= 0",
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--stations", "100"],
+            "--stations: expected a whole number in [1, 64]",
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--resolution-deg", "0"],
+            "--resolution-deg: expected a number in (0, 45]",
+        ),
+        (["scan", "m.ply", "-o", "o.laz", "--h-resolution-deg", "nan"], "in (0, 45]"),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--distance-m", "-3"],
+            "--distance-m: expected a number > 0, or 0/none for the station rule",
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--subrays", "1"],
+            "--subrays: expected a whole number in [2, 256]",
+        ),
+        (["scan", "m.ply", "-o", "o.laz", "--range-noise-sd-m", "-0.001"], ">= 0"),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--station", "1,2"],
+            "--station: expected 3 finite numbers",
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--vfov-deg", "nan,60"],
+            "--vfov-deg: expected 2 finite numbers",
+        ),
+        (["run", "c.txt", "-o", "o", "--resolution-deg", "nan"], "--resolution-deg: expected"),
+        (["run", "c.txt", "-o", "o", "--stations", "0"], "--stations: expected a whole number"),
+        (["run", "c.txt", "-o", "o", "--voxel-m", "-1"], "--voxel-m: expected a number > 0"),
+        (
+            ["batch", "c.txt", "-o", "o", "--workers", "0"],
+            "--workers: expected a whole number >= 1",
+        ),
+        (["batch", "c.txt", "-o", "o", "--threads", "x"], "--threads: expected a whole number"),
+        (["compare", "a", "b", "-o", "o", "--seed", "-1"], "--seed: expected a whole number >= 0"),
+        (["compare", "a", "b", "-o", "o", "--max-samples", "0"], "--max-samples"),
+        (
+            ["reconstruct", "c.txt", "-o", "o", "--bpa-radius-m", "-0.1"],
+            "--bpa-radius-m: expected a number > 0",
+        ),
+        (
+            ["reconstruct", "c.txt", "-o", "o", "--depth", "40"],
+            "--depth: expected a whole number in [4, 16]",
+        ),
+        (["report", "o", "--dpi", "0"], "--dpi: expected a whole number >= 1"),
+        (
+            ["model", "generate", "--species", "sapling", "--facets", "2", "-o", "t.obj"],
+            "--facets: expected a whole number >= 3",
+        ),
+    ],
+)
+def test_numbers_out_of_range_are_usage_errors_that_say_the_range(argv, message, capsys):
+    err = _usage_error(capsys, argv)
+    assert message in err
+    assert "invalid" not in err and "read_int" not in err
+
+
+def _parsers() -> list[tuple[str, argparse.ArgumentParser]]:
+    out, todo = [], [("", build_parser())]
+    while todo:
+        name, p = todo.pop()
+        out.append((name, p))
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo.extend((f"{name} {k}".strip(), sp) for k, sp in a.choices.items())
+    return out
+
+
+def _outside(info) -> list[float]:
+    ge, gt, le, lt = info.bounds
+    out = [float("nan"), float("inf")]
+    out += [ge - 1] if ge is not None else []
+    out += [gt] if gt is not None and not (info.optional and gt == 0) else []
+    out += [le + 1] if le is not None else []
+    out += [lt] if lt is not None else []
+    return out
+
+
+def test_every_number_option_refuses_what_its_parameter_refuses():
+    """The range an option checks is the parameter model's (``param(ge=...)``), and the
+    model refuses the same values: the flags cannot drift from the model."""
+    from pipeline.errors import InvalidParameterError
+
+    checked = 0
+    for name, parser in _parsers():
+        for a in parser._actions:
+            info = getattr(a, PARAM, None) or getattr(getattr(a, SETTING, None), "info", None)
+            if info is None or info.base_type not in ("int", "float") or info.choices:
+                continue
+            for bad in _outside(info):
+                with pytest.raises(argparse.ArgumentTypeError):
+                    a.type(repr(bad))
+                with pytest.raises(InvalidParameterError, match=f"{info.name} must be"):
+                    info.owner(**{info.name: bad})
+            if info.default is not None:
+                assert a.type(str(info.default)) == info.default, (name, a.dest)
+            checked += 1
+    assert checked >= 40
+
+
+# -- 2. negative numbers and lists that start with one are values, not options ---------------
+@pytest.mark.parametrize(
+    ("flag", "value", "key", "expected"),
+    [
+        ("--station", "-3,0,0.5", "stations", [-3.0, 0.0, 0.5]),
+        ("--hfov-deg", "-45,45", "horizontal_fov_deg", [-45.0, 45.0]),
+        ("--vfov-deg", "-40,60", "vertical_fov_deg", [-40.0, 60.0]),
+    ],
+)
+def test_scan_reads_negative_lists_without_equals(flag, value, key, expected, tmp_path, capsys):
+    v, f = box_arrays((-0.5, 2.0, 0.0), (0.5, 3.0, 1.0))
+    mesh = write_mesh(tmp_path / "box.ply", v, f)
+    out = tmp_path / "s.laz"
+    argv = ["scan", str(mesh), "-o", str(out), "--resolution-deg", "2", flag, value]
+    if flag != "--station":
+        argv += ["--station", "0,0,0.5"]
+    assert main(argv) == 0, capsys.readouterr().err
+    summary = json.loads(out.with_suffix(".json").read_text())
+    if key == "stations":
+        assert summary["stations"][0]["position_m"] == expected
+    else:
+        assert summary["scanner"][key] == expected
+
+
+@pytest.mark.parametrize(
+    ("argv", "dest", "expected"),
+    [
+        (["run", "c.txt", "-o", "o", "--height-m", "-0.5"], "setting:height_m", -0.5),
+        (["run", "c.txt", "-o", "o", "--height-m", "-5e-1"], "setting:height_m", -0.5),
+        (["batch", "c.txt", "-o", "o", "--height-m", "-1.5"], "setting:height_m", -1.5),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--start-angle-deg", "-90"],
+            "param:start_angle_deg",
+            -90.0,
+        ),
+        (
+            ["scan", "m.ply", "-o", "o.laz", "--station", "-1e1,-2,0"],
+            "station",
+            [(-10.0, -2.0, 0.0)],
+        ),
+    ],
+)
+def test_every_command_reads_negative_numbers_as_values(argv, dest, expected):
+    assert getattr(build_parser().parse_args(argv), dest) == expected
+
+
+def test_a_negative_value_out_of_range_is_named_not_taken_for_an_option(capsys):
+    err = _usage_error(capsys, ["compare", "a", "b", "-o", "o", "--tolerance-m", "-1e-3"])
+    assert "--tolerance-m: expected a number > 0" in err and "expected one argument" not in err
