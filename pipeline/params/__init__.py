@@ -32,7 +32,7 @@ from importlib import resources
 
 from ._fields import ParamInfo, describe, field_info, param, walk
 from .compare import CompareParams, ReportParams
-from .reconstruct import METHODS, PrepareParams, QSMParams, ReconstructParams
+from .reconstruct import METHODS, MIN_CLOUD_POINTS, PrepareParams, QSMParams, ReconstructParams
 from .run import (
     DEFAULT_RUN_PRESET,
     LODS,
@@ -74,6 +74,7 @@ __all__ = [
     "DEFAULT_RUN_PRESET",
     "INSTRUMENTS",
     "METHODS",
+    "MIN_CLOUD_POINTS",
     "RETURN_MODES",
     "RUN_PRESETS",
     "SETTINGS",

@@ -11,7 +11,13 @@ from ._fields import check_bounds, param
 Method = Literal["qsm", "poisson", "bpa"]
 METHODS: tuple[str, ...] = ("qsm", "poisson", "bpa")
 
-__all__ = ["METHODS", "PrepareParams", "QSMParams", "ReconstructParams"]
+__all__ = ["METHODS", "MIN_CLOUD_POINTS", "PrepareParams", "QSMParams", "ReconstructParams"]
+
+#: Fewest points of a cloud that can be measured at all: four can span a volume, three
+#: always lie in a plane. Reconstruction never accepts fewer (``PrepareParams.min_points``
+#: may not be set below it; its default asks 300 of a tree) and neither does comparison
+#: (:func:`pipeline.compare.compare`), for the cloud and for a reference cloud.
+MIN_CLOUD_POINTS = 4
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,7 +68,7 @@ class PrepareParams:
     normals_neighbors: int | None = param(
         24, help="neighbours per point for PCA normals", none_means="no normals", ge=3
     )
-    min_points: int = param(300, help="fewest points a tree cloud may have", ge=4)
+    min_points: int = param(300, help="fewest points a tree cloud may have", ge=MIN_CLOUD_POINTS)
     threads: int = param(2, help="threads for the neighbour searches", execution_only=True, ge=1)
 
     def __post_init__(self) -> None:

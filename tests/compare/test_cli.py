@@ -114,6 +114,7 @@ def test_compare_options_and_cloud_reference(half_cylinder, tmp_path):
         ("empty", "no points"),
         ("nan", "NaN"),
         ("single", "single point"),
+        ("three", "only 3 points"),
         ("badtol", "--tolerance-m: expected a number > 0"),
     ],
 )
@@ -131,6 +132,9 @@ def test_compare_errors_are_one_line(half_cylinder, tmp_path, capsys, make, word
     elif make == "single":
         (tmp_path / "s.xyz").write_text("0 0 0\n")
         args[0] = str(tmp_path / "s.xyz")
+    elif make == "three":
+        (tmp_path / "t.xyz").write_text("0 0 0\n1 0 0\n0 1 0\n")
+        args[0] = str(tmp_path / "t.xyz")
     else:
         args += ["--tolerance-m", "-1"]
     try:
