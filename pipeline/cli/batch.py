@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..params import SETTINGS
 from ._options import whole_number
+from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 
 
@@ -15,6 +16,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from .progress import BatchProgressBar
 
+    output_folder(args.output)
     params = params_from_args(args, with_threads=False)
     bar = None if args.no_progress else BatchProgressBar(sys.stderr)
     try:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..params import CompareParams, merge
 from ._options import collect, param_options
+from ._outputs import output_folder
 
 
 def _fmt_mm(x: float | None) -> str:
@@ -18,6 +19,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from ..report.text import length, percent
     from ..steps import compare_files
 
+    output_folder(args.output)
     cloud_path = Path(args.cloud)
     params = merge(CompareParams(), collect(args))
     step = compare_files(

@@ -20,6 +20,7 @@ from ..jsonio import write_json as _write_json
 from ..params import merge
 from ..params.models import ModelParams
 from ._options import collect, param_option, param_options
+from ._outputs import output_file
 
 
 def _check_output(path: Path) -> None:
@@ -44,6 +45,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
+    for path in (out, *companion_paths(out)):
+        output_file(path)
     facets = mp.facets
     if mp.species is None:
         raise InvalidParameterError(
@@ -109,6 +112,7 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
+    output_file(out, inputs=[args.table])
     facets = mp.facets
     table = read_cylinders(args.table, format=args.format)
     v, f = cylinders_to_mesh(table, facets=facets, joints=mp.joints)

@@ -10,6 +10,7 @@ from typing import Any
 from ..errors import InvalidParameterError
 from ..params import RunParams, preset_measurements, to_toml
 from ._options import param_option
+from ._outputs import output_folder
 from ._settings import CONFIG_HELP, STATION_RULE, add_settings, params_from_args
 from .progress import progress_printer
 
@@ -67,6 +68,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("give the field cloud: treesim run CLOUD -o OUTDIR")
     if not args.output:
         raise InvalidParameterError("give the output folder with -o OUTDIR")
+    output_folder(args.output)
     cloud = Path(args.cloud)
     result = run_tree(cloud, params, args.output, progress=progress_printer())
     print_run_summary(result)

@@ -20,6 +20,7 @@ from ..params import (
 )
 from ..report.text import lod_reasons
 from ._options import collect, floats_type, number_type, param_option, param_options
+from ._outputs import output_file
 from .progress import progress_printer
 
 #: ScannerSpec fields without a flag (set them in code or a TOML file).
@@ -143,6 +144,8 @@ def run_scan(
     """Scan (:func:`pipeline.steps.scan_files`), then print a per-station table."""
     from ..steps import scan_files
 
+    output_file(out, inputs=meshes)
+    output_file(out.with_name(out.stem + ".json"), flag="-o (its .json beside it)")
     sp, threads = params_from_args(args)
     step = scan_files(
         meshes,

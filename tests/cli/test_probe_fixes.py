@@ -205,3 +205,70 @@ def test_every_command_reads_negative_numbers_as_values(argv, dest, expected):
 def test_a_negative_value_out_of_range_is_named_not_taken_for_an_option(capsys):
     err = _usage_error(capsys, ["compare", "a", "b", "-o", "o", "--tolerance-m", "-1e-3"])
     assert "--tolerance-m: expected a number > 0" in err and "expected one argument" not in err
+
+
+# -- 3. outputs are checked first: a file where a folder must be is one line, nothing run ----
+_STAGES = {
+    "pipeline.steps": ("scan_files", "compare_files", "reconstruct_files"),
+    "pipeline.run": ("run_tree",),
+    "pipeline.batch": ("run_batch",),
+    "pipeline.report": ("build_report",),
+    "pipeline.models": ("generate_tree", "read_cylinders"),
+}
+
+
+@pytest.fixture()
+def no_work(monkeypatch):
+    """Every stage a command could start fails the test if it is called."""
+    import importlib
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("work started before the output was checked")
+
+    for module, names in _STAGES.items():
+        for name in names:
+            monkeypatch.setattr(importlib.import_module(module), name, forbidden)
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["scan", "{mesh}", "-o", "{file}/x.laz"], "afile is a file, not a folder"),
+        (["scan", "{mesh}", "-o", "{dir}"], "it is a folder"),
+        (["scan", "{mesh}", "-o", "{mesh}"], "it is an input of this command"),
+        (["compare", "{cloud}", "{mesh}", "-o", "{file}"], "it is a file, not a folder"),
+        (["compare", "{cloud}", "{mesh}", "-o", "{file}/sub"], "afile is a file, not a folder"),
+        (["reconstruct", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
+        (["run", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
+        (["batch", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
+        (["report", "{dir}", "-o", "{file}"], "it is a file, not a folder"),
+        (["model", "generate", "--species", "sapling", "-o", "{file}/t.ply"], "afile is a file"),
+        (["model", "from-qsm", "{table}", "-o", "{file}/t.ply"], "afile is a file"),
+        (["model", "from-qsm", "{table}", "-o", "{file}.ply"], "it is an input"),
+        (["demo", "-o", "{file}"], "it is a file, not a folder"),
+    ],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(
+    argv, words, tmp_path, capsys, no_work, box_ply
+):
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder\n")
+    (tmp_path / "afile.ply").write_text("a table, by name\n")
+    adir = tmp_path / "adir"
+    adir.mkdir()
+    cloud = tmp_path / "c.xyz"
+    cloud.write_text("0 0 0\n1 0 0\n0 1 0\n0 0 1\n")
+    names = {
+        "mesh": box_ply,
+        "file": afile,
+        "dir": adir,
+        "cloud": cloud,
+        "table": tmp_path / ("afile.ply" if "{file}.ply" in argv else "t.csv"),
+    }
+    before = sorted(tmp_path.rglob("*"))
+    rc = main([a.format(**names) for a in argv])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1
+    assert err.startswith("treesim: error: cannot write") and "\n" not in err, err
+    assert words in err
+    assert sorted(tmp_path.rglob("*")) == before  # nothing written
