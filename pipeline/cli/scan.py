@@ -10,6 +10,7 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..params import (
+    GENERIC_TLS,
     INSTRUMENTS,
     SETTINGS,
     RunParams,
@@ -78,17 +79,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=list(INSTRUMENTS),
         help=f"start from a real instrument's figures ({_instrument_list()})",
     )
+    g = GENERIC_TLS
     s.add_argument(
-        "--beam", action="store_true", help="turn on the instrument's beam divergence model"
+        "--beam",
+        action="store_true",
+        help="turn on the beam divergence model: the instrument's divergence, or without "
+        f"--instrument a generic TLS's {g['beam_divergence_mrad']:g} mrad, sampled with "
+        f"--subrays (default {ScannerSpec().subrays}) rays per pulse",
     )
     s.add_argument(
         "--noise",
         action="store_true",
-        help="turn on the instrument's range noise and angular jitter",
+        help="turn on range noise and angular jitter: the instrument's, or without "
+        f"--instrument a generic TLS's σ {g['range_noise_sd_m'] * 1000:g} mm and "
+        f"{g['angular_jitter_sd_deg']:g}°",
     )
     s.add_argument(
         "--resolution-deg",
         type=number_type(SETTINGS["resolution_deg"].info),
+        metavar="DEG",
         help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
     )
     param_options(s, ScannerSpec, path=("scanner",), exclude=_NO_FLAG)
@@ -110,21 +119,13 @@ def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
     given = collect(args)
     # --threads is RunParams.threads (validated there); the rest is ScanParams
     threads = merge(RunParams(), {k: given.pop(k) for k in ("threads",) if k in given}).threads
-    try:
-        params = scan_params(
-            given,
-            instrument=args.instrument,
-            beam=args.beam,
-            noise=args.noise,
-            resolution_deg=args.resolution_deg,
-        )
-    except InvalidParameterError as exc:
-        if (args.beam or args.noise) and not args.instrument:
-            raise InvalidParameterError(
-                "--beam and --noise take their figures from --instrument; give --instrument "
-                "or set --beam-divergence-mrad / --range-noise-sd-m directly"
-            ) from exc
-        raise
+    params = scan_params(
+        given,
+        instrument=args.instrument,
+        beam=args.beam,
+        noise=args.noise,
+        resolution_deg=args.resolution_deg,
+    )
     return params, threads
 
 

@@ -46,11 +46,13 @@ from .run import (
 from .scanner import (
     BEAM_SAMPLINGS,
     DEFAULT_REFLECTANCE,
+    GENERIC_TLS,
     INSTRUMENTS,
     RETURN_MODES,
     InstrumentPreset,
     ScannerSpec,
     instrument,
+    model_fields,
     resolution_fields,
 )
 from .settings import (
@@ -72,6 +74,7 @@ __all__ = [
     "DEFAULT_REFLECTANCE",
     "LODS",
     "DEFAULT_RUN_PRESET",
+    "GENERIC_TLS",
     "INSTRUMENTS",
     "METHODS",
     "MIN_CLOUD_POINTS",
@@ -98,6 +101,7 @@ __all__ = [
     "json_schema",
     "load_config",
     "merge",
+    "model_fields",
     "param",
     "params_from_dict",
     "params_hash",

@@ -12,6 +12,7 @@ and tree species (:data:`pipeline.models.SPECIES`).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -21,11 +22,13 @@ from ._fields import check_bounds, finite, param
 __all__ = [
     "BEAM_SAMPLINGS",
     "DEFAULT_REFLECTANCE",
+    "GENERIC_TLS",
     "INSTRUMENTS",
     "InstrumentPreset",
     "RETURN_MODES",
     "ScannerSpec",
     "instrument",
+    "model_fields",
     "resolution_fields",
 ]
 
@@ -56,6 +59,7 @@ class ScannerSpec:
     beam_divergence_mrad : float
         Full-angle beam divergence. 0 (the default) casts one ray per pulse; > 0 samples
         the beam cone with ``subrays`` rays, which can give several returns per pulse.
+        ``beam=True`` without an instrument sets :data:`GENERIC_TLS`'s 0.3 mrad.
     subrays : int
         Rays per pulse when the beam model is on (>= 2; a centre ray and rings).
     beam_sampling : {"adaptive", "full"}
@@ -66,8 +70,10 @@ class ScannerSpec:
         Two echoes of one pulse closer than this merge into one return (beam model only).
     range_noise_sd_m : float
         Standard deviation of Gaussian range noise; 0 (the default) is off.
+        ``noise=True`` without an instrument sets :data:`GENERIC_TLS`'s 1 mm.
     angular_jitter_sd_deg : float
         Standard deviation of Gaussian pointing noise per axis; 0 (the default) is off.
+        ``noise=True`` without an instrument sets :data:`GENERIC_TLS`'s 0.001°.
     return_mode : {"first", "last", "strongest", "all"}
         Which returns of a pulse are recorded.
     seed : int
@@ -279,11 +285,7 @@ class InstrumentPreset:
             min_range_m=self.min_range_m,
             max_range_m=self.max_range_m,
         )
-        if beam:
-            kw["beam_divergence_mrad"] = self.beam_divergence_mrad
-        if noise:
-            kw["range_noise_sd_m"] = self.range_noise_sd_m
-            kw["angular_jitter_sd_deg"] = self.angular_jitter_sd_deg
+        kw.update(model_fields(beam=beam, noise=noise, figures=vars(self)))
         kw.update(overrides)
         return ScannerSpec(**kw)  # type: ignore[arg-type]
 
@@ -330,6 +332,40 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
         source="FARO Focus3D X 330 tech sheet, 2013",
     ),
 }
+
+
+#: The figures ``beam=True`` and ``noise=True`` turn on when no instrument is named
+#: (``treesim scan --beam`` / ``--noise``, :func:`pipeline.params.scan_params`): a generic
+#: current terrestrial laser scanner, with the model's own ``subrays`` (7) and
+#: ``range_resolution_m`` (0.3 m).
+#:
+#: - ``beam_divergence_mrad`` 0.3: data sheets give 0.19 (FARO Focus3D X 330), 0.23
+#:   (Leica ScanStation P40), 0.3 (Z+F IMAGER 5016) and 0.35 (RIEGL VZ-400) mrad;
+#: - ``range_noise_sd_m`` 1 mm: phase-shift scanners quote 0.3-0.5 mm at 10 m on bright
+#:   targets (FARO, Leica), pulsed ones 3 mm at 100 m (RIEGL VZ-400), and bark at forest
+#:   ranges (5-30 m, ~45 % reflectance) sits between; 1 mm is the geometric mean of the two
+#:   bundled instruments' figures;
+#: - ``angular_jitter_sd_deg`` 0.001 (3.6"): angular accuracies on data sheets are 8-20"
+#:   (calibration included), measured angular precision 2-4" (Z+F IMAGER 5016A, ISPRS
+#:   Annals XI-1-2026, 363), the bundled instruments' angle resolution 0.0005°.
+GENERIC_TLS: dict[str, float] = {
+    "beam_divergence_mrad": 0.3,
+    "range_noise_sd_m": 0.001,
+    "angular_jitter_sd_deg": 0.001,
+}
+
+
+def model_fields(
+    *, beam: bool, noise: bool, figures: Mapping[str, object] = GENERIC_TLS
+) -> dict[str, object]:
+    """The :class:`ScannerSpec` fields that turn on the beam model (``beam``) and the
+    range noise and angular jitter (``noise``), with ``figures``' values (default
+    :data:`GENERIC_TLS`; an instrument passes its own). The one place that says which
+    fields each switch sets."""
+    names = (("beam_divergence_mrad",) if beam else ()) + (
+        ("range_noise_sd_m", "angular_jitter_sd_deg") if noise else ()
+    )
+    return {k: figures[k] for k in names}
 
 
 def instrument(name: str) -> InstrumentPreset:

@@ -272,3 +272,41 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
     assert err.startswith("treesim: error: cannot write") and "\n" not in err, err
     assert words in err
     assert sorted(tmp_path.rglob("*")) == before  # nothing written
+
+
+# -- 5. --beam and --noise work without --instrument: a generic TLS's documented figures -----
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (["--noise"], {"range_noise_sd_m": 0.001, "angular_jitter_sd_deg": 0.001}),
+        (["--beam"], {"beam_divergence_mrad": 0.3, "range_noise_sd_m": 0.0}),
+        (["--beam", "--noise", "--range-noise-sd-m", "0.004"], {"range_noise_sd_m": 0.004}),
+        (
+            ["--noise", "--instrument", "faro-focus3d-x330"],
+            {"range_noise_sd_m": 0.0003, "angular_jitter_sd_deg": 0.0005},
+        ),
+    ],
+)
+def test_beam_and_noise_alone_use_a_generic_scanner(extra, expected, box_ply, tmp_path, capsys):
+    from pipeline.params import GENERIC_TLS
+
+    out = tmp_path / "s.laz"
+    argv = ["scan", str(box_ply), "-o", str(out), "--resolution-deg", "2", "--station", "0,0,0.5"]
+    assert main([*argv, *extra]) == 0, capsys.readouterr().err
+    summary = json.loads(out.with_suffix(".json").read_text())
+    for key, value in expected.items():
+        assert summary["scanner"][key] == value
+    if "--instrument" not in extra:
+        assert summary["models_active"]
+        on = {k: summary["scanner"][k] for k in GENERIC_TLS if summary["scanner"][k]}
+        assert all(v in (GENERIC_TLS[k], 0.004) for k, v in on.items())
+
+
+def test_the_help_states_the_generic_figures(capsys):
+    from pipeline.params import GENERIC_TLS
+
+    with pytest.raises(SystemExit):
+        main(["scan", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"{GENERIC_TLS['beam_divergence_mrad']:g} mrad" in text
+    assert f"σ {GENERIC_TLS['range_noise_sd_m'] * 1000:g} mm" in text
