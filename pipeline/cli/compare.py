@@ -8,6 +8,7 @@ from pathlib import Path
 from ..params import CompareParams, merge
 from ._options import collect, param_options
 from ._outputs import output_folder
+from .progress import progress_printer
 
 
 def _fmt_mm(x: float | None) -> str:
@@ -28,6 +29,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         params,
         args.output,
         report=ReportParams() if args.report else None,
+        progress=progress_printer(label="compare"),
     )
     result, kind = step.result, step.details["kind"]
     ref = result.reference_info

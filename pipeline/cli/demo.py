@@ -28,7 +28,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         run_preset(),
         Path(args.output),
         name="coffee_tree",
-        progress=progress_printer(),
+        progress=progress_printer(label="demo"),
     )
     print_run_summary(result)
     print(f"\ndemo output is in {result.outdir.resolve()}/; open the report in a browser:")

@@ -68,7 +68,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         params_from_args(args),
         args.output,
         columns=columns,
-        progress=progress_printer(),
+        progress=progress_printer(label="reconstruct"),
     )
     model, paths = step.result, step.outputs
     fig = model.figures

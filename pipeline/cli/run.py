@@ -70,7 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("give the output folder with -o OUTDIR")
     output_folder(args.output)
     cloud = Path(args.cloud)
-    result = run_tree(cloud, params, args.output, progress=progress_printer())
+    result = run_tree(cloud, params, args.output, progress=progress_printer(label="run"))
     print_run_summary(result)
     return 0
 

@@ -156,7 +156,7 @@ def run_scan(
         label=label,
         window=not args.full_fov,
         threads=threads,
-        progress=progress_printer(),
+        progress=progress_printer(label="scan"),
     )
     result, scene = step.result, step.details["scene"]
     print(

@@ -310,3 +310,69 @@ def test_the_help_states_the_generic_figures(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert f"{GENERIC_TLS['beam_divergence_mrad']:g} mrad" in text
     assert f"σ {GENERIC_TLS['range_noise_sd_m'] * 1000:g} mm" in text
+
+
+# -- 6. long commands say what they are doing when stderr is no terminal (a log, a pipe) -----
+def test_scan_and_compare_write_one_line_per_stage_to_a_log(box_ply, tmp_path, capsys):
+    out = tmp_path / "s.laz"
+    argv = ["scan", str(box_ply), "-o", str(out), "--resolution-deg", "1", "--stations", "2"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert [ln.split(" (")[0] for ln in err[:5]] == [
+        "treesim scan: loading the scene",
+        "treesim scan: scanning",
+        "treesim scan: station 1/2",
+        "treesim scan: station 2/2",
+        "treesim scan: writing the cloud",
+    ]
+    assert err[-1].startswith("treesim scan: done in ") and len(err) == 6
+    assert main(["compare", str(out), str(box_ply), "-o", str(tmp_path / "c")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("treesim compare: reading (") and "comparing" in err[1]
+    assert err[-1].startswith("treesim compare: done in ")
+
+
+@pytest.mark.parametrize(
+    ("command", "target"),
+    [
+        ("run", "pipeline.run.run_tree"),
+        ("reconstruct", "pipeline.steps.reconstruct_files"),
+        ("demo", "pipeline.run.run_tree"),
+    ],
+)
+def test_run_reconstruct_and_demo_report_their_stages(
+    command, target, tmp_path, capsys, monkeypatch
+):
+    from pipeline.errors import ReconstructionError
+
+    def fake(*args, progress=None, **kwargs):
+        for fraction, message in [(0.0, "reading"), (0.1, "reading"), (0.3, "done"), (0.5, "x")]:
+            progress(fraction, message)  # a stage's own "done" is not the command's
+        progress(1.0, "done")
+        raise ReconstructionError("stopped here")
+
+    module, name = target.rsplit(".", 1)
+    monkeypatch.setattr(module + "." + name, fake)
+    cloud = tmp_path / "c.xyz"
+    cloud.write_text("0 0 0\n")
+    argv = {"run": ["run", str(cloud)], "reconstruct": ["reconstruct", str(cloud)]}
+    rc = main([*argv.get(command, ["demo"]), "-o", str(tmp_path / "o")])
+    assert rc == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert [ln.split(" (")[0].split(" in ")[0] for ln in lines] == [
+        f"treesim {command}: reading",
+        f"treesim {command}: x",
+        f"treesim {command}: done",
+        "treesim: error: stopped here",
+    ]
+
+
+def test_the_terminal_form_is_unchanged(capsys):
+    from pipeline.cli.progress import progress_printer
+
+    show = progress_printer(True, label="scan")
+    show(0.5, "station 1/2")
+    show(1.0, "done")
+    err = capsys.readouterr().err
+    assert err.startswith("\r  station 1/2:  50.0 %") and err.endswith("done: 100.0 %\n")
+    assert progress_printer(False) is None

@@ -16,6 +16,7 @@ from pipeline.cloud import Cloud
 from pipeline.io import read_cloud, write_cloud
 from pipeline.io.mesh import write_mesh
 from tests.compare.shapes import centroids, open_cylinder, sample_faces
+from tests.conftest import messages
 
 REQUIRED_STATS = ("n", "mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")
 
@@ -141,7 +142,7 @@ def test_compare_errors_are_one_line(half_cylinder, tmp_path, capsys, make, word
         rc = main(["compare", *args, "-o", str(tmp_path / "o")])
     except SystemExit as exc:  # a usage error
         rc = exc.code
-    err = capsys.readouterr().err.strip()
+    err = "\n".join(messages(capsys.readouterr().err))
     assert rc == (2 if make == "badtol" else 1)
     assert err.startswith("treesim: error:") and "\n" not in err
     assert words in err
