@@ -323,6 +323,7 @@ def run_tree(
             "station_rule": scan_summary["station_rule"],
             "models_active": result.models,
             "lod": result.lod,
+            "warnings": result.warnings,
         },
         "vs_mesh": mesh_fig,
         "vs_field": field_fig,

@@ -13,7 +13,14 @@ from typing import TextIO
 
 from ..batch import BatchProgress
 
-__all__ = ["BatchProgressBar", "progress_printer"]
+__all__ = ["BatchProgressBar", "print_warnings", "progress_printer"]
+
+
+def print_warnings(warnings: list[str]) -> None:
+    """Each of a result's warnings (a stage ran, but maybe not as meant) as one line on
+    stderr, ``treesim: warning: ...``; the result's JSON keeps them too."""
+    for w in warnings:
+        print(f"treesim: warning: {w}", file=sys.stderr)
 
 
 def progress_printer(

@@ -22,7 +22,7 @@ from ..params import (
 from ..report.text import lod_reasons
 from ._options import collect, floats_type, number_type, param_option, param_options
 from ._outputs import output_file
-from .progress import progress_printer
+from .progress import print_warnings, progress_printer
 
 #: ScannerSpec fields without a flag (set them in code or a TOML file).
 _NO_FLAG = ("reflectance",)
@@ -178,6 +178,7 @@ def run_scan(
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
         why = "; ".join(f"{what}: {reason}" for what, reason in lod_reasons(result.lod))
         print(f"treesim scan: no points were recorded ({why})", file=sys.stderr)
+    print_warnings(result.warnings)
     print(f"wrote {step.outputs['cloud']} and {step.outputs['json']}")
     return step.summary
 

@@ -12,7 +12,7 @@ import pytest
 from pipeline.cli import build_parser, main
 from pipeline.cli._options import PARAM, SETTING
 from pipeline.io.mesh import write_mesh
-from tests.conftest import box_arrays
+from tests.conftest import box_arrays, messages
 
 
 def _usage_error(capsys, argv: list[str]) -> str:
@@ -376,3 +376,33 @@ def test_the_terminal_form_is_unchanged(capsys):
     err = capsys.readouterr().err
     assert err.startswith("\r  station 1/2:  50.0 %") and err.endswith("done: 100.0 %\n")
     assert progress_printer(False) is None
+
+
+# -- 7. a scan that runs but may not be what was meant warns on stderr, not only in OUT.json --
+@pytest.mark.parametrize(
+    ("flip", "station", "words"),
+    [
+        (False, "1,0,1", "station 0 at (1.0, 0.0, 1.0) is on a wood surface"),
+        (False, "1,1,2", "station 0 at (1.0, 1.0, 2.0) is on a wood surface"),
+        (True, "0,0,1", "looks enclosed by the wood geometry"),
+    ],
+)
+def test_a_doubtful_station_is_a_warning_on_stderr(flip, station, words, tmp_path, capsys):
+    v, f = box_arrays((-1, -1, 0), (1, 1, 2))
+    mesh = write_mesh(tmp_path / "box.ply", v, f[:, ::-1] if flip else f)
+    out = tmp_path / "s.laz"
+    rc = main(["scan", str(mesh), "-o", str(out), "--station", station, "--resolution-deg", "2"])
+    assert rc == 0
+    warnings = [ln for ln in messages(capsys.readouterr().err) if "warning" in ln]
+    assert len(warnings) == 1 and warnings[0].startswith("treesim: warning: ")
+    assert words in warnings[0]
+    assert json.loads(out.with_suffix(".json").read_text())["warnings"] == [
+        warnings[0].removeprefix("treesim: warning: ")
+    ]
+
+
+def test_an_ordinary_scan_warns_of_nothing(box_ply, tmp_path, capsys):
+    out = tmp_path / "s.laz"
+    assert main(["scan", str(box_ply), "-o", str(out), "--resolution-deg", "2"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert json.loads(out.with_suffix(".json").read_text())["warnings"] == []
