@@ -441,16 +441,29 @@ def _lod_summary(
     window = sum(s.pulses_window for s in stats)
     cast = sum(s.pulses_cast for s in stats)
     out: dict[str, Any] = {"mode": lod}
-    out["rays"] = {
-        "pulses_window": window,
-        "pulses_cast": cast,
-        "why": (
-            f"cast only the cells of each station's window that some triangle can reach: "
-            f"{cast:,} of {window:,} pulses"
-            if culled
-            else "cast the whole window rectangle"
-        ),
-    }
+    why = (
+        f"cast only the cells of each station's window that some triangle can reach: "
+        f"{cast:,} of {window:,} pulses"
+        if culled
+        else "cast the whole window rectangle"
+    )
+    if sum(s.points for s in stats) == 0:  # an empty scan: say why in plain words
+        if geometry["loaded"] == 0:
+            why = "nothing cast: no station can record any triangle (see geometry)"
+        elif window == 0:
+            why = "nothing cast: the scene is outside every station's field of view"
+        elif cast == 0:
+            why = (
+                f"none of the {window:,} pulses of the stations' windows can reach a "
+                f"triangle at {spec.horizontal_resolution_deg:g}°×"
+                f"{spec.vertical_resolution_deg:g}° steps: the scene lies between the "
+                "pulses; use a finer resolution"
+            )
+        else:
+            why += (
+                f"; none recorded an echo between {spec.min_range_m:g} and {spec.max_range_m:g} m"
+            )
+    out["rays"] = {"pulses_window": window, "pulses_cast": cast, "why": why}
     left = geometry["triangles"] - geometry["loaded"]
     out["geometry"] = {
         **geometry,

@@ -7,6 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
+import laspy
 import pytest
 
 from pipeline.cli import build_parser, main
@@ -406,3 +407,42 @@ def test_an_ordinary_scan_warns_of_nothing(box_ply, tmp_path, capsys):
     assert main(["scan", str(box_ply), "-o", str(out), "--resolution-deg", "2"]) == 0
     assert "warning" not in capsys.readouterr().err
     assert json.loads(out.with_suffix(".json").read_text())["warnings"] == []
+
+
+# -- 8. a scan that records nothing writes a valid empty cloud and says why -------------------
+@pytest.mark.parametrize(
+    ("extra", "azimuth_deg", "why"),
+    [
+        (["--max-range-m", "5", "--resolution-deg", "1"], 0.0, "64 beyond 5 m from every station"),
+        (
+            ["--hfov-deg", "90,180", "--resolution-deg", "1"],
+            0.0,
+            "64 outside every field of view",
+        ),
+        (
+            ["--resolution-deg", "10"],
+            5.0,  # a 10 cm pole 10 m out, halfway between two 10° columns
+            "the scene lies between the pulses; use a finer resolution",
+        ),
+    ],
+    ids=["beyond-range", "outside-fov", "between-pulses"],
+)
+def test_an_empty_scan_is_a_valid_empty_cloud_that_says_why(
+    extra, azimuth_deg, why, tmp_path, capsys
+):
+    import math
+
+    from tests.conftest import cylinder_arrays
+
+    a = math.radians(azimuth_deg)
+    v, f = cylinder_arrays(0.05, 1.0, 16, (10 * math.cos(a), 10 * math.sin(a), 0.0))
+    mesh = write_mesh(tmp_path / "pole.ply", v, f)
+    out = tmp_path / "none.laz"
+    assert main(["scan", str(mesh), "-o", str(out), "--station", "0,0,0.5", *extra]) == 0
+    err = " ".join(messages(capsys.readouterr().err))
+    assert "no points were recorded" in err and why in err
+    assert laspy.read(out).header.point_count == 0
+    summary = json.loads(out.with_suffix(".json").read_text())
+    assert summary["points"] == 0
+    reasons = " ".join(entry["why"] for entry in summary["lod"].values() if isinstance(entry, dict))
+    assert why in reasons
