@@ -16,7 +16,7 @@ from per-station tables, so it is the same bits whichever pulses are cast beside
 Warnings: a scan that runs but may not be what was meant says so in
 ``ScanResult.warnings`` (and the summary's ``warnings``): a station on a surface or
 enclosed by a mesh whose normals face it, and triangles lost to precision (zero area in
-float64 as given, or in float32 around the local frame, which Open3D casts in).
+float64 as given, or distorted in float32 around the local frame, which Open3D casts in).
 
 Memory: pulses are cast in chunks of at most ``chunk_rays`` rays (about 200 bytes per
 ray in flight), and with a ``sink`` each chunk's points leave as they are made, so peak
