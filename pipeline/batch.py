@@ -603,10 +603,10 @@ def _run_locked(
     tasks.sort(key=lambda t: -_size(t.path))
     interrupted = False
     try:
+        if progress is not None:  # where the batch starts from (reused trees counted)
+            progress(_state(rows, len(trees), 0, t_start, 0, None, None))
         if tasks:
             _drive(tasks, plan, rows, len(trees), progress, t_start)
-        elif progress is not None:
-            progress(_state(rows, len(trees), 0, t_start, 0, None, None))
     except KeyboardInterrupt:
         interrupted = True
     finally:

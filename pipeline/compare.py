@@ -72,7 +72,7 @@ from .errors import (
 from .frame import LocalFrame
 from .geometry import kdtree, point_spacing, point_to_mesh_distances, sample_surface
 from .jsonio import write_json
-from .params import CompareParams
+from .params import MIN_CLOUD_POINTS, CompareParams
 from .scene import MeshPart, Scene
 
 __all__ = [
@@ -178,10 +178,12 @@ def _check_cloud(cloud: Cloud, what: str) -> Cloud:
         cloud.validate()
     except InvalidGeometryError as exc:
         raise InvalidGeometryError(f"the {what}: {exc}") from None
-    if len(cloud) < 2:
-        raise InvalidGeometryError(
-            f"the {what} has a single point; a comparison needs at least 2 points "
-            "(check that the right file was given)"
+    n = len(cloud)
+    if n < MIN_CLOUD_POINTS:
+        raise EmptyInputError(
+            f"the {what} has {'a single point' if n == 1 else f'only {n} points'}; a comparison "
+            f"needs at least {MIN_CLOUD_POINTS} (fewer cannot span a volume); check that the "
+            "right file was given"
         )
     return cloud
 
@@ -382,9 +384,10 @@ def compare(
     Raises
     ------
     EmptyInputError
-        If the cloud or the reference is empty.
+        If the cloud or the reference is empty, or either cloud has fewer than
+        :data:`~pipeline.params.MIN_CLOUD_POINTS` points (too few to measure).
     InvalidGeometryError
-        If either holds NaN or infinite coordinates, or the cloud has a single point.
+        If either holds NaN or infinite coordinates.
     InvalidParameterError
         If a parameter is out of range.
     """

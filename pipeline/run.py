@@ -197,13 +197,13 @@ def run_tree(
     t_all = time.perf_counter()
 
     # -- read ------------------------------------------------------------------------------
+    if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
+        raise InputFormatError(f"{cloud} not found; check the path")
     say(0.0, "reading")
     t0 = time.perf_counter()
     inputs: dict[str, Any]
     if isinstance(cloud, (str, Path)):
         path = Path(cloud)
-        if not path.is_file():
-            raise InputFormatError(f"{path} not found; check the path")
         field_cloud = read_cloud(path)
         inputs = {"cloud": str(path), "sha256": file_sha256(path), "bytes": path.stat().st_size}
         name = name or path.stem
@@ -323,6 +323,7 @@ def run_tree(
             "station_rule": scan_summary["station_rule"],
             "models_active": result.models,
             "lod": result.lod,
+            "warnings": result.warnings,
         },
         "vs_mesh": mesh_fig,
         "vs_field": field_fig,

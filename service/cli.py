@@ -11,6 +11,7 @@ import argparse
 import ipaddress
 from typing import Any
 
+from pipeline.cli._options import whole_number
 from pipeline.errors import InvalidParameterError
 
 __all__ = ["register", "settings_from_args"]
@@ -100,11 +101,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Settings come from TREESIM_* environment variables; flags override them.",
     )
     s.add_argument("--host", help="address to bind (TREESIM_HOST; default 127.0.0.1)")
-    s.add_argument("--port", type=int, help="port (TREESIM_PORT; default 8000)")
+    s.add_argument("--port", type=whole_number(1), help="port (TREESIM_PORT; default 8000)")
     _common(s)
     s.add_argument(
         "--workers",
-        type=int,
+        type=whole_number(0),
         metavar="N",
         help="jobs the embedded worker runs at once; 0: the API alone (TREESIM_WORKERS; default 1)",
     )
@@ -132,7 +133,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(w)
     w.add_argument(
         "--workers",
-        type=int,
+        type=whole_number(0),
         metavar="N",
         help="jobs run at once (TREESIM_WORKERS; default 1)",
     )

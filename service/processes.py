@@ -227,12 +227,14 @@ def _scan_extra() -> dict[str, Any]:
         "beam": {
             "type": "boolean",
             "default": False,
-            "description": "turn on the instrument's beam divergence model",
+            "description": "turn on the beam divergence model: the instrument's, or a "
+            "generic TLS's without one (as treesim scan --beam)",
         },
         "noise": {
             "type": "boolean",
             "default": False,
-            "description": "turn on the instrument's range noise and angular jitter",
+            "description": "turn on range noise and angular jitter: the instrument's, or a "
+            "generic TLS's without one (as treesim scan --noise)",
         },
         "resolution_deg": {
             "type": "number",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,17 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 #: Its coffee_tree/cloud.txt and QSM_treeqsm_v2.4.1_cylinders.csv are byte-identical to
 #: ../shared/data/trees/coffee_tree's (checked with cmp when the tests switched to them).
 BUNDLED_DATA = Path(__file__).resolve().parents[1] / "pipeline" / "data"
+
+
+#: A progress line a command writes per stage when stderr is not a terminal
+#: (``treesim scan: station 2/3 (1.4 s)``); messages start ``treesim: error:`` or
+#: ``treesim: warning:``.
+PROGRESS_LINE = re.compile(r"^treesim [a-z-]+: .*(\(\d+\.\d s\)|done in \d+\.\d s)$")
+
+
+def messages(stderr: str) -> list[str]:
+    """The non-empty lines of a command's stderr less its progress lines."""
+    return [ln for ln in stderr.splitlines() if ln.strip() and not PROGRESS_LINE.match(ln)]
 
 
 def shared_path(*parts: str) -> Path:

@@ -10,11 +10,14 @@ that :func:`pipeline.params.merge` checks and applies, the same way as a TOML fi
 from __future__ import annotations
 
 import argparse
+import math
+import re
+from collections.abc import Callable
 from typing import Any
 
 from ..errors import InvalidParameterError
 from ..params import ParamInfo, Setting, describe, field_info, set_path
-from ..params._fields import read_int
+from ..params._fields import NONE_WORDS, read_int
 
 #: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
 PARAM = "treesim_param"
@@ -22,22 +25,102 @@ PARAM = "treesim_param"
 SETTING = "treesim_setting"
 
 
+_NUMBER = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan"
+#: What a value that starts with a dash but is no option looks like: a negative number or
+#: a comma-separated list of numbers whose first is negative (``-3,0,1.5``, ``-40,60``),
+#: ``-inf`` and ``-nan`` included (so that their reader says what is wrong with them).
+NEGATIVE_VALUE = re.compile(rf"^-(?:{_NUMBER})(?:,\s*[-+]?(?:{_NUMBER}))*$", re.IGNORECASE)
+
+
 class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose usage errors are one line (exit 2)."""
+    """An ``ArgumentParser`` whose usage errors are one line (exit 2) and which reads a
+    negative number or a list of numbers starting with one (``--station -3,0,1.5``) as
+    an option's value, not as an unknown option (argparse alone takes only ``-3`` and
+    ``-1.5``; no treesim option looks like a number)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_VALUE
 
     def error(self, message: str) -> None:  # one line, exit 2
+        message = message.removeprefix("argument ")  # "--max-rays: expected ..."
         self.exit(2, f"treesim: error: {message} (see '{self.prog} --help')\n")
 
 
+def _number(text: str, integer: bool) -> float | None:
+    """The number ``text`` says (a whole one for ``integer``, ``1e6`` allowed), or None."""
+    try:
+        return float(read_int(text)) if integer else float(text)
+    except (ValueError, OverflowError):
+        return None
+
+
+def number_type(
+    info: ParamInfo, *, none: Any = None, element: bool = False
+) -> Callable[[str], Any]:
+    """The argparse ``type`` of a number field: finite, whole for an ``int``, within the
+    bounds the parameter model declares (``param(ge=...)``), or a usage error saying so
+    (``--max-rays: expected a whole number >= 1, got 'nan'``). Optional fields also read
+    ``0`` and ``none`` as ``none`` (what the flag's value is then: ``None`` for a
+    parameter option, ``0`` for a flat setting, which reads it as ``None`` itself).
+    ``element``: read one value of a list field (``--bpa-radius-m``, repeatable)."""
+    optional = info.optional and not element
+
+    def read(text: str) -> Any:
+        t = text.strip()
+        if optional and t.lower() in NONE_WORDS:
+            return none
+        v = _number(t, info.integer)
+        if optional and v == 0:
+            return none
+        if v is None or not info.in_range(v):
+            also = f", or 0/none for {info.none_means or 'none'}" if optional else ""
+            raise argparse.ArgumentTypeError(f"expected {info.range_text()}{also}, got {text!r}")
+        return int(v) if info.integer else v
+
+    read.__name__ = info.name
+    return read
+
+
+def whole_number(minimum: int) -> Callable[[str], int]:
+    """The argparse ``type`` of a count that is no parameter (``batch --workers``)."""
+
+    def read(text: str) -> int:
+        v = _number(text.strip(), True)
+        if v is None or v < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}")
+        return int(v)
+
+    return read
+
+
 def floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    """``n`` comma-separated numbers (``"-40,90"``), or a one-line error naming ``what``."""
+    """``n`` comma-separated finite numbers (``"-40,90"``), or an
+    :class:`InvalidParameterError` naming ``what``."""
     try:
         vals = tuple(float(v) for v in text.replace(" ", "").split(","))
     except ValueError:
         vals = ()
-    if len(vals) != n:
-        raise InvalidParameterError(f"{what} must be {n} numbers separated by commas, got {text!r}")
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise InvalidParameterError(
+            f"{what} must be {n} finite numbers separated by commas, got {text!r}"
+        )
     return vals
+
+
+def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
+    """The argparse ``type`` reading :func:`floats` (a usage error, exit 2)."""
+
+    def read(text: str) -> tuple[float, ...]:
+        try:
+            return floats(text, n, what)
+        except InvalidParameterError:
+            raise argparse.ArgumentTypeError(
+                f"expected {n} finite numbers separated by commas, got {text!r}"
+            ) from None
+
+    read.__name__ = what.lstrip("-")
+    return read
 
 
 def _metavar(info: ParamInfo) -> str:
@@ -72,17 +155,17 @@ def param_option(
         if not info.optional:
             kw["const"] = True
     elif t.startswith("tuple[float,...]"):
-        kw.update(action="append", type=float, metavar=metavar or "VALUE")
+        kw.update(action="append", type=number_type(info, element=True), metavar=metavar or "VALUE")
     elif t.startswith("tuple"):
         n = t.split("[", 1)[1].count(",") + 1
-        flag_name = flag or info.cli_flag
-
-        def read(text: str) -> tuple[float, ...]:
-            return floats(text, n, flag_name)
-
-        kw.update(type=read, metavar=metavar or ",".join("ABCD"[:n]))
+        kw.update(
+            type=floats_type(n, flag or info.cli_flag), metavar=metavar or ",".join("ABCD"[:n])
+        )
     elif info.choices:
         kw["choices"] = list(info.choices)
+    elif info.integer or t == "float":
+        kw["type"] = number_type(info)
+        kw["metavar"] = metavar or _metavar(info)
     else:
         kw["type"] = info.read if info.optional else info.scalar
         kw["metavar"] = metavar or _metavar(info)
@@ -124,6 +207,9 @@ def setting_option(group: Any, setting: Setting, *, default_text: str) -> argpar
     kw: dict[str, Any] = {"dest": "setting:" + setting.name, "default": None}
     if info.choices:
         kw["choices"] = list(info.choices)
+    elif info.integer or info.base_type == "float":
+        kw["type"] = number_type(info, none=0)  # Setting.convert reads 0 as None
+        kw["metavar"] = _metavar(info)
     else:
         kw["type"] = info.scalar
         kw["metavar"] = _metavar(info)

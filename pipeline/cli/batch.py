@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 from ..params import SETTINGS
+from ._options import whole_number
+from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 
 
@@ -14,6 +16,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from .progress import BatchProgressBar
 
+    output_folder(args.output)
     params = params_from_args(args, with_threads=False)
     bar = None if args.no_progress else BatchProgressBar(sys.stderr)
     try:
@@ -78,8 +81,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="local",
         help="inline: this process; local: a process pool (default); dask: a Dask cluster",
     )
-    x.add_argument("--workers", type=int, help="worker processes (default one per core)")
-    x.add_argument("--threads", type=int, help="threads per tree (default cores // workers)")
+    x.add_argument(
+        "--workers", type=whole_number(1), help="worker processes (default one per core)"
+    )
+    x.add_argument(
+        "--threads", type=whole_number(1), help="threads per tree (default cores // workers)"
+    )
     x.add_argument(
         "--scheduler",
         metavar="ADDRESS",

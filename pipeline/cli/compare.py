@@ -7,6 +7,8 @@ from pathlib import Path
 
 from ..params import CompareParams, merge
 from ._options import collect, param_options
+from ._outputs import output_folder
+from .progress import progress_printer
 
 
 def _fmt_mm(x: float | None) -> str:
@@ -18,6 +20,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from ..report.text import length, percent
     from ..steps import compare_files
 
+    output_folder(args.output)
     cloud_path = Path(args.cloud)
     params = merge(CompareParams(), collect(args))
     step = compare_files(
@@ -26,6 +29,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         params,
         args.output,
         report=ReportParams() if args.report else None,
+        progress=progress_printer(label="compare"),
     )
     result, kind = step.result, step.details["kind"]
     ref = result.reference_info

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._outputs import output_folder
 from .progress import progress_printer
 from .run import print_run_summary
 
@@ -16,6 +17,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..params import run_preset
     from ..run import run_tree
 
+    output_folder(args.output)
     cloud = SAMPLE_DIR / "cloud.txt"
     print(
         "bundled sample: Kentucky coffee tree (rTwig), leaf-off TLS cloud; reconstruct, "
@@ -26,7 +28,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         run_preset(),
         Path(args.output),
         name="coffee_tree",
-        progress=progress_printer(),
+        progress=progress_printer(label="demo"),
     )
     print_run_summary(result)
     print(f"\ndemo output is in {result.outdir.resolve()}/; open the report in a browser:")

@@ -20,6 +20,7 @@ from ..jsonio import write_json as _write_json
 from ..params import merge
 from ..params.models import ModelParams
 from ._options import collect, param_option, param_options
+from ._outputs import output_file
 
 
 def _check_output(path: Path) -> None:
@@ -28,14 +29,6 @@ def _check_output(path: Path) -> None:
             f"{path.name}: cannot write a mesh as {path.suffix or 'no suffix'!r}; "
             f"use one of {', '.join(MESH_WRITE_SUFFIXES)}"
         )
-
-
-def _check_facets(facets: int) -> int:
-    if facets < 3:
-        raise InvalidParameterError(
-            f"--facets must be an integer >= 3 (vertices per ring), got {facets}"
-        )
-    return facets
 
 
 def companion_paths(mesh_path: str | Path) -> tuple[Path, Path]:
@@ -52,7 +45,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(mp.facets)
+    for path in (out, *companion_paths(out)):
+        output_file(path)
+    facets = mp.facets
     if mp.species is None:
         raise InvalidParameterError(
             "give the tree species: --species NAME (see 'treesim model list')"
@@ -88,7 +83,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     from ..models import SPECIES, generate_tree
 
     mp = merge(ModelParams(), collect(args))
-    facets = _check_facets(mp.facets)
+    facets = mp.facets
     header = (
         f"{'species':13} {'DBH cm':>7} {'height m':>9} {'wood L':>8} {'stem L':>7} "
         f"{'cylinders':>9} {'triangles':>9} {'leaves':>7}  description"
@@ -117,7 +112,8 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
     _check_output(out)
-    facets = _check_facets(mp.facets)
+    output_file(out, inputs=[args.table])
+    facets = mp.facets
     table = read_cylinders(args.table, format=args.format)
     v, f = cylinders_to_mesh(table, facets=facets, joints=mp.joints)
     write_mesh(out, v, f)

@@ -1,4 +1,8 @@
-"""Progress on the terminal: one printer for a long step, one bar for a batch."""
+"""Progress on stderr: one printer for a long step, one bar for a batch.
+
+On a terminal both redraw one line; otherwise (a log file, a pipe, a job runner) they
+write one plain line per stage, or per finished tree, so a long command is never silent.
+"""
 
 from __future__ import annotations
 
@@ -9,17 +13,30 @@ from typing import TextIO
 
 from ..batch import BatchProgress
 
-__all__ = ["BatchProgressBar", "progress_printer"]
+__all__ = ["BatchProgressBar", "print_warnings", "progress_printer"]
 
 
-def progress_printer(enabled: bool | None = None) -> Callable[[float, str], None] | None:
-    """A ``progress(fraction, message)`` callback drawing one line on stderr, at most five
-    times a second; ``None`` (no output) when stderr is not a terminal or ``enabled`` is
-    false."""
-    if enabled is None:
-        enabled = sys.stderr.isatty()
-    if not enabled:
+def print_warnings(warnings: list[str]) -> None:
+    """Each of a result's warnings (a stage ran, but maybe not as meant) as one line on
+    stderr, ``treesim: warning: ...``; the result's JSON keeps them too."""
+    for w in warnings:
+        print(f"treesim: warning: {w}", file=sys.stderr)
+
+
+def progress_printer(
+    enabled: bool | None = None, *, label: str | None = None
+) -> Callable[[float, str], None] | None:
+    """A ``progress(fraction, message)`` callback for stderr.
+
+    On a terminal (or with ``enabled`` true) it redraws one line, at most five times a
+    second. Otherwise it writes one plain line per stage, when the message changes:
+    ``treesim scan: station 2/3 (1.4 s)``, and ``treesim scan: done in 3.2 s`` at the end
+    (``label`` names the command). ``enabled`` false: ``None``, no output.
+    """
+    if enabled is False:
         return None
+    if enabled is None and not sys.stderr.isatty():
+        return _stage_lines(label)
     last = [0.0]
 
     def show(fraction: float, message: str) -> None:
@@ -31,6 +48,28 @@ def progress_printer(enabled: bool | None = None) -> Callable[[float, str], None
         if fraction >= 1.0:
             sys.stderr.write("\n")
         sys.stderr.flush()
+
+    return show
+
+
+def _stage_lines(label: str | None) -> Callable[[float, str], None]:
+    """One line on stderr per stage (a new message); a finished stage's "done" only at
+    the end of the whole command (fraction 1)."""
+    prefix = f"treesim {label}:" if label else "treesim:"
+    start = time.monotonic()
+    last: list[str | None] = [None]
+
+    def show(fraction: float, message: str) -> None:
+        elapsed = time.monotonic() - start
+        if message == "done":
+            if fraction >= 1.0:
+                sys.stderr.write(f"{prefix} done in {elapsed:.1f} s\n")
+                sys.stderr.flush()
+            return
+        if message != last[0]:
+            last[0] = message
+            sys.stderr.write(f"{prefix} {message} ({elapsed:.1f} s)\n")
+            sys.stderr.flush()
 
     return show
 
@@ -64,8 +103,15 @@ class BatchProgressBar:
         self.width = width
         self._last_draw = 0.0
         self._drawn = False
+        self._started = False
 
     def __call__(self, p: BatchProgress) -> None:
+        if not self.tty and not self._started:  # a log says at once what the batch will do
+            self._started = True
+            self.stream.write(
+                f"batch: {p.total} tree{'s' if p.total != 1 else ''}, {p.reused} unchanged "
+                f"(not run again), {p.total - p.reused} to run\n"
+            )
         left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"
         if p.finished == p.total and p.running == 0:
             left = "done"

@@ -8,6 +8,7 @@ from pathlib import Path
 from ..errors import InvalidParameterError
 from ..params import PrepareParams, QSMParams, ReconstructParams, merge
 from ._options import collect, param_option, param_options
+from ._outputs import output_folder
 from .progress import progress_printer
 
 
@@ -56,6 +57,7 @@ def params_from_args(args: argparse.Namespace) -> ReconstructParams:
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from ..steps import reconstruct_files
 
+    output_folder(args.output)
     columns = None
     if args.columns:
         columns = [c.strip() or None for c in args.columns.split(",")]
@@ -66,7 +68,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         params_from_args(args),
         args.output,
         columns=columns,
-        progress=progress_printer(),
+        progress=progress_printer(label="reconstruct"),
     )
     model, paths = step.result, step.outputs
     fig = model.figures

@@ -7,6 +7,7 @@ import argparse
 from ..errors import InvalidParameterError
 from ..params import ReportParams, merge
 from ._options import collect, param_options
+from ._outputs import output_folder
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -19,6 +20,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise InvalidParameterError(
             "give the folder 'treesim compare' wrote (OUTDIR) or --comparison comparison.json"
         )
+    if args.output:
+        output_folder(args.output)
     params = merge(ReportParams(), collect(args))
     files = build_report(source, args.output, params=params)
     print(

@@ -10,8 +10,9 @@ from typing import Any
 from ..errors import InvalidParameterError
 from ..params import RunParams, preset_measurements, to_toml
 from ._options import param_option
+from ._outputs import output_folder
 from ._settings import CONFIG_HELP, STATION_RULE, add_settings, params_from_args
-from .progress import progress_printer
+from .progress import print_warnings, progress_printer
 
 
 def _fmt(v: Any, scale: float = 1.0, unit: str = "", digits: int = 3) -> str:
@@ -53,6 +54,7 @@ def print_run_summary(result: Any) -> None:
         for k in ("reconstruct", "scan", "compare_mesh", "compare_field", "report")
     )
     print(f"time: {t['total']:.1f} s ({parts})")
+    print_warnings(sc.get("warnings", []))
     print(f"report: {result.report_html.resolve()}")
 
 
@@ -67,8 +69,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("give the field cloud: treesim run CLOUD -o OUTDIR")
     if not args.output:
         raise InvalidParameterError("give the output folder with -o OUTDIR")
+    output_folder(args.output)
     cloud = Path(args.cloud)
-    result = run_tree(cloud, params, args.output, progress=progress_printer())
+    result = run_tree(cloud, params, args.output, progress=progress_printer(label="run"))
     print_run_summary(result)
     return 0
 

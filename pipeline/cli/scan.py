@@ -10,6 +10,7 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..params import (
+    GENERIC_TLS,
     INSTRUMENTS,
     SETTINGS,
     RunParams,
@@ -19,8 +20,9 @@ from ..params import (
     scan_params,
 )
 from ..report.text import lod_reasons
-from ._options import collect, floats, param_option, param_options
-from .progress import progress_printer
+from ._options import collect, floats_type, number_type, param_option, param_options
+from ._outputs import output_file
+from .progress import print_warnings, progress_printer
 
 #: ScannerSpec fields without a flag (set them in code or a TOML file).
 _NO_FLAG = ("reflectance",)
@@ -67,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--station",
         action="append",
         default=[],
+        type=floats_type(3, "--station"),
         metavar="X,Y,Z",
         help="an explicit station position in scene coordinates (repeatable)",
     )
@@ -76,17 +79,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=list(INSTRUMENTS),
         help=f"start from a real instrument's figures ({_instrument_list()})",
     )
+    g = GENERIC_TLS
     s.add_argument(
-        "--beam", action="store_true", help="turn on the instrument's beam divergence model"
+        "--beam",
+        action="store_true",
+        help="turn on the beam divergence model: the instrument's divergence, or without "
+        f"--instrument a generic TLS's {g['beam_divergence_mrad']:g} mrad, sampled with "
+        f"--subrays (default {ScannerSpec().subrays}) rays per pulse",
     )
     s.add_argument(
         "--noise",
         action="store_true",
-        help="turn on the instrument's range noise and angular jitter",
+        help="turn on range noise and angular jitter: the instrument's, or without "
+        f"--instrument a generic TLS's σ {g['range_noise_sd_m'] * 1000:g} mm and "
+        f"{g['angular_jitter_sd_deg']:g}°",
     )
     s.add_argument(
         "--resolution-deg",
-        type=float,
+        type=number_type(SETTINGS["resolution_deg"].info),
+        metavar="DEG",
         help=f"{SETTINGS['resolution_deg'].help} (deg; sets both of the steps below)",
     )
     param_options(s, ScannerSpec, path=("scanner",), exclude=_NO_FLAG)
@@ -108,21 +119,13 @@ def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
     given = collect(args)
     # --threads is RunParams.threads (validated there); the rest is ScanParams
     threads = merge(RunParams(), {k: given.pop(k) for k in ("threads",) if k in given}).threads
-    try:
-        params = scan_params(
-            given,
-            instrument=args.instrument,
-            beam=args.beam,
-            noise=args.noise,
-            resolution_deg=args.resolution_deg,
-        )
-    except InvalidParameterError as exc:
-        if (args.beam or args.noise) and not args.instrument:
-            raise InvalidParameterError(
-                "--beam and --noise take their figures from --instrument; give --instrument "
-                "or set --beam-divergence-mrad / --range-noise-sd-m directly"
-            ) from exc
-        raise
+    params = scan_params(
+        given,
+        instrument=args.instrument,
+        beam=args.beam,
+        noise=args.noise,
+        resolution_deg=args.resolution_deg,
+    )
     return params, threads
 
 
@@ -130,7 +133,7 @@ def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | No
     if args.station and args.layout == "ring":
         raise InvalidParameterError("give either --layout ring or --station positions, not both")
     if args.station:
-        return [floats(s, 3, "--station") for s in args.station]
+        return list(args.station)
     if args.layout == "list":
         raise InvalidParameterError("--layout list needs at least one --station X,Y,Z")
     return None
@@ -142,6 +145,8 @@ def run_scan(
     """Scan (:func:`pipeline.steps.scan_files`), then print a per-station table."""
     from ..steps import scan_files
 
+    output_file(out, inputs=meshes)
+    output_file(out.with_name(out.stem + ".json"), flag="-o (its .json beside it)")
     sp, threads = params_from_args(args)
     step = scan_files(
         meshes,
@@ -151,7 +156,7 @@ def run_scan(
         label=label,
         window=not args.full_fov,
         threads=threads,
-        progress=progress_printer(),
+        progress=progress_printer(label="scan"),
     )
     result, scene = step.result, step.details["scene"]
     print(
@@ -173,6 +178,7 @@ def run_scan(
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
         why = "; ".join(f"{what}: {reason}" for what, reason in lod_reasons(result.lod))
         print(f"treesim scan: no points were recorded ({why})", file=sys.stderr)
+    print_warnings(result.warnings)
     print(f"wrote {step.outputs['cloud']} and {step.outputs['json']}")
     return step.summary
 

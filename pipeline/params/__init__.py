@@ -32,7 +32,7 @@ from importlib import resources
 
 from ._fields import ParamInfo, describe, field_info, param, walk
 from .compare import CompareParams, ReportParams
-from .reconstruct import METHODS, PrepareParams, QSMParams, ReconstructParams
+from .reconstruct import METHODS, MIN_CLOUD_POINTS, PrepareParams, QSMParams, ReconstructParams
 from .run import (
     DEFAULT_RUN_PRESET,
     LODS,
@@ -46,11 +46,13 @@ from .run import (
 from .scanner import (
     BEAM_SAMPLINGS,
     DEFAULT_REFLECTANCE,
+    GENERIC_TLS,
     INSTRUMENTS,
     RETURN_MODES,
     InstrumentPreset,
     ScannerSpec,
     instrument,
+    model_fields,
     resolution_fields,
 )
 from .settings import (
@@ -72,8 +74,10 @@ __all__ = [
     "DEFAULT_REFLECTANCE",
     "LODS",
     "DEFAULT_RUN_PRESET",
+    "GENERIC_TLS",
     "INSTRUMENTS",
     "METHODS",
+    "MIN_CLOUD_POINTS",
     "RETURN_MODES",
     "RUN_PRESETS",
     "SETTINGS",
@@ -97,6 +101,7 @@ __all__ = [
     "json_schema",
     "load_config",
     "merge",
+    "model_fields",
     "param",
     "params_from_dict",
     "params_hash",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Callable, Iterator
 from dataclasses import MISSING, dataclass, fields, is_dataclass
 from typing import Any
@@ -19,6 +20,7 @@ from ..errors import InvalidParameterError
 __all__ = [
     "NONE_WORDS",
     "ParamInfo",
+    "check_bounds",
     "describe",
     "field_info",
     "finite",
@@ -54,6 +56,10 @@ def param(
     none_means: str | None = None,
     execution_only: bool = False,
     flag: str | None = None,
+    ge: float | None = None,
+    gt: float | None = None,
+    le: float | None = None,
+    lt: float | None = None,
 ) -> Any:
     """A dataclass field with its documentation.
 
@@ -74,6 +80,11 @@ def param(
         (threads, chunk sizes): left out of the run's settings hash.
     flag : str, optional
         The command-line flag when it is not ``--`` + the field name with dashes.
+    ge, gt, le, lt : float, optional
+        The natural range of a number (greater or equal, greater, less or equal, less
+        than): the dataclass checks it (:func:`check_bounds`) and the command line
+        refuses a value outside it while it reads the flag. ``None`` stays allowed for
+        optional fields.
     """
     metadata = {
         "help": help,
@@ -82,6 +93,7 @@ def param(
         "none_means": none_means,
         "execution_only": execution_only,
         "flag": flag,
+        "bounds": (ge, gt, le, lt),
     }
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=metadata)
@@ -105,6 +117,8 @@ class ParamInfo:
         The annotation as written (``"float | None"``, ``"int"``, ...).
     help, unit, choices, none_means, execution_only, flag
         As given to :func:`param`.
+    bounds : (4,) tuple of float or None
+        ``ge``, ``gt``, ``le``, ``lt`` as given to :func:`param`.
     """
 
     owner: type
@@ -118,6 +132,7 @@ class ParamInfo:
     none_means: str | None
     execution_only: bool
     flag: str | None
+    bounds: tuple[float | None, float | None, float | None, float | None] = (None,) * 4
 
     @property
     def optional(self) -> bool:
@@ -170,6 +185,40 @@ class ParamInfo:
             text = str(d)
         return f"{text} {self.unit}" if self.unit and with_unit else text
 
+    @property
+    def integer(self) -> bool:
+        """Whether the field holds a whole number."""
+        return self.base_type == "int"
+
+    def range_text(self) -> str:
+        """The values a number may take, as a reader says it: ``"a whole number >= 1"``,
+        ``"a number in (0, 45]"``, ``"a finite number"``."""
+        ge, gt, le, lt = self.bounds
+        what = "a whole number" if self.integer else "a number"
+        lo = ("[", ge) if ge is not None else ("(", gt) if gt is not None else None
+        hi = ("]", le) if le is not None else (")", lt) if lt is not None else None
+        if lo and hi:
+            return f"{what} in {lo[0]}{lo[1]:g}, {hi[1]:g}{hi[0]}"
+        if lo:
+            return f"{what} {'>=' if lo[0] == '[' else '>'} {lo[1]:g}"
+        if hi:
+            return f"{what} {'<=' if hi[0] == ']' else '<'} {hi[1]:g}"
+        return what if self.integer else "a finite number"
+
+    def in_range(self, value: float) -> bool:
+        """Whether the number ``value`` is finite, whole for an integer field, and within
+        the declared bounds."""
+        ge, gt, le, lt = self.bounds
+        v = float(value)
+        return (
+            math.isfinite(v)
+            and (not self.integer or v.is_integer())
+            and (ge is None or v >= ge)
+            and (gt is None or v > gt)
+            and (le is None or v <= le)
+            and (lt is None or v < lt)
+        )
+
     def help_text(self) -> str:
         """``help (unit; default ...)``: the line ``--help`` prints."""
         unit = f"{self.unit}; " if self.unit else ""
@@ -208,6 +257,7 @@ def _info(cls: type, f: dataclasses.Field, path: tuple[str, ...]) -> ParamInfo:
         none_means=md["none_means"],
         execution_only=md["execution_only"],
         flag=md["flag"],
+        bounds=md.get("bounds", (None,) * 4),
     )
 
 
@@ -224,6 +274,31 @@ def walk(cls: type, prefix: tuple[str, ...] = ()) -> Iterator[ParamInfo]:
             yield from walk(type(info.default), prefix + (f.name,))
         else:
             yield info
+
+
+def check_bounds(obj: Any) -> None:
+    """Raise :class:`InvalidParameterError` unless every number field (``int``,
+    ``float``) of the dataclass ``obj`` holds a finite number, whole for an ``int``, within
+    the bounds it was declared with (``param(ge=..., ...)``); ``None`` passes for optional
+    fields. Called first by the parameter dataclasses' ``__post_init__``, so the declared
+    range is the one the model enforces (and the one the command line checks)."""
+    for f in fields(obj):
+        info = _info(type(obj), f, (f.name,))
+        t = info.base_type
+        if t not in ("int", "float", "tuple[float,...]") or info.choices:
+            continue
+        value = getattr(obj, f.name)
+        if value is None and info.optional:
+            continue
+        many = t.startswith("tuple")
+        if many and not isinstance(value, (tuple, list)):
+            raise InvalidParameterError(f"{f.name} must be a list of numbers, got {value!r}")
+        for v in value if many else (value,):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not info.in_range(v):
+                each = "each value of " if many else ""
+                raise InvalidParameterError(
+                    f"{each}{f.name} must be {info.range_text()}, got {value!r}"
+                )
 
 
 def finite(name: str, value: float) -> float:

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from ..errors import InvalidParameterError
-from ._fields import param
+from ._fields import check_bounds, param
 
 __all__ = ["CompareParams", "ReportParams"]
 
@@ -34,42 +33,41 @@ class CompareParams:
     """
 
     tolerance_m: float | None = param(
-        None, help="coverage tolerance τ", unit="m", none_means="3 × the cloud's point spacing"
+        None,
+        help="coverage tolerance τ",
+        unit="m",
+        none_means="3 × the cloud's point spacing",
+        gt=0,
     )
     sample_spacing_m: float | None = param(
         None,
         help="spacing of the mesh surface samples",
         unit="m",
         none_means="the cloud's point spacing",
+        gt=0,
     )
-    seed: int = param(0, help="seed of the surface sampling")
-    min_samples: int = param(10_000, help="fewest mesh surface samples")
-    max_samples: int = param(2_000_000, help="most mesh surface samples (the spacing grows to fit)")
+    seed: int = param(0, help="seed of the surface sampling", ge=0)
+    min_samples: int = param(10_000, help="fewest mesh surface samples", ge=1)
+    max_samples: int = param(
+        2_000_000, help="most mesh surface samples (the spacing grows to fit)", ge=1
+    )
     spacing_subsample: int = param(
-        50_000, help="points used to estimate the cloud's median spacing"
+        50_000, help="points used to estimate the cloud's median spacing", ge=2
     )
     nthreads: int = param(
         0,
         help="threads for Open3D and the k-d tree queries (0: all cores)",
         execution_only=True,
         flag="--threads",
+        ge=0,
     )
 
     def __post_init__(self) -> None:
-        for name in ("tolerance_m", "sample_spacing_m"):
-            v = getattr(self, name)
-            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InvalidParameterError(
-                    f"{name} must be a positive number of metres, got {v!r}"
-                )
-        if int(self.min_samples) < 1 or int(self.max_samples) < int(self.min_samples):
+        check_bounds(self)
+        if self.max_samples < self.min_samples:
             raise InvalidParameterError(
                 f"need 1 <= min_samples <= max_samples, got {self.min_samples}, {self.max_samples}"
             )
-        if int(self.spacing_subsample) < 2:
-            raise InvalidParameterError("spacing_subsample must be at least 2")
-        if int(self.nthreads) < 0:
-            raise InvalidParameterError(f"nthreads must be >= 0, got {self.nthreads}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,12 +86,10 @@ class ReportParams:
         Resolution of the PNG plots.
     """
 
-    max_view_points: int = param(40_000, help="points per data set in the 3D view")
-    max_plot_points: int = param(120_000, help="points per PNG view")
-    seed: int = param(0, help="seed of the subsamples")
-    dpi: int = param(130, help="resolution of the PNG plots")
+    max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)
+    max_plot_points: int = param(120_000, help="points per PNG view", ge=1)
+    seed: int = param(0, help="seed of the subsamples", ge=0)
+    dpi: int = param(130, help="resolution of the PNG plots", ge=1)
 
     def __post_init__(self) -> None:
-        for name in ("max_view_points", "max_plot_points", "dpi"):
-            if int(getattr(self, name)) < 1:
-                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)}")
+        check_bounds(self)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ._fields import param
+from ._fields import check_bounds, param
 
 __all__ = ["JOINTS", "ModelParams"]
 
@@ -32,13 +32,16 @@ class ModelParams:
     """
 
     species: str | None = param(None, help="tree species (see 'treesim model list')")
-    seed: int = param(0, help="random seed of the procedural tree, >= 0")
+    seed: int = param(0, help="random seed of the procedural tree", ge=0)
     leaves: bool | None = param(
         None, help="add leaves, or not", none_means="the species' own choice"
     )
-    facets: int = param(32, help="vertices per ring of the wood mesh")
+    facets: int = param(32, help="vertices per ring of the wood mesh", ge=3)
     joints: str = param(
         "miter",
         help="miter: one crack-free tube per branch; separate: a closed prism per cylinder",
         choices=JOINTS,
     )
+
+    def __post_init__(self) -> None:
+        check_bounds(self)

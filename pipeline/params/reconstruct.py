@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 from ..errors import InvalidParameterError
-from ._fields import param
+from ._fields import check_bounds, param
 
 Method = Literal["qsm", "poisson", "bpa"]
 METHODS: tuple[str, ...] = ("qsm", "poisson", "bpa")
 
-__all__ = ["METHODS", "PrepareParams", "QSMParams", "ReconstructParams"]
+__all__ = ["METHODS", "MIN_CLOUD_POINTS", "PrepareParams", "QSMParams", "ReconstructParams"]
+
+#: Fewest points of a cloud that can be measured at all: four can span a volume, three
+#: always lie in a plane. Reconstruction never accepts fewer (``PrepareParams.min_points``
+#: may not be set below it; its default asks 300 of a tree) and neither does comparison
+#: (:func:`pipeline.compare.compare`), for the cloud and for a reference cloud.
+MIN_CLOUD_POINTS = 4
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,56 +52,27 @@ class PrepareParams:
         unit="m",
         none_means="off (exact duplicates still merged)",
         flag="--voxel-m",
+        gt=0,
     )
-    sor_neighbors: int = param(16, help="neighbours per point in statistical outlier removal")
+    sor_neighbors: int = param(16, help="neighbours per point in statistical outlier removal", ge=2)
     sor_std_ratio: float | None = param(
         2.5,
         help="statistical outlier removal threshold, in standard deviations",
         none_means="off",
+        gt=0,
     )
     remove_ground: bool = param(False, help="remove a ground plane under the tree first")
     ground_tolerance_m: float = param(
-        0.05, help="points this close to the ground plane are ground", unit="m"
+        0.05, help="points this close to the ground plane are ground", unit="m", gt=0
     )
     normals_neighbors: int | None = param(
-        24, help="neighbours per point for PCA normals", none_means="no normals"
+        24, help="neighbours per point for PCA normals", none_means="no normals", ge=3
     )
-    min_points: int = param(300, help="fewest points a tree cloud may have")
-    threads: int = param(2, help="threads for the neighbour searches", execution_only=True)
+    min_points: int = param(300, help="fewest points a tree cloud may have", ge=MIN_CLOUD_POINTS)
+    threads: int = param(2, help="threads for the neighbour searches", execution_only=True, ge=1)
 
     def __post_init__(self) -> None:
-        if self.voxel_size_m is not None and not (
-            math.isfinite(self.voxel_size_m) and self.voxel_size_m > 0
-        ):
-            raise InvalidParameterError(
-                f"voxel_size_m must be a positive length in metres or None, got {self.voxel_size_m}"
-            )
-        if int(self.sor_neighbors) != self.sor_neighbors or self.sor_neighbors < 2:
-            raise InvalidParameterError(
-                f"sor_neighbors must be an integer >= 2, got {self.sor_neighbors}"
-            )
-        if self.sor_std_ratio is not None and not (
-            math.isfinite(self.sor_std_ratio) and self.sor_std_ratio > 0
-        ):
-            raise InvalidParameterError(
-                f"sor_std_ratio must be positive or None, got {self.sor_std_ratio}"
-            )
-        if not (math.isfinite(self.ground_tolerance_m) and self.ground_tolerance_m > 0):
-            raise InvalidParameterError(
-                f"ground_tolerance_m must be a positive length, got {self.ground_tolerance_m}"
-            )
-        if self.normals_neighbors is not None and (
-            int(self.normals_neighbors) != self.normals_neighbors or self.normals_neighbors < 3
-        ):
-            raise InvalidParameterError(
-                f"normals_neighbors must be an integer >= 3 or None, got {self.normals_neighbors}"
-            )
-        if int(self.min_points) != self.min_points or self.min_points < 4:
-            raise InvalidParameterError(
-                f"min_points must be an integer >= 4, got {self.min_points}"
-            )
-        if int(self.threads) != self.threads or self.threads < 1:
-            raise InvalidParameterError(f"threads must be a positive integer, got {self.threads}")
+        check_bounds(self)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -140,48 +116,52 @@ class QSMParams:
         help="geodesic slice thickness",
         unit="m",
         none_means="clamp(6 × spacing, 0.02, 0.08) m",
+        gt=0,
     )
-    neighbors: int = param(10, help="neighbours per point in the graph")
+    neighbors: int = param(10, help="neighbours per point in the graph", ge=3, le=64)
     link_m: float | None = param(
         None,
         help="longest graph edge before gap bridging",
         unit="m",
         none_means="max(4 × spacing, 0.02) m",
+        gt=0,
     )
     base_band_m: float | None = param(
         None,
         help="points this close above the lowest point form the base",
         unit="m",
         none_means="slice_m / 2",
+        gt=0,
     )
     min_coverage_deg: float = param(
-        180.0, help="arc a circle fit must cover to count as measured", unit="deg"
+        180.0, help="arc a circle fit must cover to count as measured", unit="deg", gt=0, le=360
     )
     max_rel_residual: float = param(
-        0.12, help="largest RMS residual of a measured fit, relative to its radius"
+        0.12, help="largest RMS residual of a measured fit, relative to its radius", gt=0
     )
     partial_coverage_deg: float = param(
-        120.0, help="smallest arc of a low-residual partial fit (one-sided scans)", unit="deg"
+        120.0,
+        help="smallest arc of a low-residual partial fit (one-sided scans)",
+        unit="deg",
+        gt=0,
+        le=360,
     )
-    partial_rel_residual: float = param(0.06, help="largest relative RMS residual of a partial fit")
-    pipe_exponent: float = param(0.5, help="exponent b of the radius model (0.5: pipe model)")
+    partial_rel_residual: float = param(
+        0.06, help="largest relative RMS residual of a partial fit", gt=0
+    )
+    pipe_exponent: float = param(0.5, help="exponent b of the radius model (0.5: pipe model)", gt=0)
     min_radius_m: float | None = param(
-        None, help="smallest radius that can be measured", unit="m", none_means="1.5 × spacing"
+        None,
+        help="smallest radius that can be measured",
+        unit="m",
+        none_means="1.5 × spacing",
+        gt=0,
     )
-    twig_radius_m: float = param(0.0015, help="radius prior of branch tips (twigs)", unit="m")
-    seed: int = param(0, help="seed of the robust fits")
+    twig_radius_m: float = param(0.0015, help="radius prior of branch tips (twigs)", unit="m", gt=0)
+    seed: int = param(0, help="seed of the robust fits", ge=0)
 
     def __post_init__(self) -> None:
-        for name in ("slice_m", "link_m", "base_band_m", "min_radius_m"):
-            v = getattr(self, name)
-            if v is not None and not (math.isfinite(v) and v > 0):
-                raise InvalidParameterError(f"{name} must be > 0 (or omitted), got {v}")
-        if not 3 <= self.neighbors <= 64:
-            raise InvalidParameterError(f"neighbors must be in [3, 64], got {self.neighbors}")
-        if not 0 < self.min_coverage_deg <= 360:
-            raise InvalidParameterError("min_coverage_deg must be in (0, 360]")
-        if not self.twig_radius_m > 0:
-            raise InvalidParameterError("twig_radius_m must be > 0")
+        check_bounds(self)
 
     def resolved(self, spacing_m: float) -> dict[str, float]:
         """The derived values for a cloud with the given point spacing."""
@@ -223,10 +203,10 @@ class ReconstructParams:
     method: Method = param("qsm", help="reconstruction method", choices=METHODS)
     prepare: PrepareParams = param(help="input preparation", factory=PrepareParams)
     qsm: QSMParams = param(help="cylinder fitting (qsm only)", factory=QSMParams)
-    facets: int = param(32, help="facets per cylinder ring of the QSM mesh")
-    poisson_depth: int = param(8, help="screened Poisson octree depth", flag="--depth")
+    facets: int = param(32, help="facets per cylinder ring of the QSM mesh", ge=3, le=512)
+    poisson_depth: int = param(8, help="screened Poisson octree depth", flag="--depth", ge=4, le=16)
     poisson_trim_quantile: float = param(
-        0.1, help="share of lowest-density Poisson vertices trimmed"
+        0.1, help="share of lowest-density Poisson vertices trimmed", ge=0, lt=1
     )
     bpa_radii_m: tuple[float, ...] | None = param(
         None,
@@ -234,9 +214,10 @@ class ReconstructParams:
         unit="m",
         none_means="from the point spacing",
         flag="--bpa-radius-m",
+        gt=0,
     )
     timeout_s: float = param(
-        600.0, help="stop a pymeshlab step after this long", unit="s", execution_only=True
+        600.0, help="stop a pymeshlab step after this long", unit="s", execution_only=True, gt=0
     )
 
     def __post_init__(self) -> None:
@@ -244,16 +225,7 @@ class ReconstructParams:
             raise InvalidParameterError(
                 f"method must be one of {', '.join(METHODS)}, got {self.method!r}"
             )
-        if int(self.facets) != self.facets or not 3 <= self.facets <= 512:
-            raise InvalidParameterError(f"facets must be an integer in [3, 512], got {self.facets}")
-        if not 4 <= self.poisson_depth <= 16:
-            raise InvalidParameterError(
-                f"poisson_depth must be in [4, 16], got {self.poisson_depth}"
-            )
-        if not 0 <= self.poisson_trim_quantile < 1:
-            raise InvalidParameterError("poisson_trim_quantile must be in [0, 1)")
-        if not self.timeout_s > 0:
-            raise InvalidParameterError("timeout_s must be > 0")
+        check_bounds(self)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
 from ..errors import InvalidParameterError
 from ..jsonio import json_ready
-from ._fields import param, walk
+from ._fields import check_bounds, param, walk
 from .compare import CompareParams, ReportParams
 from .reconstruct import PrepareParams, ReconstructParams
 from .scanner import ScannerSpec, resolution_fields
@@ -62,14 +61,17 @@ class ScanParams:
         Refuse a scan needing more rays than this.
     """
 
-    n_stations: int = param(3, help="stations on the ring", flag="--stations")
+    n_stations: int = param(3, help="stations on the ring", flag="--stations", ge=1, le=64)
     distance_m: float | None = param(
         None,
         help="station distance from the scene's centre",
         unit="m",
         none_means="the station rule",
+        gt=0,
     )
-    min_distance_m: float = param(5.0, help="smallest distance the station rule gives", unit="m")
+    min_distance_m: float = param(
+        5.0, help="smallest distance the station rule gives", unit="m", gt=0
+    )
     height_m: float = param(1.5, help="instrument height above the scene's lowest point", unit="m")
     start_angle_deg: float = param(
         0.0, help="polar angle of the first station, counter-clockwise from +x", unit="deg"
@@ -84,30 +86,17 @@ class ScanParams:
         choices=LODS,
     )
     chunk_rays: int = param(
-        1 << 19, help="rays per batch; bounds memory at ~200 B per ray", execution_only=True
+        1 << 19,
+        help="rays per batch; bounds memory at ~200 B per ray",
+        execution_only=True,
+        ge=1,
     )
     max_rays: int = param(
-        1_000_000_000, help="refuse scans needing more rays than this", execution_only=True
+        1_000_000_000, help="refuse scans needing more rays than this", execution_only=True, ge=1
     )
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_stations, bool) or int(self.n_stations) != self.n_stations:
-            raise InvalidParameterError(f"n_stations must be an integer, got {self.n_stations!r}")
-        if not 1 <= self.n_stations <= 64:
-            raise InvalidParameterError(f"n_stations must be in [1, 64], got {self.n_stations}")
-        if self.distance_m is not None and not (
-            math.isfinite(self.distance_m) and self.distance_m > 0
-        ):
-            raise InvalidParameterError(
-                f"distance_m must be a positive distance in metres, got {self.distance_m}"
-            )
-        if not (math.isfinite(self.min_distance_m) and self.min_distance_m > 0):
-            raise InvalidParameterError(f"min_distance_m must be > 0, got {self.min_distance_m}")
-        for name in ("height_m", "start_angle_deg"):
-            if not math.isfinite(getattr(self, name)):
-                raise InvalidParameterError(f"{name} must be a finite number")
-        if int(self.chunk_rays) < 1 or int(self.max_rays) < 1:
-            raise InvalidParameterError("chunk_rays and max_rays must be >= 1")
+        check_bounds(self)
         if self.lod not in LODS:
             raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {self.lod!r}")
         if not isinstance(self.scanner, ScannerSpec):
@@ -140,7 +129,9 @@ class RunParams:
     scan: ScanParams = param(help="stations and scanner", factory=ScanParams)
     compare: CompareParams = param(help="comparison", factory=CompareParams)
     report: ReportParams = param(help="reports", factory=ReportParams)
-    threads: int = param(0, help="threads for every stage (0: all cores)", execution_only=True)
+    threads: int = param(
+        0, help="threads for every stage (0: all cores)", execution_only=True, ge=0
+    )
     preset: str | None = param(
         None,
         help="the run preset these settings started from",
@@ -149,10 +140,7 @@ class RunParams:
     )
 
     def __post_init__(self) -> None:
-        if isinstance(self.threads, bool) or int(self.threads) != self.threads:
-            raise InvalidParameterError(f"threads must be an integer, got {self.threads!r}")
-        if self.threads < 0:
-            raise InvalidParameterError(f"threads must be >= 0 (0: all cores), got {self.threads}")
+        check_bounds(self)
         for name, cls in (
             ("reconstruct", ReconstructParams),
             ("scan", ScanParams),

@@ -22,7 +22,7 @@ from typing import Any
 from ..errors import InputFormatError, InvalidParameterError
 from ._fields import ParamInfo, describe, field_info, walk
 from .run import DEFAULT_RUN_PRESET, RunParams, ScanParams, run_preset
-from .scanner import INSTRUMENTS, resolution_fields
+from .scanner import INSTRUMENTS, model_fields, resolution_fields
 
 __all__ = [
     "SETTINGS",
@@ -367,13 +367,14 @@ def scan_params(
     scanner replaced by an instrument's figures (with its beam and noise models only when
     asked), both angular steps from ``resolution_deg``, then the nested ``settings``
     (field names of :class:`ScanParams`, ``scanner`` a table) checked by
-    :func:`~pipeline.params.merge`.
+    :func:`~pipeline.params.merge`. Without an instrument, ``beam`` and ``noise`` turn the
+    models on with a generic scanner's figures (:data:`~pipeline.params.GENERIC_TLS`);
+    ``settings`` still override them.
 
     Raises
     ------
     InvalidParameterError
-        Unknown instrument or setting, a value out of range, or ``beam``/``noise`` without
-        an instrument.
+        Unknown instrument or setting, or a value out of range.
     """
     params = base or ScanParams()
     given = dict(settings or {})
@@ -388,8 +389,7 @@ def scan_params(
             )
         params = replace(params, scanner=INSTRUMENTS[instrument].spec(beam=beam, noise=noise))
     elif beam or noise:
-        raise InvalidParameterError(
-            "beam and noise take their figures from an instrument; name the instrument or "
-            "set beam_divergence_mrad / range_noise_sd_m directly"
+        params = replace(
+            params, scanner=params.scanner.with_(**model_fields(beam=beam, noise=noise))
         )
     return merge(params, {**given, "scanner": scanner_given} if scanner_given else given)

@@ -192,7 +192,7 @@ def _cell_boxes(
     # azimuth margin grows as 1/cos(elevation) towards the poles
     el_abs = np.maximum(np.abs(b.el_lo), np.abs(b.el_hi)) + m
     cos_el = np.cos(np.minimum(el_abs, np.pi / 2))
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):  # the masked lanes only
         m_az = np.where(cos_el > 1e-3, (m + 1e-12) / cos_el, np.inf)
     a_lo = np.degrees(b.az_lo - m_az)
     span = np.degrees(b.az_hi - b.az_lo + 2 * m_az)

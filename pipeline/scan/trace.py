@@ -13,6 +13,11 @@ recomputed in float64 as the intersection of the ray with the hit triangle's pla
 Points leave in the input's coordinates as float64. A pulse's float32 ray is gathered
 from per-station tables, so it is the same bits whichever pulses are cast beside it.
 
+Warnings: a scan that runs but may not be what was meant says so in
+``ScanResult.warnings`` (and the summary's ``warnings``): a station on a surface or
+enclosed by a mesh whose normals face it, and triangles lost to precision (zero area in
+float64 as given, or distorted in float32 around the local frame, which Open3D casts in).
+
 Memory: pulses are cast in chunks of at most ``chunk_rays`` rays (about 200 bytes per
 ray in flight), and with a ``sink`` each chunk's points leave as they are made, so peak
 memory does not grow with the resolution or the number of points.
@@ -58,6 +63,16 @@ Sink = Callable[[np.ndarray, dict[str, np.ndarray]], None]
 _EST_RAYS_PER_S = 2.0e6
 #: Bytes per ray in flight (Open3D's ≈57 B plus treesim's float64 bookkeeping).
 BYTES_PER_RAY = 200
+#: Share of a scene's triangles lost to precision (zero area in float64, or distorted in
+#: float32) from which a scan warns: a few degenerate triangles are common and harmless.
+DEGENERATE_WARN_FRACTION = 0.01
+#: A triangle is distorted in float32 when rounding its vertices to float32 moves one by
+#: more than this share of its shortest edge.
+DISTORTED_SHARE = 0.1
+#: Share of the 26 directions around a station that must cross the geometry an odd
+#: number of times for it to count as enclosed (a few rays through shared edges or
+#: vertices can miscount).
+ENCLOSED_FRACTION = 0.9
 
 
 @dataclass
@@ -120,6 +135,8 @@ class ScanResult:
     points_written: int = 0
     lod: dict[str, Any] = field(default_factory=dict)
     models: list[str] = field(default_factory=list)
+    #: one-line sentences: the scan ran, but maybe not as meant (see the module's notes)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def n_points(self) -> int:
@@ -147,6 +164,7 @@ class ScanResult:
             "bvh_build_s": self.bvh_build_s,
             "total_s": self.total_s,
             "models_active": self.models,
+            "warnings": list(self.warnings),
             "frame_origin_m": list(self.frame.origin),
             "scanner": self.spec.to_dict(),
             "stations": [s.to_dict() for s in self.station_stats],
@@ -177,16 +195,18 @@ class _Caster:
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
         self.v0 = v[f[:, 0]]
-        n = np.cross(v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0)
+        e1, e2 = v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0
+        n = np.cross(e1, e2)
         self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
         self.label = scene.face_label if keep is None else scene.face_label[keep]
         self.lo, self.hi = frame.to_local(scene.bounds)
         diag = float(np.linalg.norm(self.hi - self.lo))
         self.pad = 1e-3 + 1e-5 * diag
+        v32 = v.astype(np.float32)
+        self.distorted, self.moved_m = _distorted(v, v32, f, e1, e2)
+        del e1, e2
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
-        self.rc.add_triangles(
-            o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32))
-        )
+        self.rc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f.astype(np.uint32)))
         t0 = time.perf_counter()
         # Open3D builds its BVH lazily on the first query: build it now, timed apart.
         self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
@@ -260,18 +280,47 @@ class _Caster:
         return t_out, prim
 
 
-def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
-    g = np.array(
-        [
-            [x, y, z]
-            for x in (-1, 0, 1)
-            for y in (-1, 0, 1)
-            for z in (-1, 0, 1)
-            if (x, y, z) != (0, 0, 0)
-        ],
-        dtype=np.float64,
+def _distorted(
+    v: np.ndarray, v32: np.ndarray, f: np.ndarray, e1: np.ndarray, e2: np.ndarray
+) -> tuple[int, float]:
+    """How many triangles float32 (what Open3D holds) distorts, moving a vertex by more
+    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``e1``, ``e2``: edges
+    from the first corner), and the largest move of a vertex of those triangles (m)."""
+    moved = np.sqrt(((v32.astype(np.float64) - v) ** 2).sum(axis=1))
+    worst = float(moved.max()) if len(f) else 0.0
+    if worst == 0.0:
+        return 0, 0.0
+    e3 = e2 - e1
+    short2 = np.minimum(
+        np.minimum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2)),
+        np.einsum("ij,ij->i", e3, e3),
     )
-    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    maybe = np.flatnonzero(short2 < (worst / DISTORTED_SHARE) ** 2)  # the others cannot be
+    move = moved[f[maybe]].max(axis=1)
+    far = move**2 > DISTORTED_SHARE**2 * short2[maybe]
+    return int(far.sum()), float(move[far].max()) if far.any() else 0.0
+
+
+#: 26 unit directions: to the faces, edges and corners of a cube around a station.
+_AROUND = np.array(
+    [
+        [x, y, z]
+        for x in (-1, 0, 1)
+        for y in (-1, 0, 1)
+        for z in (-1, 0, 1)
+        if (x, y, z) != (0, 0, 0)
+    ],
+    dtype=np.float64,
+)
+_AROUND /= np.linalg.norm(_AROUND, axis=1, keepdims=True)
+
+
+def _where(k: int, st: Station) -> str:
+    return f"station {k} at {tuple(round(c, 3) for c in st.position_m)}"
+
+
+def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
+    g = _AROUND
     t, prim = caster.cast(o, g)
     hit = prim >= 0
     if hit.sum() < 0.9 * len(g):
@@ -280,10 +329,67 @@ def _check_inside(caster: _Caster, o: np.ndarray, k: int, st: Station) -> None:
     if back.mean() >= 0.9:
         label = LABEL_NAMES[int(np.bincount(caster.label[prim[hit]]).argmax())]
         raise ScanError(
-            f"station {k} at {tuple(round(c, 3) for c in st.position_m)} is inside the "
-            f"{label} geometry (nearest surface {t[hit].min():.3f} m away in every "
-            "direction); move it outside the mesh"
+            f"{_where(k, st)} is inside the {label} geometry (nearest surface "
+            f"{t[hit].min():.3f} m away in every direction); move it outside the mesh"
         )
+
+
+def _station_warnings(caster: _Caster, o: np.ndarray, k: int, st: Station) -> list[str]:
+    """What is wrong with a station that :func:`_check_inside` lets through: it stands
+    on a surface (within a few float32 steps at its position, at least 1 µm), where
+    rays leave from both sides of it; or it is enclosed by geometry whose surfaces face
+    it (inverted normals), by the parity of crossings in 26 directions."""
+    o3c = caster.o3d.core
+    q = o3c.Tensor(o[None, :].astype(np.float32))
+    near = caster.rc.compute_closest_points(q, nthreads=caster.nthreads)
+    d = float(np.linalg.norm(near["points"].numpy()[0].astype(np.float64) - o))
+    tol_m = max(4.0 * float(np.spacing(np.float32(np.abs(o).max()))), 1e-6)
+    label = LABEL_NAMES[int(caster.label[int(near["primitive_ids"].numpy()[0])])]
+    if d <= tol_m:
+        return [
+            f"{_where(k, st)} is on a {label} surface ({d * 1e3:.2g} mm from it, within "
+            f"float32 precision {tol_m * 1e3:.2g} mm): rays that start on a surface see "
+            "both of its sides and may record the inside of the mesh; move the station "
+            "off the surface"
+        ]
+    rays = np.empty((len(_AROUND), 6), dtype=np.float32)
+    rays[:, :3] = o
+    rays[:, 3:] = _AROUND
+    crossings = caster.rc.count_intersections(o3c.Tensor(rays), nthreads=caster.nthreads)
+    odd = int((crossings.numpy() % 2 == 1).sum())
+    if odd >= ENCLOSED_FRACTION * len(_AROUND):
+        return [
+            f"{_where(k, st)} looks enclosed by the {label} geometry: {odd} of "
+            f"{len(_AROUND)} rays from it cross the mesh an odd number of times, though the "
+            "surfaces around it face it (are the mesh's normals inverted?); the scan "
+            "records the inside of the mesh"
+        ]
+    return []
+
+
+def _precision_warnings(scene: Scene, caster: _Caster | None, radius_m: float) -> list[str]:
+    """Triangles lost to precision: zero area in float64 as given (dropped by the
+    scene), or in float32 around the local frame (kept, but rays miss them)."""
+    out = []
+    total = scene.n_triangles + scene.dropped_degenerate
+    if scene.dropped_degenerate >= DEGENERATE_WARN_FRACTION * total:
+        big = float(np.abs(scene.used_vertices).max())
+        out.append(
+            f"{scene.dropped_degenerate:,} of {total:,} triangles "
+            f"({scene.dropped_degenerate / total:.1%}) have no area in float64 and were "
+            f"dropped: coordinates reach {big:.3g} m, where float64 steps are "
+            f"{float(np.spacing(big)):.2g} m; move the mesh near the origin before export"
+        )
+    if caster is not None and caster.distorted >= DEGENERATE_WARN_FRACTION * len(caster.faces):
+        n = len(caster.faces)
+        out.append(
+            f"{caster.distorted:,} of {n:,} triangles ({caster.distorted / n:.1%}) are "
+            f"distorted in float32, the precision rays are cast in (vertices move by up to "
+            f"{caster.moved_m:.2g} m, more than {DISTORTED_SHARE:g} of those triangles' "
+            f"shortest edge): the scene reaches {radius_m:.3g} m from its centre; rays may "
+            "miss or hit the wrong triangles, so scan distant parts of the scene separately"
+        )
+    return out
 
 
 def _float32_error_m(radius_m: float, o: np.ndarray) -> float:
@@ -335,16 +441,29 @@ def _lod_summary(
     window = sum(s.pulses_window for s in stats)
     cast = sum(s.pulses_cast for s in stats)
     out: dict[str, Any] = {"mode": lod}
-    out["rays"] = {
-        "pulses_window": window,
-        "pulses_cast": cast,
-        "why": (
-            f"cast only the cells of each station's window that some triangle can reach: "
-            f"{cast:,} of {window:,} pulses"
-            if culled
-            else "cast the whole window rectangle"
-        ),
-    }
+    why = (
+        f"cast only the cells of each station's window that some triangle can reach: "
+        f"{cast:,} of {window:,} pulses"
+        if culled
+        else "cast the whole window rectangle"
+    )
+    if sum(s.points for s in stats) == 0:  # an empty scan: say why in plain words
+        if geometry["loaded"] == 0:
+            why = "nothing cast: no station can record any triangle (see geometry)"
+        elif window == 0:
+            why = "nothing cast: the scene is outside every station's field of view"
+        elif cast == 0:
+            why = (
+                f"none of the {window:,} pulses of the stations' windows can reach a "
+                f"triangle at {spec.horizontal_resolution_deg:g}°×"
+                f"{spec.vertical_resolution_deg:g}° steps: the scene lies between the "
+                "pulses; use a finer resolution"
+            )
+        else:
+            why += (
+                f"; none recorded an echo between {spec.min_range_m:g} and {spec.max_range_m:g} m"
+            )
+    out["rays"] = {"pulses_window": window, "pulses_cast": cast, "why": why}
     left = geometry["triangles"] - geometry["loaded"]
     out["geometry"] = {
         **geometry,
@@ -585,9 +704,12 @@ def scan(
                 caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
             )
         plans.append((o, st.rotation, grid, win, window_grid.n_pulses, thin))
-    if check_inside and caster is not None:
+    warnings = _precision_warnings(scene, caster, radius)
+    if caster is not None:
         for k, plan in enumerate(plans):
-            _check_inside(caster, plan[0], k, stations[k])
+            if check_inside:
+                _check_inside(caster, plan[0], k, stations[k])
+            warnings += _station_warnings(caster, plan[0], k, stations[k])
     offsets, weights = (
         beam_model.subray_pattern(s, spec.beam_divergence_mrad) if s > 1 else (None, None)
     )
@@ -732,6 +854,7 @@ def scan(
         points_written=n_written,
         lod=_lod_summary(lod, spec, stats, geometry, window and cull, adaptive),
         models=spec.active_models(),
+        warnings=warnings,
     )
 
 

@@ -14,7 +14,7 @@ from plyfile import PlyData
 
 from pipeline.cli import main
 from pipeline.io.mesh import write_mesh
-from tests.conftest import box_arrays, cylinder_arrays
+from tests.conftest import box_arrays, cylinder_arrays, messages
 
 EXTRA_DIMS = {"station", "range_m", "incidence_deg", "label", "scan_line", "scan_column"}
 
@@ -137,7 +137,7 @@ def test_bad_input_gives_one_line_error_and_nonzero_exit(case, tmp_path, cylinde
     res = _run(args)
     assert res.returncode != 0
     assert "Traceback" not in res.stderr
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    lines = messages(res.stderr)
     assert len(lines) == 1 and lines[0].startswith("treesim: error:"), res.stderr
     assert not Path(out).exists()
 

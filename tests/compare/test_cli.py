@@ -16,6 +16,7 @@ from pipeline.cloud import Cloud
 from pipeline.io import read_cloud, write_cloud
 from pipeline.io.mesh import write_mesh
 from tests.compare.shapes import centroids, open_cylinder, sample_faces
+from tests.conftest import messages
 
 REQUIRED_STATS = ("n", "mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")
 
@@ -114,7 +115,8 @@ def test_compare_options_and_cloud_reference(half_cylinder, tmp_path):
         ("empty", "no points"),
         ("nan", "NaN"),
         ("single", "single point"),
-        ("badtol", "tolerance_m"),
+        ("three", "only 3 points"),
+        ("badtol", "--tolerance-m: expected a number > 0"),
     ],
 )
 def test_compare_errors_are_one_line(half_cylinder, tmp_path, capsys, make, words):
@@ -131,10 +133,17 @@ def test_compare_errors_are_one_line(half_cylinder, tmp_path, capsys, make, word
     elif make == "single":
         (tmp_path / "s.xyz").write_text("0 0 0\n")
         args[0] = str(tmp_path / "s.xyz")
+    elif make == "three":
+        (tmp_path / "t.xyz").write_text("0 0 0\n1 0 0\n0 1 0\n")
+        args[0] = str(tmp_path / "t.xyz")
     else:
         args += ["--tolerance-m", "-1"]
-    rc = main(["compare", *args, "-o", str(tmp_path / "o")])
-    err = capsys.readouterr().err.strip()
-    assert rc == 1
+    try:
+        rc = main(["compare", *args, "-o", str(tmp_path / "o")])
+    except SystemExit as exc:  # a usage error
+        rc = exc.code
+    err = "\n".join(messages(capsys.readouterr().err))
+    assert rc == (2 if make == "badtol" else 1)
     assert err.startswith("treesim: error:") and "\n" not in err
     assert words in err
+    assert not (tmp_path / "o").exists()  # nothing written

@@ -13,7 +13,14 @@ import pytest
 
 from pipeline.cloud import LABEL_NAMES, Cloud
 from pipeline.errors import InputFormatError, InvalidGeometryError, InvalidParameterError
-from pipeline.io import CloudWriter, las, open_cloud_writer, read_cloud, write_cloud
+from pipeline.io import (
+    CloudWriter,
+    las,
+    open_cloud_writer,
+    read_cloud,
+    supported_suffixes,
+    write_cloud,
+)
 from pipeline.io.ply import PlyCloudWriter
 
 from .conftest import GEO_ORIGIN
@@ -395,3 +402,21 @@ def test_dropped_writer_leaves_nothing(tmp_path: Path) -> None:
         del out
         gc.collect()
     assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("suffix", sorted(set(supported_suffixes())))
+@pytest.mark.parametrize("with_fields", [False, True])
+def test_every_format_writes_an_empty_cloud(tmp_path: Path, suffix: str, with_fields) -> None:
+    """write_cloud of a cloud with no points writes a valid empty file in every format it
+    writes (no ValueError from an empty array); E57 is read-only and says so."""
+    empty = scan_cloud(0) if with_fields else Cloud(np.empty((0, 3)))
+    path = tmp_path / f"e{suffix}"
+    if suffix == ".e57":
+        with pytest.raises(InputFormatError, match="writing E57 is not supported"):
+            write_cloud(path, empty)
+        return
+    back = read_cloud(write_cloud(path, empty))
+    assert back.points.shape == (0, 3)
+    if with_fields:
+        assert {"station", "range_m"} <= set(back.fields)
+    assert all(len(v) == 0 for v in back.fields.values())

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
+from tests.conftest import messages
 
 REQUIRED = {
     "dbh_m",
@@ -73,7 +74,7 @@ def test_bad_clouds_give_a_clear_one_line_error(tmp_path, case, needle):
     res = _run(["reconstruct", str(path), "-o", str(tmp_path / "out")])
     assert res.returncode == 1
     assert "Traceback" not in res.stderr
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    lines = messages(res.stderr)
     assert len(lines) == 1 and lines[0].startswith("treesim: error:"), res.stderr
     assert needle.lower() in lines[0].lower(), lines[0]
     assert not (tmp_path / "out" / "tree.json").exists()

@@ -224,7 +224,10 @@ def test_progress_bar_plain_and_terminal():
     )
     plain = io.StringIO()
     ProgressBar(plain, tty=False)(p)
-    assert plain.getvalue() == "batch: 2/4 trees · 1 failed; t1 ok in 3.5 s; ~0:14 left\n"
+    assert plain.getvalue() == (
+        "batch: 4 trees, 0 unchanged (not run again), 4 to run\n"  # the first call only
+        "batch: 2/4 trees · 1 failed; t1 ok in 3.5 s; ~0:14 left\n"
+    )
     term = io.StringIO()
     bar = ProgressBar(term, tty=True, width=8)
     bar(p)

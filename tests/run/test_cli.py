@@ -57,9 +57,10 @@ def test_run_with_a_missing_config_and_bad_flags(saplings, tmp_path, capsys):
     rc = main(["run", str(saplings["sapling0"]), "-o", str(tmp_path), "--config", "none.toml"])
     assert rc == 1
     assert "none.toml not found" in one_line_error(capsys)
-    rc = main(["run", str(saplings["sapling0"]), "-o", str(tmp_path), "--stations", "0"])
-    assert rc == 1
-    assert "n_stations" in one_line_error(capsys)
+    with pytest.raises(SystemExit) as exc:  # out of the model's range: a usage error
+        main(["run", str(saplings["sapling0"]), "-o", str(tmp_path), "--stations", "0"])
+    assert exc.value.code == 2
+    assert "--stations: expected a whole number in [1, 64]" in one_line_error(capsys)
     with pytest.raises(SystemExit) as exc:
         main(["run", str(saplings["sapling0"]), "--preset", "ultra"])
     assert exc.value.code == 2

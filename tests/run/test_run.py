@@ -181,9 +181,9 @@ def test_config_overrides_its_preset(tmp_path):
     ("text", "match"),
     [
         ("[scan]\nstations = 3\n", "unknown setting 'stations' in \\[scan\\]"),
-        ("[scan]\nn_stations = 0\n", "n_stations must be in"),
+        ("[scan]\nn_stations = 0\n", "n_stations must be a whole number in \\[1, 64\\]"),
         ("[scan]\nn_stations = 'three'\n", "must be a number"),
-        ("[scan.scanner]\nhorizontal_resolution_deg = -1\n", "must be > 0"),
+        ("[scan.scanner]\nhorizontal_resolution_deg = -1\n", "must be a number in \\(0, 45\\]"),
         ("scan = 3\n", "must be a table"),
         ('preset = "ultra"\n', "unknown preset"),
         ("[scan\n", "not valid TOML"),
