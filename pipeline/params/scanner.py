@@ -339,15 +339,15 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
 #: current terrestrial laser scanner, with the model's own ``subrays`` (7) and
 #: ``range_resolution_m`` (0.3 m).
 #:
-#: - ``beam_divergence_mrad`` 0.3: data sheets give 0.19 (FARO Focus3D X 330), 0.23
-#:   (Leica ScanStation P40), 0.3 (Z+F IMAGER 5016) and 0.35 (RIEGL VZ-400) mrad;
-#: - ``range_noise_sd_m`` 1 mm: phase-shift scanners quote 0.3-0.5 mm at 10 m on bright
-#:   targets (FARO, Leica), pulsed ones 3 mm at 100 m (RIEGL VZ-400), and bark at forest
-#:   ranges (5-30 m, ~45 % reflectance) sits between; 1 mm is the geometric mean of the two
-#:   bundled instruments' figures;
-#: - ``angular_jitter_sd_deg`` 0.001 (3.6"): angular accuracies on data sheets are 8-20"
-#:   (calibration included), measured angular precision 2-4" (Z+F IMAGER 5016A, ISPRS
-#:   Annals XI-1-2026, 363), the bundled instruments' angle resolution 0.0005°.
+#: - ``beam_divergence_mrad`` 0.3: between the bundled instruments' data sheets, 0.19
+#:   (FARO Focus3D X 330) and 0.35 (RIEGL VZ-400) mrad;
+#: - ``range_noise_sd_m`` 1 mm: the geometric mean (0.95 mm) of the bundled instruments'
+#:   figures, 0.3 mm (FARO, phase shift, 10 m) and 3 mm (RIEGL, pulsed, 100 m); bark at
+#:   forest ranges (5-30 m, ~45 % reflectance) sits between the two;
+#: - ``angular_jitter_sd_deg`` 0.001 (3.6"): twice the bundled instruments' 0.0005°, a
+#:   conservative pointing noise.
+#: Only the two bundled instruments' sheets (sources in :data:`INSTRUMENTS`) were read for
+#: these figures.
 GENERIC_TLS: dict[str, float] = {
     "beam_divergence_mrad": 0.3,
     "range_noise_sd_m": 0.001,
