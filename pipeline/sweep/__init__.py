@@ -79,6 +79,23 @@ the repeats, with min, max and standard deviation beside it.
 
 from __future__ import annotations
 
+from .config import Design, SweepConfig, TreeSpec, known_names, load_sweep, parse_sweep
+from .engine import FIGURES, SweepResult, fronts_of, machine, run_sweep, sweep_columns
 from .pareto import dominates, pareto_front
 
-__all__ = ["dominates", "pareto_front"]
+__all__ = [
+    "FIGURES",
+    "Design",
+    "SweepConfig",
+    "SweepResult",
+    "TreeSpec",
+    "dominates",
+    "fronts_of",
+    "known_names",
+    "load_sweep",
+    "machine",
+    "parse_sweep",
+    "pareto_front",
+    "run_sweep",
+    "sweep_columns",
+]
