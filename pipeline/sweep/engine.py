@@ -576,7 +576,8 @@ def run_sweep(
         As for :func:`pipeline.run_batch`. ``inline`` (the default) runs one point at a
         time, the cleanest timings; every point runs in a fresh process of its own anyway.
     fresh : bool
-        Run every point again, ignoring finished ones (after changing treesim's code).
+        Make every tree ready and run every point again, ignoring finished ones (after
+        changing treesim's code).
     progress : callable(BatchProgress), optional
         Called as points finish.
     say : callable(str), optional
@@ -614,7 +615,9 @@ def run_sweep(
         trees = []
         for spec in cfg.trees:
             t0 = time.perf_counter()
-            tree = prepare_tree(spec, cfg.reference, out / "trees", threads=prep_threads)
+            tree = prepare_tree(
+                spec, cfg.reference, out / "trees", threads=prep_threads, fresh=fresh
+            )
             trees.append(tree)
             note(
                 f"tree {spec.id}: {spec.source}; field cloud {tree.field_points:,} points, "

@@ -108,14 +108,20 @@ def _spacing(cloud: Any, threads: int) -> float:
 
 
 def prepare_tree(
-    spec: TreeSpec, reference: ScanParams, trees_dir: Path, *, threads: int = 0
+    spec: TreeSpec,
+    reference: ScanParams,
+    trees_dir: Path,
+    *,
+    threads: int = 0,
+    fresh: bool = False,
 ) -> PreparedTree:
-    """Make a tree ready (or find it ready from an earlier run): see the module doc."""
+    """Make a tree ready (or find it ready from an earlier run, unless ``fresh``): see
+    the module doc."""
     from ..io import read_cloud
 
     key = tree_key(spec, reference)
     folder = trees_dir / spec.id
-    done = _finished(folder, key)
+    done = None if fresh else _finished(folder, key)
     if done is not None:
         return _prepared(spec, key, folder, done)
     tmp = trees_dir / f".{spec.id}-{uuid.uuid4().hex[:8]}"

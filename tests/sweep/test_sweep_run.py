@@ -193,6 +193,17 @@ def test_repeats_retime_finished_points_without_rescoring(two_points):
     assert all(r["reused"] and r["repeats"] == 2 for r in again.rows)
 
 
+def test_fresh_makes_the_trees_and_runs_every_point_again(two_points):
+    cfg, out, first = two_points
+    tree_json = out / "trees" / "sapling" / "tree.json"
+    before = tree_json.stat().st_mtime_ns
+    res = run_sweep(cfg, out, fresh=True)
+    assert [r["reused"] for r in res.rows] == [False, False]
+    assert tree_json.stat().st_mtime_ns != before
+    assert [r["repeats"] for r in res.rows] == [1, 1]  # fresh timings, the old ones gone
+    assert [r["points"] for r in res.rows] == [r["points"] for r in first.rows]
+
+
 def test_a_failed_point_is_recorded_and_tried_again(tmp_path):
     # scan.max_rays = 10 makes the scan refuse: one point fails, the other runs
     cfg = write(tmp_path, TINY + '[grid]\n"scan.max_rays" = [10, 1000000000]\n')
