@@ -104,7 +104,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the same tree, settings and version are not run again.",
         epilog="The CONFIG format: see 'pydoc pipeline.sweep' or the README's 'treesim "
         "sweep' section; 'treesim sweep CONFIG --list' shows the points it expands to.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sp.add_argument("config", metavar="CONFIG", help="the sweep file (TOML)")
     sp.add_argument("-o", "--output", metavar="OUTDIR", help="the sweep's folder")
@@ -117,7 +116,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     sp.add_argument("--list", action="store_true", help="list the points and exit")
     sp.add_argument(
-        "--fresh", action="store_true", help="run every point again (after changing the code)"
+        "--fresh",
+        action="store_true",
+        help="make the trees ready and run every point again (after changing the code)",
     )
     x = sp.add_argument_group("execution")
     x.add_argument(
