@@ -148,6 +148,21 @@ def run_point(task: dict[str, Any]) -> dict[str, Any]:
     return result
 
 
+def _empty_scan_reason(out: Path) -> str | None:
+    """Why the point's scan recorded nothing (its ``scan.json``'s level-of-detail
+    account), when it recorded nothing; else None."""
+    try:
+        scan = json.loads((out / "scan.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if scan.get("points") != 0:
+        return None
+    from ..report.text import lod_reasons
+
+    why = "; ".join(f"{what}: {reason}" for what, reason in lod_reasons(scan.get("lod")))
+    return "the scan recorded no points" + (f" ({why})" if why else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the task in ``argv[0]`` (a JSON file); write ``point.json`` or ``error.json``
     into the task's ``outdir``; exit status 0 or 1."""
@@ -166,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(exc).split()) or type(exc).__name__
         if isinstance(exc, MemoryError):
             text = "out of memory; use coarser settings or fewer workers"
+        empty = _empty_scan_reason(out)
+        if empty:
+            text = f"{empty}; {text}"
         write_json(
             out / "error.json",
             {

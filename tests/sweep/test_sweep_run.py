@@ -221,6 +221,20 @@ def test_a_failed_point_is_recorded_and_tried_again(tmp_path):
     assert again.rows[1]["reused"]
 
 
+def test_a_point_whose_scan_records_nothing_says_why(tmp_path):
+    # every station stands ~5 m from the sapling: a 1 m range records nothing
+    cfg = write(tmp_path, TINY + '[grid]\n"scan.scanner.max_range_m" = [1.0]\n')
+    res = run_sweep(cfg, tmp_path / "out")
+    (row,) = res.rows
+    assert row["status"] == "failed" and row["error_class"] == "EmptyInputError"
+    assert row["error"].startswith("the scan recorded no points (")
+    # the level-of-detail account, as treesim scan words it
+    assert "beyond 1 m from every station" in row["error"] and "\n" not in row["error"]
+    assert row["id"] in res.html.read_text(encoding="utf-8")
+    doc = json.loads(res.json.read_text())
+    assert doc["counts"]["failed"] == 1 and doc["fronts"] == {}
+
+
 # -- up front ---------------------------------------------------------------------------------
 def test_an_unwritable_output_folder_stops_before_anything_runs(tmp_path):
     cfg = write(tmp_path, TINY + "[grid]\nfacets = [8]\n")
