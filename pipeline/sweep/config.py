@@ -25,7 +25,6 @@ check every TOML file and flag gets.
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import itertools
 import json
@@ -116,6 +115,8 @@ def paths_of(name: str, *, where: str = "") -> tuple[tuple[str, ...], ...]:
         if path in RESERVED:
             raise InvalidParameterError(f"{where}{name} cannot be swept: {RESERVED[path]}")
         return (path,)
+    import difflib
+
     close = difflib.get_close_matches(name, known_names(), n=3, cutoff=0.6)
     hint = f" (did you mean {' or '.join(close)}?)" if close else ""
     raise InvalidParameterError(

@@ -15,8 +15,6 @@ import json
 import math
 import os
 import shutil
-import statistics
-import subprocess
 import sys
 import time
 import uuid
@@ -212,6 +210,8 @@ class _PointTask:
 def _child(task: _PointTask, out: Path, *, truth: bool) -> dict[str, Any]:
     """Run the point in a fresh process into ``out``; what it wrote (``point.json`` and
     ``run.json``), or ``{"error_class", "error"}``."""
+    import subprocess
+
     out.mkdir(parents=True, exist_ok=True)
     spec = {
         "name": task.name,
@@ -386,6 +386,8 @@ def _row(
             }
         )
         return row
+    import statistics
+
     res = raw["result"]
     runs = res["runs"]
     totals = [r["timings_s"]["total"] for r in runs]
