@@ -193,6 +193,37 @@ def test_repeats_retime_finished_points_without_rescoring(two_points):
     assert all(r["reused"] and r["repeats"] == 2 for r in again.rows)
 
 
+#: Columns that may differ between runs of the same points (how, when, how long, where).
+VOLATILE = {
+    "reused",
+    "threads",
+    "report",
+    "folder",
+    "peak_rss_mib",
+    "base_rss_mib",
+    "repeats",
+    "repeatable",
+}
+
+
+def figures_of(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in VOLATILE and not k.startswith("time_")}
+
+
+@pytest.mark.parametrize("executor", ["local", "dask"])
+def test_every_executor_gives_the_same_figures(executor, two_points, tmp_path):
+    from pipeline.executors import Executor
+
+    if not Executor(executor).is_available():
+        pytest.skip(f"the {executor} executor is not installed here (pip install 'treesim[dask]')")
+    cfg, _, first = two_points
+    res = run_sweep(cfg, tmp_path / executor, executor=executor, workers=2)
+    assert res.plan.kind.value == executor
+    for r, r1 in zip(res.rows, first.rows, strict=True):
+        assert r["status"] == "ok" and r["threads"] == res.plan.threads
+        assert figures_of(r) == figures_of(r1)
+
+
 def test_fresh_makes_the_trees_and_runs_every_point_again(two_points):
     cfg, out, first = two_points
     tree_json = out / "trees" / "sapling" / "tree.json"
