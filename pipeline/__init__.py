@@ -2,7 +2,8 @@
 
 The facade: read and write clouds (``read_cloud``, ``write_cloud``), ``reconstruct`` a
 tree mesh, ``scan`` it with the virtual scanner, ``compare`` clouds with meshes or clouds,
-``build_report``, and the whole loop for one tree (``run_tree``) or many (``run_batch``).
+``build_report``, and the whole loop for one tree (``run_tree``) or many (``run_batch``),
+or a grid of settings on trees, timed and scored (``run_sweep``).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from .report import build_report
 from .run import RunResult, run_tree
 from .scan import Station, ring_layout, scan
 from .scene import Scene
+from .sweep import SweepResult, run_sweep
 
 __all__ = [
     "LABEL_CODES",
@@ -42,6 +44,7 @@ __all__ = [
     "ScannerSpec",
     "Scene",
     "Station",
+    "SweepResult",
     "TreesimError",
     "__version__",
     "build_report",
@@ -53,6 +56,7 @@ __all__ = [
     "ring_layout",
     "run_batch",
     "run_preset",
+    "run_sweep",
     "run_tree",
     "scan",
     "write_cloud",

@@ -461,7 +461,8 @@ class BatchResult:
 
 
 @contextmanager
-def _lock(outdir: Path) -> Iterator[None]:
+def _lock(outdir: Path, what: str = "batch") -> Iterator[None]:
+    """Hold the output folder's lock file for the block (one batch or sweep at a time)."""
     try:
         import fcntl
     except ImportError:  # not POSIX: no lock
@@ -473,7 +474,7 @@ def _lock(outdir: Path) -> Iterator[None]:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             raise InvalidParameterError(
-                f"another batch is writing into {outdir}; wait for it or choose another -o"
+                f"another {what} is writing into {outdir}; wait for it or choose another -o"
             ) from None
         yield
     finally:
@@ -671,16 +672,19 @@ _ATTEMPTS = 2
 
 
 def _drive(
-    tasks: list[_Task],
+    tasks: list[Any],
     plan: ExecutorPlan,
     rows: dict[str, dict[str, Any]],
     total: int,
     progress: Callable[[BatchProgress], None] | None,
     t_start: float,
+    fn: Callable[[Any], dict[str, Any]] = _run_task,
 ) -> None:
-    """Submit the tasks, at most as many at once as the executor has slots; collect rows.
-    A broken process pool (a worker killed, e.g. by the OOM killer) is replaced and its
-    trees are tried again; a tree in flight at ``_ATTEMPTS`` breaks is failed."""
+    """Submit ``fn(task)`` for each task, at most as many at once as the executor has
+    slots; collect the rows it returns (``rows[task.id]``). A broken process pool (a
+    worker killed, e.g. by the OOM killer) is replaced and its tasks are tried again; a
+    task in flight at ``_ATTEMPTS`` breaks is failed. Tasks need ``id``, ``path`` and
+    ``hash`` (a failure's row); :mod:`pipeline.sweep` drives its points through here too."""
     pending = deque(tasks)
     attempts: dict[str, int] = {}
     t_first = time.perf_counter()
@@ -689,12 +693,12 @@ def _drive(
     while pending:
         broken = False
         with open_executor(plan) as ex:
-            inflight: dict[cf.Future, _Task] = {}
+            inflight: dict[cf.Future, Any] = {}
             while pending or inflight:
                 n_slots = slots(plan, ex)  # a dask cluster may grow or shrink
                 while pending and len(inflight) < n_slots and not broken:
                     task = pending.popleft()
-                    inflight[ex.submit(_run_task, task)] = task
+                    inflight[ex.submit(fn, task)] = task
                 if not inflight:
                     break
                 done, _ = cf.wait(inflight, timeout=0.5, return_when=cf.FIRST_COMPLETED)

@@ -25,7 +25,17 @@ from ..errors import TreesimError
 from ._options import Parser
 
 #: The command modules, in the order ``treesim --help`` lists them.
-COMMANDS = ("scan", "model", "reconstruct", "compare", "report", "run", "batch", "demo")
+COMMANDS = (
+    "scan",
+    "model",
+    "reconstruct",
+    "compare",
+    "report",
+    "run",
+    "batch",
+    "sweep",
+    "demo",
+)
 
 #: Entry point group through which other packages add commands (``register(subparsers)``).
 PLUGIN_GROUP = "treesim.commands"

@@ -95,12 +95,24 @@ class BatchProgressBar:
         Force the terminal (``True``) or plain (``False``) form; default detect.
     width : int
         Characters of the bar.
+    name, noun : str
+        What runs and what it counts (``treesim sweep``: ``"sweep"``, ``"points"``).
     """
 
-    def __init__(self, stream: TextIO | None = None, *, tty: bool | None = None, width: int = 24):
+    def __init__(
+        self,
+        stream: TextIO | None = None,
+        *,
+        tty: bool | None = None,
+        width: int = 24,
+        name: str = "batch",
+        noun: str = "trees",
+    ):
         self.stream = stream or sys.stderr
         self.tty = self.stream.isatty() if tty is None else tty
         self.width = width
+        self.name = name
+        self.noun = noun
         self._last_draw = 0.0
         self._drawn = False
         self._started = False
@@ -115,7 +127,7 @@ class BatchProgressBar:
         left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"
         if p.finished == p.total and p.running == 0:
             left = "done"
-        counts = f"{p.finished}/{p.total} trees · {p.failed} failed"
+        counts = f"{p.finished}/{p.total} {self.noun} · {p.failed} failed"
         if p.reused:
             counts += f" · {p.reused} unchanged"
         if self.tty:
@@ -140,7 +152,7 @@ class BatchProgressBar:
             )
             took = r.get("time_total_s")
             took_s = f" in {took:.1f} s" if isinstance(took, float) and not r.get("reused") else ""
-            self.stream.write(f"batch: {counts}; {r['id']} {what}{took_s}; {left}\n")
+            self.stream.write(f"{self.name}: {counts}; {r['id']} {what}{took_s}; {left}\n")
         self.stream.flush()
 
     def close(self) -> None:

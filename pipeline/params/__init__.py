@@ -116,7 +116,7 @@ __all__ = [
 
 
 def preset_measurements() -> str:
-    """What each run preset costs and how accurate it is, as last measured by
-    ``benchmarks/bench_presets.py --write`` (the file ``pipeline/data/preset_measurements.txt``;
-    printed in ``treesim run --help``)."""
+    """What each run preset costs and how accurate it is, as measured by the committed
+    sweep (``benchmarks/bench_sweep.py``) and written by ``benchmarks/preset_table.py``
+    (the file ``pipeline/data/preset_measurements.txt``; printed in ``treesim run --help``)."""
     return (resources.files("pipeline") / "data" / "preset_measurements.txt").read_text("utf-8")

@@ -226,7 +226,8 @@ def _run_presets() -> dict[str, RunParams]:
 
 
 #: The run presets by name: ``draft`` (a quick look), ``standard`` (the default),
-#: ``fine``. Their measured cost and accuracy: :func:`pipeline.params.preset_measurements`.
+#: ``fine``. Each is a point of the committed sweep ``benchmarks/sweeps/presets.toml``; its
+#: measured cost and accuracy: :func:`pipeline.params.preset_measurements`.
 RUN_PRESETS: dict[str, RunParams] = _run_presets()
 
 

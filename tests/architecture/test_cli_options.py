@@ -17,6 +17,7 @@ CLI = Path(__file__).resolve().parents[2] / "pipeline" / "cli"
 #: Options that share a parameter's name but are not the parameter, and why.
 NOT_PARAMETERS = {
     ("batch", "--threads"): "threads per tree chosen by the executor (cores // workers)",
+    ("sweep", "--threads"): "threads per point chosen by the executor (cores // workers)",
     ("scan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("run", "--preset"): "picks the run preset to start from (RunParams.preset records it)",
     ("batch", "--preset"): "picks the run preset to start from (RunParams.preset records it)",

@@ -1,0 +1,56 @@
+"""The committed sweep (``benchmarks/sweeps/presets``): it is the committed config's, it
+finished, its page shows the fronts, and the preset tables are generated from it."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from benchmarks import preset_table
+from pipeline.sweep import load_sweep
+from pipeline.sweep.engine import point_id
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "benchmarks" / "sweeps" / "presets"
+
+
+@pytest.fixture(scope="module")
+def doc() -> dict:
+    return json.loads((OUT / "sweep.json").read_text(encoding="utf-8"))
+
+
+def test_it_is_the_committed_config_and_every_point_finished(doc):
+    cfg = load_sweep(ROOT / "benchmarks" / "sweeps" / "presets.toml")
+    want = {point_id(t.id, d) for t in cfg.trees for d in cfg.designs}
+    rows = doc["rows"]
+    assert {r["id"] for r in rows} == want
+    assert len(rows) >= 30 and len(doc["parameters"]) >= 3
+    assert all(r["status"] == "ok" for r in rows), [r["id"] for r in rows if r["status"] != "ok"]
+    kinds = [t["kind"] for t in doc["trees"]]
+    assert kinds.count("procedural") >= 2 and "cloud" in kinds
+    assert doc["tolerance"]["tolerance_m"] == cfg.tolerance_m
+    # the designs' settings are the config's (no stale sweep under a changed file)
+    by_key = {d["key"]: d for d in doc["designs"]}
+    assert set(by_key) == {d.key for d in cfg.designs}
+
+
+def test_its_page_shows_the_fronts(doc):
+    page = (OUT / "sweep.html").read_text(encoding="utf-8")
+    assert "Pareto front" in page
+    assert len(re.findall(r'src="data:image/png;base64,', page)) >= 5
+    assert not re.search(r"""(src|href)=["'](https?:|//)""", page)
+    assert all(doc["fronts"][f["key"]] for f in doc["figures"])
+
+
+def test_the_preset_tables_are_generated_from_it(doc):
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert preset_table.replace_between(readme, preset_table.markdown(doc)) == readme, (
+        "README's preset table is not the committed sweep's: run python benchmarks/preset_table.py"
+    )
+    txt = (ROOT / "pipeline" / "data" / "preset_measurements.txt").read_text(encoding="utf-8")
+    assert txt == preset_table.text(doc)
+    for name in ("draft", "standard", "fine"):
+        assert f"| `{name}` |" in readme

@@ -1,0 +1,293 @@
+"""Running sweeps: a 4-point sweep end to end through the command line, finished points
+reused, failed and half-written ones run again, repeats that re-time without re-scoring,
+and the page self-contained."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.errors import InvalidParameterError
+from pipeline.sweep import FIGURES, pareto_front, run_sweep
+
+#: A small tree, coarse everything: the sapling scanned at 0.2° into its field cloud, the
+#: draft preset with the smallest plots.
+TINY = """
+description = "tiny"
+preset = "draft"
+tolerance_m = 0.02
+[base]
+"report.dpi" = 40
+"report.max_plot_points" = 3000
+"report.max_view_points" = 2000
+[reference]
+resolution_deg = 0.2
+[reference.scanner]
+range_noise_sd_m = 0.001
+[[tree]]
+species = "sapling"
+facets = 12
+leaves = false
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "tiny.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text), encoding="utf-8")
+    return p
+
+
+def result_times(out: Path) -> dict[str, int]:
+    return {p.parent.name: p.stat().st_mtime_ns for p in (out / "points").glob("*/result.json")}
+
+
+# -- end to end -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def cli_sweep(tmp_path_factory):
+    """Four points (two angular steps × two facet counts) through ``treesim sweep``."""
+    d = tmp_path_factory.mktemp("sweep")
+    cfg = write(d, TINY + "[grid]\nresolution_deg = [0.2, 0.4]\nfacets = [8, 16]\n")
+    out = d / "out"
+    code = main(["sweep", str(cfg), "-o", str(out)])
+    return code, out, cfg
+
+
+def test_four_points_end_to_end(cli_sweep, capsys):
+    code, out, _ = cli_sweep
+    assert code == 0
+    rows = list(csv.DictReader(open(out / "sweep.csv", encoding="utf-8")))
+    assert len(rows) == 4
+    assert {(r["resolution_deg"], r["facets"]) for r in rows} == {
+        ("0.2", "8"),
+        ("0.2", "16"),
+        ("0.4", "8"),
+        ("0.4", "16"),
+    }
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["counts"] == {"points": 4, "ok": 4, "failed": 0, "not_run": 0, "reused": 0}
+    assert doc["tolerance"]["tolerance_m"] == 0.02
+    for r in doc["rows"]:
+        assert r["status"] == "ok"
+        assert (out / r["folder"] / "result.json").is_file()
+        assert (out / r["folder"] / "vs_truth" / "comparison.json").is_file()
+        # cost
+        stages = sum(
+            r[f"time_{s}_s"]
+            for s in ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
+        )
+        assert 0 < stages <= r["time_total_s"] * (1 + 1e-9)
+        assert r["repeats"] == 1 and r["time_total_sd_s"] is None
+        assert 0 < r["base_rss_mib"] < r["peak_rss_mib"]
+        assert 0 < r["points"] <= r["rays"]
+        # every coverage at the sweep's τ
+        assert r["tolerance_m"] == 0.02
+        for ref in ("vs_truth", "vs_field", "vs_mesh"):
+            assert 0 <= r[f"{ref}_coverage"] <= 1
+            assert r[f"{ref}_accuracy_mean_m"] <= r[f"{ref}_accuracy_p95_m"] or (
+                r[f"{ref}_accuracy_p95_m"] < 1e-9
+            )
+        # errors against the truth
+        assert r["dbh_error_m"] == pytest.approx(r["dbh_m"] - r["truth_dbh_m"])
+        assert r["volume_error_rel"] == pytest.approx(
+            r["volume_total_m3"] / r["truth_volume_total_m3"] - 1
+        )
+    # the coarser scan records fewer points
+    by = {(r["resolution_deg"], r["facets"]): r for r in doc["rows"]}
+    assert by[(0.4, 8)]["points"] < by[(0.2, 8)]["points"]
+
+
+def test_the_fronts_are_the_pareto_fronts_of_the_rows(cli_sweep):
+    _, out, _ = cli_sweep
+    doc = json.loads((out / "sweep.json").read_text())
+    rows = doc["rows"]
+    assert {f["key"] for f in FIGURES} == set(doc["fronts"])  # a truth: every figure
+    for fig in FIGURES:
+        vals = [abs(r[fig["key"]]) if fig["absolute"] else r[fig["key"]] for r in rows]
+        idx = pareto_front(
+            [r["time_total_s"] for r in rows], vals, higher_is_better=fig["better"] == "higher"
+        )
+        assert doc["fronts"][fig["key"]]["sapling"] == [rows[i]["id"] for i in idx]
+    # the fastest point is on every front it has a figure for... unless it ties in time
+    fastest = min(rows, key=lambda r: r["time_total_s"])
+    assert fastest["on_fronts"] == len(FIGURES)
+
+
+def test_the_page_is_self_contained_and_shows_the_fronts(cli_sweep):
+    _, out, _ = cli_sweep
+    page = (out / "sweep.html").read_text(encoding="utf-8")
+    assert "Pareto front" in page
+    # nothing loaded from elsewhere: images inline, links only to the sweep's own files
+    assert not re.search(r"""(src|href)=["'](https?:|//)""", page)
+    srcs = re.findall(r'src="([^"]*)"', page)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "<script" not in page
+    # a front plot per figure row and a small multiple per parameter
+    alts = re.findall(r'alt="([^"]*)"', page)
+    assert "resolution_deg" in alts and "facets" in alts
+    assert any("accuracy p95" in a for a in alts)
+    doc = json.loads((out / "sweep.json").read_text())
+    for r in doc["rows"]:
+        assert r["id"] in page
+    assert "--repeat 3" in page  # one timing per point: the page says how to measure noise
+
+
+def test_a_second_run_reuses_every_point(cli_sweep, capsys):
+    code, out, cfg = cli_sweep
+    before = result_times(out)
+    assert len(before) == 4
+    capsys.readouterr()
+    assert main(["sweep", str(cfg), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "0 run, 4 unchanged" in printed
+    assert result_times(out) == before
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["counts"]["reused"] == 4
+
+
+# -- resumable --------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def two_points(tmp_path_factory):
+    d = tmp_path_factory.mktemp("resume")
+    cfg = write(d, TINY + "[grid]\nfacets = [8, 12]\n")
+    out = d / "out"
+    res = run_sweep(cfg, out)
+    assert [r["status"] for r in res.rows] == ["ok", "ok"]
+    return cfg, out, res
+
+
+def test_a_half_written_point_is_run_again_and_only_it(two_points):
+    cfg, out, first = two_points
+    a, b = (r["id"] for r in first.rows)
+    before = result_times(out)
+    (out / "points" / a / "result.json").unlink()  # as if killed before it was written
+    (out / ".tmp" / "stale-123").mkdir(parents=True)  # a dead run's scratch
+    res = run_sweep(cfg, out)
+    rows = {r["id"]: r for r in res.rows}
+    assert rows[a]["reused"] is False and rows[b]["reused"] is True
+    assert result_times(out)[b] == before[b]
+    assert not (out / ".tmp").exists()
+    # the same settings give the same figures
+    for k in ("points", "rays", "vs_truth_accuracy_p95_m", "dbh_m", "volume_total_m3"):
+        assert rows[a][k] == first.rows[0][k]
+
+
+def test_repeats_retime_finished_points_without_rescoring(two_points):
+    cfg, out, first = two_points
+    res = run_sweep(cfg, out, repeat=2)
+    for r, r1 in zip(res.rows, first.rows, strict=True):
+        assert r["repeats"] == 2
+        assert r["time_total_min_s"] <= r["time_total_s"] <= r["time_total_max_s"]
+        assert r["time_total_sd_s"] is not None
+        assert r["repeatable"] is True  # a repeat gives the same figures
+        assert r["vs_truth_coverage"] == r1["vs_truth_coverage"]
+    page = res.html.read_text(encoding="utf-8")
+    assert "timed 2 times each" in page and "timing noise per point" in page
+    # asking for fewer timings reuses all of them
+    again = run_sweep(cfg, out, repeat=1)
+    assert all(r["reused"] and r["repeats"] == 2 for r in again.rows)
+
+
+#: Columns that may differ between runs of the same points (how, when, how long, where).
+VOLATILE = {
+    "reused",
+    "threads",
+    "report",
+    "folder",
+    "peak_rss_mib",
+    "base_rss_mib",
+    "repeats",
+    "repeatable",
+}
+
+
+def figures_of(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in VOLATILE and not k.startswith("time_")}
+
+
+@pytest.mark.parametrize("executor", ["local", "dask"])
+def test_every_executor_gives_the_same_figures(executor, two_points, tmp_path):
+    from pipeline.executors import Executor
+
+    if not Executor(executor).is_available():
+        pytest.skip(f"the {executor} executor is not installed here (pip install 'treesim[dask]')")
+    cfg, _, first = two_points
+    res = run_sweep(cfg, tmp_path / executor, executor=executor, workers=2)
+    assert res.plan.kind.value == executor
+    for r, r1 in zip(res.rows, first.rows, strict=True):
+        assert r["status"] == "ok" and r["threads"] == res.plan.threads
+        assert figures_of(r) == figures_of(r1)
+
+
+def test_fresh_makes_the_trees_and_runs_every_point_again(two_points):
+    cfg, out, first = two_points
+    tree_json = out / "trees" / "sapling" / "tree.json"
+    before = tree_json.stat().st_mtime_ns
+    res = run_sweep(cfg, out, fresh=True)
+    assert [r["reused"] for r in res.rows] == [False, False]
+    assert tree_json.stat().st_mtime_ns != before
+    assert [r["repeats"] for r in res.rows] == [1, 1]  # fresh timings, the old ones gone
+    assert [r["points"] for r in res.rows] == [r["points"] for r in first.rows]
+
+
+def test_a_failed_point_is_recorded_and_tried_again(tmp_path):
+    # scan.max_rays = 10 makes the scan refuse: one point fails, the other runs
+    cfg = write(tmp_path, TINY + '[grid]\n"scan.max_rays" = [10, 1000000000]\n')
+    out = tmp_path / "out"
+    res = run_sweep(cfg, out)
+    bad, good = res.rows
+    assert bad["status"] == "failed" and good["status"] == "ok"
+    assert bad["error_class"] == "ResourceLimitError" and "max_rays" in bad["error"]
+    assert "\n" not in bad["error"]
+    err = json.loads((out / bad["folder"] / "error.json").read_text())
+    assert err["error_class"] == "ResourceLimitError" and "Traceback" in err["traceback"]
+    assert bad["id"] in (out / "sweep.html").read_text(encoding="utf-8")
+    again = run_sweep(cfg, out)
+    assert again.rows[0]["status"] == "failed" and not again.rows[0]["reused"]
+    assert again.rows[1]["reused"]
+
+
+def test_a_point_whose_scan_records_nothing_says_why(tmp_path):
+    # every station stands ~5 m from the sapling: a 1 m range records nothing
+    cfg = write(tmp_path, TINY + '[grid]\n"scan.scanner.max_range_m" = [1.0]\n')
+    res = run_sweep(cfg, tmp_path / "out")
+    (row,) = res.rows
+    assert row["status"] == "failed" and row["error_class"] == "EmptyInputError"
+    assert row["error"].startswith("the scan recorded no points (")
+    # the level-of-detail account, as treesim scan words it
+    assert "beyond 1 m from every station" in row["error"] and "\n" not in row["error"]
+    assert row["id"] in res.html.read_text(encoding="utf-8")
+    doc = json.loads(res.json.read_text())
+    assert doc["counts"]["failed"] == 1 and doc["fronts"] == {}
+
+
+# -- up front ---------------------------------------------------------------------------------
+def test_an_unwritable_output_folder_stops_before_anything_runs(tmp_path):
+    cfg = write(tmp_path, TINY + "[grid]\nfacets = [8]\n")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    with pytest.raises(InvalidParameterError, match="cannot write into the output folder"):
+        run_sweep(cfg, blocker / "out")
+    assert not (tmp_path / "trees").exists()
+
+
+def test_the_cli_says_a_bad_name_in_one_line(tmp_path, capsys):
+    cfg = write(tmp_path, TINY + "[grid]\nresolutoin_deg = [0.2]\n")
+    assert main(["sweep", str(cfg), "-o", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "unknown parameter 'resolutoin_deg' (did you mean resolution_deg?)" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_list_shows_the_points_without_running(tmp_path, capsys):
+    cfg = write(tmp_path, TINY + '[grid]\nfacets = [8, 16]\n[[point]]\npreset = "standard"\n')
+    assert main(["sweep", str(cfg), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "1 trees × 3 designs = 3 points" in out
+    assert "[standard]" in out
