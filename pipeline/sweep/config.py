@@ -254,10 +254,6 @@ def _tree(raw: Any, i: int, base_dir: Path, where: str) -> TreeSpec:
             {k: raw[k] for k in ("species", *TREE_MODEL_KEYS) if k in raw},
             w,
         )
-        if model.facets < 3:
-            raise InvalidParameterError(f"{w}facets must be >= 3, got {model.facets}")
-        if model.seed < 0:
-            raise InvalidParameterError(f"{w}seed must be >= 0, got {model.seed}")
         return TreeSpec(
             id=tid or species,
             kind="procedural",
