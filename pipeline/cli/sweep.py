@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ._outputs import output_folder
+
 if TYPE_CHECKING:
     from ..sweep import SweepConfig
 
@@ -40,6 +42,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.list and not args.output:
         args._parser.error("the following arguments are required: -o/--output")
+    if args.output:
+        output_folder(args.output)
     cfg = load_sweep(args.config)
     if args.list:
         return _list(cfg)

@@ -247,6 +247,7 @@ def no_work(monkeypatch):
         (["model", "from-qsm", "{table}", "-o", "{file}/t.ply"], "afile is a file"),
         (["model", "from-qsm", "{table}", "-o", "{file}.ply"], "it is an input"),
         (["demo", "-o", "{file}"], "it is a file, not a folder"),
+        (["sweep", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
     ],
 )
 def test_an_output_that_cannot_be_written_is_refused_before_any_work(
