@@ -1,0 +1,103 @@
+"""Faceted shapes with answers derivable in float64, for the extremes tests.
+
+* :func:`sheet`: a crumpled sheet, a height field over a regular grid whose every shared
+  edge bends (seeded random heights), and :func:`sheet_offset_m`, how far a point lies
+  from it along its normal axis (an upper bound of its distance to the sheet);
+* :func:`prism`: a closed regular prism (a low-facet cylinder), and
+  :func:`prism_distance_m`, the exact distance of points to its surface.
+
+Both oracles are written from the construction, not with the library's geometry kernels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rotation_z(deg: float) -> np.ndarray:
+    """(3, 3) rotation about the vertical axis by ``deg``."""
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_x(deg: float) -> np.ndarray:
+    """(3, 3) rotation about the x axis by ``deg``."""
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def sheet(
+    n: int, size_m: float, amp_m: float, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A sheet facing +x: vertex ``(i, j)`` at ``(h[i, j], y_i, z_j)``, ``y_i`` and ``z_j``
+    on an ``n`` × ``n`` cell grid of side ``size_m`` centred on the origin, heights
+    ``h`` ~ N(0, ``amp_m``). Each cell is split along its ``(i, j)``-``(i+1, j+1)``
+    diagonal. Returns (vertices, faces, h)."""
+    rng = np.random.default_rng(seed)
+    g = np.linspace(-size_m / 2, size_m / 2, n + 1)
+    y, z = np.meshgrid(g, g, indexing="ij")
+    h = amp_m * rng.standard_normal(y.shape)
+    v = np.stack([h.ravel(), y.ravel(), z.ravel()], axis=1)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return v, faces, h
+
+
+def sheet_offset_m(p: np.ndarray, n: int, size_m: float, h: np.ndarray) -> np.ndarray:
+    """|x - h(y, z)| of points ``p`` (sheet coordinates) over the sheet's grid: the
+    offset along x from the piecewise-linear height at (y, z), an upper bound of the
+    distance to the sheet (inf outside the grid)."""
+    step = size_m / n
+    fi = (p[:, 1] + size_m / 2) / step
+    fj = (p[:, 2] + size_m / 2) / step
+    i = np.clip(np.floor(fi).astype(int), 0, n - 1)
+    j = np.clip(np.floor(fj).astype(int), 0, n - 1)
+    s, t = fi - i, fj - j
+    ha, hb, hc, hd = h[i, j], h[i + 1, j], h[i + 1, j + 1], h[i, j + 1]
+    # triangle (a, b, c) where s >= t, (a, c, d) where t >= s: both agree on the diagonal
+    x = np.where(s >= t, ha + s * (hb - ha) + t * (hc - hb), ha + t * (hd - ha) + s * (hc - hd))
+    inside = (s >= -1e-9) & (s <= 1 + 1e-9) & (t >= -1e-9) & (t <= 1 + 1e-9)
+    return np.where(inside, np.abs(p[:, 0] - x), np.inf)
+
+
+def prism(facets: int, radius_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A closed regular prism standing on z = 0: corner ``k`` of a ring at angle
+    ``2πk / facets`` and radius ``radius_m``; each side a rectangle of two triangles,
+    the caps fans around their centres; outward triangles."""
+    ang = 2 * np.pi * np.arange(facets) / facets
+    ring = np.stack([radius_m * np.cos(ang), radius_m * np.sin(ang)], axis=1)
+    lo = np.column_stack([ring, np.zeros(facets)])
+    hi = np.column_stack([ring, np.full(facets, height_m)])
+    v = np.vstack([lo, hi, [[0.0, 0.0, 0.0], [0.0, 0.0, height_m]]])
+    k = np.arange(facets)
+    k1 = (k + 1) % facets
+    side = np.concatenate(
+        [np.stack([k, k1, facets + k1], 1), np.stack([k, facets + k1, facets + k], 1)]
+    )
+    bottom = np.stack([np.full(facets, 2 * facets), k1, k], 1)
+    top = np.stack([np.full(facets, 2 * facets + 1), facets + k, facets + k1], 1)
+    return v, np.concatenate([side, bottom, top]).astype(np.int64)
+
+
+def prism_distance_m(p: np.ndarray, v: np.ndarray, facets: int, height_m: float) -> np.ndarray:
+    """Exact distance (m) of points ``p`` (prism coordinates) to the prism's surface: its
+    side walls (each a vertical rectangle: a segment between two ring corners times
+    [0, ``height_m``]) and its caps (the ring polygon at z = 0 and z = ``height_m``,
+    whose borders the walls already hold)."""
+    best = np.full(len(p), np.inf)
+    inside = np.ones(len(p), dtype=bool)
+    for k in range(facets):
+        a, b = v[k, :2], v[(k + 1) % facets, :2]
+        e = b - a
+        s = np.clip((p[:, :2] - a) @ e / (e @ e), 0.0, 1.0)
+        dxy = p[:, :2] - (a + s[:, None] * e)
+        dz = p[:, 2] - np.clip(p[:, 2], 0.0, height_m)
+        best = np.minimum(best, np.sqrt(np.einsum("ij,ij->i", dxy, dxy) + dz * dz))
+        rel = p[:, :2] - a
+        inside &= e[0] * rel[:, 1] - e[1] * rel[:, 0] >= 0.0  # left of every edge (CCW)
+    cap = np.minimum(np.abs(p[:, 2]), np.abs(p[:, 2] - height_m))
+    return np.where(inside, np.minimum(best, cap), best)
