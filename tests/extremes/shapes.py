@@ -101,3 +101,66 @@ def prism_distance_m(p: np.ndarray, v: np.ndarray, facets: int, height_m: float)
         inside &= e[0] * rel[:, 1] - e[1] * rel[:, 0] >= 0.0  # left of every edge (CCW)
     cap = np.minimum(np.abs(p[:, 2]), np.abs(p[:, 2] - height_m))
     return np.where(inside, np.minimum(best, cap), best)
+
+
+def prism_pulses(
+    spec,
+    station: np.ndarray,
+    corners_xy: np.ndarray,
+    height_m: float,
+    eps_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The grid pulses of a level station (heading 0) that hit a vertical convex prism's
+    side walls: ``corners_xy`` (k, 2) counter-clockwise, walls from z = 0 to
+    ``height_m``; the station's height within (0, ``height_m``), so no cap is visible.
+
+    Computed in float64 from the grid angles (``h0 + column × hres``, ``v0 + line ×
+    vres``): a pulse hits where its azimuth lies between the outermost corners' and its
+    ray, at the wall it enters, lies between the wall's foot and top. Returns the keys
+    (``line × n_azimuth + column``) of the pulses that hit with a margin of ``eps_m`` to
+    spare (sure) and of those within ``eps_m`` of hitting (possible)."""
+    rel = corners_xy - station[:2]
+    centre = np.arctan2(rel[:, 1].mean(), rel[:, 0].mean())
+    ang = np.arctan2(rel[:, 1], rel[:, 0]) - centre
+    ang = (ang + np.pi) % (2 * np.pi) - np.pi
+    reach = np.hypot(rel[:, 0], rel[:, 1])
+    hres, vres = spec.horizontal_resolution_deg, spec.vertical_resolution_deg
+    h0, v0 = spec.horizontal_fov_deg[0], spec.vertical_fov_deg[0]
+    lo = np.degrees(centre + ang.min()) - h0
+    hi = np.degrees(centre + ang.max()) - h0
+    cols = np.arange(int(np.floor(lo / hres)) - 2, int(np.ceil(hi / hres)) + 3)
+    cols = cols % spec.n_azimuth  # (n_azimuth x hres need not be 360 degrees exactly)
+    alpha = np.radians(h0 + cols * hres)  # the scanner's column azimuths (float64)
+    rel_a = (alpha - centre + np.pi) % (2 * np.pi) - np.pi
+    # lateral margin: how far the ray passes inside (> 0) or outside the outermost corners
+    lat = np.minimum(
+        (rel_a - ang.min()) * reach[ang.argmin()], (ang.max() - rel_a) * reach[ang.argmax()]
+    )
+    # horizontal distance to the wall the ray enters (Cyrus-Beck on the convex polygon)
+    u = np.stack([np.cos(alpha), np.sin(alpha)], axis=1)
+    s_in = np.zeros(len(cols))
+    for k in range(len(corners_xy)):
+        e = corners_xy[(k + 1) % len(corners_xy)] - corners_xy[k]
+        n = np.array([e[1], -e[0]])  # outward
+        nu = u @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = -((station[:2] - corners_xy[k]) @ n) / nu
+        s_in = np.where(nu < 0, np.maximum(s_in, s), s_in)
+    z0 = station[2]
+    el_lo = np.degrees(np.arctan2(-z0, s_in))
+    el_hi = np.degrees(np.arctan2(height_m - z0, s_in))
+    first = np.floor((el_lo - v0) / vres).astype(int) - 2
+    last = np.ceil((el_hi - v0) / vres).astype(int) + 2
+    n_lines = last - first + 1
+    col = np.repeat(cols, n_lines)
+    line = np.repeat(first, n_lines) + (
+        np.arange(n_lines.sum()) - np.repeat(np.cumsum(n_lines) - n_lines, n_lines)
+    )
+    el = np.radians(v0 + line * vres)
+    s_c = np.repeat(s_in, n_lines)
+    z = z0 + s_c * np.tan(el)
+    vert = np.minimum(z, height_m - z) * np.cos(el)
+    margin = np.minimum(np.repeat(lat, n_lines), vert)
+    keep = (line >= 0) & (line < spec.n_elevation)
+    key = line * spec.n_azimuth + col
+    return np.unique(key[keep & (margin > eps_m)]), np.unique(key[keep & (margin > -eps_m)])
