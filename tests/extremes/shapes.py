@@ -164,3 +164,87 @@ def prism_pulses(
     keep = (line >= 0) & (line < spec.n_elevation)
     key = line * spec.n_azimuth + col
     return np.unique(key[keep & (margin > eps_m)]), np.unique(key[keep & (margin > -eps_m)])
+
+
+def float32_ray_error_m(station_m: float, reach_m: float, scene_m: float) -> float:
+    """How far a float32 ray can pass from its float64 grid ray, and float32 vertices
+    lie from theirs: 16 float32 ulps (2**-24 each) of the station's distance from the
+    scanner's local frame's origin, of the distance travelled and of the scene's size
+    (origin, direction and vertex rounding, and Embree's own arithmetic on them)."""
+    return 16 * 2.0**-24 * (station_m + reach_m + scene_m)
+
+
+def rectangle(
+    centre: np.ndarray, rot: np.ndarray, half: tuple[float, float], cells: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """A flat rectangle ``centre + u e1 + v e2`` (``e1``, ``e2`` the first two columns of
+    ``rot``; |u| <= half[0], |v| <= half[1]) triangulated on a ``cells`` grid (coplanar
+    triangles, many shared edges). Returns (vertices, faces)."""
+    u = np.linspace(-half[0], half[0], cells[0] + 1)
+    v = np.linspace(-half[1], half[1], cells[1] + 1)
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    verts = centre + uu.reshape(-1, 1) * rot[:, 0] + vv.reshape(-1, 1) * rot[:, 1]
+    idx = np.arange(uu.size).reshape(uu.shape)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return verts, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def rectangle_pulses(
+    spec,
+    station: np.ndarray,
+    centre: np.ndarray,
+    rot: np.ndarray,
+    half: tuple[float, float],
+    eps_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid pulses of a level station (heading 0) that hit the rectangle of
+    :func:`rectangle`, in float64: each pulse's ray meets the rectangle's plane at a
+    point whose signed in-plane distance Δ to the rectangle's border (> 0 inside) is
+    exact, and every point of the border lies at least |Δ| · cos(incidence) from the
+    ray (an in-plane vector makes an angle of at least 90° - incidence with the ray).
+    Returns the keys (``line × n_azimuth + column``) of the pulses that surely hit
+    (margin > ``eps_m``), of those that may (margin > -``eps_m``), and the incidence
+    (deg) of the sure ones."""
+    n = rot[:, 2]
+    # the angular box of the border, sampled densely (edges bow in azimuth/elevation)
+    s = np.linspace(-1.0, 1.0, 2001)
+    border = np.concatenate(
+        [
+            centre + half[0] * np.outer(s, rot[:, 0]) + sgn * half[1] * rot[:, 1]
+            for sgn in (-1.0, 1.0)
+        ]
+        + [
+            centre + sgn * half[0] * rot[:, 0] + half[1] * np.outer(s, rot[:, 1])
+            for sgn in (-1.0, 1.0)
+        ]
+    )
+    rel = border - station
+    az0 = np.arctan2(rel[:, 1].mean(), rel[:, 0].mean())
+    az = (np.arctan2(rel[:, 1], rel[:, 0]) - az0 + np.pi) % (2 * np.pi) - np.pi
+    el = np.degrees(np.arctan2(rel[:, 2], np.hypot(rel[:, 0], rel[:, 1])))
+    hres, vres = spec.horizontal_resolution_deg, spec.vertical_resolution_deg
+    h0, v0 = spec.horizontal_fov_deg[0], spec.vertical_fov_deg[0]
+    c_lo = int(np.floor((np.degrees(az0 + az.min()) - h0) / hres)) - 3
+    c_hi = int(np.ceil((np.degrees(az0 + az.max()) - h0) / hres)) + 3
+    l_lo = max(0, int(np.floor((el.min() - v0) / vres)) - 3)
+    l_hi = min(spec.n_elevation - 1, int(np.ceil((el.max() - v0) / vres)) + 3)
+    cols = np.arange(c_lo, c_hi + 1) % spec.n_azimuth
+    lines = np.arange(l_lo, l_hi + 1)
+    col, line = (a.ravel() for a in np.meshgrid(cols, lines, indexing="ij"))
+    alpha = np.radians(h0 + col * hres)
+    elev = np.radians(v0 + line * vres)
+    d = np.stack([np.cos(elev) * np.cos(alpha), np.cos(elev) * np.sin(alpha), np.sin(elev)], 1)
+    dn = d @ n
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t = ((centre - station) @ n) / dn
+        p = station + t[:, None] * d - centre
+        u, v = p @ rot[:, 0], p @ rot[:, 1]
+        delta = np.minimum(half[0] - np.abs(u), half[1] - np.abs(v))
+        ok = (t > spec.min_range_m) & (t < spec.max_range_m)
+        margin = np.where(ok, delta * np.abs(dn), -np.inf)
+    margin = np.nan_to_num(margin, nan=-np.inf)
+    key = line * spec.n_azimuth + col
+    sure = margin > eps_m
+    inc = np.degrees(np.arccos(np.clip(np.abs(dn[sure]), 0.0, 1.0)))
+    return key[sure], key[margin > -eps_m], inc
