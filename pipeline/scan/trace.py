@@ -257,15 +257,15 @@ class _Caster:
     #: times at most; after that they are dropped (a float64 miss).
     RECASTS = 2
 
-    def ray_error_m(self, o: np.ndarray, t0: float, t: np.ndarray) -> np.ndarray:
-        """Bound (m) of how far Open3D's float32 hit lies from the float64 hit at range
-        ``t`` of a ray from station ``o`` (local frame) whose float32 origin was moved
-        ``t0`` along it, as seen from the hit triangle's edges once multiplied by the
-        cosine of incidence: ``F32_ULPS`` float32 ulps of the origin's coordinates (the
-        station, or a point on the scene's bounds), of the distance travelled from
-        there and of the scene's radius (the vertices' coordinates)."""
-        start = self.radius + self.pad if t0 > 0 else float(np.linalg.norm(o))
-        return self.F32_ULPS * 2.0**-23 * (start + np.abs(t - t0) + self.radius)
+    def ray_error_m(self, o: np.ndarray, moved: bool, travelled: Any) -> Any:
+        """Bound (m) of how far Open3D's float32 hit lies from the float64 hit of a ray
+        from station ``o`` (local frame) that travelled ``travelled`` (m) from its float32
+        origin (the station, or, ``moved``, a point on or in the scene's bounds), as seen
+        from the hit triangle's edges once multiplied by the cosine of incidence:
+        ``F32_ULPS`` float32 ulps of the origin's coordinates, of the distance travelled
+        and of the scene's radius (the vertices' coordinates)."""
+        start = self.radius + self.pad if moved else float(np.linalg.norm(o))
+        return self.F32_ULPS * 2.0**-23 * (start + np.abs(travelled) + self.radius)
 
     def edge_tol_m(self, o: np.ndarray) -> float:
         """How far (m) a float64 hit may lie outside its triangle's edges and count as
@@ -348,26 +348,28 @@ class _Caster:
         t_coarse: np.ndarray,
         pid: np.ndarray,
         uv: np.ndarray,
-        t0: float,
+        t_from: float | np.ndarray,
         depth: int = 0,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Float64 hits: (range, triangle) of each ray (``o`` + t ``d``, float64) that
         float32 found hitting triangle ``pid`` at about ``t_coarse`` (barycentric
-        ``uv``, from a ray whose origin was moved ``t0`` along it).
+        ``uv``), cast from its point at ``t_from`` (0: the station; more where the
+        origin was moved forward).
 
         The range is the float64 intersection with the plane of the hit triangle. Near
         an edge float32 can have picked a neighbour of the triangle the float64 ray
         meets; that plane's intersection would then lie just outside the picked
-        triangle (up to ~1e-7 m at 1 km from a faceted surface). So where the float32
-        hit was within :meth:`ray_error_m` of an edge (or the two ranges disagree, or
-        the ray grazes the plane), the float64 hit is tested against the triangle's
-        edges, and where it lies outside them by more than :meth:`edge_tol_m`, the
-        triangles around the picked one's corners are tested in float64 and the nearest
-        one the ray meets is taken. Where the float64 ray meets none of them (it passes
-        a silhouette or a border within float32's error), it is cast again from just
-        behind the float32 hit (``RECASTS`` times at most) and otherwise counted as a
-        miss: every hit returned lies on a triangle within :meth:`edge_tol_m` (over
-        the cosine of its incidence where a ray crosses an edge).
+        triangle (up to 0.14 mm at 2 km before this test). So where the float32 hit was
+        within :meth:`ray_error_m` of an edge (or the ray grazes the plane), the float64
+        hit is tested against the triangle's edges, and where it lies outside them by
+        more than :meth:`edge_tol_m`, the triangles around the picked one's corners are
+        tested in float64 and the nearest one the ray meets is taken. Where the float64
+        ray meets none of them (it passes a silhouette or a border within float32's
+        error), and where the hit lies at the ray's origin (a station standing on a
+        surface: the ray leaves it), the ray is cast again from just behind the float32
+        hit (``RECASTS`` times at most) and otherwise counted as a miss: every hit
+        returned lies on a triangle within :meth:`edge_tol_m` (over the cosine of its
+        incidence where a ray crosses an edge).
 
         Returns
         -------
@@ -381,6 +383,8 @@ class _Caster:
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.einsum("ij,ij->i", self.v0[pid] - o, nrm) / cos
         np.abs(cos, out=cos)
+        moved = bool(np.any(np.asarray(t_from) > 0))
+        travelled = t_coarse - t_from
         # the float32 hit lies at least w * h_min from every edge (w: its smallest
         # barycentric coordinate); the float64 hit lies within ray_error_m / cos of it,
         # as seen from the edges. Tested in float32 (it only sorts out the sure ones).
@@ -388,26 +392,28 @@ class _Caster:
         w = np.minimum(np.minimum(u, v), 1.0 - u - v)
         w *= self.h_min32[pid]
         w *= cos.astype(np.float32)
-        t_max = float(t_coarse.max()) if len(t_coarse) else 0.0
-        eps = float(self.ray_error_m(o, t0, np.array(t_max))) * 1.001 + 1e-30
+        far = float(travelled.max()) if len(travelled) else 0.0
+        eps = float(self.ray_error_m(o, moved, far)) * 1.001 + 1e-30
         idx = np.flatnonzero(~(w > eps))  # NaN (a ray along the plane) included
-        if not len(idx):
+        # a hit at the ray's own origin: the surface the station stands on
+        at_origin = np.flatnonzero(travelled <= 8.0 * self.ray_error_m(o, moved, 0.0))
+        if not len(idx) and not len(at_origin):
             return t, pid
         pid = pid.astype(np.int64, copy=True)
         tol = self.edge_tol_m(o)
         with np.errstate(invalid="ignore"):
             p = o + t[idx, None] * d[idx]
             bad = idx[~(self._outside_m(pid[idx], p) <= tol)]
-        if not len(bad):
-            return t, pid
-        t[bad], pid[bad] = self._retest(o, d[bad], pid[bad], tol)
-        lost = bad[pid[bad] < 0]
+        lost = at_origin
+        if len(bad):
+            t[bad], pid[bad] = self._retest(o, d[bad], pid[bad], tol)
+            lost = np.union1d(bad[pid[bad] < 0], at_origin)
         if len(lost):
             t[lost], pid[lost] = np.inf, -1
             if depth < self.RECASTS:
                 # start again just behind the float32 hit (past its float32 error)
-                eps = self.ray_error_m(o, t0, t_coarse[lost])
-                start = t_coarse[lost] + 8.0 * eps / np.maximum(cos[lost], 1e-2)
+                err = self.ray_error_m(o, moved, travelled[lost])
+                start = t_coarse[lost] + 8.0 * err / np.maximum(cos[lost], 1e-2)
                 rays = np.empty((len(lost), 6), dtype=np.float32)
                 rays[:, :3] = o + start[:, None] * d[lost]
                 rays[:, 3:] = d[lost]
@@ -421,7 +427,7 @@ class _Caster:
                         start[h] + th[h].astype(np.float64),
                         pr[h].astype(np.int64),
                         uv2[h],
-                        1.0,
+                        start[h],
                         depth + 1,
                     )
         return t, pid
