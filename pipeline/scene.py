@@ -73,6 +73,15 @@ class Scene:
     parts : list of MeshPart
     dropped_degenerate : int
         Zero-area triangles removed during validation (they give NaN normals).
+
+    Notes
+    -----
+    Validation: a vertex with a NaN or infinite coordinate that some triangle uses is an
+    error (``InvalidGeometryError``, saying how many); vertices no triangle uses are
+    ignored whatever they hold (non-finite ones are set to 0). Zero-area triangles
+    (collapsed onto a line or a point) are dropped and counted. Duplicate triangles
+    (either orientation) and non-manifold edges (shared by three or more triangles) are
+    kept: the scanner meets the nearest surface along each ray whatever the topology.
     """
 
     parts: list[MeshPart]
@@ -127,6 +136,10 @@ class Scene:
         self.dropped_degenerate = dropped
         mask = np.zeros(len(self.vertices), dtype=bool)
         mask[self.faces.ravel()] = True
+        # vertices no triangle uses are ignored: non-finite ones become 0 (no NaN reaches
+        # the arithmetic done on all vertices at once)
+        spare = ~mask & ~np.isfinite(self.vertices).all(axis=1)
+        self.vertices[spare] = 0.0
         self._used = np.flatnonzero(mask)
         used = self.vertices[self._used]
         self._bounds = np.stack([used.min(axis=0), used.max(axis=0)])

@@ -21,6 +21,12 @@ from ..errors import InvalidGeometryError
 __all__ = ["closest_points_on_triangles", "point_to_mesh_distances", "well_conditioned"]
 
 _CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 MB)
+#: Open3D's float32 closest-triangle choice can tie between triangles whose float64
+#: distances differ by up to ~1e-7 of the coordinates' magnitude: a point whose exact
+#: distance to the picked triangle is above float64 noise (2**-40 of that magnitude) but
+#: within this reach (2**-18 of it) may lie on a neighbour, which is checked.
+_TIE_FLOOR = 2.0**-40
+_TIE_REACH = 2.0**-18
 _O3D_CHUNK = 1 << 21  # points per Open3D query
 
 
@@ -193,7 +199,9 @@ def point_to_mesh_distances(
     :func:`well_conditioned`); the distance to it is recomputed exactly in float64.
     Where that closest point lies on the triangle's boundary, which is where a float32
     near-tie can have picked the neighbour of the right triangle, the triangles sharing
-    that edge or corner are measured too and the smallest exact distance is kept.
+    that edge or corner are measured too and the smallest exact distance is kept; so are
+    the triangles around its corners where the point is nearly on it (within float32's
+    tie of it, above float64 noise: a point on the mesh beside a concave edge).
 
     Parameters
     ----------
@@ -225,6 +233,7 @@ def point_to_mesh_distances(
         o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
     )
     ptr, idx = _vertex_triangles(faces, len(verts))
+    extent = float(np.abs(verts).max()) if len(verts) else 0.0
     n = len(query)
     dist = np.empty(n, dtype=np.float64)
     for s in range(0, n, _O3D_CHUNK):
@@ -246,6 +255,18 @@ def point_to_mesh_distances(
                 d[edge] = np.minimum(
                     d[edge],
                     _feature_minimum(qq[edge], tri[edge], region[edge], verts, faces, ptr, idx),
+                )
+            # a point on the mesh near a concave edge projects into the neighbour of its
+            # triangle: a float32 tie can pick that neighbour, at a tiny but non-zero
+            # distance; the triangles around its corners hold the right one
+            scale = extent + np.linalg.norm(qq, axis=1)
+            tie = np.flatnonzero(
+                (region == _INTERIOR) & (d > _TIE_FLOOR * scale) & (d < _TIE_REACH * scale)
+            )
+            for corner in (_A, _B, _C) if len(tie) else ():
+                region_c = np.full(len(tie), corner, dtype=np.int8)
+                d[tie] = np.minimum(
+                    d[tie], _feature_minimum(qq[tie], tri[tie], region_c, verts, faces, ptr, idx)
                 )
             dist[s + t : s + t + len(qq)] = d
     return dist

@@ -62,7 +62,7 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
     InputFormatError
         Missing file, unsupported suffix or unreadable content.
     EmptyInputError
-        The file holds no triangles.
+        The file is empty or holds no triangles.
     """
     p = Path(path)
     if not p.exists():
@@ -73,6 +73,8 @@ def load_mesh(path: str | Path, *, label: str | None = None) -> list[MeshPart]:
         raise InputFormatError(f"{p.name}: not a mesh file (supported: {', '.join(MESH_SUFFIXES)})")
     if label is not None and label not in LABEL_CODES:
         raise InvalidParameterError(f"label must be one of {', '.join(LABEL_CODES)}, got {label!r}")
+    if p.stat().st_size == 0:  # not every format's reader says so plainly
+        raise EmptyInputError(f"{p.name}: the file is empty (0 bytes)")
     if p.suffix.lower() == ".ply":
         ply_parts = _load_ply(p, label)
         if ply_parts is not None:

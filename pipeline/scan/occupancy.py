@@ -114,7 +114,9 @@ def triangle_bounds(tri: np.ndarray) -> TriangleBounds:
     z_min, z_max = z.min(axis=1), z.max(axis=1)
     el_hi = np.arctan2(z_max, np.where(z_max >= 0, r_min, r_max))
     el_lo = np.arctan2(z_min, np.where(z_min >= 0, r_max, r_min))
-    full = r_min <= 0.0
+    # a triangle whose projection passes the vertical axis within rounding may contain
+    # it: every azimuth (also ends the bisection of pieces around the axis)
+    full = r_min <= 1e-12 * r_max
     az = np.arctan2(y, x)
     rel = (az - az[:, :1] + np.pi) % (2 * np.pi) - np.pi
     az_lo = az[:, 0] + rel.min(axis=1)
@@ -242,14 +244,14 @@ def occupancy_grid(
     m_ray = pointing_margin_rad(spec)
     rows0, rows1, cols0, cols1, wraps = [], [], [], [], []
     pieces = tri
-    for _ in range(40):
+    for halvings in range(41):
         b = triangle_bounds(pieces)
         margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
         r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
         area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
         big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
-        if len(pieces) + int(big.sum()) > MAX_PIECES:
-            big[:] = False
+        if len(pieces) + int(big.sum()) > MAX_PIECES or halvings == 40:
+            big[:] = False  # a piece's box is conservative however large: keep it
         done = keep & ~big
         rows0.append(r0[done])
         rows1.append(r1[done])
@@ -259,8 +261,6 @@ def occupancy_grid(
         if not big.any():
             break
         pieces = _bisect_longest(pieces[big])
-    else:  # pragma: no cover - 40 halvings shrink any box below a cell
-        raise AssertionError("occupancy: bisection did not converge")
     r0, r1 = np.concatenate(rows0), np.concatenate(rows1)
     c0, c1, w = np.concatenate(cols0), np.concatenate(cols1), np.concatenate(wraps)
     k = ras.cell

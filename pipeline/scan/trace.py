@@ -8,8 +8,15 @@ edge (:class:`_AdaptiveBeam`); ``ScanResult.lod`` says what ran and why.
 
 Precision: the scene is shifted into a :class:`~pipeline.frame.LocalFrame` (float64)
 before Open3D (float32) sees it; each ray starts just before the scene's bounding box
-(moved forward in float64), so float32 never holds a long range; every hit is then
-recomputed in float64 as the intersection of the ray with the hit triangle's plane.
+(moved forward in float64, from the float64 direction), so float32 never holds a long
+range; every hit is then recomputed in float64 as the intersection of the ray with the
+hit triangle's plane. Where float32 can have picked the neighbour of the triangle the
+float64 ray meets (within its error of an edge), the float64 hit is checked against the
+triangle's edges and, outside them, the triangles around it are tested in float64
+(:meth:`_Caster.refine`): every point lies on a triangle of the mesh to float64 rounding
+(measured ≤ 1e-12 m at 2 km; the README promises 1e-9 m). Whether a ray that passes
+within float32's error of an edge (about 1e-6 of the scene's size, plus of the station's
+distance when it is within 50 m) meets the surface there remains float32's choice.
 Points leave in the input's coordinates as float64. A pulse's float32 ray is gathered
 from per-station tables, so it is the same bits whichever pulses are cast beside it.
 
@@ -202,6 +209,12 @@ class _Caster:
         self.lo, self.hi = frame.to_local(scene.bounds)
         diag = float(np.linalg.norm(self.hi - self.lo))
         self.pad = 1e-3 + 1e-5 * diag
+        self.diag = diag
+        self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
+        # each triangle's smallest height (m): how far its interior reaches from an edge
+        edge = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2).max(axis=1)
+        self.h_min32 = (np.linalg.norm(n, axis=1) / edge).astype(np.float32)
+        self._fan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         v32 = v.astype(np.float32)
         self.distorted, self.moved_m = _distorted(v, v32, f, e1, e2)
         del e1, e2
@@ -223,7 +236,7 @@ class _Caster:
             rays = np.empty((len(f), 6), dtype=np.float32)
             rays[:, :3] = centroid - (inset[:, None] * self.normal)
             rays[:, 3:] = -self.normal
-            t, _ = self.cast_f32(rays)
+            t, _, _ = self.cast_f32(rays)
             self._thickness = np.where(np.isfinite(t), t.astype(np.float64) + inset, np.inf)
         return self._thickness
 
@@ -240,25 +253,204 @@ class _Caster:
         t0 = float(np.linalg.norm(gap)) - self.pad
         return t0 if t0 > self.NEAR_M else 0.0
 
-    def cast_f32(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cast_f32(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cast (n, 6) float32 rays (origin, unit direction); returns Open3D's
-        ``t_hit`` (float32, inf on a miss) and primitive ids (uint32)."""
+        ``t_hit`` (float32, inf on a miss), primitive ids (uint32) and barycentric
+        ``(u, v)`` of the hits (float32, the weights of the triangle's second and third
+        corners)."""
         o3c = self.o3d.core
         ans = self.rc.cast_rays(o3c.Tensor.from_numpy(rays), nthreads=self.nthreads)
-        return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
+        return ans["t_hit"].numpy(), ans["primitive_ids"].numpy(), ans["primitive_uvs"].numpy()
+
+    #: Float32 units in the last place (2**-23, relative) of the largest coordinate a
+    #: cast depends on that Open3D's hit may lie from the float64 hit, measured in the
+    #: barycentric coordinates of the hit triangle times its smallest height and the
+    #: cosine of incidence: at most 0.47 measured (aspen, coffee tree, a faceted
+    #: height field; 15 m to 2 km; beams): 4 is the bound used (:meth:`ray_error_m`).
+    F32_ULPS = 4.0
+    #: A refined hit counts as on its triangle when it lies outside the triangle's edges
+    #: (in its plane) by at most this many float64 ulps (2**-52, relative) of the largest
+    #: coordinate involved: the float64 rounding of the hit (:meth:`edge_tol_m`).
+    EDGE_ULPS = 8.0
+    #: Unresolved hits (the float64 ray passes beside every triangle around the float32
+    #: hit: a silhouette or a mesh border) are cast again from just behind it this many
+    #: times at most; after that they are dropped (a float64 miss).
+    RECASTS = 2
+
+    def ray_error_m(self, o: np.ndarray, moved: bool, travelled: Any) -> Any:
+        """Bound (m) of how far Open3D's float32 hit lies from the float64 hit of a ray
+        from station ``o`` (local frame) that travelled ``travelled`` (m) from its float32
+        origin (the station, or, ``moved``, a point on or in the scene's bounds), as seen
+        from the hit triangle's edges once multiplied by the cosine of incidence:
+        ``F32_ULPS`` float32 ulps of the origin's coordinates, of the distance travelled
+        and of the scene's radius (the vertices' coordinates)."""
+        start = self.radius + self.pad if moved else float(np.linalg.norm(o))
+        return self.F32_ULPS * 2.0**-23 * (start + np.abs(travelled) + self.radius)
+
+    def edge_tol_m(self, o: np.ndarray) -> float:
+        """How far (m) a float64 hit may lie outside its triangle's edges and count as
+        on it: ``EDGE_ULPS`` float64 ulps of the station's distance plus the scene's
+        radius (``o`` + t ``d`` rounds by a few ulps of them). A ray through an edge can
+        find both triangles' intersections just outside them when the hit's rounding
+        along the ray (larger by 1 / cos of the incidence) moves them apart; then the
+        least outside is taken if within this tolerance / cos (:meth:`_retest`)."""
+        return self.EDGE_ULPS * 2.0**-52 * (float(np.linalg.norm(o)) + self.radius)
+
+    def _fans(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Triangles around each vertex position (welded: equal coordinates are one
+        vertex, so triangle soups such as STL files have neighbours too). Returns the
+        welded corners (f, 3) and a CSR incidence: the triangles around welded vertex
+        ``i`` are ``inc[ptr[i]:ptr[i + 1]]``. Built once, on first need."""
+        if self._fan is None:
+            key = np.ascontiguousarray(self.v + 0.0)  # + 0.0: -0.0 becomes 0.0
+            _, weld = np.unique(key.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
+            corners = weld.reshape(-1)[self.faces]
+            flat = corners.ravel()
+            ptr = np.zeros(int(weld.max()) + 2, dtype=np.int64)
+            np.cumsum(np.bincount(flat, minlength=len(ptr) - 1), out=ptr[1:])
+            inc = np.argsort(flat, kind="stable") // 3
+            self._fan = (corners, ptr, inc)
+        return self._fan
+
+    def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """How far (m) each point ``p`` (on triangle ``tri``'s plane) lies outside that
+        triangle: the largest signed distance beyond its three edge lines (<= 0 inside)."""
+        f = self.faces[tri]
+        a, b, c = self.v[f[:, 0]], self.v[f[:, 1]], self.v[f[:, 2]]
+        nrm = self.normal[tri]
+        out = np.full(len(tri), -np.inf)
+        for p0, p1 in ((a, b), (b, c), (c, a)):
+            e = p1 - p0
+            inside = np.einsum("ij,ij->i", np.cross(nrm, e), p - p0) / np.linalg.norm(e, axis=1)
+            out = np.maximum(out, -inside)
+        return out
+
+    def _plane_t(self, o: np.ndarray, d: np.ndarray, tri: np.ndarray) -> np.ndarray:
+        """Float64 distance along each ray (``o`` + t ``d``) to triangle ``tri``'s plane."""
+        nrm = self.normal[tri]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.einsum("ij,ij->i", self.v0[tri] - o, nrm) / np.einsum("ij,ij->i", d, nrm)
+
+    def _retest(
+        self, o: np.ndarray, d: np.ndarray, tri: np.ndarray, tol: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """For rays whose float64 hit lies outside the triangle float32 picked: the
+        nearest triangle around that one's corners (its edge and vertex neighbours, and
+        itself) that the float64 ray meets within ``tol``, and the range to it; where
+        none does, the one it passes nearest if within ``tol`` / cos of the incidence
+        (the hit's rounding along the ray, seen in the plane); else inf / -1."""
+        corners, ptr, inc = self._fans()
+        k = len(tri)
+        c = corners[tri].ravel()
+        counts = ptr[c + 1] - ptr[c]
+        owner = np.repeat(np.repeat(np.arange(k), 3), counts)
+        within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+        cand = inc[np.repeat(ptr[c], counts) + within]
+        dd = d[owner]
+        t = self._plane_t(o, dd, cand)
+        cos = np.abs(np.einsum("ij,ij->i", dd, self.normal[cand]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = o + t[:, None] * dd
+            out = np.where(np.isfinite(t) & (t > 0), self._outside_m(cand, p), np.inf)
+            loose = tol / np.maximum(cos, 1e-6)
+            out = np.where(out <= tol, -np.inf, np.where(out <= loose, out, np.inf))
+        # by owner: the nearest of those within tol, else the least outside within tol/cos
+        key = np.where(out == -np.inf, t, np.inf)
+        order = np.lexsort((out, key, owner))
+        first = order[np.searchsorted(owner[order], np.arange(k))]
+        found = out[first] < np.inf
+        return np.where(found, t[first], np.inf), np.where(found, cand[first], -1)
 
     def refine(
-        self, o: np.ndarray, d: np.ndarray, t_coarse: np.ndarray, pid: np.ndarray
-    ) -> np.ndarray:
-        """Float64 ranges: intersect each ray (``o`` + t ``d``, float64) with the plane of
-        its hit triangle; keeps the float32 range where the two disagree (grazing)."""
+        self,
+        o: np.ndarray,
+        d: np.ndarray,
+        t_coarse: np.ndarray,
+        pid: np.ndarray,
+        uv: np.ndarray,
+        t_from: float | np.ndarray,
+        depth: int = 0,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Float64 hits: (range, triangle) of each ray (``o`` + t ``d``, float64) that
+        float32 found hitting triangle ``pid`` at about ``t_coarse`` (barycentric
+        ``uv``), cast from its point at ``t_from`` (0: the station; more where the
+        origin was moved forward).
+
+        The range is the float64 intersection with the plane of the hit triangle. Near
+        an edge float32 can have picked a neighbour of the triangle the float64 ray
+        meets; that plane's intersection would then lie just outside the picked
+        triangle (up to 0.14 mm at 2 km before this test). So where the float32 hit was
+        within :meth:`ray_error_m` of an edge (or the ray grazes the plane), the float64
+        hit is tested against the triangle's edges, and where it lies outside them by
+        more than :meth:`edge_tol_m`, the triangles around the picked one's corners are
+        tested in float64 and the nearest one the ray meets is taken. Where the float64
+        ray meets none of them (it passes a silhouette or a border within float32's
+        error), and where the hit lies at the ray's origin (a station standing on a
+        surface: the ray leaves it), the ray is cast again from just behind the float32
+        hit (``RECASTS`` times at most) and otherwise counted as a miss: every hit
+        returned lies on a triangle within :meth:`edge_tol_m` (over the cosine of its
+        incidence where a ray crosses an edge).
+
+        Returns
+        -------
+        t : (n,) float64
+            Ranges; inf where the ray turned out to miss.
+        primitive : (n,) int64
+            The triangle hit; -1 where it missed.
+        """
         nrm = self.normal[pid]
-        denom = np.einsum("ij,ij->i", d, nrm)
-        num = np.einsum("ij,ij->i", self.v0[pid] - o, nrm)
+        cos = np.einsum("ij,ij->i", d, nrm)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_fine = num / denom
-        ok = (np.abs(denom) > 1e-9) & (np.abs(t_fine - t_coarse) < 1e-3 + 1e-5 * t_coarse)
-        return np.where(ok, t_fine, t_coarse)
+            t = np.einsum("ij,ij->i", self.v0[pid] - o, nrm) / cos
+        np.abs(cos, out=cos)
+        moved = bool(np.any(np.asarray(t_from) > 0))
+        travelled = t_coarse - t_from
+        # the float32 hit lies at least w * h_min from every edge (w: its smallest
+        # barycentric coordinate); the float64 hit lies within ray_error_m / cos of it,
+        # as seen from the edges. Tested in float32 (it only sorts out the sure ones).
+        u, v = uv[:, 0], uv[:, 1]
+        w = np.minimum(np.minimum(u, v), 1.0 - u - v)
+        w *= self.h_min32[pid]
+        w *= cos.astype(np.float32)
+        far = float(travelled.max()) if len(travelled) else 0.0
+        eps = float(self.ray_error_m(o, moved, far)) * 1.001 + 1e-30
+        idx = np.flatnonzero(~(w > eps))  # NaN (a ray along the plane) included
+        # a hit at the ray's own origin: the surface the station stands on
+        at_origin = np.flatnonzero(travelled <= 8.0 * self.ray_error_m(o, moved, 0.0))
+        if not len(idx) and not len(at_origin):
+            return t, pid
+        pid = pid.astype(np.int64, copy=True)
+        tol = self.edge_tol_m(o)
+        with np.errstate(invalid="ignore"):
+            p = o + t[idx, None] * d[idx]
+            bad = idx[~(self._outside_m(pid[idx], p) <= tol)]
+        lost = at_origin
+        if len(bad):
+            t[bad], pid[bad] = self._retest(o, d[bad], pid[bad], tol)
+            lost = np.union1d(bad[pid[bad] < 0], at_origin)
+        if len(lost):
+            t[lost], pid[lost] = np.inf, -1
+            if depth < self.RECASTS:
+                # start again just behind the float32 hit (past its float32 error)
+                err = self.ray_error_m(o, moved, travelled[lost])
+                start = t_coarse[lost] + 8.0 * err / np.maximum(cos[lost], 1e-2)
+                rays = np.empty((len(lost), 6), dtype=np.float32)
+                rays[:, :3] = o + start[:, None] * d[lost]
+                rays[:, 3:] = d[lost]
+                th, pr, uv2 = self.cast_f32(rays)
+                h = np.flatnonzero(np.isfinite(th))
+                if len(h):
+                    sub = lost[h]
+                    t[sub], pid[sub] = self.refine(
+                        o,
+                        d[sub],
+                        start[h] + th[h].astype(np.float64),
+                        pr[h].astype(np.int64),
+                        uv2[h],
+                        start[h],
+                        depth + 1,
+                    )
+        return t, pid
 
     def cast(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays from the point ``o`` (3,) along unit ``d`` (n, 3), float64 in and
@@ -268,15 +460,15 @@ class _Caster:
         rays = np.empty((n, 6), dtype=np.float32)
         rays[:, :3] = o + t0 * d
         rays[:, 3:] = d
-        th, pr = self.cast_f32(rays)
+        th, pr, uv = self.cast_f32(rays)
         t_out = np.full(n, np.inf)
         prim = np.full(n, -1, dtype=np.int64)
         hidx = np.flatnonzero(np.isfinite(th))
         if len(hidx):
-            pid = pr[hidx].astype(np.int64)
             t_coarse = t0 + th[hidx].astype(np.float64)
-            t_out[hidx] = self.refine(o, d[hidx], t_coarse, pid)
-            prim[hidx] = pid
+            t_out[hidx], prim[hidx] = self.refine(
+                o, d[hidx], t_coarse, pr[hidx].astype(np.int64), uv[hidx], t0
+            )
         return t_out, prim
 
 
@@ -569,12 +761,14 @@ def _cast_central(
     t0: float,
     rot: np.ndarray,
     level: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cast the grid rays of pulses (``lines``, ``cols``) without per-pulse randomness.
 
-    Rays are built in float32 from the per-station tables; only hits get float64
-    directions and refined ranges. Returns (hit index into the pulses, t, primitive)
-    and leaves the float64 directions to the caller.
+    Directions are built in float32 from the per-station tables; only hits get float64
+    directions and refined ranges. A ray moved ``t0`` forward starts at its float64
+    point there (rounded once): a float32 direction's rounding (~1e-7) times ``t0``
+    would move it sideways (0.1 mm at 1 km). Returns (hit index into the pulses, t,
+    primitive, barycentric uv) and leaves the float64 directions to the caller.
     """
     n = len(lines)
     rays = np.empty((n, 6), dtype=np.float32)
@@ -585,13 +779,12 @@ def _cast_central(
     if not level:
         rays[:, 3:] = rays[:, 3:] @ rot.T.astype(np.float32)
     if t0 > 0:
-        np.multiply(rays[:, 3:], np.float32(t0), out=rays[:, :3])
-        rays[:, :3] += o.astype(np.float32)
+        rays[:, :3] = o + t0 * _grid_directions(tables, lines, cols, rot, level)
     else:
         rays[:, :3] = o.astype(np.float32)
-    th, pr = caster.cast_f32(rays)
+    th, pr, uv = caster.cast_f32(rays)
     hidx = np.flatnonzero(np.isfinite(th))
-    return hidx, th[hidx].astype(np.float64), pr[hidx].astype(np.int64)
+    return hidx, th[hidx].astype(np.float64), pr[hidx].astype(np.int64), uv[hidx]
 
 
 def _grid_directions(
@@ -750,10 +943,12 @@ def scan(
                 lines, cols = grid.indices(a, b)
                 n_pulses, n_rays = b - a, (b - a) * s
                 if fast:
-                    hidx, th, prim = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
+                    hidx, th, prim, uv = _cast_central(
+                        caster, tables, lines, cols, o, t0, rot, level
+                    )
                     lines_r, cols_r = lines[hidx], cols[hidx]
                     d_r = _grid_directions(tables, lines_r, cols_r, rot, level)
-                    t = caster.refine(o, d_r, t0 + th, prim)
+                    t, prim = caster.refine(o, d_r, t0 + th, prim, uv, t0)
                     rec = _single_returns(spec, t, prim)
                 else:
                     az, el = pulse_angles(spec, k, lines, cols)
@@ -964,12 +1159,11 @@ class _AdaptiveBeam:
             return self.caster.cast(self.o, self._directions(lines, cols))
         t = np.full(len(lines), np.inf)
         prim = np.full(len(lines), -1, dtype=np.int64)
-        hidx, th, pr = _cast_central(
+        hidx, th, pr, uv = _cast_central(
             self.caster, self.tables, lines, cols, self.o, self.t0, self.rot, self.level
         )
         d = self._directions(lines[hidx], cols[hidx])
-        t[hidx] = self.caster.refine(self.o, d, self.t0 + th, pr)
-        prim[hidx] = pr
+        t[hidx], prim[hidx] = self.caster.refine(self.o, d, self.t0 + th, pr, uv, self.t0)
         return t, prim
 
     def _neighbour_finder(self, lines: np.ndarray, cols: np.ndarray, key: np.ndarray):
