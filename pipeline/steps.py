@@ -27,6 +27,7 @@ __all__ = [
     "SCAN_OUTPUT_SUFFIXES",
     "StepResult",
     "compare_files",
+    "estimate_scan_files",
     "scale_progress",
     "reconstruct_files",
     "scan_files",
@@ -127,6 +128,7 @@ def scan_files(
     window: bool = True,
     threads: int = 0,
     progress: Progress | None = None,
+    estimate: Callable[[Any], None] | None = None,
 ) -> StepResult:
     """Scan meshes with the virtual scanner; write the cloud to ``out_path`` (its suffix
     picks the format) and the scan's settings and figures to ``<stem>.json`` beside it.
@@ -134,73 +136,163 @@ def scan_files(
     ``stations`` are scanner positions (m); None places ``params``' ring of stations
     around the scene (:func:`pipeline.scan.stations_for`). ``label`` forces one part
     label on every mesh; ``window`` casts rays only towards the scene (False: the full
-    field of view).
+    field of view). ``estimate`` is called once before casting with the scan's
+    :class:`~pipeline.scan.ScanEstimate` (for this output's format).
     """
     from .io import open_cloud_writer
-    from .scan import SCAN_FIELDS, Station, load_scene, scan, scan_metadata, stations_for
+    from .scan import SCAN_FIELDS, scan, scan_metadata
 
     say = _say(progress)
     params = params or ScanParams()
+    out = _scan_output(out_path)
+    say(0.0, "loading the scene")
+    t0 = time.perf_counter()
+    meshes, scene, placed, rule = _scan_setup(mesh_paths, params, stations, label)
+    t_load = time.perf_counter() - t0
+    say(0.05, "scanning")
+    # Open3D's import (~1 s, with extension modules that a Ctrl-C in mid-import leaves
+    # half-initialised, failing the interpreter's exit) happens before any file exists
+    import open3d  # noqa: F401
+
+    # interrupted or failed, the step leaves nothing behind: no cloud (the writer's
+    # temporary file is removed), no sidecar, no folder it made
+    created = _make_folders(out.parent)
+    committed = False
+    try:
+        t1 = time.perf_counter()
+        # the cloud is written while it is cast: memory does not grow with the points
+        with open_cloud_writer(
+            out,
+            fields=SCAN_FIELDS,
+            metadata=scan_metadata(placed),
+            origin_hint_m=scene.bounds[0],
+            threads=int(threads),
+        ) as writer:
+            result = scan(
+                scene,
+                placed,
+                params.scanner,
+                window=window,
+                chunk_rays=int(params.chunk_rays),
+                max_rays=int(params.max_rays),
+                nthreads=int(threads),
+                progress=scale_progress(say, 0.05, 0.95),
+                sink=writer.write,
+                lod=params.lod,
+                estimate=(lambda e: estimate(e.for_suffix(out.suffix))) if estimate else None,
+            )
+            say(0.95, "writing the cloud")
+            t2 = time.perf_counter()
+        committed = True
+        t_write = time.perf_counter() - t2
+        t_scan = t2 - t1
+        summary = json_ready(
+            {
+                "meshes": [str(m) for m in meshes],
+                "triangles": scene.n_triangles,
+                "degenerate_triangles_dropped": scene.dropped_degenerate,
+                "labels_in_scene": scene.labels_present(),
+                "output": str(out),
+                **({"station_rule": rule} if rule else {}),
+                **result.summary(),
+                # scan: casting and writing as it goes; write: finishing the file
+                "timings_s": {"load": t_load, "scan": t_scan, "write": t_write},
+            }
+        )
+        side = write_json(out.with_name(out.stem + ".json"), summary)
+    except BaseException:
+        if committed:  # the cloud without its sidecar: not a finished scan
+            out.unlink(missing_ok=True)
+        _remove_folders(created)
+        raise
+    say(1.0, "done")
+    return StepResult(summary, {"cloud": out, "json": side}, result, {"scene": scene})
+
+
+def _make_folders(folder: Path) -> list[Path]:
+    """Make ``folder`` and its missing parents; return those made, outermost first."""
+    missing = []
+    p = folder
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return missing[::-1]
+
+
+def _remove_folders(made: list[Path]) -> None:
+    """Remove folders :func:`_make_folders` made, innermost first, while they are empty."""
+    for p in reversed(made):
+        try:
+            p.rmdir()
+        except OSError:
+            return
+
+
+def _scan_output(out_path: str | Path) -> Path:
     out = Path(out_path)
     if out.suffix.lower() not in SCAN_OUTPUT_SUFFIXES:
         raise InvalidParameterError(
             f"{out}: write the scan as {', '.join(SCAN_OUTPUT_SUFFIXES)} (by suffix)"
         )
+    return out
+
+
+def _scan_setup(
+    mesh_paths: Sequence[str | Path],
+    params: ScanParams,
+    stations: Sequence[Sequence[float]] | None,
+    label: str | None,
+) -> tuple[list[Path], Any, list[Any], dict[str, Any] | None]:
+    """The meshes, the scene read from them, the stations and the station rule used."""
+    from .scan import Station, load_scene, stations_for
+
     meshes = [_existing(m) for m in mesh_paths]
     if not meshes:
         raise InvalidParameterError("give at least one mesh to scan")
-    say(0.0, "loading the scene")
-    t0 = time.perf_counter()
     scene = load_scene(meshes, labels=[label] * len(meshes) if label else None)
-    t_load = time.perf_counter() - t0
     rule = None
     if stations:
         placed = [Station(position_m=tuple(float(c) for c in s)) for s in stations]
     else:
         placed, rule = stations_for(scene.bounds, params)
-    say(0.05, "scanning")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    t1 = time.perf_counter()
-    # the cloud is written while it is cast: memory does not grow with the points
-    with open_cloud_writer(
-        out,
-        fields=SCAN_FIELDS,
-        metadata=scan_metadata(placed),
-        origin_hint_m=scene.bounds[0],
-        threads=int(threads),
-    ) as writer:
-        result = scan(
-            scene,
-            placed,
-            params.scanner,
-            window=window,
-            chunk_rays=int(params.chunk_rays),
-            max_rays=int(params.max_rays),
-            nthreads=int(threads),
-            progress=scale_progress(say, 0.05, 0.95),
-            sink=writer.write,
-            lod=params.lod,
-        )
-        say(0.95, "writing the cloud")
-        t2 = time.perf_counter()
-    t_write = time.perf_counter() - t2
-    t_scan = t2 - t1
-    summary = json_ready(
-        {
-            "meshes": [str(m) for m in meshes],
-            "triangles": scene.n_triangles,
-            "degenerate_triangles_dropped": scene.dropped_degenerate,
-            "labels_in_scene": scene.labels_present(),
-            "output": str(out),
-            **({"station_rule": rule} if rule else {}),
-            **result.summary(),
-            # scan: casting and writing as it goes; write: finishing the file
-            "timings_s": {"load": t_load, "scan": t_scan, "write": t_write},
-        }
+    return meshes, scene, placed, rule
+
+
+def estimate_scan_files(
+    mesh_paths: Sequence[str | Path],
+    params: ScanParams | None = None,
+    out_path: str | Path = "out/scan.laz",
+    *,
+    stations: Sequence[Sequence[float]] | None = None,
+    label: str | None = None,
+    window: bool = True,
+    threads: int = 0,
+) -> StepResult:
+    """What :func:`scan_files` with the same arguments would cast, record, write and
+    take (:func:`pipeline.scan.estimate_scan`), without scanning or writing anything.
+
+    Returns a :class:`StepResult` whose ``result`` is the
+    :class:`~pipeline.scan.ScanEstimate` (for ``out_path``'s format) and ``summary`` its
+    dict; ``details`` holds the scene and the station rule.
+    """
+    from .scan import estimate_scan
+
+    params = params or ScanParams()
+    out = _scan_output(out_path)
+    meshes, scene, placed, rule = _scan_setup(mesh_paths, params, stations, label)
+    est = estimate_scan(
+        scene,
+        placed,
+        params.scanner,
+        window=window,
+        lod=params.lod,
+        nthreads=int(threads),
+        max_rays=int(params.max_rays),
+        suffix=out.suffix,
     )
-    side = write_json(out.with_name(out.stem + ".json"), summary)
-    say(1.0, "done")
-    return StepResult(summary, {"cloud": out, "json": side}, result, {"scene": scene})
+    summary = json_ready({"meshes": [str(m) for m in meshes], "output": str(out), **est.to_dict()})
+    return StepResult(summary, {}, est, {"scene": scene, "station_rule": rule})
 
 
 def scan_sidecar(cloud_path: Path) -> dict[str, Any] | None:

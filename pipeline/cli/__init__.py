@@ -18,8 +18,11 @@ import argparse
 import importlib
 import importlib.metadata
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from ..errors import TreesimError
 from ._options import Parser
@@ -57,20 +60,51 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _watch_interrupts() -> tuple[Callable[[], bool], Callable[[], None]]:
+    """Note a Ctrl-C as it happens (it still raises KeyboardInterrupt): some libraries
+    catch the KeyboardInterrupt raised inside their callbacks and raise their own error
+    instead (lazrs, compressing a LAZ file, says 'Failed to call write'); the command
+    must still end as interrupted (130). Installed only over Python's own handler, in
+    the main thread. Returns (whether one was seen, put Python's handler back)."""
+    seen = [False]
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        seen[0] = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        raise KeyboardInterrupt
+
+    mine = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    )
+    if mine:
+        signal.signal(signal.SIGINT, on_sigint)
+
+    def restore() -> None:
+        if mine and signal.getsignal(signal.SIGINT) is on_sigint:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    return (lambda: seen[0]), restore
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    interrupted, restore = _watch_interrupts()
     try:
         return int(args.func(args) or 0)
-    except TreesimError as exc:
-        print(f"treesim: error: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print("treesim: interrupted", file=sys.stderr)
         return 130
+    except TreesimError as exc:
+        if interrupted():  # a library turned the Ctrl-C into its own error
+            print("treesim: interrupted", file=sys.stderr)
+            return 130
+        print(f"treesim: error: {exc}", file=sys.stderr)
+        return 1
     except MemoryError:
         print(
             "treesim: error: out of memory; coarsen the resolution or lower --chunk-rays",
@@ -78,6 +112,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 1
     except Exception as exc:  # never a traceback for users
+        if interrupted():
+            print("treesim: interrupted", file=sys.stderr)
+            return 130
         if os.environ.get("TREESIM_DEBUG"):
             raise
         print(
@@ -86,3 +123,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 3
+    finally:
+        restore()

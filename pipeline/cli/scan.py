@@ -110,7 +110,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     param_options(x, ScanParams, ["max_rays", "chunk_rays"])
     param_option(x, RunParams, "threads")
+    x.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="plan the scan, estimate its rays, points, file size and time from a sample "
+        "cast on this machine, print them with each station's window, and exit without "
+        "scanning or writing anything (-o only picks the format)",
+    )
     p.set_defaults(func=cmd_scan)
+
+
+#: Scans estimated to take longer than this (s) say so on stderr before they start.
+LONG_SCAN_S = 10.0
+
+
+def estimate_printer(min_seconds: float | None = None):
+    """An ``estimate(ScanEstimate)`` callback printing one line on stderr before a scan
+    estimated to take at least ``min_seconds`` (default :data:`LONG_SCAN_S`)."""
+
+    def show(est: Any) -> None:
+        if est.seconds >= (LONG_SCAN_S if min_seconds is None else min_seconds):
+            print(f"treesim scan: estimate: {est.line()}", file=sys.stderr, flush=True)
+
+    return show
 
 
 def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
@@ -157,6 +179,7 @@ def run_scan(
         window=not args.full_fov,
         threads=threads,
         progress=progress_printer(label="scan"),
+        estimate=estimate_printer(),
     )
     result, scene = step.result, step.details["scene"]
     print(
@@ -183,6 +206,53 @@ def run_scan(
     return step.summary
 
 
+def dry_run(
+    args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
+) -> dict[str, Any]:
+    """Plan and estimate the scan (:func:`pipeline.steps.estimate_scan_files`), print
+    the stations' windows and the estimate; nothing is scanned or written."""
+    from ..steps import estimate_scan_files
+
+    sp, threads = params_from_args(args)
+    step = estimate_scan_files(
+        meshes,
+        sp,
+        out,
+        stations=_stations(args),
+        label=label,
+        window=not args.full_fov,
+        threads=threads,
+    )
+    est, scene = step.result, step.details["scene"]
+    print(
+        f"dry run of treesim scan: {', '.join(Path(m).name for m in meshes)}, "
+        f"{scene.n_triangles:,} triangles; nothing scanned or written"
+    )
+    print(
+        f"{'station':>7}  {'position (m)':>34}  {'azimuth (deg)':>17}  {'elevation (deg)':>15}"
+        f"  {'window pulses':>13}  {'to cast':>11}"
+    )
+    for st in est.stations:
+        pos = ", ".join(f"{c:.2f}" for c in st["position_m"])
+        az = st["azimuth_window_deg"]
+        az_s = f"{az[0]:.1f}..{az[1]:.1f}" if az else "all"
+        el = st["elevation_window_deg"]
+        el_s = f"{el[0]:.1f}..{el[1]:.1f}"
+        print(
+            f"{st['index']:>7}  {pos:>34}  {az_s:>17}  {el_s:>15}"
+            f"  {st['pulses_window']:>13,}  {st['pulses_cast']:>11,}"
+        )
+    print(f"estimate: {est.line()}")
+    for note in est.notes:
+        print(f"  note: {note}")
+    if est.over_limit:
+        print(
+            f"  the scan would be refused: up to {est.rays_upper:.3g} rays, over --max-rays "
+            f"{est.max_rays:.3g}"
+        )
+    return step.summary
+
+
 def cmd_scan(args: argparse.Namespace) -> int:
     if args.list_instruments:
         for p in INSTRUMENTS.values():
@@ -195,6 +265,10 @@ def cmd_scan(args: argparse.Namespace) -> int:
         return 0
     if not args.meshes:
         raise InvalidParameterError("give at least one MESH file")
+    if args.dry_run:
+        out = Path(args.output or "scan.laz")
+        dry_run(args, [Path(m) for m in args.meshes], out, label=args.label)
+        return 0
     if args.output is None:
         raise InvalidParameterError("give the output cloud with -o OUT.laz")
     run_scan(args, [Path(m) for m in args.meshes], Path(args.output), label=args.label)

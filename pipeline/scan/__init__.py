@@ -1,7 +1,9 @@
 """The virtual terrestrial laser scanner.
 
 ``scan(scene, stations, spec)`` casts each station's rays at a :class:`~pipeline.scene.Scene`
-and returns the simulated cloud; :func:`stations_for` places stations by the station rule.
+and returns the simulated cloud; :func:`estimate_scan` says beforehand what it will cost
+(rays, points, file size, time: :mod:`pipeline.scan.estimate`); :func:`stations_for`
+places stations by the station rule.
 The scanner's settings (:class:`~pipeline.params.ScannerSpec`) and instruments live in the
 parameter model, :mod:`pipeline.params`. ``Scene``, ``MeshPart``, ``label_from_name``
 (:mod:`pipeline.scene`) and ``load_mesh``, ``load_scene`` (:mod:`pipeline.io.mesh`) are
@@ -11,8 +13,9 @@ re-exported for convenience: what the scanner scans, and how it is read.
 from ..io.mesh import load_mesh, load_scene
 from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
 from ..scene import MeshPart, Scene, label_from_name
+from .estimate import ScanEstimate
 from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
-from .trace import SCAN_FIELDS, ScanResult, StationStats, scan, scan_metadata
+from .trace import SCAN_FIELDS, ScanResult, StationStats, estimate_scan, scan, scan_metadata
 
 __all__ = [
     "INSTRUMENTS",
@@ -20,12 +23,14 @@ __all__ = [
     "SCAN_FIELDS",
     "InstrumentPreset",
     "MeshPart",
+    "ScanEstimate",
     "ScanResult",
     "ScannerSpec",
     "Scene",
     "Station",
     "StationStats",
     "instrument",
+    "estimate_scan",
     "label_from_name",
     "load_mesh",
     "load_scene",

@@ -47,6 +47,14 @@ from ..frame import LocalFrame
 from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
+from .estimate import (
+    BYTES_PER_POINT,
+    OVERHEAD,
+    SAMPLE_PULSES,
+    SECONDS_PER_POINT,
+    ScanEstimate,
+    human_time,
+)
 from .occupancy import occupancy_grid, reachable, thin_mask, triangle_bounds
 from .rays import (
     PulseGrid,
@@ -796,6 +804,214 @@ def _grid_directions(
     return d if level else d @ rot.T
 
 
+@dataclass
+class _Plan:
+    """A scan, planned: what :func:`scan` casts, station by station."""
+
+    frame: LocalFrame
+    caster: _Caster | None
+    #: per station: (origin (local), rotation, pulse grid, window, window pulses, thin)
+    plans: list[tuple[Any, ...]]
+    geometry: dict[str, Any]
+    adaptive: bool
+    plan_s: float
+    #: what ran but may not be what was meant (stations on surfaces, lost precision)
+    warnings: list[str]
+
+
+def _plan_scan(
+    scene: Scene,
+    stations: list[Station],
+    spec: ScannerSpec,
+    *,
+    window: bool,
+    cull: bool,
+    lod: str,
+    nthreads: int,
+    max_rays: int | None,
+    check_inside: bool,
+) -> _Plan:
+    """Each station's window and the pulses of it to cast, the triangles to load and the
+    ray-casting scene: everything :func:`scan` does before it casts. ``max_rays`` None:
+    no limit (an estimate reports it instead)."""
+    if not stations:
+        raise InvalidParameterError("give at least one station")
+    t_all = time.perf_counter()
+    frame = LocalFrame.around(scene.used_vertices)
+    verts_used = frame.to_local(scene.used_vertices)
+    s = spec.rays_per_pulse
+    if lod not in LODS:
+        raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {lod!r}")
+    adaptive = s > 1 and spec.beam_sampling == "adaptive" and lod == "auto"
+    origins = [frame.to_local(st.position) for st in stations]
+    windows = [
+        _grid_for(verts_used, o, st.rotation, spec, window)
+        for o, st in zip(origins, stations, strict=True)
+    ]
+    # the limit is checked on the window with every sub-ray (an upper bound: culling
+    # and adaptive sampling cast fewer), before any triangle is read
+    upper = sum(grid.n_pulses for grid, _ in windows) * s
+    if max_rays is not None and upper > max_rays:
+        secs = upper / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
+        raise ResourceLimitError(
+            f"this scan needs {upper:.3g} rays at most ({len(stations)} station"
+            f"{'s' if len(stations) > 1 else ''} at "
+            f"{spec.horizontal_resolution_deg}°×{spec.vertical_resolution_deg}°"
+            f"{f', {s} sub-rays per pulse' if s > 1 else ''}), about "
+            f"{human_time(secs)} here, over the limit of {max_rays:.3g}; coarsen the "
+            "resolution or raise max_rays (--max-rays); memory stays bounded either way"
+        )
+    radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
+    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius)
+    caster = _Caster(scene, frame, nthreads, keep) if geometry["loaded"] else None
+    plans = []
+    for o, st, (window_grid, win) in zip(origins, stations, windows, strict=True):
+        if caster is None:  # nothing any station can record: a valid empty scan
+            grid, thin = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64)), None
+        else:
+            grid, thin = _grid_plan(
+                caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
+            )
+        plans.append((o, st.rotation, grid, win, window_grid.n_pulses, thin))
+    warnings = _precision_warnings(scene, caster, radius)
+    if caster is not None:
+        for k, plan in enumerate(plans):
+            if check_inside:
+                _check_inside(caster, plan[0], k, stations[k])
+            warnings += _station_warnings(caster, plan[0], k, stations[k])
+    return _Plan(frame, caster, plans, geometry, adaptive, time.perf_counter() - t_all, warnings)
+
+
+def _estimate(
+    plan: _Plan,
+    scene: Scene,
+    stations: list[Station],
+    spec: ScannerSpec,
+    suffix: str,
+    max_rays: int | None,
+) -> ScanEstimate:
+    """The scan's size and time from a sample of its planned pulses, cast and refined
+    here (:mod:`pipeline.scan.estimate`)."""
+    s = spec.rays_per_pulse
+    total = sum(p[2].n_pulses for p in plan.plans)
+    hits = sampled = 0
+    secs = 0.0
+    caster = plan.caster
+    for k, (o, rot, grid, _, _, _) in enumerate(plan.plans):
+        m = min(grid.n_pulses, round(SAMPLE_PULSES * grid.n_pulses / max(total, 1)))
+        if caster is None or m == 0:
+            continue
+        n_blocks = max(1, m // 256)
+        size = m // n_blocks
+        starts = np.arange(n_blocks) * (grid.n_pulses - size) // max(n_blocks - 1, 1)
+        picked = [grid.indices(int(a), int(a) + size) for a in starts]
+        lines = np.concatenate([p[0] for p in picked])
+        cols = np.concatenate([p[1] for p in picked])
+        st = stations[k]
+        level = st.pitch_deg == 0 and st.roll_deg == 0
+        tables = _RayTables(spec, st.heading_deg if level else 0.0)
+        t0 = caster.entry_distance(o)
+        if not sampled:  # warm up (threads, the neighbour table): the scan pays it once
+            hidx, th, pr, uv = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
+            d = _grid_directions(tables, lines[hidx], cols[hidx], rot, level)
+            caster.refine(o, d, t0 + th, pr, uv, t0)
+        t_start = time.perf_counter()
+        hidx, th, pr, uv = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
+        d = _grid_directions(tables, lines[hidx], cols[hidx], rot, level)
+        t, prim = caster.refine(o, d, t0 + th, pr, uv, t0)
+        secs += time.perf_counter() - t_start
+        hits += int((_in_range(spec, t) & (prim >= 0)).sum())
+        sampled += len(lines)
+    rate = sampled / secs if secs > 0 else 0.0
+    fraction = hits / sampled if sampled else 0.0
+    points = int(round(fraction * total))
+    rays = total * s
+    seconds = plan.plan_s + (rays * OVERHEAD / rate if rate > 0 else 0.0)
+    seconds += points * SECONDS_PER_POINT
+    per_station = []
+    for k, (_, _, grid, win, n_window, _) in enumerate(plan.plans):
+        per_station.append(
+            {
+                "index": k,
+                "position_m": list(stations[k].position_m),
+                "azimuth_window_deg": list(win.azimuth_deg) if win.azimuth_deg else None,
+                "elevation_window_deg": list(win.elevation_deg),
+                "pulses_window": n_window,
+                "pulses_cast": grid.n_pulses,
+            }
+        )
+    notes = []
+    if s > 1:
+        notes.append(
+            f"{s} sub-rays per pulse counted for every pulse"
+            + (": adaptive sampling casts fewer" if plan.adaptive else "")
+        )
+    return ScanEstimate(
+        stations=per_station,
+        pulses_full_fov=spec.n_azimuth * spec.n_elevation * len(stations),
+        pulses_window=sum(p[4] for p in plan.plans),
+        pulses_cast=total,
+        rays=rays,
+        rays_exact=not plan.adaptive,
+        points=points,
+        hit_fraction=fraction,
+        sample_pulses=sampled,
+        rate_rays_per_s=rate,
+        plan_s=plan.plan_s,
+        seconds=seconds,
+        suffix=suffix,
+        file_bytes=int(points * BYTES_PER_POINT.get(suffix, BYTES_PER_POINT[".laz"])),
+        max_rays=max_rays,
+        notes=notes,
+    )
+
+
+def estimate_scan(
+    scene: Scene,
+    stations: Sequence[Station],
+    spec: ScannerSpec | None = None,
+    *,
+    window: bool = True,
+    cull: bool = True,
+    lod: str = "auto",
+    nthreads: int = 0,
+    max_rays: int | None = 1_000_000_000,
+    suffix: str = ".laz",
+) -> ScanEstimate:
+    """What :func:`scan` with these settings would cast, record, write and take, without
+    scanning: the scan is planned as it would run and a sample of its pulses is cast here
+    (see :mod:`pipeline.scan.estimate`). Nothing is written.
+
+    Parameters
+    ----------
+    scene, stations, spec, window, cull, lod, nthreads
+        As for :func:`scan`.
+    max_rays : int, optional
+        The limit :func:`scan` would apply; the estimate says whether it is exceeded
+        (``over_limit``) instead of refusing.
+    suffix : str
+        The output's format, for the file size (``.laz``, ``.las``, ``.ply``, ``.xyz``).
+
+    Returns
+    -------
+    ScanEstimate
+    """
+    spec = spec or ScannerSpec()
+    stations = list(stations)
+    plan = _plan_scan(
+        scene,
+        stations,
+        spec,
+        window=window,
+        cull=cull,
+        lod=lod,
+        nthreads=nthreads,
+        max_rays=None,
+        check_inside=False,
+    )
+    return _estimate(plan, scene, stations, spec, suffix.lower(), max_rays)
+
+
 def scan(
     scene: Scene,
     stations: Sequence[Station],
@@ -810,6 +1026,7 @@ def scan(
     progress: Progress | None = None,
     sink: Sink | None = None,
     lod: str = "auto",
+    estimate: Callable[[ScanEstimate], None] | None = None,
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -848,6 +1065,10 @@ def scan(
         field of view) are never loaded into the ray-casting scene, and the beam model
         follows ``spec.beam_sampling``. ``"full"`` loads everything and gives every
         pulse its sub-rays. ``result.lod`` says what ran and why.
+    estimate : callable(ScanEstimate), optional
+        Called once, after planning and before casting, with the scan's estimated rays,
+        points, file size (as LAZ) and time, from a sample cast on this machine
+        (:mod:`pipeline.scan.estimate`); :func:`estimate_scan` gives it alone.
 
     Returns
     -------
@@ -856,53 +1077,25 @@ def scan(
     """
     spec = spec or ScannerSpec()
     stations = list(stations)
-    if not stations:
-        raise InvalidParameterError("give at least one station")
     if int(chunk_rays) < 1:
         raise InvalidParameterError(f"chunk_rays must be >= 1, got {chunk_rays}")
     t_all = time.perf_counter()
-    frame = LocalFrame.around(scene.used_vertices)
-    verts_used = frame.to_local(scene.used_vertices)
+    plan = _plan_scan(
+        scene,
+        stations,
+        spec,
+        window=window,
+        cull=cull,
+        lod=lod,
+        nthreads=nthreads,
+        max_rays=max_rays,
+        check_inside=check_inside,
+    )
+    frame, caster, plans = plan.frame, plan.caster, plan.plans
+    geometry, adaptive = plan.geometry, plan.adaptive
     s = spec.rays_per_pulse
-    if lod not in LODS:
-        raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {lod!r}")
-    adaptive = s > 1 and spec.beam_sampling == "adaptive" and lod == "auto"
-    origins = [frame.to_local(st.position) for st in stations]
-    windows = [
-        _grid_for(verts_used, o, st.rotation, spec, window)
-        for o, st in zip(origins, stations, strict=True)
-    ]
-    # the limit is checked on the window with every sub-ray (an upper bound: culling
-    # and adaptive sampling cast fewer), before any triangle is read
-    upper = sum(grid.n_pulses for grid, _ in windows) * s
-    if upper > max_rays:
-        secs = upper / (_EST_RAYS_PER_S * max(1, nthreads or cpu_count()))
-        raise ResourceLimitError(
-            f"this scan needs {upper:.3g} rays at most ({len(stations)} station"
-            f"{'s' if len(stations) > 1 else ''} at "
-            f"{spec.horizontal_resolution_deg}°×{spec.vertical_resolution_deg}°"
-            f"{f', {s} sub-rays per pulse' if s > 1 else ''}), about "
-            f"{_human_time(secs)} here, over the limit of {max_rays:.3g}; coarsen the "
-            "resolution or raise max_rays (--max-rays); memory stays bounded either way"
-        )
-    radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
-    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius)
-    caster = _Caster(scene, frame, nthreads, keep) if geometry["loaded"] else None
-    plans = []
-    for o, st, (window_grid, win) in zip(origins, stations, windows, strict=True):
-        if caster is None:  # nothing any station can record: a valid empty scan
-            grid, thin = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64)), None
-        else:
-            grid, thin = _grid_plan(
-                caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
-            )
-        plans.append((o, st.rotation, grid, win, window_grid.n_pulses, thin))
-    warnings = _precision_warnings(scene, caster, radius)
-    if caster is not None:
-        for k, plan in enumerate(plans):
-            if check_inside:
-                _check_inside(caster, plan[0], k, stations[k])
-            warnings += _station_warnings(caster, plan[0], k, stations[k])
+    if estimate is not None:
+        estimate(_estimate(plan, scene, stations, spec, ".laz", max_rays))
     offsets, weights = (
         beam_model.subray_pattern(s, spec.beam_divergence_mrad) if s > 1 else (None, None)
     )
@@ -1049,7 +1242,7 @@ def scan(
         points_written=n_written,
         lod=_lod_summary(lod, spec, stats, geometry, window and cull, adaptive),
         models=spec.active_models(),
-        warnings=warnings,
+        warnings=plan.warnings,
     )
 
 
@@ -1418,14 +1611,12 @@ def _beam_returns(
     }
 
 
-def _human_time(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    if seconds < 172800:
-        return f"{seconds / 3600:.1f} h"
-    return f"{seconds / 86400:.1f} days"
-
-
-__all__ = ["BYTES_PER_RAY", "SCAN_FIELDS", "ScanResult", "StationStats", "scan", "scan_metadata"]
+__all__ = [
+    "BYTES_PER_RAY",
+    "SCAN_FIELDS",
+    "ScanResult",
+    "StationStats",
+    "estimate_scan",
+    "scan",
+    "scan_metadata",
+]

@@ -176,9 +176,7 @@ def test_an_empty_mesh_file_is_a_one_line_error(tmp_path, capsys, suffix):
     out = tmp_path / "out.laz"
     rc, _, err = _run(["scan", str(mesh), "-o", str(out), "--station", "5,0,1"], capsys)
     assert rc == 1
-    assert messages(err) == [
-        f"treesim: error: empty{suffix}: the file is empty (0 bytes)"
-    ]
+    assert messages(err) == [f"treesim: error: empty{suffix}: the file is empty (0 bytes)"]
     assert sorted(p.name for p in tmp_path.iterdir()) == [mesh.name]
 
 

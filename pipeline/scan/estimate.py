@@ -1,0 +1,157 @@
+"""What a scan will cost, said before it runs: rays, points, file size and time.
+
+:func:`pipeline.scan.estimate_scan` (and ``scan(..., estimate=callback)``, which calls
+back once before casting) plan the scan as it will run — each station's window, the
+cells some triangle can reach, the triangles loaded — and then cast a *sample* of the
+planned pulses (at most :data:`SAMPLE_PULSES`, in blocks spread over every station's
+plan) through the scan's own ray-casting scene, refined as the scan refines them:
+
+* **points** = the planned pulses × the sample's share of recorded hits;
+* **rate** = the sample's rays per second: measured on this machine, for this scene,
+  with the scan's thread count (nothing is cached: the sample costs ~10–50 ms);
+* **time** = the planning already done (windows, BVH, occupancy) + the planned rays at
+  the sampled rate × :data:`OVERHEAD` (what a scan does per ray besides casting and
+  refining: directions, fields, the writer) + the points × :data:`SECONDS_PER_POINT`;
+* **file size** = the points × :data:`BYTES_PER_POINT` of the output's format.
+
+With the beam model the rays are an upper bound (every pulse with all its sub-rays;
+adaptive sampling gives sub-rays only to some) and so is the time. The estimate's
+accuracy is tested (``tests/extremes/test_resolution.py``) within a factor of 2 for
+points and 4 for time on small scans, where fixed costs weigh most.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+__all__ = [
+    "BYTES_PER_POINT",
+    "OVERHEAD",
+    "SAMPLE_PULSES",
+    "SECONDS_PER_POINT",
+    "ScanEstimate",
+    "human_bytes",
+    "human_time",
+]
+
+#: Pulses cast to sample a scan (spread over every station's plan in blocks).
+SAMPLE_PULSES = 1 << 16
+#: Bytes per point of a simulated cloud by output suffix (measured 2026-11-25 on scans of
+#: the aspen and the coffee tree: LAZ 12.4–13.7, LAS 53.0, PLY 51.0, text 88–92; text
+#: grows with the coordinates' digits, georeferenced ones included).
+BYTES_PER_POINT: dict[str, float] = {
+    ".laz": 14.0,
+    ".las": 53.0,
+    ".ply": 51.0,
+    ".xyz": 100.0,
+    ".txt": 100.0,
+    ".csv": 100.0,
+}
+#: A scan's time per ray over the sample's (cast + refine) time per ray: grid
+#: directions, range limits and the loop around them. The sample, cast twice (the first
+#: warms Open3D's threads up), measured 2.3–2.8 M rays/s on the aspen at 0.01° against
+#: 2.8 M rays/s for the whole scan's casts (2026-11-25, 2 cores).
+OVERHEAD = 1.1
+#: Time per recorded point besides casting: fields, intensity and the writer (LAZ on all
+#: cores; measured 2026-11-25: ~0.3 µs on 2 cores).
+SECONDS_PER_POINT = 0.4e-6
+
+
+@dataclass(frozen=True)
+class ScanEstimate:
+    """A scan's size and time, before it runs.
+
+    Attributes
+    ----------
+    stations : list of dict
+        Per station: ``index``, ``position_m``, ``azimuth_window_deg`` (None: the whole
+        turn), ``elevation_window_deg``, ``pulses_window`` and ``pulses_cast``.
+    pulses_full_fov, pulses_window, pulses_cast : int
+        Pulses of every field of view, of the windows, and planned (after culling).
+    rays : int
+        Rays to cast: ``pulses_cast`` × rays per pulse (an upper bound with an adaptive
+        beam: ``rays_exact`` is False then).
+    points : int
+        Points expected (the sample's share of recorded hits × ``pulses_cast``).
+    file_bytes : int
+        Size of the output file, for ``suffix``.
+    seconds : float
+        Time of the whole scan (planning included).
+    rate_rays_per_s : float
+        The sample's measured rate (cast and refine; 0 when nothing was sampled).
+    """
+
+    stations: list[dict[str, Any]]
+    pulses_full_fov: int
+    pulses_window: int
+    pulses_cast: int
+    rays: int
+    rays_exact: bool
+    points: int
+    hit_fraction: float
+    sample_pulses: int
+    rate_rays_per_s: float
+    plan_s: float
+    seconds: float
+    suffix: str
+    file_bytes: int
+    max_rays: int | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def over_limit(self) -> bool:
+        """Whether the scan needs more rays than ``max_rays`` (it would be refused)."""
+        return self.max_rays is not None and self.rays_upper > self.max_rays
+
+    @property
+    def rays_upper(self) -> int:
+        """The rays the ``max_rays`` limit is checked on: every window pulse, every
+        sub-ray (what a scan counts before culling)."""
+        return int(self.pulses_window * (self.rays / max(self.pulses_cast, 1)))
+
+    def for_suffix(self, suffix: str) -> ScanEstimate:
+        """The same estimate with the file size of another output format."""
+        suffix = suffix.lower()
+        per_point = BYTES_PER_POINT.get(suffix, BYTES_PER_POINT[".laz"])
+        return replace(self, suffix=suffix, file_bytes=int(self.points * per_point))
+
+    def line(self) -> str:
+        """One line: rays, points, file size, time and the rate it was measured at."""
+        rays = f"{self.rays:,} rays" if self.rays_exact else f"at most {self.rays:,} rays"
+        rate = (
+            f"{self.rate_rays_per_s / 1e6:.2g} M rays/s measured here"
+            if self.rate_rays_per_s > 0
+            else "nothing to sample"
+        )
+        return (
+            f"{len(self.stations)} station{'s' if len(self.stations) != 1 else ''}, "
+            f"{rays} ({self.pulses_cast:,} of {self.pulses_window:,} window pulses), "
+            f"~{self.points:,} points, ~{human_bytes(self.file_bytes)} as {self.suffix}, "
+            f"~{human_time(self.seconds)} ({rate})"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["over_limit"] = self.over_limit
+        return out
+
+
+def human_time(seconds: float) -> str:
+    """A duration as short text: ``"12 s"``, ``"7 min"``, ``"3.2 h"``, ``"2.1 days"``."""
+    if seconds < 120:
+        return f"{seconds:.0f} s" if seconds >= 1 else f"{seconds:.1f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
+def human_bytes(n: float) -> str:
+    """A size as short text: ``"880 B"``, ``"1.2 MB"``, ``"35 GB"`` (powers of 1000)."""
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} TB"  # pragma: no cover - the loop returns
