@@ -3,12 +3,14 @@
 :func:`pipeline.scan.estimate_scan` (and ``scan(..., estimate=callback)``, which calls
 back once before casting) plan the scan as it will run — each station's window, the
 cells some triangle can reach, the triangles loaded — and then cast a *sample* of the
-planned pulses (at most :data:`SAMPLE_PULSES`, in blocks spread over every station's
-plan) through the scan's own ray-casting scene, refined as the scan refines them:
+planned pulses (at most :data:`SAMPLE_PULSES` and 1/32 of them, in blocks spread over
+every station's plan; cast twice, the first warming Open3D's threads up) through the
+scan's own ray-casting scene, refined as the scan refines them:
 
 * **points** = the planned pulses × the sample's share of recorded hits;
 * **rate** = the sample's rays per second: measured on this machine, for this scene,
-  with the scan's thread count (nothing is cached: the sample costs ~10–50 ms);
+  with the scan's thread count (nothing is cached: the sample costs ~10–50 ms, a few
+  per cent of a small scan);
 * **time** = the planning already done (windows, BVH, occupancy) + the planned rays at
   the sampled rate × :data:`OVERHEAD` (what a scan does per ray besides casting and
   refining: directions, fields, the writer) + the points × :data:`SECONDS_PER_POINT`;

@@ -897,8 +897,10 @@ def _estimate(
     hits = sampled = 0
     secs = 0.0
     caster = plan.caster
+    # at most 1/32 of the scan (cast twice: a few % of a small scan's time)
+    budget = min(SAMPLE_PULSES, max(1024, total // 32))
     for k, (o, rot, grid, _, _, _) in enumerate(plan.plans):
-        m = min(grid.n_pulses, round(SAMPLE_PULSES * grid.n_pulses / max(total, 1)))
+        m = min(grid.n_pulses, round(budget * grid.n_pulses / max(total, 1)))
         if caster is None or m == 0:
             continue
         n_blocks = max(1, m // 256)
