@@ -64,13 +64,15 @@ def output_file(path: str | Path, *, flag: str = "-o", inputs: Iterable[str | Pa
     return p
 
 
-def output_folder(path: str | Path, *, flag: str = "-o") -> Path:
-    """``path`` as a folder a command may write into (created if missing).
+def output_folder(path: str | Path, *, flag: str = "-o", files: Iterable[str] = ()) -> Path:
+    """``path`` as a folder a command may write into (created if missing), ``files``
+    the names the command writes inside it.
 
     Raises
     ------
     InvalidParameterError
-        If ``path`` or a folder above it is a file, or it is not writable.
+        If ``path`` or a folder above it is a file, it is not writable, or one of
+        ``files`` inside it is a folder.
     """
     p = Path(path)
     if p.exists() and not p.is_dir():
@@ -79,4 +81,9 @@ def output_folder(path: str | Path, *, flag: str = "-o") -> Path:
             "(it is created if missing)"
         )
     _check_ancestors(p, flag)
+    for name in files:
+        if (p / name).is_dir():
+            raise InvalidParameterError(
+                f"cannot write {p / name}: it is a folder; move it away or give another {flag}"
+            )
     return p

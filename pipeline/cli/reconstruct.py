@@ -57,7 +57,7 @@ def params_from_args(args: argparse.Namespace) -> ReconstructParams:
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from ..steps import reconstruct_files
 
-    output_folder(args.output)
+    output_folder(args.output, files=("tree.ply", "cylinders.csv", "tree.json"))
     columns = None
     if args.columns:
         columns = [c.strip() or None for c in args.columns.split(",")]

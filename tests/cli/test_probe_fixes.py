@@ -240,6 +240,7 @@ def no_work(monkeypatch):
         (["compare", "{cloud}", "{mesh}", "-o", "{file}"], "it is a file, not a folder"),
         (["compare", "{cloud}", "{mesh}", "-o", "{file}/sub"], "afile is a file, not a folder"),
         (["reconstruct", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
+        (["reconstruct", "{cloud}", "-o", "{dir}"], "tree.ply: it is a folder"),
         (["run", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
         (["batch", "{cloud}", "-o", "{file}"], "it is a file, not a folder"),
         (["report", "{dir}", "-o", "{file}"], "it is a file, not a folder"),
@@ -258,6 +259,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
     (tmp_path / "afile.ply").write_text("a table, by name\n")
     adir = tmp_path / "adir"
     adir.mkdir()
+    (adir / "tree.ply").mkdir()  # where reconstruct writes its mesh
     cloud = tmp_path / "c.xyz"
     cloud.write_text("0 0 0\n1 0 0\n0 1 0\n0 0 1\n")
     names = {
