@@ -52,18 +52,17 @@ def main() -> int:
         say=lambda s: print(f"sweep: {s}", file=sys.stderr, flush=True),
     )
     wall = time.perf_counter() - t0
-    ok = res.count("ok")
-    ran = ok - res.n_reused
+    ran = res.n_ok - res.n_reused
     print(
         f"{len(res.rows)} points ({len(res.config.trees)} trees × {len(res.config.designs)} "
         f"designs, {len(res.config.parameters)} parameters): {ran} run, {res.n_reused} reused, "
-        f"{res.count('failed')} failed; wall time {wall:.0f} s on {res.plan.describe()}"
+        f"{res.n_failed} failed; wall time {wall:.0f} s on {res.plan.describe()}"
     )
     run_time = sum(r["time_total_s"] or 0 for r in res.rows if not r["reused"])
     if ran:
         print(f"loop time of the points run: {run_time:.0f} s (the rest: process start, truth)")
     print(f"page: {res.html}")
-    return 1 if res.count("failed") else 0
+    return 1 if res.n_failed else 0
 
 
 if __name__ == "__main__":

@@ -416,8 +416,30 @@ class BatchProgress:
 
 
 # -- the batch ----------------------------------------------------------------------------
+class RowCounts:
+    """Counts over the ``rows`` of a finished batch or sweep (each row a dict with its
+    ``status``, ``ok``, ``failed`` or ``not run``, and ``reused``)."""
+
+    rows: list[dict[str, Any]]
+
+    def count(self, status: str) -> int:
+        return sum(1 for r in self.rows if r.get("status") == status)
+
+    @property
+    def n_ok(self) -> int:
+        return self.count("ok")
+
+    @property
+    def n_failed(self) -> int:
+        return self.count("failed")
+
+    @property
+    def n_reused(self) -> int:
+        return sum(1 for r in self.rows if r.get("reused"))
+
+
 @dataclass
-class BatchResult:
+class BatchResult(RowCounts):
     """What :func:`run_batch` did.
 
     Attributes
@@ -443,21 +465,6 @@ class BatchResult:
     summary_csv: Path = field(default_factory=Path)
     summary_json: Path = field(default_factory=Path)
     index_html: Path = field(default_factory=Path)
-
-    def count(self, status: str) -> int:
-        return sum(1 for r in self.rows if r.get("status") == status)
-
-    @property
-    def n_ok(self) -> int:
-        return self.count("ok")
-
-    @property
-    def n_failed(self) -> int:
-        return self.count("failed")
-
-    @property
-    def n_reused(self) -> int:
-        return sum(1 for r in self.rows if r.get("reused"))
 
 
 @contextmanager

@@ -81,16 +81,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     for r in result.rows:
         if r["status"] == "failed":
             print(f"failed {r['id']}: {r.get('error_class')}: {r.get('error')}")
-    n_ok = result.count("ok")
     print(
-        f"{len(result.rows)} points: {n_ok - result.n_reused} run, {result.n_reused} "
-        f"unchanged (not run again), {result.count('failed')} failed, in "
+        f"{len(result.rows)} points: {result.n_ok - result.n_reused} run, {result.n_reused} "
+        f"unchanged (not run again), {result.n_failed} failed, in "
         f"{result.elapsed_s:.1f} s on {result.plan.describe()}; τ = "
         f"{result.tolerance['tolerance_m'] * 1000:.3g} mm"
     )
     print(f"table: {result.csv.resolve()} (and sweep.json)")
     print(f"page: {result.html.resolve()}")
-    return 1 if result.count("failed") else 0
+    return 1 if result.n_failed else 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_path, write_text
-from ..batch import BatchProgress, _drive, _install, _lock, _state
+from ..batch import BatchProgress, RowCounts, _drive, _install, _lock, _state
 from ..errors import InvalidParameterError
 from ..executors import Executor, ExecutorPlan, plan_executor
 from ..jsonio import json_ready, write_json
@@ -486,7 +486,7 @@ def fronts_of(rows: list[dict[str, Any]]) -> dict[str, dict[str, list[str]]]:
 
 # -- the sweep ------------------------------------------------------------------------------
 @dataclass
-class SweepResult:
+class SweepResult(RowCounts):
     """What :func:`run_sweep` did.
 
     Attributes
@@ -516,13 +516,6 @@ class SweepResult:
     csv: Path = field(default_factory=Path)
     json: Path = field(default_factory=Path)
     html: Path = field(default_factory=Path)
-
-    def count(self, status: str) -> int:
-        return sum(1 for r in self.rows if r.get("status") == status)
-
-    @property
-    def n_reused(self) -> int:
-        return sum(1 for r in self.rows if r.get("reused"))
 
 
 def _check_writable(out: Path) -> None:
@@ -749,10 +742,10 @@ def sweep_document(result: SweepResult, trees: list[PreparedTree]) -> dict[str, 
     rows = result.rows
     counts = {
         "points": len(rows),
-        "ok": sum(1 for r in rows if r["status"] == "ok"),
-        "failed": sum(1 for r in rows if r["status"] == "failed"),
-        "not_run": sum(1 for r in rows if r["status"] == "not run"),
-        "reused": sum(1 for r in rows if r["reused"]),
+        "ok": result.n_ok,
+        "failed": result.n_failed,
+        "not_run": result.count("not run"),
+        "reused": result.n_reused,
     }
     return {
         "kind": "treesim.sweep",
