@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputFormatError, InvalidParameterError
+from ..jsonio import json_ready
 from ..params import (
     SETTINGS,
     RunParams,
@@ -174,14 +175,6 @@ def _preset(name: str, where: str) -> RunParams:
     return _placed(run_preset, name, where=where)
 
 
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, tuple):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, dict):
-        return {k: _jsonable(x) for k, x in v.items()}
-    return v
-
-
 # -- trees ------------------------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
 class TreeSpec:
@@ -312,7 +305,7 @@ class Design:
 
 def design_key(params: RunParams, exec_paths: tuple[tuple[str, ...], ...]) -> str:
     """What names a design: the settings hash and the swept speed-only fields."""
-    extra = {".".join(p): _jsonable(value_at(params, p)) for p in exec_paths}
+    extra = {".".join(p): json_ready(value_at(params, p)) for p in exec_paths}
     text = json.dumps([params_hash(params), extra], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -381,7 +374,7 @@ class SweepConfig:
 
     def values_of(self, design: Design) -> dict[str, Any]:
         """The design's effective value of every swept parameter."""
-        return {n: _jsonable(value_at(design.params, paths_of(n)[0])) for n in self.parameters}
+        return {n: json_ready(value_at(design.params, paths_of(n)[0])) for n in self.parameters}
 
 
 def _number(v: Any, name: str, where: str, *, integer: bool = False) -> float:
@@ -583,7 +576,7 @@ def parse_sweep(
             Design(
                 index=len(designs),
                 labels=(label,) if label else (),
-                given={k: _jsonable(v) for k, v in values.items()},
+                given={k: json_ready(v) for k, v in values.items()},
                 params=params,
                 key=key,
             )
@@ -593,7 +586,7 @@ def parse_sweep(
         name=name,
         description=description,
         preset=preset,
-        base={k: _jsonable(v) for k, v in base.items()},
+        base={k: json_ready(v) for k, v in base.items()},
         parameters=tuple(parameters),
         designs=tuple(designs),
         trees=tuple(trees),
