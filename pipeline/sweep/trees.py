@@ -25,6 +25,7 @@ from typing import Any
 
 from ..jsonio import json_ready, write_json
 from ..params import ScanParams
+from ..run import file_sha256
 from .config import TreeSpec
 
 __all__ = ["PreparedTree", "derive_tolerance", "prepare_tree"]
@@ -62,12 +63,6 @@ class PreparedTree:
     info: dict[str, Any]
 
 
-def _sha256_file(path: Path) -> str:
-    from ..run import file_sha256
-
-    return file_sha256(path)
-
-
 def _scan_settings(reference: ScanParams) -> dict[str, Any]:
     d = json_ready(asdict(reference))
     for k in ("chunk_rays", "max_rays"):
@@ -81,7 +76,7 @@ def tree_key(spec: TreeSpec, reference: ScanParams) -> str:
 
     if spec.kind == "cloud":
         assert spec.path is not None
-        return _sha256_file(spec.path)
+        return file_sha256(spec.path)
     from ..models import species_preset
 
     assert spec.model is not None
