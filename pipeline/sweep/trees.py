@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..jsonio import json_ready, write_json
-from ..params import ScanParams
+from ..params import ScanParams, walk
 from ..run import file_sha256
 from .config import TreeSpec
 
@@ -64,9 +64,15 @@ class PreparedTree:
 
 
 def _scan_settings(reference: ScanParams) -> dict[str, Any]:
+    """The reference design's settings less those that decide only how fast it scans (the
+    model's ``execution_only`` fields, as :func:`pipeline.params.params_hash` leaves out)."""
     d = json_ready(asdict(reference))
-    for k in ("chunk_rays", "max_rays"):
-        d.pop(k, None)
+    for info in walk(ScanParams):
+        if info.execution_only:
+            node = d
+            for k in info.path[:-1]:
+                node = node.get(k, {})
+            node.pop(info.path[-1], None)
     return d
 
 
