@@ -676,10 +676,10 @@ def _run_points(
             )
     interrupted = False
     try:
+        if progress is not None:  # where the sweep starts from (reused points counted)
+            progress(_state(raw, len(order), 0, t_start, 0, None, None))
         if tasks:
             _drive(tasks, plan, raw, len(order), progress, t_start, fn=_run_point)
-        elif progress is not None:
-            progress(_state(raw, len(order), 0, t_start, 0, None, None))
     except KeyboardInterrupt:
         interrupted = True
     finally:

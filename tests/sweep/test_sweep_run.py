@@ -5,6 +5,7 @@ and the page self-contained."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import re
 import textwrap
@@ -12,7 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.batch import BatchProgress
 from pipeline.cli import main
+from pipeline.cli.progress import BatchProgressBar
 from pipeline.errors import InvalidParameterError
 from pipeline.sweep import FIGURES, pareto_front, run_sweep
 
@@ -143,11 +146,26 @@ def test_a_second_run_reuses_every_point(cli_sweep, capsys):
     assert len(before) == 4
     capsys.readouterr()
     assert main(["sweep", str(cfg), "-o", str(out)]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "0 run, 4 unchanged" in printed
+    assert "sweep: 4 points, 4 unchanged (not run again), 0 to run\n" in captured.err
     assert result_times(out) == before
     doc = json.loads((out / "sweep.json").read_text())
     assert doc["counts"]["reused"] == 4
+
+
+def test_the_progress_lines_count_points():
+    bar_text = io.StringIO()
+    bar = BatchProgressBar(bar_text, tty=False, name="sweep", noun="points")
+    start = dict(done=0, failed=0, reused=0, running=0, elapsed_s=0.0, eta_s=None)
+    bar(BatchProgress(total=1, **start))
+    row = {"id": "sapling-0123abcd", "status": "ok", "time_total_s": 2.0}
+    bar(BatchProgress(**{**start, "total": 1, "done": 1, "elapsed_s": 2.0, "last": row}))
+    assert bar_text.getvalue() == (
+        "sweep: 1 point, 0 unchanged (not run again), 1 to run\n"
+        "sweep: 1/1 points · 0 failed; sapling-0123abcd ok in 2.0 s; done\n"
+    )
 
 
 # -- resumable --------------------------------------------------------------------------------
