@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ._options import whole_number
 from ._outputs import output_folder
 
 if TYPE_CHECKING:
@@ -112,7 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("-o", "--output", metavar="OUTDIR", help="the sweep's folder")
     sp.add_argument(
         "--repeat",
-        type=int,
+        type=whole_number(1),
         metavar="N",
         help="timings per point, each in a fresh process (default: the file's repeat, or 1); "
         "finished points get only the missing timings",
@@ -131,8 +132,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="inline: one point at a time (default; the cleanest timings); local: a process "
         "pool; dask: a Dask cluster. Every point runs in a fresh process of its own",
     )
-    x.add_argument("--workers", type=int, help="points at once (local, dask; default one per core)")
-    x.add_argument("--threads", type=int, help="threads per point (default cores // workers)")
+    x.add_argument(
+        "--workers",
+        type=whole_number(1),
+        help="points at once (local, dask; default one per core)",
+    )
+    x.add_argument(
+        "--threads", type=whole_number(1), help="threads per point (default cores // workers)"
+    )
     x.add_argument(
         "--scheduler",
         metavar="ADDRESS",

@@ -303,6 +303,23 @@ def test_the_cli_says_a_bad_name_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--repeat", "0"], "--repeat: expected a whole number >= 1, got '0'"),
+        (["--workers", "0"], "--workers: expected a whole number >= 1, got '0'"),
+        (["--threads", "x"], "--threads: expected a whole number >= 1, got 'x'"),
+    ],
+)
+def test_counts_are_checked_while_the_flags_are_read(tmp_path, capsys, flags, message):
+    cfg = write(tmp_path, TINY + "[grid]\nfacets = [8]\n")
+    with pytest.raises(SystemExit) as info:
+        main(["sweep", str(cfg), "-o", str(tmp_path / "o"), *flags])
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_list_shows_the_points_without_running(tmp_path, capsys):
     cfg = write(tmp_path, TINY + '[grid]\nfacets = [8, 16]\n[[point]]\npreset = "standard"\n')
     assert main(["sweep", str(cfg), "--list"]) == 0
