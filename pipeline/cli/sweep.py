@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -47,7 +48,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         output_folder(args.output)
     cfg = load_sweep(args.config)
     if args.list:
-        return _list(cfg)
+        return _list(cfg if args.repeat is None else replace(cfg, repeat=args.repeat))
     bar = (
         None
         if args.no_progress

@@ -326,3 +326,6 @@ def test_list_shows_the_points_without_running(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1 trees × 3 designs = 3 points" in out
     assert "[standard]" in out
+    assert "; repeat 1;" in out
+    assert main(["sweep", str(cfg), "--list", "--repeat", "3"]) == 0
+    assert "; repeat 3;" in capsys.readouterr().out  # what a run with --repeat 3 would do
