@@ -490,8 +490,9 @@ designs): {c.get("ok", 0)} ok ({c.get("reused", 0)} unchanged from an earlier ru
 <a href="sweep.json">sweep.json</a>.</p>
 <p class="muted">{esc(str(ex.get("description", "")))}; {doc.get("repeat", 1)} timing(s) per
 point, each run in a fresh process; {esc(str(m.get("cpu", "")))}, {m.get("cores", "?")} cores,
-Python {esc(str(m.get("python", "")))}; finished {esc(str(doc.get("finished", "")))}, sweep
-wall time {float(doc.get("elapsed_s") or 0):.0f} s; treesim {esc(str(doc.get("treesim", "")))}.</p>
+Python {esc(str(m.get("python", "")))}; finished {esc(str(doc.get("finished", "")))}, wall
+time of the run that finished it {float(doc.get("elapsed_s") or 0):.0f} s (earlier runs, whose
+points it kept or timed again, not counted); treesim {esc(str(doc.get("treesim", "")))}.</p>
 <h2>Trees</h2><ul>{tree_items}</ul>
 <h2>Parameters</h2><p>Every design starts from the <code>{esc(str(doc.get("preset", "")))}</code>
 preset{base_text};

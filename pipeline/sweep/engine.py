@@ -501,6 +501,8 @@ class SweepResult(RowCounts):
         τ and how it was chosen.
     plan : ExecutorPlan
     elapsed_s : float
+        Wall time of this call (``sweep.json``'s ``elapsed_s``), not of earlier calls
+        whose finished points it reused or timed again.
     interrupted : bool
     csv, json, html : Path
     """
