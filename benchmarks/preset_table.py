@@ -113,17 +113,20 @@ def _when(doc: dict[str, Any]) -> str:
     )
 
 
-def settings_of(name: str) -> dict[str, Any]:
-    from pipeline.params import run_preset
-
-    p = run_preset(name)
-    n = p.reconstruct.facets
+def settings_of(doc: dict[str, Any], name: str) -> dict[str, Any]:
+    """What preset ``name`` set where the sweep measured it (its design's settings as
+    ``sweep.json`` records them, not the presets of the code as it is now)."""
+    designs = [d for d in doc["designs"] if name in d["labels"]]
+    if not designs:
+        raise SystemExit(f"{SWEEP.name}: no design of preset {name}")
+    p = designs[0]["parameters"]
+    n = p["reconstruct"]["facets"]
     return {
-        "step": p.scan.scanner.horizontal_resolution_deg,
+        "step": p["scan"]["scanner"]["horizontal_resolution_deg"],
         "facets": n,
         "prism": (n / (2 * math.pi)) * math.sin(2 * math.pi / n) - 1,
-        "voxel_mm": p.reconstruct.prepare.voxel_size_m * 1000,
-        "samples": p.compare.max_samples,
+        "voxel_mm": p["reconstruct"]["prepare"]["voxel_size_m"] * 1000,
+        "samples": p["compare"]["max_samples"],
     }
 
 
@@ -145,7 +148,7 @@ def markdown(doc: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, tree, r in preset_rows(doc):
-        s = settings_of(name)
+        s = settings_of(doc, name)
         ref = _ref(tree)
         dbh = r["dbh_error_m"]
         dbh_text = "–" if dbh is None else f"{dbh * 1000:+.1f} mm"
@@ -182,7 +185,7 @@ def text(doc: dict[str, Any]) -> str:
         "  preset    scan step  facets  mesh volume vs cylinders  voxel  mesh samples",
     ]
     for name in PRESETS:
-        s = settings_of(name)
+        s = settings_of(doc, name)
         n = s["samples"]
         samples = f"{n // 1_000_000}M" if n >= 1_000_000 else f"{n // 1000}k"
         prism = f"{s['prism'] * 100:.2g} %"
