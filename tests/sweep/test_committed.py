@@ -3,6 +3,7 @@ finished, its page shows the fronts, and the preset tables are generated from it
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 from pathlib import Path
@@ -11,7 +12,7 @@ import pytest
 
 from benchmarks import preset_table
 from pipeline.sweep import load_sweep
-from pipeline.sweep.engine import point_id
+from pipeline.sweep.engine import _csv_value, point_id
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "benchmarks" / "sweeps" / "presets"
@@ -35,6 +36,15 @@ def test_it_is_the_committed_config_and_every_point_finished(doc):
     # the designs' settings are the config's (no stale sweep under a changed file)
     by_key = {d["key"]: d for d in doc["designs"]}
     assert set(by_key) == {d.key for d in cfg.designs}
+
+
+def test_its_table_is_its_rows(doc):
+    # sweep.csv and sweep.json are written from the same rows: neither was edited apart
+    with open(OUT / "sweep.csv", newline="", encoding="utf-8") as fh:
+        table = list(csv.DictReader(fh))
+    assert list(table[0]) == doc["columns"]
+    want = [{c: str(_csv_value(r.get(c))) for c in doc["columns"]} for r in doc["rows"]]
+    assert table == want
 
 
 def test_its_page_shows_the_fronts(doc):
