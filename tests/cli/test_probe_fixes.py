@@ -13,6 +13,7 @@ import pytest
 from pipeline.cli import build_parser, main
 from pipeline.cli._options import PARAM, SETTING
 from pipeline.io.mesh import write_mesh
+from tests.architecture.test_cli_options import PARSERS
 from tests.conftest import box_arrays, messages
 
 
@@ -114,17 +115,6 @@ def test_numbers_out_of_range_are_usage_errors_that_say_the_range(argv, message,
     assert "invalid" not in err and "read_int" not in err
 
 
-def _parsers() -> list[tuple[str, argparse.ArgumentParser]]:
-    out, todo = [], [("", build_parser())]
-    while todo:
-        name, p = todo.pop()
-        out.append((name, p))
-        for a in p._actions:
-            if isinstance(a, argparse._SubParsersAction):
-                todo.extend((f"{name} {k}".strip(), sp) for k, sp in a.choices.items())
-    return out
-
-
 def _outside(info) -> list[float]:
     ge, gt, le, lt = info.bounds
     out = [float("nan"), float("inf")]
@@ -141,7 +131,7 @@ def test_every_number_option_refuses_what_its_parameter_refuses():
     from pipeline.errors import InvalidParameterError
 
     checked = 0
-    for name, parser in _parsers():
+    for name, parser in PARSERS:
         for a in parser._actions:
             info = getattr(a, PARAM, None) or getattr(getattr(a, SETTING, None), "info", None)
             if info is None or info.base_type not in ("int", "float") or info.choices:
