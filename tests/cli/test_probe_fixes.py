@@ -205,6 +205,7 @@ _STAGES = {
     "pipeline.batch": ("run_batch",),
     "pipeline.report": ("build_report",),
     "pipeline.models": ("generate_tree", "read_cylinders"),
+    "pipeline.sweep": ("load_sweep", "run_sweep"),
 }
 
 
