@@ -306,14 +306,23 @@ def to_toml(params: RunParams) -> str:
 
 
 _JSON_TYPES = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
+#: JSON Schema's names of the bounds :func:`~pipeline.params.param` declares.
+_JSON_BOUNDS = ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
+
+
+def _bounds(info: ParamInfo) -> dict[str, float]:
+    """The field's declared range (``param(ge=, gt=, le=, lt=)``) as JSON Schema keywords,
+    so that the schema states the range :func:`merge` enforces."""
+    return {k: b for k, b in zip(_JSON_BOUNDS, info.bounds, strict=True) if b is not None}
 
 
 def json_schema(cls: type = RunParams) -> dict[str, Any]:
     """A JSON Schema (draft 2020-12) of a parameter dataclass, from the parameter model.
 
-    Every property carries its help (``description``), unit (``x-unit``), default and
-    choices; nested dataclasses are nested objects; unknown keys are refused, as
-    :func:`merge` refuses them. The schema describes; :func:`merge` still decides.
+    Every property carries its help (``description``), unit (``x-unit``), default,
+    choices and declared range (``minimum``, ``exclusiveMinimum``, ...); nested
+    dataclasses are nested objects; unknown keys are refused, as :func:`merge` refuses
+    them. The schema describes; :func:`merge` still decides.
     """
     props: dict[str, Any] = {}
     for info in describe(cls):
@@ -326,7 +335,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         t = info.base_type
         if t.startswith("tuple") or t.startswith("list"):
             item = "integer" if "int" in t.split("[", 1)[1] else "number"
-            schema: dict[str, Any] = {"type": "array", "items": {"type": item}}
+            schema: dict[str, Any] = {"type": "array", "items": {"type": item, **_bounds(info)}}
             if "..." not in t:
                 n = t.split("[", 1)[1].count(",") + 1
                 schema.update(minItems=n, maxItems=n)
@@ -335,7 +344,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         elif info.choices:
             schema = {"type": "string", "enum": list(info.choices)}
         else:
-            schema = {"type": _JSON_TYPES.get(info.base_type, "string")}
+            schema = {"type": _JSON_TYPES.get(info.base_type, "string"), **_bounds(info)}
         if info.optional:
             schema = {"anyOf": [schema, {"type": "null"}]}
         schema["description"] = info.help + (
