@@ -210,7 +210,10 @@ class ParamInfo:
         """Whether the number ``value`` is finite, whole for an integer field, and within
         the declared bounds."""
         ge, gt, le, lt = self.bounds
-        v = float(value)
+        try:
+            v = float(value)
+        except OverflowError:  # an int beyond any float: out of every range
+            return False
         return (
             math.isfinite(v)
             and (not self.integer or v.is_integer())
