@@ -96,7 +96,7 @@ class BatchProgressBar:
     width : int
         Characters of the bar.
     name, noun : str
-        What runs and what it counts (``treesim sweep``: ``"sweep"``, ``"points"``).
+        What runs and what it counts, plural (``treesim sweep``: ``"sweep"``, ``"points"``).
     """
 
     def __init__(
@@ -120,8 +120,9 @@ class BatchProgressBar:
     def __call__(self, p: BatchProgress) -> None:
         if not self.tty and not self._started:  # a log says at once what the batch will do
             self._started = True
+            noun = self.noun if p.total != 1 else self.noun.removesuffix("s")
             self.stream.write(
-                f"batch: {p.total} tree{'s' if p.total != 1 else ''}, {p.reused} unchanged "
+                f"{self.name}: {p.total} {noun}, {p.reused} unchanged "
                 f"(not run again), {p.total - p.reused} to run\n"
             )
         left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"

@@ -373,6 +373,28 @@ def test_the_terminal_form_is_unchanged(capsys):
     assert progress_printer(False) is None
 
 
+@pytest.mark.parametrize(
+    ("kw", "first"),
+    [
+        ({}, "batch: 3 trees, 1 unchanged (not run again), 2 to run"),
+        (
+            {"name": "sweep", "noun": "points"},
+            "sweep: 3 points, 1 unchanged (not run again), 2 to run",
+        ),
+    ],
+)
+def test_the_plain_bar_first_says_what_it_will_run_in_its_own_words(kw, first):
+    import io
+
+    from pipeline.batch import BatchProgress
+    from pipeline.cli.progress import BatchProgressBar
+
+    stream = io.StringIO()
+    bar = BatchProgressBar(stream, tty=False, **kw)
+    bar(BatchProgress(total=3, done=1, failed=0, reused=1, running=1, elapsed_s=0, eta_s=None))
+    assert stream.getvalue().splitlines() == [first]
+
+
 # -- 7. a scan that runs but may not be what was meant warns on stderr, not only in OUT.json --
 @pytest.mark.parametrize(
     ("flip", "station", "words"),
