@@ -15,7 +15,6 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import InvalidParameterError
 from ..params import ParamInfo, Setting, describe, field_info, set_path
 from ..params._fields import read_int
 
@@ -91,30 +90,20 @@ def whole_number(minimum: int) -> Callable[[str], int]:
     return read
 
 
-def floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    """``n`` comma-separated finite numbers (``"-40,90"``), or an
-    :class:`InvalidParameterError` naming ``what``."""
-    try:
-        vals = tuple(float(v) for v in text.replace(" ", "").split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise InvalidParameterError(
-            f"{what} must be {n} finite numbers separated by commas, got {text!r}"
-        )
-    return vals
-
-
 def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
-    """The argparse ``type`` reading :func:`floats` (a usage error, exit 2)."""
+    """The argparse ``type`` of ``n`` comma-separated finite numbers (``"-40,90"``) for
+    the option ``what``, or a usage error (exit 2)."""
 
     def read(text: str) -> tuple[float, ...]:
         try:
-            return floats(text, n, what)
-        except InvalidParameterError:
+            vals = tuple(float(v) for v in text.replace(" ", "").split(","))
+        except ValueError:
+            vals = ()
+        if len(vals) != n or not all(math.isfinite(v) for v in vals):
             raise argparse.ArgumentTypeError(
                 f"expected {n} finite numbers separated by commas, got {text!r}"
-            ) from None
+            )
+        return vals
 
     read.__name__ = what.lstrip("-")
     return read
