@@ -158,10 +158,9 @@ def _coerce(value: Any, current: Any, info: ParamInfo, name: str) -> Any:
     if isinstance(current, (int, float)) and not isinstance(current, bool):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InvalidParameterError(f"{name} must be a number, got {value!r}")
-        integer = isinstance(current, int) and "float" not in info.type
-        if integer and value != int(value):
-            raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
-        return int(value) if integer else value
+        if info.integer and isinstance(value, float) and value.is_integer():
+            return int(value)  # 3.0 (JSON, TOML) for a whole number
+        return value  # 2.5, inf or nan for a whole number: check_bounds refuses and says why
     return value
 
 
