@@ -9,9 +9,10 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from ..batch import BatchProgress
+if TYPE_CHECKING:  # only named: scan, compare, reconstruct need not import the batch engine
+    from ..batch import BatchProgress
 
 __all__ = ["BatchProgressBar", "print_warnings", "progress_printer"]
 
