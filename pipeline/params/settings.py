@@ -31,6 +31,7 @@ __all__ = [
     "json_schema",
     "load_config",
     "params_from_dict",
+    "read_toml",
     "to_toml",
     "scan_params",
 ]
@@ -235,6 +236,20 @@ def load_config(path: str | Path, *, base: RunParams | None = None) -> RunParams
     InvalidParameterError
         If a key is unknown or a value is out of range.
     """
+    p = Path(path)
+    return params_from_dict(read_toml(p, "config file"), base=base, where=f"{p.name}: ")
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The TOML file ``path`` as a mapping; ``what`` names it in errors (``"config file"``).
+
+    Raises
+    ------
+    InputFormatError
+        If the file is missing, unreadable or not valid TOML.
+    InvalidParameterError
+        On Python 3.10 without ``tomli``.
+    """
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
@@ -242,18 +257,17 @@ def load_config(path: str | Path, *, base: RunParams | None = None) -> RunParams
             import tomli as tomllib  # type: ignore[no-redef]
         except ModuleNotFoundError:
             raise InvalidParameterError(
-                "reading --config needs Python 3.11 or 'pip install tomli'"
+                f"reading a {what} needs Python 3.11 or 'pip install tomli'"
             ) from None
     p = Path(path)
     if not p.is_file():
-        raise InputFormatError(f"config file {p} not found; check the path")
+        raise InputFormatError(f"{what} {p} not found; check the path")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputFormatError(f"config file {p} could not be read: {exc}") from None
+        raise InputFormatError(f"{what} {p} could not be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise InputFormatError(f"config file {p} is not valid TOML: {exc}") from None
-    return params_from_dict(data, base=base, where=f"{p.name}: ")
+        raise InputFormatError(f"{what} {p} is not valid TOML: {exc}") from None
 
 
 def to_toml(params: RunParams) -> str:
