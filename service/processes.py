@@ -20,10 +20,12 @@ from pipeline.params import (
     DEFAULT_RUN_PRESET,
     INSTRUMENTS,
     RUN_PRESETS,
+    SETTINGS,
     CompareParams,
     ReconstructParams,
     ReportParams,
     RunParams,
+    ScannerSpec,
     ScanParams,
     json_schema,
     merge,
@@ -109,17 +111,33 @@ def _version() -> str:
     return __version__
 
 
+#: JSON Schema keywords of a number's range: the schema states it, the model words it.
+_RANGE_KEYWORDS = frozenset({"minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"})
+
+
+def _out_of_range(err: Any) -> bool:
+    """Whether a schema error is only a number outside its declared range (also inside an
+    optional field's ``anyOf``): the parameter model refuses the same values (one range,
+    ``param(ge=...)``) and says so in the command line's words."""
+    if err.validator in _RANGE_KEYWORDS:
+        return True
+    return err.validator == "anyOf" and any(_out_of_range(c) for c in err.context)
+
+
 def check_parameters(process: Process, parameters: Mapping[str, Any]) -> Any:
     """Validate a request's parameters: against the JSON Schema first (so an unknown or
-    mistyped field is named by its path), then by the parameter model. Returns the
-    parameter object; raises :class:`InvalidParameterError` (its ``field`` attribute names
-    the parameter)."""
+    mistyped field is named by its path), then by the parameter model (which also words a
+    value out of its range). Returns the parameter object; raises
+    :class:`InvalidParameterError` (its ``field`` attribute names the parameter)."""
     import jsonschema
 
     if not isinstance(parameters, Mapping):
         raise _field_error("parameters", "parameters must be an object")
     validator = jsonschema.Draft202012Validator(process.parameters_schema())
-    errors = sorted(validator.iter_errors(dict(parameters)), key=lambda e: list(e.path))
+    errors = sorted(
+        (e for e in validator.iter_errors(dict(parameters)) if not _out_of_range(e)),
+        key=lambda e: list(e.path),
+    )
     if errors:
         err = errors[0]
         path = ".".join(str(p) for p in err.path)
@@ -236,13 +254,18 @@ def _scan_extra() -> dict[str, Any]:
             "description": "turn on range noise and angular jitter: the instrument's, or a "
             "generic TLS's without one (as treesim scan --noise)",
         },
-        "resolution_deg": {
-            "type": "number",
-            "exclusiveMinimum": 0,
-            "description": "horizontal and vertical angular step of the scanner",
-            "x-unit": "deg",
-        },
+        "resolution_deg": _resolution_schema(),
     }
+
+
+def _resolution_schema() -> dict[str, Any]:
+    """``resolution_deg`` (the flat setting, as treesim scan --resolution-deg): the schema
+    of the angular step it sets on both axes (its range and unit), less the default, which
+    comes from the preset or the instrument."""
+    setting = SETTINGS["resolution_deg"]
+    step = json_schema(ScannerSpec)["properties"][setting.paths[0][-1]]
+    step.pop("default")
+    return {**step, "description": setting.help}
 
 
 def _parse_scan(parameters: Mapping[str, Any]) -> ScanParams:

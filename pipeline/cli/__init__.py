@@ -87,6 +87,12 @@ def _watch_interrupts() -> tuple[Callable[[], bool], Callable[[], None]]:
     return (lambda: seen[0]), restore
 
 
+def _interrupted() -> int:
+    """Say that the command was interrupted; its exit status (130, as a shell's)."""
+    print("treesim: interrupted", file=sys.stderr)
+    return 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -97,12 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print("treesim: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted()
     except TreesimError as exc:
         if interrupted():  # a library turned the Ctrl-C into its own error
-            print("treesim: interrupted", file=sys.stderr)
-            return 130
+            return _interrupted()
         print(f"treesim: error: {exc}", file=sys.stderr)
         return 1
     except MemoryError:
@@ -113,8 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except Exception as exc:  # never a traceback for users
         if interrupted():
-            print("treesim: interrupted", file=sys.stderr)
-            return 130
+            return _interrupted()
         if os.environ.get("TREESIM_DEBUG"):
             raise
         print(

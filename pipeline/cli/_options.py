@@ -15,9 +15,8 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import InvalidParameterError
 from ..params import ParamInfo, Setting, describe, field_info, set_path
-from ..params._fields import NONE_WORDS, read_int
+from ..params._fields import read_int
 
 #: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
 PARAM = "treesim_param"
@@ -47,36 +46,30 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"treesim: error: {message} (see '{self.prog} --help')\n")
 
 
-def _number(text: str, integer: bool) -> float | None:
-    """The number ``text`` says (a whole one for ``integer``, ``1e6`` allowed), or None."""
-    try:
-        return float(read_int(text)) if integer else float(text)
-    except (ValueError, OverflowError):
-        return None
-
-
 def number_type(
     info: ParamInfo, *, none: Any = None, element: bool = False
 ) -> Callable[[str], Any]:
     """The argparse ``type`` of a number field: finite, whole for an ``int``, within the
     bounds the parameter model declares (``param(ge=...)``), or a usage error saying so
     (``--max-rays: expected a whole number >= 1, got 'nan'``). Optional fields also read
-    ``0`` and ``none`` as ``none`` (what the flag's value is then: ``None`` for a
-    parameter option, ``0`` for a flat setting, which reads it as ``None`` itself).
-    ``element``: read one value of a list field (``--bpa-radius-m``, repeatable)."""
+    ``0`` and ``none`` as ``none`` (:meth:`ParamInfo.read`'s rule; what the flag's value is
+    then: ``None`` for a parameter option, ``0`` for a flat setting, which reads it as
+    ``None`` itself). ``element``: read one value of a list field (``--bpa-radius-m``,
+    repeatable)."""
     optional = info.optional and not element
+    parse = float if element else info.read
 
     def read(text: str) -> Any:
-        t = text.strip()
-        if optional and t.lower() in NONE_WORDS:
+        try:
+            v = parse(text)
+        except (ValueError, OverflowError):
+            v = math.nan  # not a number (or not a whole one): refused below
+        if v is None:
             return none
-        v = _number(t, info.integer)
-        if optional and v == 0:
-            return none
-        if v is None or not info.in_range(v):
+        if not info.in_range(v):
             also = f", or 0/none for {info.none_means or 'none'}" if optional else ""
             raise argparse.ArgumentTypeError(f"expected {info.range_text()}{also}, got {text!r}")
-        return int(v) if info.integer else v
+        return v
 
     read.__name__ = info.name
     return read
@@ -86,38 +79,31 @@ def whole_number(minimum: int) -> Callable[[str], int]:
     """The argparse ``type`` of a count that is no parameter (``batch --workers``)."""
 
     def read(text: str) -> int:
-        v = _number(text.strip(), True)
+        try:
+            v = read_int(text.strip())
+        except (ValueError, OverflowError):
+            v = None
         if v is None or v < minimum:
             raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}")
-        return int(v)
+        return v
 
     return read
 
 
-def floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    """``n`` comma-separated finite numbers (``"-40,90"``), or an
-    :class:`InvalidParameterError` naming ``what``."""
-    try:
-        vals = tuple(float(v) for v in text.replace(" ", "").split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise InvalidParameterError(
-            f"{what} must be {n} finite numbers separated by commas, got {text!r}"
-        )
-    return vals
-
-
 def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
-    """The argparse ``type`` reading :func:`floats` (a usage error, exit 2)."""
+    """The argparse ``type`` of ``n`` comma-separated finite numbers (``"-40,90"``) for
+    the option ``what``, or a usage error (exit 2)."""
 
     def read(text: str) -> tuple[float, ...]:
         try:
-            return floats(text, n, what)
-        except InvalidParameterError:
+            vals = tuple(float(v) for v in text.replace(" ", "").split(","))
+        except ValueError:
+            vals = ()
+        if len(vals) != n or not all(math.isfinite(v) for v in vals):
             raise argparse.ArgumentTypeError(
                 f"expected {n} finite numbers separated by commas, got {text!r}"
-            ) from None
+            )
+        return vals
 
     read.__name__ = what.lstrip("-")
     return read

@@ -43,11 +43,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from ..models import generate_tree, species_preset, write_cylinders
 
     mp = merge(ModelParams(), collect(args))
+    facets = mp.facets
     out = Path(args.output)
     _check_output(out)
-    for path in (out, *companion_paths(out)):
+    table_path, truth_path = companion_paths(out)
+    for path in (out, table_path, truth_path):
         output_file(path)
-    facets = mp.facets
     if mp.species is None:
         raise InvalidParameterError(
             "give the tree species: --species NAME (see 'treesim model list')"
@@ -55,7 +56,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
     params = species_preset(mp.species)
     tree = generate_tree(params, seed=mp.seed, leaves=mp.leaves)
     vertices, faces, label = tree.mesh(facets)
-    table_path, truth_path = companion_paths(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_mesh(out, vertices, faces, face_label=label)
     write_cylinders(table_path, tree.cylinders)

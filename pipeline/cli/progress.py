@@ -9,9 +9,10 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from ..batch import BatchProgress
+if TYPE_CHECKING:  # only named: scan, compare, reconstruct need not import the batch engine
+    from ..batch import BatchProgress
 
 __all__ = ["BatchProgressBar", "print_warnings", "progress_printer"]
 
@@ -96,7 +97,7 @@ class BatchProgressBar:
     width : int
         Characters of the bar.
     name, noun : str
-        What runs and what it counts (``treesim sweep``: ``"sweep"``, ``"points"``).
+        What runs and what it counts, plural (``treesim sweep``: ``"sweep"``, ``"points"``).
     """
 
     def __init__(

@@ -55,9 +55,10 @@ def params_from_args(args: argparse.Namespace) -> ReconstructParams:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
+    from ..reconstruct import OUTPUT_FILES
     from ..steps import reconstruct_files
 
-    output_folder(args.output, files=("tree.ply", "cylinders.csv", "tree.json"))
+    output_folder(args.output, files=OUTPUT_FILES.values())
     columns = None
     if args.columns:
         columns = [c.strip() or None for c in args.columns.split(",")]

@@ -9,6 +9,7 @@ default or a help text of its own.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 from collections.abc import Callable, Iterator
@@ -209,7 +210,10 @@ class ParamInfo:
         """Whether the number ``value`` is finite, whole for an integer field, and within
         the declared bounds."""
         ge, gt, le, lt = self.bounds
-        v = float(value)
+        try:
+            v = float(value)
+        except OverflowError:  # an int beyond any float: out of every range
+            return False
         return (
             math.isfinite(v)
             and (not self.integer or v.is_integer())
@@ -282,23 +286,30 @@ def check_bounds(obj: Any) -> None:
     the bounds it was declared with (``param(ge=..., ...)``); ``None`` passes for optional
     fields. Called first by the parameter dataclasses' ``__post_init__``, so the declared
     range is the one the model enforces (and the one the command line checks)."""
-    for f in fields(obj):
-        info = _info(type(obj), f, (f.name,))
-        t = info.base_type
-        if t not in ("int", "float", "tuple[float,...]") or info.choices:
-            continue
-        value = getattr(obj, f.name)
+    for info in _number_fields(type(obj)):
+        value = getattr(obj, info.name)
         if value is None and info.optional:
             continue
-        many = t.startswith("tuple")
+        many = info.base_type.startswith("tuple")
         if many and not isinstance(value, (tuple, list)):
-            raise InvalidParameterError(f"{f.name} must be a list of numbers, got {value!r}")
+            raise InvalidParameterError(f"{info.name} must be a list of numbers, got {value!r}")
         for v in value if many else (value,):
             if isinstance(v, bool) or not isinstance(v, numbers.Real) or not info.in_range(v):
                 each = "each value of " if many else ""
                 raise InvalidParameterError(
-                    f"{each}{f.name} must be {info.range_text()}, got {value!r}"
+                    f"{each}{info.name} must be {info.range_text()}, got {value!r}"
                 )
+
+
+@functools.cache
+def _number_fields(cls: type) -> tuple[ParamInfo, ...]:
+    """The fields of dataclass ``cls`` that :func:`check_bounds` checks, read once per
+    class (reading a field's description builds its default, nested dataclasses too)."""
+    return tuple(
+        info
+        for info in describe(cls)
+        if info.base_type in ("int", "float", "tuple[float,...]") and not info.choices
+    )
 
 
 def finite(name: str, value: float) -> float:

@@ -31,6 +31,7 @@ __all__ = [
     "json_schema",
     "load_config",
     "params_from_dict",
+    "read_toml",
     "to_toml",
     "scan_params",
 ]
@@ -158,10 +159,9 @@ def _coerce(value: Any, current: Any, info: ParamInfo, name: str) -> Any:
     if isinstance(current, (int, float)) and not isinstance(current, bool):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InvalidParameterError(f"{name} must be a number, got {value!r}")
-        integer = isinstance(current, int) and "float" not in info.type
-        if integer and value != int(value):
-            raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
-        return int(value) if integer else value
+        if info.integer and isinstance(value, float) and value.is_integer():
+            return int(value)  # 3.0 (JSON, TOML) for a whole number
+        return value  # 2.5, inf or nan for a whole number: check_bounds refuses and says why
     return value
 
 
@@ -236,6 +236,20 @@ def load_config(path: str | Path, *, base: RunParams | None = None) -> RunParams
     InvalidParameterError
         If a key is unknown or a value is out of range.
     """
+    p = Path(path)
+    return params_from_dict(read_toml(p, "config file"), base=base, where=f"{p.name}: ")
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The TOML file ``path`` as a mapping; ``what`` names it in errors (``"config file"``).
+
+    Raises
+    ------
+    InputFormatError
+        If the file is missing, unreadable or not valid TOML.
+    InvalidParameterError
+        On Python 3.10 without ``tomli``.
+    """
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
@@ -243,18 +257,17 @@ def load_config(path: str | Path, *, base: RunParams | None = None) -> RunParams
             import tomli as tomllib  # type: ignore[no-redef]
         except ModuleNotFoundError:
             raise InvalidParameterError(
-                "reading --config needs Python 3.11 or 'pip install tomli'"
+                f"reading a {what} needs Python 3.11 or 'pip install tomli'"
             ) from None
     p = Path(path)
     if not p.is_file():
-        raise InputFormatError(f"config file {p} not found; check the path")
+        raise InputFormatError(f"{what} {p} not found; check the path")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputFormatError(f"config file {p} could not be read: {exc}") from None
+        raise InputFormatError(f"{what} {p} could not be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise InputFormatError(f"config file {p} is not valid TOML: {exc}") from None
-    return params_from_dict(data, base=base, where=f"{p.name}: ")
+        raise InputFormatError(f"{what} {p} is not valid TOML: {exc}") from None
 
 
 def to_toml(params: RunParams) -> str:
@@ -306,14 +319,23 @@ def to_toml(params: RunParams) -> str:
 
 
 _JSON_TYPES = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
+#: JSON Schema's names of the bounds :func:`~pipeline.params.param` declares.
+_JSON_BOUNDS = ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
+
+
+def _bounds(info: ParamInfo) -> dict[str, float]:
+    """The field's declared range (``param(ge=, gt=, le=, lt=)``) as JSON Schema keywords,
+    so that the schema states the range :func:`merge` enforces."""
+    return {k: b for k, b in zip(_JSON_BOUNDS, info.bounds, strict=True) if b is not None}
 
 
 def json_schema(cls: type = RunParams) -> dict[str, Any]:
     """A JSON Schema (draft 2020-12) of a parameter dataclass, from the parameter model.
 
-    Every property carries its help (``description``), unit (``x-unit``), default and
-    choices; nested dataclasses are nested objects; unknown keys are refused, as
-    :func:`merge` refuses them. The schema describes; :func:`merge` still decides.
+    Every property carries its help (``description``), unit (``x-unit``), default,
+    choices and declared range (``minimum``, ``exclusiveMinimum``, ...); nested
+    dataclasses are nested objects; unknown keys are refused, as :func:`merge` refuses
+    them. The schema describes; :func:`merge` still decides.
     """
     props: dict[str, Any] = {}
     for info in describe(cls):
@@ -326,7 +348,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         t = info.base_type
         if t.startswith("tuple") or t.startswith("list"):
             item = "integer" if "int" in t.split("[", 1)[1] else "number"
-            schema: dict[str, Any] = {"type": "array", "items": {"type": item}}
+            schema: dict[str, Any] = {"type": "array", "items": {"type": item, **_bounds(info)}}
             if "..." not in t:
                 n = t.split("[", 1)[1].count(",") + 1
                 schema.update(minItems=n, maxItems=n)
@@ -335,7 +357,7 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
         elif info.choices:
             schema = {"type": "string", "enum": list(info.choices)}
         else:
-            schema = {"type": _JSON_TYPES.get(info.base_type, "string")}
+            schema = {"type": _JSON_TYPES.get(info.base_type, "string"), **_bounds(info)}
         if info.optional:
             schema = {"anyOf": [schema, {"type": "null"}]}
         schema["description"] = info.help + (

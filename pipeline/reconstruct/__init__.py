@@ -37,6 +37,7 @@ if TYPE_CHECKING:  # the stages import scipy: loaded when a reconstruction runs,
 
 __all__ = [
     "METHODS",
+    "OUTPUT_FILES",
     "PrepareParams",
     "QSMParams",
     "ReconstructParams",
@@ -44,6 +45,10 @@ __all__ = [
     "cloud_dbh_m",
     "reconstruct",
 ]
+
+#: The files :meth:`TreeModel.write` writes into its folder, by key of the paths it
+#: returns (``cylinders`` for qsm only).
+OUTPUT_FILES = {"mesh": "tree.ply", "cylinders": "cylinders.csv", "json": "tree.json"}
 
 
 @dataclass
@@ -102,14 +107,15 @@ class TreeModel:
 
         out = Path(outdir)
         out.mkdir(parents=True, exist_ok=True)
+        name = OUTPUT_FILES
         paths = {
             "mesh": write_mesh(
-                out / "tree.ply", self.vertices, self.faces, face_label=self.face_label
+                out / name["mesh"], self.vertices, self.faces, face_label=self.face_label
             )
         }
         if self.cylinders is not None:
-            paths["cylinders"] = write_cylinders(out / "cylinders.csv", self.cylinders)
-        paths["json"] = write_json(out / "tree.json", self.to_dict())
+            paths["cylinders"] = write_cylinders(out / name["cylinders"], self.cylinders)
+        paths["json"] = write_json(out / name["json"], self.to_dict())
         return paths
 
 

@@ -13,6 +13,7 @@ import pytest
 from pipeline.cli import build_parser, main
 from pipeline.cli._options import PARAM, SETTING
 from pipeline.io.mesh import write_mesh
+from tests.architecture.test_cli_options import PARSERS
 from tests.conftest import box_arrays, messages
 
 
@@ -114,17 +115,6 @@ def test_numbers_out_of_range_are_usage_errors_that_say_the_range(argv, message,
     assert "invalid" not in err and "read_int" not in err
 
 
-def _parsers() -> list[tuple[str, argparse.ArgumentParser]]:
-    out, todo = [], [("", build_parser())]
-    while todo:
-        name, p = todo.pop()
-        out.append((name, p))
-        for a in p._actions:
-            if isinstance(a, argparse._SubParsersAction):
-                todo.extend((f"{name} {k}".strip(), sp) for k, sp in a.choices.items())
-    return out
-
-
 def _outside(info) -> list[float]:
     ge, gt, le, lt = info.bounds
     out = [float("nan"), float("inf")]
@@ -141,7 +131,7 @@ def test_every_number_option_refuses_what_its_parameter_refuses():
     from pipeline.errors import InvalidParameterError
 
     checked = 0
-    for name, parser in _parsers():
+    for name, parser in PARSERS:
         for a in parser._actions:
             info = getattr(a, PARAM, None) or getattr(getattr(a, SETTING, None), "info", None)
             if info is None or info.base_type not in ("int", "float") or info.choices:
@@ -215,6 +205,7 @@ _STAGES = {
     "pipeline.batch": ("run_batch",),
     "pipeline.report": ("build_report",),
     "pipeline.models": ("generate_tree", "read_cylinders"),
+    "pipeline.sweep": ("load_sweep", "run_sweep"),
 }
 
 
@@ -380,6 +371,28 @@ def test_the_terminal_form_is_unchanged(capsys):
     err = capsys.readouterr().err
     assert err.startswith("\r  station 1/2:  50.0 %") and err.endswith("done: 100.0 %\n")
     assert progress_printer(False) is None
+
+
+@pytest.mark.parametrize(
+    ("kw", "first"),
+    [
+        ({}, "batch: 3 trees, 1 unchanged (not run again), 2 to run"),
+        (
+            {"name": "sweep", "noun": "points"},
+            "sweep: 3 points, 1 unchanged (not run again), 2 to run",
+        ),
+    ],
+)
+def test_the_plain_bar_first_says_what_it_will_run_in_its_own_words(kw, first):
+    import io
+
+    from pipeline.batch import BatchProgress
+    from pipeline.cli.progress import BatchProgressBar
+
+    stream = io.StringIO()
+    bar = BatchProgressBar(stream, tty=False, **kw)
+    bar(BatchProgress(total=3, done=1, failed=0, reused=1, running=1, elapsed_s=0, eta_s=None))
+    assert stream.getvalue().splitlines() == [first]
 
 
 # -- 7. a scan that runs but may not be what was meant warns on stderr, not only in OUT.json --

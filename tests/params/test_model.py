@@ -63,6 +63,8 @@ def test_json_schema_mirrors_the_dataclasses():
     res = scanner["horizontal_resolution_deg"]
     assert res == {
         "type": "number",
+        "exclusiveMinimum": 0,
+        "maximum": 45,
         "description": "horizontal angular step between pulses",
         "x-unit": "deg",
         "default": 0.04,
@@ -71,6 +73,33 @@ def test_json_schema_mirrors_the_dataclasses():
     assert scanner["return_mode"]["enum"] == ["first", "last", "strongest", "all"]
     dist = s["properties"]["scan"]["properties"]["distance_m"]
     assert dist["anyOf"][1] == {"type": "null"} and "station rule" in dist["description"]
+    assert dist["anyOf"][0] == {"type": "number", "exclusiveMinimum": 0}
+
+
+def test_json_schema_states_every_declared_range():
+    """The schema's ranges are the ones the model checks (``param(ge=...)``): a value on
+    the wrong side of each bound is refused by both."""
+    import jsonschema
+
+    s = json_schema(RunParams)
+    checked = 0
+    for info in walk(RunParams):
+        if info.base_type not in ("int", "float") or info.bounds == (None,) * 4:
+            continue
+        node = s
+        for k in info.path:
+            node = node["properties"][k]
+        schema = node["anyOf"][0] if info.optional else node
+        ge, gt, le, lt = info.bounds
+        outside = [ge - 1 if ge is not None else None, gt, le + 1 if le is not None else None, lt]
+        for bad in (b for b in outside if b is not None):
+            with pytest.raises(jsonschema.ValidationError):
+                jsonschema.validate(bad, schema)
+            with pytest.raises(InvalidParameterError):
+                info.owner(**{info.name: bad})
+        jsonschema.validate(info.default, node)
+        checked += 1
+    assert checked >= 40
 
 
 def test_one_resolution_setting_sets_both_axes():
