@@ -210,22 +210,23 @@ class _Caster:
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
         self.v0 = v[f[:, 0]]
-        e1, e2 = v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0
-        n = np.cross(e1, e2)
-        self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
+        v1, v2 = v[f[:, 1]], v[f[:, 2]]
+        n = np.cross(v1 - self.v0, v2 - self.v0)
+        twice_area = np.linalg.norm(n, axis=1)
+        self.normal = n / twice_area[:, None]
         self.label = scene.face_label if keep is None else scene.face_label[keep]
         self.lo, self.hi = frame.to_local(scene.bounds)
-        diag = float(np.linalg.norm(self.hi - self.lo))
-        self.pad = 1e-3 + 1e-5 * diag
-        self.diag = diag
+        self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
-        # each triangle's smallest height (m): how far its interior reaches from an edge
-        edge = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2).max(axis=1)
-        self.h_min32 = (np.linalg.norm(n, axis=1) / edge).astype(np.float32)
+        # squared edge lengths, once: the longest gives each triangle's smallest height
+        # (how far its interior reaches from an edge), the shortest the distortion check's
+        sq_edge = np.stack([_sq_len(v1 - self.v0), _sq_len(v2 - v1), _sq_len(v2 - self.v0)])
+        del v1, v2
+        self.h_min32 = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
         self._fan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         v32 = v.astype(np.float32)
-        self.distorted, self.moved_m = _distorted(v, v32, f, e1, e2)
-        del e1, e2
+        self.distorted, self.moved_m = _distorted(v, v32, f, sq_edge.min(axis=0))
+        del sq_edge
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
         self.rc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f.astype(np.uint32)))
         t0 = time.perf_counter()
@@ -480,21 +481,21 @@ class _Caster:
         return t_out, prim
 
 
+def _sq_len(e: np.ndarray) -> np.ndarray:
+    """Squared lengths (n,) of vectors ``e`` (n, 3)."""
+    return np.square(e).sum(axis=1)
+
+
 def _distorted(
-    v: np.ndarray, v32: np.ndarray, f: np.ndarray, e1: np.ndarray, e2: np.ndarray
+    v: np.ndarray, v32: np.ndarray, f: np.ndarray, short2: np.ndarray
 ) -> tuple[int, float]:
     """How many triangles float32 (what Open3D holds) distorts, moving a vertex by more
-    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``e1``, ``e2``: edges
-    from the first corner), and the largest move of a vertex of those triangles (m)."""
-    moved = np.sqrt(((v32.astype(np.float64) - v) ** 2).sum(axis=1))
+    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``short2``: its squared
+    length), and the largest move of a vertex of those triangles (m)."""
+    moved = np.sqrt(_sq_len(v32.astype(np.float64) - v))
     worst = float(moved.max()) if len(f) else 0.0
     if worst == 0.0:
         return 0, 0.0
-    e3 = e2 - e1
-    short2 = np.minimum(
-        np.minimum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2)),
-        np.einsum("ij,ij->i", e3, e3),
-    )
     maybe = np.flatnonzero(short2 < (worst / DISTORTED_SHARE) ** 2)  # the others cannot be
     move = moved[f[maybe]].max(axis=1)
     far = move**2 > DISTORTED_SHARE**2 * short2[maybe]
