@@ -44,6 +44,7 @@ from .._system import cpu_count
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
+from ..geometry import triangles_around, vertex_triangles
 from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
@@ -314,11 +315,7 @@ class _Caster:
             key = np.ascontiguousarray(self.v + 0.0)  # + 0.0: -0.0 becomes 0.0
             _, weld = np.unique(key.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
             corners = weld.reshape(-1)[self.faces]
-            flat = corners.ravel()
-            ptr = np.zeros(int(weld.max()) + 2, dtype=np.int64)
-            np.cumsum(np.bincount(flat, minlength=len(ptr) - 1), out=ptr[1:])
-            inc = np.argsort(flat, kind="stable") // 3
-            self._fan = (corners, ptr, inc)
+            self._fan = (corners, *vertex_triangles(corners, int(weld.max()) + 1))
         return self._fan
 
     def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -350,11 +347,8 @@ class _Caster:
         (the hit's rounding along the ray, seen in the plane); else inf / -1."""
         corners, ptr, inc = self._fans()
         k = len(tri)
-        c = corners[tri].ravel()
-        counts = ptr[c + 1] - ptr[c]
-        owner = np.repeat(np.repeat(np.arange(k), 3), counts)
-        within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-        cand = inc[np.repeat(ptr[c], counts) + within]
+        corner, cand = triangles_around(ptr, inc, corners[tri].ravel())
+        owner = corner // 3
         dd = d[owner]
         t = self._plane_t(o, dd, cand)
         cos = np.abs(np.einsum("ij,ij->i", dd, self.normal[cand]))
