@@ -18,8 +18,9 @@ scan's own ray-casting scene, refined as the scan refines them:
 
 With the beam model the rays are an upper bound (every pulse with all its sub-rays;
 adaptive sampling gives sub-rays only to some) and so is the time. The estimate's
-accuracy is tested (``tests/extremes/test_resolution.py``) within a factor of 2 for
-points and 4 for time on small scans, where fixed costs weigh most.
+accuracy is tested (``tests/extremes/test_resolution.py``) within a factor of 1.5 for
+points, 2 for the file's size and 4 for time on small scans, where fixed costs weigh
+most.
 """
 
 from __future__ import annotations
