@@ -49,7 +49,6 @@ from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
 from .estimate import (
-    BYTES_PER_POINT,
     OVERHEAD,
     SAMPLE_PULSES,
     SECONDS_PER_POINT,
@@ -978,7 +977,6 @@ def _estimate(plan: _Plan, suffix: str, max_rays: int | None) -> ScanEstimate:
         plan_s=plan.plan_s,
         seconds=seconds,
         suffix=suffix,
-        file_bytes=int(points * BYTES_PER_POINT.get(suffix, BYTES_PER_POINT[".laz"])),
         max_rays=max_rays,
         notes=notes,
     )
