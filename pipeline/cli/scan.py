@@ -161,6 +161,20 @@ def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | No
     return None
 
 
+def _step_args(args: argparse.Namespace, label: str | None) -> dict[str, Any]:
+    """The arguments :func:`pipeline.steps.scan_files` and
+    :func:`~pipeline.steps.estimate_scan_files` take from the flags (all but the meshes
+    and the output)."""
+    params, threads = params_from_args(args)
+    return {
+        "params": params,
+        "stations": _stations(args),
+        "label": label,
+        "window": not args.full_fov,
+        "threads": threads,
+    }
+
+
 def run_scan(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
@@ -169,15 +183,10 @@ def run_scan(
 
     output_file(out, inputs=meshes)
     output_file(out.with_name(out.stem + ".json"), flag="-o (its .json beside it)")
-    sp, threads = params_from_args(args)
     step = scan_files(
         meshes,
-        sp,
-        out,
-        stations=_stations(args),
-        label=label,
-        window=not args.full_fov,
-        threads=threads,
+        out_path=out,
+        **_step_args(args, label),
         progress=progress_printer(label="scan"),
         estimate=estimate_printer(),
     )
@@ -213,16 +222,7 @@ def dry_run(
     the stations' windows and the estimate; nothing is scanned or written."""
     from ..steps import estimate_scan_files
 
-    sp, threads = params_from_args(args)
-    step = estimate_scan_files(
-        meshes,
-        sp,
-        out,
-        stations=_stations(args),
-        label=label,
-        window=not args.full_fov,
-        threads=threads,
-    )
+    step = estimate_scan_files(meshes, out_path=out, **_step_args(args, label))
     est, scene = step.result, step.details["scene"]
     print(
         f"dry run of treesim scan: {', '.join(Path(m).name for m in meshes)}, "

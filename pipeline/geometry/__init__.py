@@ -4,14 +4,21 @@ At the bottom of the package, beside ``cloud``, ``frame`` and ``io``: it imports
 ``pipeline.errors``. Coordinates are metres, float64, preferably in a
 :class:`~pipeline.frame.LocalFrame`.
 
-* :mod:`~pipeline.geometry.triangles`: exact point-to-triangle and point-to-mesh distances;
+* :mod:`~pipeline.geometry.triangles`: exact point-to-triangle and point-to-mesh distances,
+  and the triangles around vertices;
 * :mod:`~pipeline.geometry.sampling`: area-uniform sampling of a mesh surface;
 * :mod:`~pipeline.geometry.spacing`: a cloud's nearest-neighbour spacing, k-d trees.
 """
 
 from .sampling import sample_surface
 from .spacing import kdtree, point_spacing
-from .triangles import closest_points_on_triangles, point_to_mesh_distances, well_conditioned
+from .triangles import (
+    closest_points_on_triangles,
+    point_to_mesh_distances,
+    triangles_around,
+    vertex_triangles,
+    well_conditioned,
+)
 
 __all__ = [
     "closest_points_on_triangles",
@@ -19,5 +26,7 @@ __all__ = [
     "point_spacing",
     "point_to_mesh_distances",
     "sample_surface",
+    "triangles_around",
+    "vertex_triangles",
     "well_conditioned",
 ]

@@ -7,7 +7,10 @@
 * :func:`point_to_mesh_distances`: distances from points to a mesh, the closest triangle
   picked by Open3D's ``RaycastingScene`` (float32) and the distance recomputed exactly in
   float64, with the triangles around an edge or corner checked where a float32 near-tie
-  can have picked the neighbour of the right one.
+  can have picked the neighbour of the right one;
+* :func:`vertex_triangles`, :func:`triangles_around`: the triangles around vertices (a
+  CSR incidence), where a float32 pick's neighbours are looked for (here and in the
+  scanner's float64 re-test).
 
 Coordinates are metres, preferably in a :class:`~pipeline.frame.LocalFrame`.
 """
@@ -18,7 +21,13 @@ import numpy as np
 
 from ..errors import InvalidGeometryError
 
-__all__ = ["closest_points_on_triangles", "point_to_mesh_distances", "well_conditioned"]
+__all__ = [
+    "closest_points_on_triangles",
+    "point_to_mesh_distances",
+    "triangles_around",
+    "vertex_triangles",
+    "well_conditioned",
+]
 
 _CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 MB)
 #: Open3D's float32 closest-triangle choice can tie between triangles whose float64
@@ -150,13 +159,26 @@ def well_conditioned(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.take_along_axis(f, (opposite[:, None] + np.arange(3)) % 3, axis=1)
 
 
-def _vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
-    """CSR incidence: the triangles around vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``."""
+def vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles around each vertex, as a CSR incidence ``(ptr, idx)``: those around
+    vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``, in increasing order."""
     flat = faces.ravel()
     order = np.argsort(flat, kind="stable")
     ptr = np.zeros(n_vertices + 1, dtype=np.int64)
     np.cumsum(np.bincount(flat, minlength=n_vertices), out=ptr[1:])
     return ptr, order // 3
+
+
+def triangles_around(
+    ptr: np.ndarray, idx: np.ndarray, vertices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every triangle around each of ``vertices`` (k,), from a :func:`vertex_triangles`
+    incidence: ``(owner, triangle)``, ``owner`` the position in ``vertices`` each
+    triangle was found around (non-decreasing)."""
+    counts = ptr[vertices + 1] - ptr[vertices]
+    owner = np.repeat(np.arange(len(vertices)), counts)
+    within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    return owner, idx[np.repeat(ptr[vertices], counts) + within]
 
 
 def _feature_minimum(
@@ -176,16 +198,34 @@ def _feature_minimum(
     rows = np.arange(len(tri))
     u = tri[rows, first]
     w = np.where(region >= _AB, tri[rows, second], -1)
-    counts = ptr[u + 1] - ptr[u]
-    point = np.repeat(rows, counts)
-    within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-    cand = idx[np.repeat(ptr[u], counts) + within]
+    point, cand = triangles_around(ptr, idx, u)
     ww = w[point]
     keep = (ww < 0) | (faces[cand] == ww[:, None]).any(axis=1)  # triangles on the edge
-    point, cand = point[keep], cand[keep]
+    return _least_distance(q, point[keep], cand[keep], verts, faces)
+
+
+def _corners_minimum(
+    q: np.ndarray,
+    tri: np.ndarray,
+    verts: np.ndarray,
+    faces: np.ndarray,
+    ptr: np.ndarray,
+    idx: np.ndarray,
+) -> np.ndarray:
+    """Exact distance (k,) from each ``q[i]`` to the triangles around triangle
+    ``tri[i]``'s corners (its edge and vertex neighbours, and itself)."""
+    corner, cand = triangles_around(ptr, idx, tri.ravel())
+    return _least_distance(q, corner // 3, cand, verts, faces)
+
+
+def _least_distance(
+    q: np.ndarray, point: np.ndarray, cand: np.ndarray, verts: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
+    """Exact distance (k,) from each ``q[i]`` to the nearest of the triangles ``cand``
+    paired with it (``point == i``); inf where none is."""
     f = faces[cand]
     d, _ = _distances(q[point], verts[f[:, 0]], verts[f[:, 1]], verts[f[:, 2]])
-    best = np.full(len(tri), np.inf)
+    best = np.full(len(q), np.inf)
     np.minimum.at(best, point, d)
     return best
 
@@ -232,7 +272,7 @@ def point_to_mesh_distances(
     rc.add_triangles(
         o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
     )
-    ptr, idx = _vertex_triangles(faces, len(verts))
+    ptr, idx = vertex_triangles(faces, len(verts))
     extent = float(np.abs(verts).max()) if len(verts) else 0.0
     n = len(query)
     dist = np.empty(n, dtype=np.float64)
@@ -263,10 +303,9 @@ def point_to_mesh_distances(
             tie = np.flatnonzero(
                 (region == _INTERIOR) & (d > _TIE_FLOOR * scale) & (d < _TIE_REACH * scale)
             )
-            for corner in (_A, _B, _C) if len(tie) else ():
-                region_c = np.full(len(tie), corner, dtype=np.int8)
+            if len(tie):
                 d[tie] = np.minimum(
-                    d[tie], _feature_minimum(qq[tie], tri[tie], region_c, verts, faces, ptr, idx)
+                    d[tie], _corners_minimum(qq[tie], tri[tie], verts, faces, ptr, idx)
                 )
             dist[s + t : s + t + len(qq)] = d
     return dist

@@ -402,6 +402,8 @@ def thin_mask(
     idx = np.flatnonzero(thin)
     if len(idx) == 0:
         return np.empty(0, np.int64)
+    if max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
+        return None  # the boxes' integer keys give lines and columns 20 bits
     t = tri[idx]
     u = t / np.linalg.norm(t, axis=2, keepdims=True)
     # the longest side of each thin triangle (as seen) and the angular distance of the
@@ -432,8 +434,6 @@ def thin_mask(
     hres = math.radians(spec.horizontal_resolution_deg)
     gap = 0.5 * min(vres, hres)
     n_s = np.ceil(length / gap).astype(np.int64) + 1
-    if max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
-        return None
     # boxes of pulses around samples, in batches of triangles (bounded memory), merged
     # through one integer key each: a twig's facets give the same boxes
     cum = np.cumsum(n_s)

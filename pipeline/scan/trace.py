@@ -44,11 +44,11 @@ from .._system import cpu_count
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import InvalidParameterError, ResourceLimitError, ScanError
 from ..frame import LocalFrame
+from ..geometry import triangles_around, vertex_triangles
 from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import beam as beam_model
 from .estimate import (
-    BYTES_PER_POINT,
     OVERHEAD,
     SAMPLE_PULSES,
     SECONDS_PER_POINT,
@@ -210,22 +210,23 @@ class _Caster:
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
         self.v0 = v[f[:, 0]]
-        e1, e2 = v[f[:, 1]] - self.v0, v[f[:, 2]] - self.v0
-        n = np.cross(e1, e2)
-        self.normal = n / np.linalg.norm(n, axis=1, keepdims=True)
+        v1, v2 = v[f[:, 1]], v[f[:, 2]]
+        n = np.cross(v1 - self.v0, v2 - self.v0)
+        twice_area = np.linalg.norm(n, axis=1)
+        self.normal = n / twice_area[:, None]
         self.label = scene.face_label if keep is None else scene.face_label[keep]
         self.lo, self.hi = frame.to_local(scene.bounds)
-        diag = float(np.linalg.norm(self.hi - self.lo))
-        self.pad = 1e-3 + 1e-5 * diag
-        self.diag = diag
+        self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
-        # each triangle's smallest height (m): how far its interior reaches from an edge
-        edge = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2).max(axis=1)
-        self.h_min32 = (np.linalg.norm(n, axis=1) / edge).astype(np.float32)
+        # squared edge lengths, once: the longest gives each triangle's smallest height
+        # (how far its interior reaches from an edge), the shortest the distortion check's
+        sq_edge = np.stack([_sq_len(v1 - self.v0), _sq_len(v2 - v1), _sq_len(v2 - self.v0)])
+        del v1, v2
+        self.h_min32 = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
         self._fan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         v32 = v.astype(np.float32)
-        self.distorted, self.moved_m = _distorted(v, v32, f, e1, e2)
-        del e1, e2
+        self.distorted, self.moved_m = _distorted(v, v32, f, sq_edge.min(axis=0))
+        del sq_edge
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
         self.rc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f.astype(np.uint32)))
         t0 = time.perf_counter()
@@ -313,11 +314,7 @@ class _Caster:
             key = np.ascontiguousarray(self.v + 0.0)  # + 0.0: -0.0 becomes 0.0
             _, weld = np.unique(key.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
             corners = weld.reshape(-1)[self.faces]
-            flat = corners.ravel()
-            ptr = np.zeros(int(weld.max()) + 2, dtype=np.int64)
-            np.cumsum(np.bincount(flat, minlength=len(ptr) - 1), out=ptr[1:])
-            inc = np.argsort(flat, kind="stable") // 3
-            self._fan = (corners, ptr, inc)
+            self._fan = (corners, *vertex_triangles(corners, int(weld.max()) + 1))
         return self._fan
 
     def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -349,11 +346,8 @@ class _Caster:
         (the hit's rounding along the ray, seen in the plane); else inf / -1."""
         corners, ptr, inc = self._fans()
         k = len(tri)
-        c = corners[tri].ravel()
-        counts = ptr[c + 1] - ptr[c]
-        owner = np.repeat(np.repeat(np.arange(k), 3), counts)
-        within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-        cand = inc[np.repeat(ptr[c], counts) + within]
+        corner, cand = triangles_around(ptr, inc, corners[tri].ravel())
+        owner = corner // 3
         dd = d[owner]
         t = self._plane_t(o, dd, cand)
         cos = np.abs(np.einsum("ij,ij->i", dd, self.normal[cand]))
@@ -480,21 +474,21 @@ class _Caster:
         return t_out, prim
 
 
+def _sq_len(e: np.ndarray) -> np.ndarray:
+    """Squared lengths (n,) of vectors ``e`` (n, 3)."""
+    return np.square(e).sum(axis=1)
+
+
 def _distorted(
-    v: np.ndarray, v32: np.ndarray, f: np.ndarray, e1: np.ndarray, e2: np.ndarray
+    v: np.ndarray, v32: np.ndarray, f: np.ndarray, short2: np.ndarray
 ) -> tuple[int, float]:
     """How many triangles float32 (what Open3D holds) distorts, moving a vertex by more
-    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``e1``, ``e2``: edges
-    from the first corner), and the largest move of a vertex of those triangles (m)."""
-    moved = np.sqrt(((v32.astype(np.float64) - v) ** 2).sum(axis=1))
+    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``short2``: its squared
+    length), and the largest move of a vertex of those triangles (m)."""
+    moved = np.sqrt(_sq_len(v32.astype(np.float64) - v))
     worst = float(moved.max()) if len(f) else 0.0
     if worst == 0.0:
         return 0, 0.0
-    e3 = e2 - e1
-    short2 = np.minimum(
-        np.minimum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2)),
-        np.einsum("ij,ij->i", e3, e3),
-    )
     maybe = np.flatnonzero(short2 < (worst / DISTORTED_SHARE) ** 2)  # the others cannot be
     move = moved[f[maybe]].max(axis=1)
     far = move**2 > DISTORTED_SHARE**2 * short2[maybe]
@@ -743,10 +737,14 @@ def _grid_plan(
 class _RayTables:
     """Per-station float32 cosines and sines of every column's azimuth and every line's
     elevation: a pulse's direction is gathered from them, so the rays of a pulse are the
-    same bits whichever other pulses are cast with it."""
+    same bits whichever other pulses are cast with it. The tables hold the station's
+    heading when it is level; otherwise its rotation turns the gathered directions."""
 
-    def __init__(self, spec: ScannerSpec, heading_deg: float) -> None:
-        az = column_azimuth_rad(spec, np.arange(spec.n_azimuth), heading_deg)
+    def __init__(self, spec: ScannerSpec, station: Station) -> None:
+        self.rot = station.rotation
+        self.level = station.pitch_deg == 0 and station.roll_deg == 0
+        heading = station.heading_deg if self.level else 0.0
+        az = column_azimuth_rad(spec, np.arange(spec.n_azimuth), heading)
         el = line_elevation_rad(spec, np.arange(spec.n_elevation))
         self.cz64, self.sz64 = np.cos(az), np.sin(az)
         self.ce64, self.se64 = np.cos(el), np.sin(el)
@@ -754,10 +752,20 @@ class _RayTables:
         self.ce, self.se = self.ce64.astype(np.float32), self.se64.astype(np.float32)
 
     def directions(self, lines: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Float64 unit directions (n, 3) of grid pulses, in the scanner frame: the
-        values :func:`~pipeline.scan.rays.directions` computes, gathered."""
+        """Float64 unit directions (n, 3) of grid pulses in the scene's frame: the values
+        :func:`~pipeline.scan.rays.directions` computes, gathered (and turned)."""
         ce = self.ce64[lines]
-        return np.stack([ce * self.cz64[cols], ce * self.sz64[cols], self.se64[lines]], axis=1)
+        d = np.stack([ce * self.cz64[cols], ce * self.sz64[cols], self.se64[lines]], axis=1)
+        return d if self.level else d @ self.rot.T
+
+    def directions32(self, lines: np.ndarray, cols: np.ndarray, out: np.ndarray) -> None:
+        """The same directions built in float32, into ``out`` (n, 3)."""
+        ce = self.ce[lines]
+        np.multiply(self.cz[cols], ce, out=out[:, 0])
+        np.multiply(self.sz[cols], ce, out=out[:, 1])
+        out[:, 2] = self.se[lines]
+        if not self.level:
+            out[:] = out @ self.rot.T.astype(np.float32)
 
 
 def _cast_central(
@@ -767,62 +775,75 @@ def _cast_central(
     cols: np.ndarray,
     o: np.ndarray,
     t0: float,
-    rot: np.ndarray,
-    level: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Cast the grid rays of pulses (``lines``, ``cols``) without per-pulse randomness.
+    """Cast and refine the grid rays of pulses (``lines``, ``cols``) from ``o``, without
+    per-pulse randomness.
 
-    Directions are built in float32 from the per-station tables; only hits get float64
-    directions and refined ranges. A ray moved ``t0`` forward starts at its float64
-    point there (rounded once): a float32 direction's rounding (~1e-7) times ``t0``
-    would move it sideways (0.1 mm at 1 km). Returns (hit index into the pulses, t,
-    primitive, barycentric uv) and leaves the float64 directions to the caller.
+    Directions are built in float32 from the station's tables; only hits get float64
+    directions and refined ranges (:meth:`_Caster.refine`). A ray moved ``t0`` forward
+    starts at its float64 point there (rounded once): a float32 direction's rounding
+    (~1e-7) times ``t0`` would move it sideways (0.1 mm at 1 km). Returns the hits'
+    index into the pulses, their float64 ranges and triangles (inf / -1 where the
+    refinement found a miss) and their float64 directions.
     """
-    n = len(lines)
-    rays = np.empty((n, 6), dtype=np.float32)
-    ce = tables.ce[lines]
-    np.multiply(tables.cz[cols], ce, out=rays[:, 3])
-    np.multiply(tables.sz[cols], ce, out=rays[:, 4])
-    rays[:, 5] = tables.se[lines]
-    if not level:
-        rays[:, 3:] = rays[:, 3:] @ rot.T.astype(np.float32)
+    rays = np.empty((len(lines), 6), dtype=np.float32)
+    tables.directions32(lines, cols, out=rays[:, 3:])
+    d = None
     if t0 > 0:
-        rays[:, :3] = o + t0 * _grid_directions(tables, lines, cols, rot, level)
+        d = tables.directions(lines, cols)
+        rays[:, :3] = o + t0 * d
     else:
         rays[:, :3] = o.astype(np.float32)
     th, pr, uv = caster.cast_f32(rays)
     hidx = np.flatnonzero(np.isfinite(th))
-    return hidx, th[hidx].astype(np.float64), pr[hidx].astype(np.int64), uv[hidx]
+    d = tables.directions(lines[hidx], cols[hidx]) if d is None else d[hidx]
+    t_coarse = t0 + th[hidx].astype(np.float64)
+    t, prim = caster.refine(o, d, t_coarse, pr[hidx].astype(np.int64), uv[hidx], t0)
+    return hidx, t, prim, d
 
 
-def _grid_directions(
-    tables: _RayTables, lines: np.ndarray, cols: np.ndarray, rot: np.ndarray, level: bool
-) -> np.ndarray:
-    """Float64 directions of grid pulses in the scene's frame (the tables hold the
-    station's heading when it is level, else the rotation turns them)."""
-    d = tables.directions(lines, cols)
-    return d if level else d @ rot.T
+@dataclass
+class _StationPlan:
+    """One station, planned: where it stands and the pulses it casts."""
+
+    station: Station
+    #: its position in the local frame
+    o: np.ndarray
+    #: the pulses to cast (the window, or its cells some triangle can reach)
+    grid: Any
+    #: the window's angles (:func:`~pipeline.scan.rays.box_window`) and its pulses
+    window: Any
+    n_window: int
+    #: adaptive beam sampling's thin-geometry keys (None: thin everywhere, or no mask)
+    thin: np.ndarray | None
+    #: how far forward its rays start (:meth:`_Caster.entry_distance`)
+    t0: float
 
 
 @dataclass
 class _Plan:
     """A scan, planned: what :func:`scan` casts, station by station."""
 
+    spec: ScannerSpec
+    stations: list[Station]
     frame: LocalFrame
     caster: _Caster | None
-    #: per station: (origin (local), rotation, pulse grid, window, window pulses, thin)
-    plans: list[tuple[Any, ...]]
+    plans: list[_StationPlan]
     geometry: dict[str, Any]
     adaptive: bool
     plan_s: float
     #: what ran but may not be what was meant (stations on surfaces, lost precision)
     warnings: list[str]
 
+    @property
+    def pulses_cast(self) -> int:
+        return sum(p.grid.n_pulses for p in self.plans)
+
 
 def _plan_scan(
     scene: Scene,
-    stations: list[Station],
-    spec: ScannerSpec,
+    stations: Sequence[Station],
+    spec: ScannerSpec | None,
     *,
     window: bool,
     cull: bool,
@@ -832,8 +853,11 @@ def _plan_scan(
     check_inside: bool,
 ) -> _Plan:
     """Each station's window and the pulses of it to cast, the triangles to load and the
-    ray-casting scene: everything :func:`scan` does before it casts. ``max_rays`` None:
-    no limit (an estimate reports it instead)."""
+    ray-casting scene: everything :func:`scan` and :func:`estimate_scan` do before they
+    cast (``spec`` None: ``ScannerSpec()``). ``max_rays`` None: no limit (an estimate
+    reports it instead)."""
+    spec = spec or ScannerSpec()
+    stations = list(stations)
     if not stations:
         raise InvalidParameterError("give at least one station")
     t_all = time.perf_counter()
@@ -872,34 +896,31 @@ def _plan_scan(
             grid, thin = _grid_plan(
                 caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
             )
-        plans.append((o, st.rotation, grid, win, window_grid.n_pulses, thin))
+        t0 = caster.entry_distance(o) if caster is not None else 0.0
+        plans.append(_StationPlan(st, o, grid, win, window_grid.n_pulses, thin, t0))
     warnings = _precision_warnings(scene, caster, radius)
     if caster is not None:
-        for k, plan in enumerate(plans):
+        for k, sp in enumerate(plans):
             if check_inside:
-                _check_inside(caster, plan[0], k, stations[k])
-            warnings += _station_warnings(caster, plan[0], k, stations[k])
-    return _Plan(frame, caster, plans, geometry, adaptive, time.perf_counter() - t_all, warnings)
+                _check_inside(caster, sp.o, k, sp.station)
+            warnings += _station_warnings(caster, sp.o, k, sp.station)
+    plan_s = time.perf_counter() - t_all
+    return _Plan(spec, stations, frame, caster, plans, geometry, adaptive, plan_s, warnings)
 
 
-def _estimate(
-    plan: _Plan,
-    scene: Scene,
-    stations: list[Station],
-    spec: ScannerSpec,
-    suffix: str,
-    max_rays: int | None,
-) -> ScanEstimate:
+def _estimate(plan: _Plan, suffix: str, max_rays: int | None) -> ScanEstimate:
     """The scan's size and time from a sample of its planned pulses, cast and refined
     here (:mod:`pipeline.scan.estimate`)."""
+    spec, stations = plan.spec, plan.stations
     s = spec.rays_per_pulse
-    total = sum(p[2].n_pulses for p in plan.plans)
+    total = plan.pulses_cast
     hits = sampled = 0
     secs = 0.0
     caster = plan.caster
     # at most 1/32 of the scan (cast twice: a few % of a small scan's time)
     budget = min(SAMPLE_PULSES, max(1024, total // 32))
-    for k, (o, rot, grid, _, _, _) in enumerate(plan.plans):
+    for sp in plan.plans:
+        grid = sp.grid
         m = min(grid.n_pulses, round(budget * grid.n_pulses / max(total, 1)))
         if caster is None or m == 0:
             continue
@@ -909,18 +930,11 @@ def _estimate(
         picked = [grid.indices(int(a), int(a) + size) for a in starts]
         lines = np.concatenate([p[0] for p in picked])
         cols = np.concatenate([p[1] for p in picked])
-        st = stations[k]
-        level = st.pitch_deg == 0 and st.roll_deg == 0
-        tables = _RayTables(spec, st.heading_deg if level else 0.0)
-        t0 = caster.entry_distance(o)
+        tables = _RayTables(spec, sp.station)
         if not sampled:  # warm up (threads, the neighbour table): the scan pays it once
-            hidx, th, pr, uv = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
-            d = _grid_directions(tables, lines[hidx], cols[hidx], rot, level)
-            caster.refine(o, d, t0 + th, pr, uv, t0)
+            _cast_central(caster, tables, lines, cols, sp.o, sp.t0)
         t_start = time.perf_counter()
-        hidx, th, pr, uv = _cast_central(caster, tables, lines, cols, o, t0, rot, level)
-        d = _grid_directions(tables, lines[hidx], cols[hidx], rot, level)
-        t, prim = caster.refine(o, d, t0 + th, pr, uv, t0)
+        _, t, prim, _ = _cast_central(caster, tables, lines, cols, sp.o, sp.t0)
         secs += time.perf_counter() - t_start
         hits += int((_in_range(spec, t) & (prim >= 0)).sum())
         sampled += len(lines)
@@ -931,15 +945,16 @@ def _estimate(
     seconds = plan.plan_s + (rays * OVERHEAD / rate if rate > 0 else 0.0)
     seconds += points * SECONDS_PER_POINT
     per_station = []
-    for k, (_, _, grid, win, n_window, _) in enumerate(plan.plans):
+    for k, sp in enumerate(plan.plans):
+        win = sp.window
         per_station.append(
             {
                 "index": k,
-                "position_m": list(stations[k].position_m),
+                "position_m": list(sp.station.position_m),
                 "azimuth_window_deg": list(win.azimuth_deg) if win.azimuth_deg else None,
                 "elevation_window_deg": list(win.elevation_deg),
-                "pulses_window": n_window,
-                "pulses_cast": grid.n_pulses,
+                "pulses_window": sp.n_window,
+                "pulses_cast": sp.grid.n_pulses,
             }
         )
     notes = []
@@ -951,7 +966,7 @@ def _estimate(
     return ScanEstimate(
         stations=per_station,
         pulses_full_fov=spec.n_azimuth * spec.n_elevation * len(stations),
-        pulses_window=sum(p[4] for p in plan.plans),
+        pulses_window=sum(p.n_window for p in plan.plans),
         pulses_cast=total,
         rays=rays,
         rays_exact=not plan.adaptive,
@@ -962,7 +977,6 @@ def _estimate(
         plan_s=plan.plan_s,
         seconds=seconds,
         suffix=suffix,
-        file_bytes=int(points * BYTES_PER_POINT.get(suffix, BYTES_PER_POINT[".laz"])),
         max_rays=max_rays,
         notes=notes,
     )
@@ -998,8 +1012,6 @@ def estimate_scan(
     -------
     ScanEstimate
     """
-    spec = spec or ScannerSpec()
-    stations = list(stations)
     plan = _plan_scan(
         scene,
         stations,
@@ -1011,7 +1023,7 @@ def estimate_scan(
         max_rays=None,
         check_inside=False,
     )
-    return _estimate(plan, scene, stations, spec, suffix.lower(), max_rays)
+    return _estimate(plan, suffix.lower(), max_rays)
 
 
 def scan(
@@ -1077,8 +1089,6 @@ def scan(
     ScanResult
         ``result.cloud`` in the scene's coordinates (float64), with per-point fields.
     """
-    spec = spec or ScannerSpec()
-    stations = list(stations)
     if int(chunk_rays) < 1:
         raise InvalidParameterError(f"chunk_rays must be >= 1, got {chunk_rays}")
     t_all = time.perf_counter()
@@ -1093,11 +1103,11 @@ def scan(
         max_rays=max_rays,
         check_inside=check_inside,
     )
-    frame, caster, plans = plan.frame, plan.caster, plan.plans
+    spec, stations, frame, caster = plan.spec, plan.stations, plan.frame, plan.caster
     geometry, adaptive = plan.geometry, plan.adaptive
     s = spec.rays_per_pulse
     if estimate is not None:
-        estimate(_estimate(plan, scene, stations, spec, ".laz", max_rays))
+        estimate(_estimate(plan, ".laz", max_rays))
     offsets, weights = (
         beam_model.subray_pattern(s, spec.beam_divergence_mrad) if s > 1 else (None, None)
     )
@@ -1107,24 +1117,21 @@ def scan(
     out: dict[str, list[np.ndarray]] = {k: [] for k in _FIELDS}
     pts: list[np.ndarray] = []
     stats: list[StationStats] = []
-    total_pulses = max(1, sum(p[2].n_pulses for p in plans))
+    total_pulses = max(1, plan.pulses_cast)
     done_pulses = 0
     n_written = 0
-    for k, (o, rot, grid, win, n_window, thin) in enumerate(plans):
+    for k, sp in enumerate(plan.plans):
         t_st = time.perf_counter()
         n_points = 0
         rays_cast = 0
-        station = stations[k]
-        level = station.pitch_deg == 0 and station.roll_deg == 0
-        hdeg = station.heading_deg if level else 0.0
-        t0 = caster.entry_distance(o) if caster is not None else 0.0
-        tables = _RayTables(spec, hdeg)
+        o, grid, t0 = sp.o, sp.grid, sp.t0
+        tables = _RayTables(spec, sp.station)
         fast = s == 1 and spec.angular_jitter_sd_deg == 0
         # thin geometry nearly everywhere: every pulse needs its sub-rays anyway
-        station_adaptive = adaptive and thin is not None
+        station_adaptive = adaptive and sp.thin is not None
         per_chunk = max(1, int(chunk_rays) // (1 if station_adaptive else s))
         if station_adaptive:
-            chunks = _AdaptiveBeam(caster, spec, grid, tables, o, t0, rot, level, k, thin)
+            chunks = _AdaptiveBeam(caster, spec, sp, tables, k)
             blocks = chunks.blocks(per_chunk, offsets, weights)
         else:
             blocks = (
@@ -1138,16 +1145,12 @@ def scan(
                 lines, cols = grid.indices(a, b)
                 n_pulses, n_rays = b - a, (b - a) * s
                 if fast:
-                    hidx, th, prim, uv = _cast_central(
-                        caster, tables, lines, cols, o, t0, rot, level
-                    )
+                    hidx, t, prim, d_r = _cast_central(caster, tables, lines, cols, o, t0)
                     lines_r, cols_r = lines[hidx], cols[hidx]
-                    d_r = _grid_directions(tables, lines_r, cols_r, rot, level)
-                    t, prim = caster.refine(o, d_r, t0 + th, prim, uv, t0)
                     rec = _single_returns(spec, t, prim)
                 else:
                     az, el = pulse_angles(spec, k, lines, cols)
-                    d = directions(az, el) @ rot.T
+                    d = directions(az, el) @ tables.rot.T
                     if s == 1:
                         t, prim = caster.cast(o, d)
                         rec = _single_returns(spec, t, prim)
@@ -1203,14 +1206,14 @@ def scan(
         stats.append(
             StationStats(
                 index=k,
-                position_m=stations[k].position_m,
+                position_m=sp.station.position_m,
                 pulses_full_fov=full,
-                pulses_window=n_window,
+                pulses_window=sp.n_window,
                 pulses_cast=grid.n_pulses,
                 rays_cast=rays_cast,
                 points=n_points,
-                azimuth_window_deg=win.azimuth_deg,
-                elevation_window_deg=win.elevation_deg,
+                azimuth_window_deg=sp.window.azimuth_deg,
+                elevation_window_deg=sp.window.elevation_deg,
                 time_s=time.perf_counter() - t_st,
                 pulses_subrays=(
                     sum(chunks.reasons.values())
@@ -1303,18 +1306,12 @@ class _AdaptiveBeam:
         self,
         caster: _Caster,
         spec: ScannerSpec,
-        grid: Any,
+        plan: _StationPlan,
         tables: _RayTables,
-        o: np.ndarray,
-        t0: float,
-        rot: np.ndarray,
-        level: bool,
         station_index: int,
-        thin: np.ndarray | None,
     ) -> None:
-        self.thin = thin
-        self.caster, self.spec, self.grid, self.tables = caster, spec, grid, tables
-        self.o, self.t0, self.rot, self.level = o, t0, rot, level
+        self.caster, self.spec, self.tables = caster, spec, tables
+        self.grid, self.thin, self.o, self.t0 = plan.grid, plan.thin, plan.o, plan.t0
         self.k_station = station_index
         half = 0.5 * spec.beam_divergence_mrad * 1e-3
         step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
@@ -1322,7 +1319,7 @@ class _AdaptiveBeam:
         self.n_lines = spec.n_elevation
         self.n_az = spec.n_azimuth
         self.full_turn = spec.full_turn
-        self.col_offsets = grid.offsets
+        self.col_offsets = self.grid.offsets
         #: pulses given sub-rays, by the first reason that applied
         self.reasons = {"edge": 0, "surface": 0, "thin": 0, "range_limit": 0}
 
@@ -1345,8 +1342,8 @@ class _AdaptiveBeam:
         spec = self.spec
         if spec.angular_jitter_sd_deg > 0:
             az, el = pulse_angles(spec, self.k_station, lines, cols)
-            return directions(az, el) @ self.rot.T
-        return _grid_directions(self.tables, lines, cols, self.rot, self.level)
+            return directions(az, el) @ self.tables.rot.T
+        return self.tables.directions(lines, cols)
 
     def _central(self, lines: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Central ray of each pulse: (t, primitive), inf / -1 on a miss."""
@@ -1354,11 +1351,8 @@ class _AdaptiveBeam:
             return self.caster.cast(self.o, self._directions(lines, cols))
         t = np.full(len(lines), np.inf)
         prim = np.full(len(lines), -1, dtype=np.int64)
-        hidx, th, pr, uv = _cast_central(
-            self.caster, self.tables, lines, cols, self.o, self.t0, self.rot, self.level
-        )
-        d = self._directions(lines[hidx], cols[hidx])
-        t[hidx], prim[hidx] = self.caster.refine(self.o, d, self.t0 + th, pr, uv, self.t0)
+        hidx, th, pr, _ = _cast_central(self.caster, self.tables, lines, cols, self.o, self.t0)
+        t[hidx], prim[hidx] = th, pr
         return t, prim
 
     def _neighbour_finder(self, lines: np.ndarray, cols: np.ndarray, key: np.ndarray):

@@ -4,9 +4,9 @@ Both are vertical prisms (the trunk 16 facets, 1 m across, 2 m high; the twig 8 
 1 mm across, 1 m high), so which grid pulses hit each is derivable in float64 from the
 grid's angles (:func:`tests.extremes.shapes.prism_pulses`). The scanner decides hits in
 float32, so a pulse whose ray passes within float32's error of an edge may go either
-way: ``EPS_M`` below is that error, derived, and the test asserts that every pulse that
-surely hits was recorded, that nothing else was, and so that the counts agree within
-the pulses the float32 decision may flip.
+way: :func:`tests.extremes.shapes.float32_ray_error_m` is that error, derived, and the
+test asserts that every pulse that surely hits was recorded, that nothing else was, and
+so that the counts agree within the pulses the float32 decision may flip.
 """
 
 from __future__ import annotations
@@ -17,18 +17,10 @@ from hypothesis import strategies as st
 
 from pipeline.scan import ScannerSpec, Station, scan
 from pipeline.scene import MeshPart, Scene
-from tests.extremes.shapes import prism, prism_pulses
+from tests.extremes.shapes import float32_ray_error_m, prism, prism_pulses
 
 TRUNK = (16, 0.5, 2.0)  # facets, radius (m), height (m)
 TWIG = (8, 0.0005, 1.0)
-
-
-def eps_m(station_m: float, reach_m: float, scene_m: float) -> float:
-    """How far a float32 ray can pass from its float64 grid ray, and float32 vertices
-    from theirs: 16 float32 ulps (2**-24 each) of the station's distance from the local
-    frame's origin, of the distance travelled and of the scene's size (origin,
-    direction and vertex rounding, and Embree's own arithmetic on them)."""
-    return 16 * 2.0**-24 * (station_m + reach_m + scene_m)
 
 
 @settings(max_examples=5, deadline=None, derandomize=True)
@@ -65,7 +57,7 @@ def test_a_1mm_twig_beside_a_1m_trunk_gets_its_analytic_pulses(distance, psi, z,
         "scan_column"
     ].astype(np.int64)
     assert len(np.unique(got)) == len(got)  # one return per pulse
-    eps = eps_m(distance, distance + 2.0, 3.0)
+    eps = float32_ray_error_m(distance, distance + 2.0, 3.0)
     sure, possible = [], []
     for corners, height in outlines:
         s, p = prism_pulses(spec, station, corners, height, eps)
