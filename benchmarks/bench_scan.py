@@ -21,8 +21,10 @@ Measured in one run, side by side, on the same trees and stations:
 3. **Memory.** Peak RSS of ``treesim scan`` (fresh process each) at 0.04°, 0.01° and
    0.005°: it must not grow with the number of points written.
 
-Usage: ``python benchmarks/bench_scan.py [--quick]`` (``--quick``: coarser settings, for a
-smoke run). Prints measured figures only.
+Usage: ``python benchmarks/bench_scan.py [--quick] [--readme]`` (``--quick``: coarser
+settings, for a smoke run; ``--readme``: also write the figures into the README's table
+between ``<!-- bench-scan:begin -->`` and ``<!-- bench-scan:end -->``). Prints measured
+figures only.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks import readme as readme_part  # noqa: E402
 from pipeline.io.mesh import write_mesh  # noqa: E402
 from pipeline.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
 from pipeline.scan import ScannerSpec, Station, scan  # noqa: E402
@@ -53,6 +56,8 @@ from tests.scan.beam_agreement import agreement  # noqa: E402
 COFFEE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 #: HELIOS++ 2.2.2, one ray per pulse, on a comparable scene (issue 11's measurement).
 HELIOS_PULSES_PER_S = 358e3
+#: The README part this benchmark writes with ``--readme``.
+README_PART = "bench-scan"
 
 
 def aspen_scene() -> Scene:
@@ -135,7 +140,7 @@ def cli_scan(mesh: Path, out: Path, station: Station, res: float, extra=()) -> d
     return {"s": wall, "peak_gib": peak, "summary": summary}
 
 
-def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool) -> None:
+def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool) -> dict:
     base = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
     beam = base.with_(beam_divergence_mrad=0.3, subrays=19, return_mode="all")
     scan(scene, [station], base.with_(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0))
@@ -158,6 +163,7 @@ def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool
         f"({json.dumps(b['reasons'])})"
     )
     print(f"adaptive / single-ray rate: {t_one / t_ada:.2f} (target >= 0.5)")
+    fig = {"res": res, "t_one": t_one, "t_ada": t_ada, "beam": b}
     if brute:
         t0 = time.perf_counter()
         full = scan(scene, [station], beam.with_(beam_sampling="full"))
@@ -174,26 +180,104 @@ def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool
             f"max {g['range_max_m'] * 1e3:.3f} mm; intensity within 8 counts "
             f"{g['intensity_within_8']:.4%}, max diff {int(g['intensity_max'])}"
         )
+        fig["t_full"] = t_full
+    return fig
+
+
+def readme_table(f: dict) -> str:
+    """The README's "Speed and memory (measured)" table from this run's figures."""
+    plain_rate = f["plain"]["pulses"] / f["plain"]["s"]
+    sm = f["cli"]["summary"]
+    rate = sm["pulses_window"] / f["cli"]["s"]
+    mem = f["memory"]
+    ab, cb = f["beam_aspen"], f["beam_coffee"]
+    rows = [
+        (
+            f"aspen ({f['triangles']:,} triangles) from 15 m at {f['res']}°, one ray per "
+            "pulse: the window",
+            f"{sm['pulses_window'] / 1e6:.1f} M pulses; {sm['pulses_cast'] / 1e6:.1f} M cast "
+            f"after the occupancy cull; {sm['points'] / 1e6:.2f} M points",
+        ),
+        (
+            "plain Open3D load-and-cast of that window (in-process)",
+            f"{f['plain']['s']:.2f} s, {plain_rate / 1e6:.1f} M pulses/s",
+        ),
+        (
+            "`treesim scan` end to end (process start, load, cast, LAZ written)",
+            f"{f['cli']['s']:.2f} s, {rate / 1e6:.1f} M pulses/s: **{rate / plain_rate:.2f}×** "
+            f"the plain cast (issue 11's target 0.7×), **{rate / HELIOS_PULSES_PER_S:.0f}×** "
+            "HELIOS++ 2.2.2's single-ray rate (~358 k pulses/s; target 10×)",
+        ),
+        (
+            "the same scan in-process (`pipeline.steps.scan_files`)",
+            f"{f['inproc_s']:.2f} s: {f['plain']['s'] / f['inproc_s']:.2f}× the plain cast; "
+            "the rest of the end-to-end time is the interpreter and its imports",
+        ),
+        (
+            "peak RSS of `treesim scan` at " + " / ".join(f"{r}°" for r, _ in mem),
+            " / ".join(f"{m['peak_gib']:.2f}" for _, m in mem)
+            + " GiB for "
+            + " / ".join(_count(m["summary"]["points"]) for _, m in mem)
+            + " points",
+        ),
+        (
+            f"beam 0.3 mrad × 19 sub-rays, coffee TreeQSM ({f['coffee_triangles']:,} "
+            f"triangles) from 10 m at {cb['res']}°",
+            f"adaptive {cb['t_ada']:.2f} s against single-ray {cb['t_one']:.2f} s "
+            f"(**{cb['t_one'] / cb['t_ada']:.2f}×**; target 0.5×) and brute force "
+            f"{cb['t_full']:.2f} s (adaptive at {cb['t_full'] / cb['t_ada']:.2f}× its rate); "
+            f"{_count(cb['beam']['pulses_subrays'])} of {_count(cb['beam']['pulses_cast'])} "
+            "pulses needed sub-rays",
+        ),
+        (
+            f"the same beam on the aspen at {ab['res']}°",
+            f"adaptive {ab['t_ada']:.1f} s against single-ray {ab['t_one']:.2f} s "
+            f"({ab['t_one'] / ab['t_ada']:.2f}×): {_count(ab['beam']['pulses_subrays'])} of "
+            f"{_count(ab['beam']['pulses_cast'])} pulses straddle an edge or twigs thinner "
+            "than the spacing",
+        ),
+    ]
+    head = (
+        f"`python benchmarks/bench_scan.py --readme` measured these side by side in one run "
+        f"and wrote this table: {f['when']} (a shared host: expect ±15 %).\n\n"
+        "| what | figure |\n|---|---|\n"
+    )
+    return head + "\n".join(f"| {a} | {b} |" for a, b in rows)
+
+
+def _count(n: int) -> str:
+    """A count the way the README writes it: 77 k, 1.2 M."""
+    return f"{n / 1e6:.1f} M" if n >= 1e6 else f"{n / 1e3:.0f} k"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="coarser settings, for a smoke run")
+    ap.add_argument(
+        "--readme",
+        action="store_true",
+        help="write the figures into README.md's speed-and-memory table (not with --quick)",
+    )
     args = ap.parse_args()
+    if args.quick and args.readme:
+        ap.error("--readme takes the full run's figures, not --quick's")
     res = 0.04 if args.quick else 0.01
-    print(
-        f"date: {date.today()}; machine: {platform.machine()}, {os.cpu_count()} cores; "
+    when = (
+        f"{date.today()} on {platform.machine()} with {os.cpu_count()} cores, "
         f"python {sys.version.split()[0]}"
     )
+    print(f"date: {when}")
     scene = aspen_scene()
     st = station_at(scene, 15.0)
     spec = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
+    fig: dict = {"when": when, "res": res, "triangles": scene.n_triangles}
     with tempfile.TemporaryDirectory() as tmp:
         mesh = write_mesh(Path(tmp) / "aspen.ply", scene.vertices, scene.faces)
         print(f"tree: aspen (seed 0, 8 facets), {scene.n_triangles:,} triangles; station 15 m out")
         plain = min((plain_open3d(mesh, st, spec, 1 << 19) for _ in range(2)), key=lambda r: r["s"])
         runs = [cli_scan(mesh, Path(tmp) / "scan.laz", st, res) for _ in range(2)]
         cli = min(runs, key=lambda r: r["s"])
+        fig.update(plain=plain, cli=cli)
         sm = cli["summary"]
         window = sm["pulses_window"]
         print(f"\n== one ray per pulse at {res}°, best of 2")
@@ -224,6 +308,7 @@ def main() -> None:
                 [mesh], ScanParams(scanner=spec), Path(tmp) / "in.laz", stations=[st.position_m]
             )
             inproc.append(time.perf_counter() - t0)
+        fig["inproc_s"] = min(inproc)
         print(
             f"the same scan in this process (pipeline.steps.scan_files: load, cast, LAZ "
             f"written; no interpreter start or imports): {min(inproc):.2f} s, ratio to the "
@@ -231,16 +316,24 @@ def main() -> None:
         )
 
         print("\n== peak memory of treesim scan (fresh process each)")
+        fig["memory"] = []
         for r in (0.04, 0.01, 0.005) if not args.quick else (0.08, 0.04):
             m = cli_scan(mesh, Path(tmp) / "mem.laz", st, r)
+            fig["memory"].append((r, m))
             s = m["summary"]
             print(
                 f"{r}°: {s['points']:>10,} points, {s['rays_cast']:>11,} rays, {m['s']:6.1f} s, "
                 f"peak RSS {m['peak_gib']:.2f} GiB"
             )
-    beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, brute=False)
+    fig["beam_aspen"] = beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, brute=False)
     coffee = coffee_scene()
-    beam_case("coffee tree TreeQSM", coffee, station_at(coffee, 10.0), res, brute=True)
+    fig["coffee_triangles"] = coffee.n_triangles
+    fig["beam_coffee"] = beam_case(
+        "coffee tree TreeQSM", coffee, station_at(coffee, 10.0), res, brute=True
+    )
+    if args.readme:
+        readme_part.write_part(README_PART, readme_table(fig))
+        print(f"\nwrote README.md's {README_PART} part")
 
 
 if __name__ == "__main__":

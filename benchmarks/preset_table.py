@@ -29,11 +29,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks import readme as readme_part  # noqa: E402
+
 SWEEP = ROOT / "benchmarks" / "sweeps" / "presets" / "sweep.json"
 README = ROOT / "README.md"
 MEASUREMENTS = ROOT / "pipeline" / "data" / "preset_measurements.txt"
-BEGIN = "<!-- preset-table:begin -->"
-END = "<!-- preset-table:end -->"
+PART = "preset-table"  # the README part between <!-- preset-table:begin/end -->
 PRESETS = ("draft", "standard", "fine")
 
 
@@ -225,12 +226,8 @@ def text(doc: dict[str, Any]) -> str:
 
 
 def replace_between(doc_text: str, body: str) -> str:
-    """``doc_text`` with what lies between the markers replaced by ``body``."""
-    if BEGIN not in doc_text or END not in doc_text:
-        raise SystemExit(f"README.md has no {BEGIN} ... {END} markers")
-    head, rest = doc_text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
-    return f"{head}{BEGIN}\n{body}\n{END}{tail}"
+    """``doc_text`` with the preset table's part replaced by ``body``."""
+    return readme_part.replace_between(doc_text, PART, body)
 
 
 def main() -> int:
