@@ -347,15 +347,22 @@ class Worker:
                         f"stopped after the job time limit of {claim.time_limit_s:g} s "
                         "(TREESIM_JOB_TIME_LIMIT_S)"
                     )
+                    _rmtree(ctl)
+                    _rmtree(work)
                     self.store.fail(claim, problem("time-limit", why), retry=False)
                     return
-            self._finish(claim, handle.outcome(), work, jobdir)
+            outcome = handle.outcome()
+            # a job is seen ended only once its attempt's files are gone (a client that
+            # lists the job folder at once finds no control files)
+            _rmtree(ctl)
+            self._finish(claim, outcome, work, jobdir)
         finally:
             _rmtree(ctl)
             _rmtree(work)
 
     def _finish(self, claim: Claim, outcome: Outcome, work: Path, jobdir: Path) -> None:
         if not outcome.ok:
+            _rmtree(work)
             status = self.store.fail(
                 claim,
                 outcome.problem or problem("internal-error", "no result"),
