@@ -84,12 +84,17 @@ class ReportParams:
         Seed of the subsamples.
     dpi : int
         Resolution of the PNG plots.
+    plots : bool
+        Draw the PNG plots. Off, the report keeps its figures, text and 3D view and says
+        where each plot would be: for sweeps and tests, where drawing is most of a run's
+        time and only the figures count.
     """
 
     max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)
     max_plot_points: int = param(120_000, help="points per PNG view", ge=1)
     seed: int = param(0, help="seed of the subsamples", ge=0)
     dpi: int = param(130, help="resolution of the PNG plots", ge=1)
+    plots: bool = param(True, help="draw the PNG plots (off: figures, text and 3D view only)")
 
     def __post_init__(self) -> None:
         check_bounds(self)

@@ -87,6 +87,46 @@ def build_report(
     s["report_software"] = {"matplotlib": software_versions("matplotlib")["matplotlib"]}
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}
+    if params.plots:
+        _draw(data, pngs, params)
+    else:  # and no plot of an earlier report stays beside this one
+        for p in pngs.values():
+            p.unlink(missing_ok=True)
+        pngs = {}
+
+    paragraph = summary_paragraph(s)
+    generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    page = build_html(
+        data,
+        pngs,
+        paragraph,
+        generated=generated,
+        max_view_points=params.max_view_points,
+        seed=params.seed,
+        dpi=params.dpi,
+    )
+    html_path = out / "report.html"
+    write_text(html_path, page)
+
+    report = {
+        "kind": "treesim.report",
+        "generated": generated,
+        "summary": paragraph,
+        "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
+        "parameters": {**s.get("parameters", {}), "report": asdict(params)},
+        "inputs": s.get("inputs", {}),
+        "definitions": s.get("definitions", {}),
+        "software": {**s.get("software", {}), **s["report_software"]},
+        "files": {"report_html": html_path.name, **{k: p.name for k, p in pngs.items()}},
+    }
+    json_path = out / "report.json"
+    write_json(json_path, report)
+    return {"report_json": json_path, "report_html": html_path, **pngs}
+
+
+def _draw(data: ReportData, pngs: dict[str, Path], params: ReportParams) -> None:
+    """The PNG plots of one report."""
+    s = data.summary
     figures.histograms(data, pngs["histograms"], dpi=params.dpi)
     figures.cumulative(data, pngs["cumulative"], dpi=params.dpi)
     ref_word = figures._ref_word(s)
@@ -122,32 +162,3 @@ def build_report(
         dpi=params.dpi,
     )
     figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
-
-    paragraph = summary_paragraph(s)
-    generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    page = build_html(
-        data,
-        pngs,
-        paragraph,
-        generated=generated,
-        max_view_points=params.max_view_points,
-        seed=params.seed,
-        dpi=params.dpi,
-    )
-    html_path = out / "report.html"
-    write_text(html_path, page)
-
-    report = {
-        "kind": "treesim.report",
-        "generated": generated,
-        "summary": paragraph,
-        "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
-        "parameters": {**s.get("parameters", {}), "report": asdict(params)},
-        "inputs": s.get("inputs", {}),
-        "definitions": s.get("definitions", {}),
-        "software": {**s.get("software", {}), **s["report_software"]},
-        "files": {"report_html": html_path.name, **{k: p.name for k, p in pngs.items()}},
-    }
-    json_path = out / "report.json"
-    write_json(json_path, report)
-    return {"report_json": json_path, "report_html": html_path, **pngs}

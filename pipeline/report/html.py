@@ -23,7 +23,9 @@ def _b64(data: bytes) -> str:
 FULL_WIDTH_IN = 11.0
 
 
-def _img(path: Path, alt: str, dpi: int) -> str:
+def _img(path: Path | None, alt: str, dpi: int) -> str:
+    if path is None:
+        return f'<p class="note">{escape(alt)}: not drawn (report.plots = false)</p>'
     raw = path.read_bytes()
     full = FULL_WIDTH_IN * dpi
     width_px = int.from_bytes(raw[16:20], "big") if raw[12:16] == b"IHDR" else full
@@ -253,7 +255,12 @@ def build_html(
     seed: int = 0,
     dpi: int = 130,
 ) -> str:
-    """The page as one string (every image and the viewer's data inline)."""
+    """The page as one string (every image and the viewer's data inline); a plot missing
+    from ``pngs`` (``report.plots = false``) is said, not drawn."""
+
+    def img(key: str, alt: str) -> str:
+        return _img(pngs.get(key), alt, dpi)
+
     s = data.summary
     ref_word = figures._ref_word(s)
     inputs = s.get("inputs", {})
@@ -367,20 +374,20 @@ def build_html(
   <h2>Distributions</h2>
   <p class="lead">How far the points are, as shares of each direction's points.
   The red line is the coverage tolerance τ = {tau_txt}.</p>
-  <figure>{_img(pngs["histograms"], "Histograms of the accuracy and completeness distances", dpi)}
+  <figure>{img("histograms", "Histograms of the accuracy and completeness distances")}
     <figcaption>Histograms up to the 99th percentile; the dotted and dashed lines are the
     median and the 95th percentile.</figcaption></figure>
-  <figure>{_img(pngs["cumulative"], "Cumulative distributions of both directions", dpi)}
+  <figure>{img("cumulative", "Cumulative distributions of both directions")}
     <figcaption>Share of points within a distance. Where the completeness curve crosses τ
     is the coverage ({percent(s["coverage"])}).</figcaption></figure>
 </section>
 
 <section class="panel">
   <h2>Where the differences are</h2>
-  <figure>{_img(pngs["views_accuracy"], "Cloud coloured by distance to the reference", dpi)}
+  <figure>{img("views_accuracy", "Cloud coloured by distance to the reference")}
     <figcaption>The cloud, coloured by its distance to the {ref_word} (accuracy).
     </figcaption></figure>
-  <figure>{_img(pngs["views_completeness"], "Reference coloured by distance to the cloud", dpi)}
+  <figure>{img("views_completeness", "Reference coloured by distance to the cloud")}
     <figcaption>The {ref_word} samples, coloured by their distance to the cloud
     (completeness): bright areas were not seen. Triangles mark the stations.</figcaption>
   </figure>
@@ -388,7 +395,7 @@ def build_html(
 
 <section class="panel">
   <h2>Coverage</h2>
-  <figure>{_img(pngs["coverage"], "Coverage of the reference by station", dpi)}
+  <figure>{img("coverage", "Coverage of the reference by station")}
     <figcaption>Share of the {ref_word} within τ = {tau_txt} of the cloud, by all stations
     together and by each station alone.</figcaption></figure>
 </section>

@@ -123,6 +123,23 @@ def test_report_from_memory_and_cli(report_dir, tmp_path, capsys):
     assert err.startswith("treesim: error:") and "\n" not in err and "treesim compare" in err
 
 
+def test_plots_off_keeps_the_figures_and_says_where_each_plot_would_be(report_dir, tmp_path):
+    d, files, res = report_dir
+    out = tmp_path / "noplots"
+    drawn = build_report(res, out, inputs={"cloud": "a.ply", "reference": "b.obj"})
+    assert all(drawn[k].is_file() for k in PNG_FILES)
+    again = build_report(res, out, params=ReportParams(plots=False))
+    assert not any((out / name).exists() for name in PNG_FILES.values())  # the old ones too
+    assert set(again) == {"report_json", "report_html"}
+    rep = json.loads(again["report_json"].read_text())
+    assert rep["files"] == {"report_html": "report.html"}
+    assert rep["figures"]["coverage"] == pytest.approx(res.coverage)
+    assert rep["parameters"]["report"]["plots"] is False
+    page = again["report_html"].read_text(encoding="utf-8")
+    assert "data:image/png" not in page and 'id="viewer-data"' in page
+    assert page.count("not drawn (report.plots = false)") == len(PNG_FILES)
+
+
 def test_summary_paragraph_known_text():
     s = {
         "accuracy": {
