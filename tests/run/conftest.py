@@ -62,7 +62,6 @@ def saplings(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="session")
 def quick() -> RunParams:
-    """The draft preset with the smallest plots (the report's cost is mostly layout)."""
-    return replace(
-        preset("draft"), report=ReportParams(max_view_points=2_000, max_plot_points=5_000, dpi=50)
-    )
+    """The draft preset, reports without plots (drawing them was most of a run's time;
+    tests/report draws them)."""
+    return replace(preset("draft"), report=ReportParams(max_view_points=2_000, plots=False))
