@@ -46,7 +46,14 @@ from .report.run_page import STAGES, run_page
 from .scene import Scene
 from .steps import scale_progress
 
-__all__ = ["STAGES", "RunResult", "file_sha256", "run_tree", "software_versions"]
+__all__ = [
+    "STAGES",
+    "RunResult",
+    "file_sha256",
+    "run_tolerance",
+    "run_tree",
+    "software_versions",
+]
 
 Progress = Callable[[float, str], None]
 
@@ -145,12 +152,94 @@ def _lod_scene(
     return scene, info
 
 
+#: The figures a reference QSM and the reconstruction are compared on (``tree.json``'s and
+#: :meth:`~pipeline.models.CylinderTable.summary`'s names).
+REFERENCE_FIGURES = (
+    "dbh_m",
+    "height_m",
+    "volume_total_m3",
+    "volume_stem_m3",
+    "volume_branch_m3",
+    "n_cylinders",
+)
+
+
+def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> dict[str, Any]:
+    """A reference QSM's figures beside the reconstruction's.
+
+    Parameters
+    ----------
+    path : str or Path
+        A cylinder table: TreeQSM (CSV or text export), SimpleForest or treesim's CSV
+        (:func:`pipeline.models.read_cylinders` detects which).
+    reconstruction : dict
+        ``tree.json``'s figures.
+
+    Returns
+    -------
+    dict
+        ``figures`` (the reference's, :data:`REFERENCE_FIGURES`), ``difference``
+        (reconstruction − reference, same units) and ``relative`` (that difference over
+        the reference's value), each ``None`` where either side has no value; ``sha256``.
+    """
+    from .models import read_cylinders
+
+    table = read_cylinders(path)
+    summary = table.summary()
+    ref = {k: summary.get(k) for k in REFERENCE_FIGURES}
+    diff: dict[str, float | None] = {}
+    rel: dict[str, float | None] = {}
+    for k in REFERENCE_FIGURES:
+        a, b = reconstruction.get(k), ref[k]
+        ok = isinstance(a, (int, float)) and isinstance(b, (int, float))
+        diff[k] = float(a - b) if ok else None
+        rel[k] = float(a / b - 1.0) if ok and b else None
+    return {"figures": ref, "difference": diff, "relative": rel, "sha256": file_sha256(path)}
+
+
+def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
+    """The one coverage tolerance τ of a run, used by both of its comparisons.
+
+    ``params.compare.tolerance_m`` when given; else
+    :data:`~pipeline.compare.TOLERANCE_FACTOR` × the *field* cloud's median point spacing,
+    measured once. Deriving τ from the field cloud, never from the simulated one, keeps it
+    fixed for a tree whatever the scan design, so runs of one tree with different
+    stations or resolutions report coverage within the same distance (the sweep's rule,
+    :func:`pipeline.sweep.trees.derive_tolerance`, for one tree).
+
+    Returns
+    -------
+    dict
+        ``tolerance_m``, ``rule`` (in words) and, when derived, ``factor`` and the field
+        cloud's ``field_point_spacing_m``.
+    """
+    from .compare import TOLERANCE_FACTOR
+    from .frame import LocalFrame
+    from .geometry import point_spacing
+
+    cp = params.compare
+    if cp.tolerance_m is not None:
+        tau = float(cp.tolerance_m)
+        return {"tolerance_m": tau, "rule": f"given ({tau * 1000:.4g} mm, --tolerance-m)"}
+    pts = LocalFrame.around(field_cloud.points).to_local(field_cloud.points)
+    spacing = point_spacing(pts, subsample=cp.spacing_subsample, seed=cp.seed)
+    tau = TOLERANCE_FACTOR * spacing
+    return {
+        "tolerance_m": tau,
+        "rule": f"{TOLERANCE_FACTOR:g} × the field cloud's median point spacing "
+        f"({spacing * 1000:.3g} mm), one τ for the whole run",
+        "factor": TOLERANCE_FACTOR,
+        "field_point_spacing_m": spacing,
+    }
+
+
 def run_tree(
     cloud: Cloud | np.ndarray | str | Path,
     params: RunParams | None = None,
     outdir: str | Path = "out/run",
     *,
     name: str | None = None,
+    reference_qsm: str | Path | None = None,
     progress: Progress | None = None,
 ) -> RunResult:
     """Run the whole loop on one tree and write every artefact into ``outdir``.
@@ -165,6 +254,10 @@ def run_tree(
         Created if missing; existing files of the same names are replaced.
     name : str, optional
         The tree's name in the report (default the file's stem).
+    reference_qsm : str or Path, optional
+        A QSM of the same tree made elsewhere (TreeQSM or SimpleForest cylinder table):
+        its DBH, height and volumes are shown beside the reconstruction's
+        (:func:`reference_qsm_figures`; ``run.json``'s ``reference_qsm``).
     progress : callable(fraction, message), optional
         Called as the stages advance.
 
@@ -199,6 +292,12 @@ def run_tree(
     # -- read ------------------------------------------------------------------------------
     if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
         raise InputFormatError(f"{cloud} not found; check the path")
+    if reference_qsm is not None:
+        from .models import read_cylinders
+
+        if not Path(reference_qsm).is_file():
+            raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
+        read_cylinders(reference_qsm)  # a bad table fails now, not after the whole run
     say(0.0, "reading")
     t0 = time.perf_counter()
     inputs: dict[str, Any]
@@ -277,10 +376,12 @@ def run_tree(
     }
 
     # -- compare ---------------------------------------------------------------------------
-    cp = replace(params.compare, nthreads=threads)
     say(0.5, "comparing with the mesh")
     t0 = time.perf_counter()
+    tolerance = run_tolerance(field_cloud, params)
+    cp = replace(params.compare, nthreads=threads, tolerance_m=tolerance["tolerance_m"])
     vs_mesh = compare(sim, scene, params=cp)
+    vs_mesh.tolerance_rule = tolerance["rule"]
     in_mesh = {
         "cloud": "../scan.laz",
         "reference": f"../{scanned_mesh}",
@@ -291,6 +392,7 @@ def run_tree(
     say(0.62, "comparing with the field cloud")
     t0 = time.perf_counter()
     vs_field = compare(sim, field_cloud, params=cp)
+    vs_field.tolerance_rule = tolerance["rule"]
     in_field = {
         "cloud": "../scan.laz",
         "reference": inputs["cloud"] or "field cloud (memory)",
@@ -316,6 +418,7 @@ def run_tree(
         "threads": threads,
         "software": software_versions(),
         "reconstruction": dict(model.figures),
+        "tolerance": tolerance,
         "scan": {
             "points": len(sim),
             "rays_cast": result.rays_cast,
@@ -344,6 +447,11 @@ def run_tree(
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
+    if reference_qsm is not None:
+        summary["reference_qsm"] = {
+            "path": _relative(reference_qsm, out),
+            **reference_qsm_figures(reference_qsm, model.figures),
+        }
     write_text(out / "report.html", run_page(summary, __version__))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
@@ -353,6 +461,18 @@ def run_tree(
         run_json=out / "run.json",
         summary=_jsonable(summary),
     )
+
+
+def _relative(path: str | Path, base: str | Path) -> str:
+    """``path`` relative to folder ``base`` (POSIX separators), so that a record stays
+    true when an output folder and its inputs move together; absolute where no relative
+    path exists (another drive)."""
+    import os
+
+    try:
+        return Path(os.path.relpath(Path(path).resolve(), Path(base).resolve())).as_posix()
+    except ValueError:
+        return Path(path).resolve().as_posix()
 
 
 def _summary_texts(out: Path) -> dict[str, str]:

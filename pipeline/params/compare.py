@@ -17,7 +17,9 @@ class CompareParams:
     Parameters
     ----------
     tolerance_m : float, optional
-        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
+        Coverage tolerance τ (m); default ``3 × point_spacing_m`` of the compared cloud
+        (``treesim compare``); a run uses one τ for both its comparisons, by default 3 ×
+        the field cloud's spacing (:func:`pipeline.run.run_tolerance`).
     sample_spacing_m : float, optional
         Mesh references: spacing of the surface samples for completeness (m), i.e. one
         sample per ``sample_spacing_m²``; default ``point_spacing_m``.
@@ -36,7 +38,7 @@ class CompareParams:
         None,
         help="coverage tolerance τ",
         unit="m",
-        none_means="3 × the cloud's point spacing",
+        none_means="3 × the point spacing (a run: the field cloud's, one τ for both)",
         gt=0,
     )
     sample_spacing_m: float | None = param(

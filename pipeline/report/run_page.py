@@ -31,6 +31,48 @@ a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}
 """
 
 
+#: Rows of the reconstruction-vs-reference table: (key, label, unit, scale).
+_REFERENCE_ROWS = (
+    ("dbh_m", "DBH", " cm", 100.0),
+    ("height_m", "height", " m", 1.0),
+    ("volume_total_m3", "wood volume", " L", 1000.0),
+    ("volume_stem_m3", "stem volume", " L", 1000.0),
+    ("volume_branch_m3", "branch volume", " L", 1000.0),
+    ("n_cylinders", "cylinders", "", 1.0),
+)
+
+
+def reference_qsm_section(s: dict[str, Any]) -> str:
+    """The reconstruction beside a reference QSM (``run.json``'s ``reference_qsm``):
+    DBH, height, volumes; empty when the run had none."""
+    ref = s.get("reference_qsm")
+    if not ref:
+        return ""
+    rec = s["reconstruction"]
+    rows = []
+    for key, label, unit, scale in _REFERENCE_ROWS:
+        d, r = ref["difference"].get(key), ref["relative"].get(key)
+        if d is None:
+            delta = "–"
+        elif key == "n_cylinders":
+            delta = f"{int(d):+,}"
+        else:
+            delta = f"{d * scale:+.3g}{unit}"
+        if r is not None:
+            delta += f" ({r * 100:+.1f} %)"
+        rows.append(
+            f"<tr><td>{label}</td><td>{cell(rec.get(key), unit, scale)}</td>"
+            f"<td>{cell(ref['figures'].get(key), unit, scale)}</td><td>{delta}</td></tr>"
+        )
+    return (
+        '<h2 id="reference-qsm">Reconstruction vs the reference QSM</h2>'
+        f'<p class="muted">reference: <code>{html.escape(str(ref["path"]))}</code> '
+        "(a QSM of the same tree made elsewhere); difference = reconstruction − reference</p>"
+        "<table><tr><th>figure</th><th>reconstruction</th><th>reference QSM</th>"
+        "<th>difference</th></tr>" + "".join(rows) + "</table>"
+    )
+
+
 def run_page(s: dict[str, Any], version: str) -> str:
     """A small self-contained page: the tree, the scan, both comparisons, links.
 
@@ -79,6 +121,11 @@ def run_page(s: dict[str, Any], version: str) -> str:
         ("models", esc(", ".join(sc["models_active"]) or "geometry only")),
         *((f"level of detail: {what}", esc(why)) for what, why in lod_reasons(sc.get("lod"))),
     ]
+    tol = s.get("tolerance") or {}
+    if tol:
+        rows_scan.append(
+            ("coverage tolerance τ", f"{_len(tol.get('tolerance_m'))}: {esc(str(tol.get('rule')))}")
+        )
     t = s["timings_s"]
     rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]
 
@@ -138,6 +185,7 @@ def run_page(s: dict[str, Any], version: str) -> str:
 preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
 <div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
 <div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
+{reference_qsm_section(s)}
 <div class="cards">{"".join(cards)}</div>
 <h2>Time per stage</h2>{table(rows_time)}
 <h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,

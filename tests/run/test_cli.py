@@ -3,6 +3,7 @@ path on success, one line and a non-zero exit on bad input."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -23,11 +24,15 @@ def test_run_prints_the_figures_and_the_report_path(saplings, quick, tmp_path, c
     cfg = tmp_path / "quick.toml"
     cfg.write_text(to_toml(quick))
     out = tmp_path / "out"
-    rc = main(
-        ["run", str(saplings["sapling1"]), "-o", str(out), "--config", str(cfg), "--stations", "4"]
-    )
+    args = ["run", str(saplings["sapling1"]), "-o", str(out), "--config", str(cfg)]
+    rc = main([*args, "--stations", "4", "--tolerance-m", "0.004"])
     assert rc == 0
     printed = capsys.readouterr().out
+    run = json.loads((out / "run.json").read_text())
+    assert run["parameters"]["compare"]["tolerance_m"] == 0.004
+    assert run["vs_mesh"]["tolerance_m"] == run["vs_field"]["tolerance_m"] == 0.004
+    assert run["tolerance"]["rule"].startswith("given")
+    assert "within 4 mm" in printed
     report = Path(printed.strip().splitlines()[-1].removeprefix("report: "))
     assert report == (out / "report.html").resolve() and report.is_file()
     assert "DBH" in printed and "vs mesh" in printed and "vs field" in printed

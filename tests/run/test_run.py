@@ -6,10 +6,12 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
 from pipeline.errors import InputFormatError, InvalidParameterError
+from pipeline.models import generate_tree
 from pipeline.params import RUN_PRESETS as PRESETS
 from pipeline.params import (
     RunParams,
@@ -47,10 +49,16 @@ ARTEFACTS = (
 
 
 @pytest.fixture(scope="module")
-def sapling_run(saplings, quick, tmp_path_factory):
+def sapling_run(saplings, sapling0_qsm, quick, tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "sapling"
     seen = []
-    result = run_tree(saplings["sapling0"], quick, out, progress=lambda f, m: seen.append(f))
+    result = run_tree(
+        saplings["sapling0"],
+        quick,
+        out,
+        reference_qsm=sapling0_qsm,
+        progress=lambda f, m: seen.append(f),
+    )
     return result, seen
 
 
@@ -127,6 +135,52 @@ def test_run_page_presents_both_comparisons(sapling_run):
     for link in ("vs_mesh/report.html", "vs_field/report.html", "run.json", "tree.ply"):
         assert f'href="{link}"' in page
     assert 'src="http' not in page and 'href="http' not in page  # works offline
+
+
+def test_one_tolerance_from_the_field_cloud_serves_both_comparisons(sapling_run, saplings):
+    from pipeline.frame import LocalFrame
+    from pipeline.geometry import point_spacing
+    from pipeline.io import read_cloud
+
+    result, _ = sapling_run
+    field = read_cloud(saplings["sapling0"]).points
+    spacing = point_spacing(LocalFrame.around(field).to_local(field), subsample=50_000, seed=0)
+    tol = result.summary["tolerance"]
+    assert tol["tolerance_m"] == pytest.approx(3.0 * spacing, rel=1e-12)
+    assert tol["field_point_spacing_m"] == pytest.approx(spacing, rel=1e-12)
+    for key in ("vs_mesh", "vs_field"):
+        assert result.summary[key]["tolerance_m"] == tol["tolerance_m"], key
+        rep = json.loads((result.outdir / key / "report.json").read_text())
+        assert rep["figures"]["tolerance_m"] == tol["tolerance_m"]
+        assert "field cloud's median point spacing" in rep["parameters"]["tolerance_rule"]
+    # not the simulated cloud's spacing, which the stand-alone comparison would use
+    assert result.vs_mesh["point_spacing_m"] * 3.0 != pytest.approx(tol["tolerance_m"], rel=0.05)
+
+
+def test_a_reference_qsm_is_set_beside_the_reconstruction(sapling_run, sapling0_qsm):
+    result, _ = sapling_run
+    ref = result.summary["reference_qsm"]
+    truth = generate_tree("sapling", seed=0, leaves=False).cylinders.summary()
+    assert ref["figures"]["dbh_m"] == pytest.approx(README_SAPLING_DBH_M, abs=README_DBH_ROUNDING_M)
+    for key in ("dbh_m", "height_m", "volume_total_m3", "volume_stem_m3", "n_cylinders"):
+        assert ref["figures"][key] == truth[key], key
+        assert ref["difference"][key] == pytest.approx(result.reconstruction[key] - truth[key])
+    assert ref["relative"]["volume_total_m3"] == pytest.approx(
+        result.reconstruction["volume_total_m3"] / truth["volume_total_m3"] - 1.0
+    )
+    assert not Path(ref["path"]).is_absolute()
+    assert (result.outdir / ref["path"]).resolve() == sapling0_qsm.resolve()
+    page = result.report_html.read_text()
+    assert "Reconstruction vs the reference QSM" in page
+    assert f"{truth['dbh_m'] * 100:.3g} cm" in page  # the reference's DBH, in the table
+
+
+def test_a_bad_reference_qsm_fails_before_the_run(saplings, quick, tmp_path):
+    bad = tmp_path / "qsm.csv"
+    bad.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(InputFormatError, match="matches no known cylinder table"):
+        run_tree(saplings["sapling0"], quick, tmp_path / "out", reference_qsm=bad)
+    assert not (tmp_path / "out" / "tree.ply").exists()
 
 
 def test_station_distance_rule():
