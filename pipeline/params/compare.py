@@ -86,12 +86,22 @@ class ReportParams:
         Seed of the subsamples.
     dpi : int
         Resolution of the PNG plots.
+    profile_bin_m : float, optional
+        Height of the occlusion profile's slices (m); default a round height giving about
+        20 slices (:func:`pipeline.report.profile.auto_bin_m`).
     """
 
     max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)
     max_plot_points: int = param(120_000, help="points per PNG view", ge=1)
     seed: int = param(0, help="seed of the subsamples", ge=0)
     dpi: int = param(130, help="resolution of the PNG plots", ge=1)
+    profile_bin_m: float | None = param(
+        None,
+        help="height of the occlusion profile's slices",
+        unit="m",
+        none_means="a round height giving about 20 slices",
+        gt=0,
+    )
 
     def __post_init__(self) -> None:
         check_bounds(self)

@@ -9,6 +9,9 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 * ``views_accuracy.png``, ``views_completeness.png``: side and top views of the cloud and
   of the reference samples coloured by distance;
 * ``coverage.png``: coverage by station (and by hit label);
+* ``occlusion.png``: the occlusion profile, coverage and point density by height slice,
+  per station and all together (:mod:`pipeline.report.profile`; its numbers in
+  ``report.json``'s ``occlusion_profile``);
 * ``report.html``: all of it in one self-contained page (images and data inline, no
   external resources), with an interactive 3D view of a subsample.
 """
@@ -29,6 +32,7 @@ from ..params import ReportParams
 from . import figures
 from .data import ReportData
 from .html import build_html
+from .profile import occlusion_profile
 from .text import summary_paragraph
 
 __all__ = ["PNG_FILES", "ReportData", "ReportParams", "build_report", "summary_paragraph"]
@@ -40,6 +44,7 @@ PNG_FILES = {
     "views_accuracy": "views_accuracy.png",
     "views_completeness": "views_completeness.png",
     "coverage": "coverage.png",
+    "occlusion": "occlusion.png",
 }
 
 
@@ -122,6 +127,8 @@ def build_report(
         dpi=params.dpi,
     )
     figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
+    profile = occlusion_profile(data, bin_m=params.profile_bin_m)
+    figures.occlusion_profile(profile, pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)
 
     paragraph = summary_paragraph(s)
     generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -133,6 +140,7 @@ def build_report(
         max_view_points=params.max_view_points,
         seed=params.seed,
         dpi=params.dpi,
+        profile=profile,
     )
     html_path = out / "report.html"
     write_text(html_path, page)
@@ -142,6 +150,7 @@ def build_report(
         "generated": generated,
         "summary": paragraph,
         "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
+        "occlusion_profile": profile,
         "parameters": {**s.get("parameters", {}), "report": asdict(params)},
         "inputs": s.get("inputs", {}),
         "definitions": s.get("definitions", {}),

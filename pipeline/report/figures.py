@@ -387,3 +387,60 @@ def coverage_bars(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
             ax.set_title("Coverage by part")
             ax.grid(axis="x", visible=False)
         return _save(fig, path, dpi)
+
+
+#: Line colours of the stations in the occlusion profile (then grey).
+STATION_COLOURS = ("#2c6e9b", "#c2612d", "#4f8a3a", "#8a5a34", "#7d3c98", "#b7791f")
+
+
+def occlusion_profile(
+    profile: dict[str, Any], path: Path, *, ref_word: str, dpi: int = 130
+) -> Path:
+    """Coverage (left) and point density (right) by height slice: one line per station
+    alone and a thick one for all stations together (:mod:`pipeline.report.profile`)."""
+    import matplotlib
+
+    edges = np.asarray(profile["edges_m"], dtype=np.float64)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    tau = float(profile["tolerance_m"])
+    unit, k = unit_for(tau)
+    names = ["all", *profile["stations"]]
+    dens = profile.get("density_per_m2")
+    with matplotlib.rc_context(_RC):
+        fig = _new_figure(11.0, 4.6)
+        ax_c, ax_d = fig.subplots(1, 2, sharey=True)
+        for i, name in enumerate(names):
+            whole = name == "all"
+            colour = "#1f2933" if whole else STATION_COLOURS[(i - 1) % len(STATION_COLOURS)]
+            style = {"color": colour, "lw": 2.6 if whole else 1.3, "marker": "o", "ms": 3}
+            label = "all stations" if whole else f"{name} alone"
+            cov = np.array([np.nan if v is None else 100 * v for v in profile["coverage"][name]])
+            ax_c.plot(cov, mid, label=label, **style)
+            if dens is not None:
+                d = np.array([np.nan if v is None else v for v in dens[name]])
+                ax_d.plot(d, mid, label=label, **style)
+            else:
+                ax_d.plot(profile["cloud_points"][name], mid, label=label, **style)
+        if dens is None:
+            ax_d.plot(
+                profile["reference_points"],
+                mid,
+                color="#7b8794",
+                lw=2.0,
+                ls="--",
+                label=f"{ref_word} points",
+            )
+        ax_c.set_xlim(-2, 102)
+        ax_c.set_xlabel(f"{ref_word} within τ = {tau * k:.3g} {unit} (%)")
+        ax_c.set_ylabel("height above the lowest reference point (m)")
+        ax_c.set_title("Coverage by height")
+        ax_c.set_ylim(edges[0], edges[-1])
+        ax_d.set_xlabel(
+            f"cloud points per m² of {ref_word} surface"
+            if dens is not None
+            else f"points per {profile['bin_m']:g} m slice"
+        )
+        ax_d.set_xlim(left=0)
+        ax_d.set_title("Point density by height" if dens is not None else "Points by height")
+        ax_d.legend(loc="best", fontsize=8)
+        return _save(fig, path, dpi)

@@ -185,6 +185,47 @@ def _station_table(s: dict[str, Any], stations_pos: dict[str, list[float]]) -> s
     )
 
 
+def _profile_table(p: dict[str, Any] | None, ref_word: str) -> str:
+    """The occlusion profile's numbers, highest slice first."""
+    if not p:
+        return ""
+    edges = p["edges_m"]
+    names = ["all", *p["stations"]]
+    dens = p.get("density_per_m2")
+    head = (
+        f'<th>height (m)</th><th class="n">{escape(ref_word)} samples</th>'
+        + "".join(f'<th class="n">coverage {escape(n)}</th>' for n in names)
+        + (
+            '<th class="n">points / m² (all)</th>'
+            if dens is not None
+            else f'<th class="n">cloud points</th><th class="n">{escape(ref_word)} points</th>'
+        )
+    )
+    rows = []
+    for i in reversed(range(len(edges) - 1)):
+        cells = [f"{p['reference_points'][i]:,}"]
+        cells += [
+            percent(p["coverage"][n][i]) if p["coverage"][n][i] is not None else "–" for n in names
+        ]
+        if dens is not None:
+            d = dens["all"][i]
+            cells.append("–" if d is None else f"{d:,.0f}")
+        else:
+            cells += [f"{p['cloud_points']['all'][i]:,}", f"{p['reference_points'][i]:,}"]
+        rows.append(
+            f"<tr><td>{edges[i]:.2f}–{edges[i + 1]:.2f}</td>"
+            + "".join(f'<td class="n">{c}</td>' for c in cells)
+            + "</tr>"
+        )
+    return (
+        '<div class="scroll"><table><thead><tr>'
+        + head
+        + "</tr></thead><tbody>"
+        + "".join(rows)
+        + "</tbody></table></div>"
+    )
+
+
 def _kv_table(rows: list[tuple[str, str]]) -> str:
     body = "".join(f"<tr><td>{escape(k)}</td><td>{v}</td></tr>" for k, v in rows)
     return f'<table class="kv"><tbody>{body}</tbody></table>'
@@ -252,6 +293,7 @@ def build_html(
     max_view_points: int = 40_000,
     seed: int = 0,
     dpi: int = 130,
+    profile: dict[str, Any] | None = None,
 ) -> str:
     """The page as one string (every image and the viewer's data inline)."""
     s = data.summary
@@ -391,6 +433,22 @@ def build_html(
   <figure>{_img(pngs["coverage"], "Coverage of the reference by station", dpi)}
     <figcaption>Share of the {ref_word} within τ = {tau_txt} of the cloud, by all stations
     together and by each station alone.</figcaption></figure>
+</section>
+
+<section class="panel" id="occlusion">
+  <h2>Occlusion by height</h2>
+  <p class="lead">The {ref_word} cut into {length(profile["bin_m"]) if profile else ""} slices
+  from its lowest point up: the share of each slice within τ = {tau_txt} of the cloud, for
+  every station alone and all together, and how densely the cloud samples it. Where the
+  stations together fall short, no station saw that part of the tree.</p>
+  <figure>{_img(pngs["occlusion"], "Coverage and point density by height", dpi)}
+    <figcaption>Left: coverage by height slice; right: cloud points per slice
+    {
+        "per m² of surface"
+        if profile and profile.get("density_per_m2")
+        else "beside the reference's"
+    }.</figcaption></figure>
+  {_profile_table(profile, ref_word)}
 </section>
 
 <section class="two">

@@ -87,6 +87,11 @@ def test_report_files(report_dir):
     assert rep["software"]["matplotlib"] and rep["software"]["open3d"]
     assert rep["summary"].startswith("The cloud (7,500 points from 2 stations)")
     assert rep["files"]["report_html"] == "report.html"
+    prof = rep["occlusion_profile"]
+    assert prof["stations"] == ["S0", "S1"] and prof["tolerance_m"] == res.tolerance_m
+    # station 0 saw the east half at every height, station 1 a quarter of the west
+    assert min(prof["coverage"]["S0"]) > 0.45 and max(prof["coverage"]["S0"]) < 0.56
+    assert min(prof["coverage"]["S1"]) > 0.2 and max(prof["coverage"]["S1"]) < 0.31
 
 
 def test_html_is_self_contained(report_dir):
@@ -105,6 +110,7 @@ def test_html_is_self_contained(report_dir):
     assert "By station" in page and "By hit label" in page
     assert "τ" in page and "3 × point_spacing_m" in page
     assert 'id="viewer-data"' in page
+    assert "Occlusion by height" in page and "coverage S1" in page
 
 
 def test_report_from_memory_and_cli(report_dir, tmp_path, capsys):
