@@ -6,17 +6,24 @@
    ``cylinders.csv`` (qsm), ``tree.json``;
 2. scans that mesh with the virtual TLS scanner (:func:`pipeline.scan.scan`) from a ring
    of stations around it placed by the station rule (:mod:`pipeline.scan.stations`):
-   ``scan.laz`` (0.1 mm LAZ with the per-point fields) and ``scan.json``;
+   ``scan.laz`` (0.1 mm LAZ with the per-point fields), ``scan.ply`` (the same in float64,
+   exactly what was compared) and ``scan.json``;
 3. compares the simulated cloud, in float64, with the mesh it was scanned from
    (``vs_mesh/``: how well the scan design samples the model) and with the original field
-   cloud (``vs_field/``: how close the simulation comes to the real scan):
-   ``comparison.json`` and the distance clouds in each folder;
-4. draws a report per comparison (``vs_*/report.html`` and plots) and one run page,
-   ``report.html`` (:mod:`pipeline.report.run_page`), that presents both;
+   cloud (``vs_field/``: how close the simulation comes to the real scan), both with one
+   coverage tolerance τ (:func:`run_tolerance`): ``comparison.json`` and the distance
+   clouds in each folder;
+4. draws a report per comparison (``vs_*/report.html`` and plots) from the files just
+   written, so that ``treesim report vs_mesh`` draws the same figures again, the field and
+   simulated clouds side by side (``clouds.png``), and one run page, ``report.html``
+   (:mod:`pipeline.report.run_page`), that presents it all;
 
 and writes ``run.json`` last: the parameters, software versions, ``timings_s`` per stage,
-and the figures under ``reconstruction`` (``tree.json``'s names), ``scan``, ``vs_mesh`` and
-``vs_field`` (``comparison.json``'s names).
+and the figures under ``reconstruction`` (``tree.json``'s names), ``tolerance``,
+``clouds``, ``scan``, ``vs_mesh`` and ``vs_field`` (``comparison.json``'s names), and
+``reference_qsm`` when one was given. Inputs outside the folder are named by their path
+relative to it (and their SHA-256), links inside it are relative, and every page is
+self-contained or links within the folder, so an output folder can be moved.
 
 The parameters (:class:`~pipeline.params.RunParams`), the run presets and the TOML
 language are the parameter model's, :mod:`pipeline.params`.
@@ -210,19 +217,23 @@ def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``tolerance_m``, ``rule`` (in words) and, when derived, ``factor`` and the field
-        cloud's ``field_point_spacing_m``.
+        ``tolerance_m``, ``rule`` (in words), the field cloud's median point spacing
+        ``field_point_spacing_m`` and, when τ is derived from it, ``factor``.
     """
     from .compare import TOLERANCE_FACTOR
     from .frame import LocalFrame
     from .geometry import point_spacing
 
     cp = params.compare
-    if cp.tolerance_m is not None:
-        tau = float(cp.tolerance_m)
-        return {"tolerance_m": tau, "rule": f"given ({tau * 1000:.4g} mm, --tolerance-m)"}
     pts = LocalFrame.around(field_cloud.points).to_local(field_cloud.points)
     spacing = point_spacing(pts, subsample=cp.spacing_subsample, seed=cp.seed)
+    if cp.tolerance_m is not None:
+        tau = float(cp.tolerance_m)
+        return {
+            "tolerance_m": tau,
+            "rule": f"given ({tau * 1000:.4g} mm, --tolerance-m)",
+            "field_point_spacing_m": spacing,
+        }
     tau = TOLERANCE_FACTOR * spacing
     return {
         "tolerance_m": tau,
@@ -304,7 +315,11 @@ def run_tree(
     if isinstance(cloud, (str, Path)):
         path = Path(cloud)
         field_cloud = read_cloud(path)
-        inputs = {"cloud": str(path), "sha256": file_sha256(path), "bytes": path.stat().st_size}
+        inputs = {
+            "cloud": _relative(path, out),
+            "sha256": file_sha256(path),
+            "bytes": path.stat().st_size,
+        }
         name = name or path.stem
     elif isinstance(cloud, Cloud):
         field_cloud = cloud
@@ -354,6 +369,8 @@ def run_tree(
         result.lod["facets"] = facet_lod
     sim = result.cloud
     scan_path = write_cloud(out / "scan.laz", sim)
+    # the simulated cloud exactly as compared (float64): the LAZ keeps 0.1 mm
+    scan_ply = write_cloud(out / "scan.ply", sim)
     scan_summary = {
         "mesh": scanned_mesh,
         "triangles": scene.n_triangles,
@@ -383,7 +400,7 @@ def run_tree(
     vs_mesh = compare(sim, scene, params=cp)
     vs_mesh.tolerance_rule = tolerance["rule"]
     in_mesh = {
-        "cloud": "../scan.laz",
+        "cloud": f"../{scan_ply.name}",
         "reference": f"../{scanned_mesh}",
         "scan": scan_inputs,
     }
@@ -394,8 +411,11 @@ def run_tree(
     vs_field = compare(sim, field_cloud, params=cp)
     vs_field.tolerance_rule = tolerance["rule"]
     in_field = {
-        "cloud": "../scan.laz",
-        "reference": inputs["cloud"] or "field cloud (memory)",
+        "cloud": f"../{scan_ply.name}",
+        "reference": _relative(cloud, out / "vs_field")
+        if isinstance(cloud, (str, Path))
+        else "field cloud (memory)",
+        "reference_sha256": inputs.get("sha256"),
         "scan": scan_inputs,
     }
     write_comparison(vs_field, out / "vs_field", inputs=in_field, formats=(".laz",))
@@ -404,9 +424,11 @@ def run_tree(
     # -- report ----------------------------------------------------------------------------
     say(0.72, "drawing the reports")
     t0 = time.perf_counter()
-    build_report(vs_mesh, out / "vs_mesh", params=params.report, inputs=in_mesh)
+    # drawn from the written files, so that drawing them again gives the same report
+    build_report(out / "vs_mesh", params=params.report)
     say(0.86, "drawing the reports")
-    build_report(vs_field, out / "vs_field", params=params.report, inputs=in_field)
+    build_report(out / "vs_field", params=params.report)
+    clouds = _clouds_side_by_side(field_cloud, sim, vs_mesh, tolerance, out, params)
     mesh_fig = {k: v for k, v in vs_mesh.to_dict().items() if k in COMPARISON_FIGURES}
     field_fig = {k: v for k, v in vs_field.to_dict().items() if k in COMPARISON_FIGURES}
     summary: dict[str, Any] = {
@@ -419,6 +441,7 @@ def run_tree(
         "software": software_versions(),
         "reconstruction": dict(model.figures),
         "tolerance": tolerance,
+        "clouds": clouds,
         "scan": {
             "points": len(sim),
             "rays_cast": result.rays_cast,
@@ -435,7 +458,9 @@ def run_tree(
             **({"cylinders": written["cylinders"].name} if "cylinders" in written else {}),
             "tree_json": written["json"].name,
             "scan": scan_path.name,
+            "scan_float64": scan_ply.name,
             "scan_json": "scan.json",
+            "clouds": "clouds.png",
             "vs_mesh": "vs_mesh/comparison.json",
             "vs_field": "vs_field/comparison.json",
             "vs_mesh_report": "vs_mesh/report.html",
@@ -461,6 +486,45 @@ def run_tree(
         run_json=out / "run.json",
         summary=_jsonable(summary),
     )
+
+
+def _clouds_side_by_side(
+    field: Cloud, sim: Cloud, vs_mesh: Any, tolerance: dict[str, Any], out: Path, params: RunParams
+) -> dict[str, Any]:
+    """The field and simulated clouds' sizes and densities in one table, and
+    ``clouds.png``: both in the same views on the same axes."""
+    from .report import figures
+
+    area = vs_mesh.reference_info.get("area_m2")
+
+    def facts(c: Cloud, spacing: float) -> dict[str, Any]:
+        z = c.points[:, 2]
+        return {
+            "points": len(c),
+            "point_spacing_m": spacing,
+            "points_per_m2": len(c) / area if area else None,
+            "height_m": float(z.max() - z.min()),
+        }
+
+    rp = params.report
+    origin = vs_mesh.frame.origin_array
+    figures.clouds_side_by_side(
+        [
+            ("field cloud", field.points, figures.FIELD_COLOUR),
+            ("simulated cloud", sim.points, figures.SIMULATED_COLOUR),
+        ],
+        out / "clouds.png",
+        origin=origin if np.abs(origin).max() > 1e4 else np.zeros(3),
+        max_points=rp.max_plot_points,
+        seed=rp.seed,
+        dpi=rp.dpi,
+    )
+    return {
+        "field": facts(field, tolerance["field_point_spacing_m"]),
+        "simulated": facts(sim, vs_mesh.point_spacing_m),
+        "mesh_area_m2": area,
+        "figure": "clouds.png",
+    }
 
 
 def _relative(path: str | Path, base: str | Path) -> str:

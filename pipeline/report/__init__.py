@@ -33,7 +33,7 @@ from . import figures
 from .data import ReportData
 from .html import build_html
 from .profile import occlusion_profile
-from .text import summary_paragraph
+from .text import exactness_note, summary_paragraph
 
 __all__ = ["PNG_FILES", "ReportData", "ReportParams", "build_report", "summary_paragraph"]
 
@@ -149,6 +149,7 @@ def build_report(
         "kind": "treesim.report",
         "generated": generated,
         "summary": paragraph,
+        "notes": [n for n in (exactness_note(s),) if n],
         "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
         "occlusion_profile": profile,
         "parameters": {**s.get("parameters", {}), "report": asdict(params)},

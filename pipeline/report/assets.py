@@ -60,6 +60,8 @@ h3 { font-size: 15px; margin: 18px 0 6px; font-weight: 600; }
 .lead { color: var(--muted); margin: 0 0 14px; font-size: 14px; }
 .summary p { margin: 0; font-size: 16.5px; line-height: 1.65; max-width: 82ch; }
 .summary { border-left: 4px solid var(--acc); }
+.note { border-left: 4px solid var(--warn); background: #fffaf0; }
+.note p { margin: 0; max-width: 90ch; }
 .cards { display: grid; grid-template-columns: repeat(auto-fit, minmax(190px, 1fr)); gap: 14px; }
 .card {
   background: var(--paper); border: 1px solid var(--line); border-radius: 10px;

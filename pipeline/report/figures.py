@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .data import ReportData
+from .text import FLOAT_NOISE_M
 
 #: Colours of the two directions, used by every plot and by the HTML page.
 ACCURACY_COLOUR = "#2c6e9b"
@@ -124,7 +125,32 @@ def histograms(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
         for ax, (title, d, st, colour, ylabel) in zip(axes, panels, strict=True):
             d = np.asarray(d, dtype=np.float64)
             top = float(st["p99_m"] or 0.0)
-            xmax = top * 1.15 if top > 0 else max(float(st["max_m"] or 0.0), 1e-12)
+            if top < FLOAT_NOISE_M:
+                # float rounding (a noiseless scan on its own mesh): no histogram of noise,
+                # the scale of τ and what the distances are, in words
+                xmax = max(tau, 1e-4)
+                unit, k = unit_for(xmax)
+                ax.text(
+                    0.5,
+                    0.55,
+                    f"every distance ≤ {float(st['max_m'] or 0.0) * 1e9:.2g} nm:\n"
+                    "float rounding, exact by construction",
+                    transform=ax.transAxes,
+                    ha="center",
+                    va="center",
+                    fontsize=10,
+                    color="#323f4b",
+                )
+                ax.axvline(tau * k, color="#b83232", lw=1.2, ls="-", label=f"τ {_num(tau * k)}")
+                ax.set_xlim(0, xmax * k)
+                ax.set_ylim(0, 100)
+                ax.set_xlabel(f"distance ({unit})")
+                ax.set_ylabel(ylabel)
+                ax.set_title(f"{title}\n", loc="left")
+                ax.text(0, 1.02, f"n = {len(d):,}", transform=ax.transAxes, fontsize=8.5)
+                ax.legend(title=unit, fontsize=8, title_fontsize=8, loc="upper right")
+                continue
+            xmax = top * 1.15
             unit, k = unit_for(xmax)
             bins = np.linspace(0.0, xmax * k, 61)
             shown = d[d <= xmax]
@@ -443,4 +469,64 @@ def occlusion_profile(
         ax_d.set_xlim(left=0)
         ax_d.set_title("Point density by height" if dens is not None else "Points by height")
         ax_d.legend(loc="best", fontsize=8)
+        return _save(fig, path, dpi)
+
+
+#: Colours of the clouds set side by side on the run page.
+FIELD_COLOUR = "#52606d"
+SIMULATED_COLOUR = ACCURACY_COLOUR
+
+
+def clouds_side_by_side(
+    clouds: list[tuple[str, np.ndarray, str]],
+    path: Path,
+    *,
+    origin: np.ndarray,
+    max_points: int = 120_000,
+    seed: int = 0,
+    dpi: int = 130,
+) -> Path:
+    """Clouds in the same three views on the same axes, one row each: side (x-z, y-z) and
+    top (x-y).
+
+    Parameters
+    ----------
+    clouds : list of (name, (n, 3) float64 points, colour)
+    origin : (3,) float64
+        Subtracted for display.
+    """
+    import matplotlib
+
+    shown = []
+    for i, (name, pts, colour) in enumerate(clouds):
+        idx = _subsample(len(pts), max_points, seed + i)
+        shown.append((name, np.asarray(pts, dtype=np.float64)[idx] - origin, colour, len(pts)))
+    allp = np.concatenate([p for _, p, _, _ in shown])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    pad = 0.03 * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    ext = np.maximum(hi - lo, 1e-6)
+    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], ext[0] / ext[1]], 0.35, 3.0)
+    panel_h = 3.6
+    width = float(ratios.sum() * panel_h + 0.8)
+    if width > 12.0:
+        panel_h *= 12.0 / width
+        width = 12.0
+    specs = ((0, 2, "side (looking along +y)"), (1, 2, "side (looking along −x)"), (0, 1, "top"))
+    axis = "xyz"
+    offs = "" if not np.any(origin) else " − origin"
+    with matplotlib.rc_context({**_RC, "axes.grid": False}):
+        fig = _new_figure(width, (panel_h + 0.5) * len(shown))
+        axes = np.atleast_2d(fig.subplots(len(shown), 3, width_ratios=list(ratios)))
+        for row, (name, p, colour, n) in zip(axes, shown, strict=True):
+            size = float(np.clip(12_000 / max(len(p), 1), 0.1, 4.0))
+            for col, (ax, (i, j, view)) in enumerate(zip(row, specs, strict=True)):
+                ax.scatter(p[:, i], p[:, j], s=size, c=colour, linewidths=0, rasterized=True)
+                ax.set_xlim(lo[i], hi[i])
+                ax.set_ylim(lo[j], hi[j])
+                ax.set_aspect("equal", adjustable="box")
+                ax.set_xlabel(f"{axis[i]}{offs} (m)")
+                ax.set_ylabel(f"{axis[j]}{offs} (m)")
+                title = f"{name} ({n:,} points): {view}" if col == 0 else f"{name}: {view}"
+                ax.set_title(title, fontsize=9.5)
         return _save(fig, path, dpi)

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import assets, figures
 from .data import ReportData
-from .text import length, lod_reasons, mm, percent
+from .text import exactness_note, length, lod_reasons, mm, percent
 
 
 def _b64(data: bytes) -> str:
@@ -226,6 +226,12 @@ def _profile_table(p: dict[str, Any] | None, ref_word: str) -> str:
     )
 
 
+def _note_html(note: str | None) -> str:
+    if not note:
+        return ""
+    return f'<section class="panel note" id="exact-note"><p>{escape(note)}</p></section>'
+
+
 def _kv_table(rows: list[tuple[str, str]]) -> str:
     body = "".join(f"<tr><td>{escape(k)}</td><td>{v}</td></tr>" for k, v in rows)
     return f'<table class="kv"><tbody>{body}</tbody></table>'
@@ -368,6 +374,7 @@ def build_html(
 <main class="wrap">
 <div id="page-errors" hidden></div>
 <section class="panel summary"><p>{escape(paragraph)}</p></section>
+{_note_html(exactness_note(s))}
 
 <section class="cards">{cards_html}</section>
 

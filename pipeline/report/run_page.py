@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 from typing import Any
 
-from .text import cell, length, lod_reasons, percent
+from .text import cell, length, lod_reasons, percent, trivially_exact
 
 __all__ = ["PAGE_CSS", "STAGES", "run_page"]
 
@@ -70,6 +70,49 @@ def reference_qsm_section(s: dict[str, Any]) -> str:
         "(a QSM of the same tree made elsewhere); difference = reconstruction − reference</p>"
         "<table><tr><th>figure</th><th>reconstruction</th><th>reference QSM</th>"
         "<th>difference</th></tr>" + "".join(rows) + "</table>"
+    )
+
+
+def clouds_section(s: dict[str, Any]) -> str:
+    """The field and simulated clouds side by side: one table, the same views."""
+    c = s.get("clouds")
+    if not c:
+        return ""
+    f, m = c["field"], c["simulated"]
+
+    def ratio(a: Any, b: Any) -> str:
+        ok = isinstance(a, (int, float)) and isinstance(b, (int, float)) and b
+        return f"{a / b:.3g} ×" if ok else "–"
+
+    rows = [
+        ("points", cell(f["points"]), cell(m["points"]), ratio(m["points"], f["points"])),
+        (
+            "median point spacing",
+            _len(f["point_spacing_m"]),
+            _len(m["point_spacing_m"]),
+            ratio(m["point_spacing_m"], f["point_spacing_m"]),
+        ),
+        (
+            "points per m² of the mesh surface",
+            cell(f["points_per_m2"], digits=4),
+            cell(m["points_per_m2"], digits=4),
+            ratio(m["points_per_m2"], f["points_per_m2"]),
+        ),
+        ("height", cell(f["height_m"], " m"), cell(m["height_m"], " m"), "–"),
+    ]
+    body = "".join(
+        f"<tr><td>{a}</td><td>{b}</td><td>{d}</td><td>{r}</td></tr>" for a, b, d, r in rows
+    )
+    area = c.get("mesh_area_m2")
+    return (
+        '<h2 id="clouds">Field and simulated clouds</h2>'
+        '<p class="muted">Both clouds in the same views on the same axes; densities over the '
+        f"reconstructed mesh's surface ({cell(area, ' m²')}). The occlusion profile of "
+        '<a href="vs_field/report.html#occlusion">the comparison with the field cloud</a> '
+        "sets their densities side by side by height.</p>"
+        "<table><tr><th></th><th>field cloud</th><th>simulated cloud</th>"
+        f"<th>simulated / field</th></tr>{body}</table>"
+        f'<img src="{html.escape(c["figure"])}" alt="field and simulated clouds, same views">'
     )
 
 
@@ -169,7 +212,14 @@ def run_page(s: dict[str, Any], version: str) -> str:
         cards.append(
             f'<div class="card"><h2>{title}</h2><p class="muted">{what}</p>'
             f"<p>{esc(s['summary_text'].get(key, ''))}</p>"
-            f"<table>{cmp_rows(s[key])}</table>"
+            + (
+                '<p class="muted"><b>Trivially exact:</b> a scan without noise lies on the '
+                "mesh it was scanned from; its accuracy is float rounding, its coverage is "
+                "what this comparison measures.</p>"
+                if trivially_exact(s[key])
+                else ""
+            )
+            + f"<table>{cmp_rows(s[key])}</table>"
             f'<p><a href="{key}/report.html">full report</a> · '
             f'<a href="{key}/comparison.json">comparison.json</a></p>'
             f'<a href="{key}/report.html"><img src="{key}/{view}" '
@@ -186,6 +236,7 @@ preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(ver
 <div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
 <div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
 {reference_qsm_section(s)}
+{clouds_section(s)}
 <div class="cards">{"".join(cards)}</div>
 <h2>Time per stage</h2>{table(rows_time)}
 <h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,

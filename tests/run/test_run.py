@@ -303,3 +303,85 @@ def test_lod_auto_scans_a_qsm_mesh_with_facets_from_the_projected_size(sapling_r
     assert scan["triangles"] == facets["n_triangles"]
     page = result.report_html.read_text()
     assert "level of detail: facets" in page and "level of detail: rays" in page
+
+
+def test_trivially_exact_comparisons_say_so(sapling_run):
+    result, _ = sapling_run
+    mesh = json.loads((result.outdir / "vs_mesh" / "report.json").read_text())
+    field = json.loads((result.outdir / "vs_field" / "report.json").read_text())
+    # a scan without noise against its own mesh is exact by construction; against the
+    # field cloud it is not
+    assert len(mesh["notes"]) == 1 and "trivially exact" in mesh["notes"][0]
+    assert "scan without noise models against the mesh it was scanned from" in mesh["notes"][0]
+    assert field["notes"] == []
+    assert 'id="exact-note"' in (result.outdir / "vs_mesh" / "report.html").read_text()
+    assert 'id="exact-note"' not in (result.outdir / "vs_field" / "report.html").read_text()
+
+
+def test_field_and_simulated_clouds_side_by_side(sapling_run, saplings):
+    from pipeline.io import read_cloud
+
+    result, _ = sapling_run
+    c = result.summary["clouds"]
+    field = read_cloud(saplings["sapling0"])
+    assert c["field"]["points"] == len(field)
+    assert c["simulated"]["points"] == result.summary["scan"]["points"]
+    assert c["simulated"]["point_spacing_m"] == result.vs_mesh["point_spacing_m"]
+    area = result.vs_mesh["reference"]["area_m2"]
+    assert c["mesh_area_m2"] == area
+    assert c["field"]["points_per_m2"] == pytest.approx(len(field) / area)
+    assert (result.outdir / "clouds.png").read_bytes().startswith(b"\x89PNG")
+    page = result.report_html.read_text()
+    assert "Field and simulated clouds" in page and 'src="clouds.png"' in page
+    assert f"{len(field):,}" in page
+    assert page.count("Trivially exact") == 1  # vs mesh only
+
+
+def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_run, tmp_path):
+    import re
+    import shutil
+
+    from pipeline.compare import compare
+    from pipeline.io import read_cloud, read_reference
+    from pipeline.params import CompareParams
+    from pipeline.report import ReportParams, build_report
+
+    result, _ = sapling_run
+    moved = tmp_path / "elsewhere" / "run"
+    shutil.copytree(result.outdir, moved)
+    # every link and image of every page resolves inside the moved folder
+    for page in (moved / "report.html", moved / "vs_mesh/report.html"):
+        refs = re.findall(r'(?:href|src)="([^"#]+)', page.read_text())
+        refs = [r for r in refs if not r.startswith("data:")]
+        assert refs or page.name == "report.html"
+        for ref in refs:
+            target = (page.parent / ref).resolve()
+            assert target.is_file() and moved.resolve() in target.parents, ref
+    # inputs outside the folder are named relative to it, and identified by content
+    run = json.loads((moved / "run.json").read_text())
+    assert not Path(run["inputs"]["cloud"]).is_absolute()
+    assert (result.outdir / run["inputs"]["cloud"]).is_file()
+    field_in = json.loads((moved / "vs_field/comparison.json").read_text())["inputs"]
+    assert (result.outdir / "vs_field" / field_in["reference"]).is_file()
+    assert field_in["reference_sha256"] == run["inputs"]["sha256"]
+    # the comparison again, from the moved float64 scan and mesh: the same figures
+    comp = json.loads((moved / "vs_mesh/comparison.json").read_text())
+    rep = json.loads((moved / "vs_mesh/report.json").read_text())
+    par = comp["parameters"]
+    keep = ("tolerance_m", "seed", "min_samples", "max_samples", "spacing_subsample")
+    again = compare(
+        read_cloud(moved / "vs_mesh" / comp["inputs"]["cloud"]),
+        read_reference(moved / "vs_mesh" / comp["inputs"]["reference"])[0],
+        params=CompareParams(**{k: par[k] for k in keep}),
+    )
+    assert again.accuracy.to_dict() == rep["figures"]["accuracy"]
+    assert again.completeness.to_dict() == rep["figures"]["completeness"]
+    assert again.coverage == rep["figures"]["coverage"]
+    assert {str(k): v for k, v in again.by_station.items()} == rep["figures"]["by_station"]
+    # the report drawn again from the moved files has the same occlusion profile
+    drawn = ReportParams(**run["parameters"]["report"])
+    files = build_report(moved / "vs_mesh", tmp_path / "again", params=drawn)
+    assert (
+        json.loads(files["report_json"].read_text())["occlusion_profile"]
+        == (rep["occlusion_profile"])
+    )
