@@ -49,7 +49,8 @@ from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
-from .report.run_page import STAGES, run_page
+from .report.data import ReportData
+from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress
 
@@ -477,7 +478,13 @@ def run_tree(
             "path": _relative(reference_qsm, out),
             **reference_qsm_figures(reference_qsm, model.figures),
         }
-    write_text(out / "report.html", run_page(summary, __version__))
+    viewer = run_viewer_payload(
+        ReportData.from_comparison(vs_mesh),
+        ReportData.from_comparison(vs_field),
+        max_points=params.report.max_view_points,
+        seed=params.report.seed,
+    )
+    write_text(out / "report.html", run_page(summary, __version__, viewer))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
     return RunResult(

@@ -40,7 +40,7 @@ def print_run_summary(result: Any) -> None:
     if ref:
         f = ref["figures"]
         print(
-            f"reference QSM {ref['path']}: DBH {_fmt(f.get('dbh_m'), 100, 'cm')}, "
+            f"reference QSM {Path(ref['path']).name}: DBH {_fmt(f.get('dbh_m'), 100, 'cm')}, "
             f"height {_fmt(f.get('height_m'), 1, 'm')}, "
             f"wood volume {_fmt(f.get('volume_total_m3'), 1000, 'L')}, "
             f"{f.get('n_cylinders') or 0:,} cylinders"

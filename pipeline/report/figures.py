@@ -512,7 +512,7 @@ def clouds_side_by_side(
     if width > 12.0:
         panel_h *= 12.0 / width
         width = 12.0
-    specs = ((0, 2, "side (looking along +y)"), (1, 2, "side (looking along −x)"), (0, 1, "top"))
+    specs = ((0, 2, "side view (along +y)"), (1, 2, "side view (along −x)"), (0, 1, "top view"))
     axis = "xyz"
     offs = "" if not np.any(origin) else " − origin"
     with matplotlib.rc_context({**_RC, "axes.grid": False}):
@@ -520,13 +520,13 @@ def clouds_side_by_side(
         axes = np.atleast_2d(fig.subplots(len(shown), 3, width_ratios=list(ratios)))
         for row, (name, p, colour, n) in zip(axes, shown, strict=True):
             size = float(np.clip(12_000 / max(len(p), 1), 0.1, 4.0))
-            for col, (ax, (i, j, view)) in enumerate(zip(row, specs, strict=True)):
+            for ax, (i, j, view) in zip(row, specs, strict=True):
                 ax.scatter(p[:, i], p[:, j], s=size, c=colour, linewidths=0, rasterized=True)
                 ax.set_xlim(lo[i], hi[i])
                 ax.set_ylim(lo[j], hi[j])
                 ax.set_aspect("equal", adjustable="box")
                 ax.set_xlabel(f"{axis[i]}{offs} (m)")
                 ax.set_ylabel(f"{axis[j]}{offs} (m)")
-                title = f"{name} ({n:,} points): {view}" if col == 0 else f"{name}: {view}"
-                ax.set_title(title, fontsize=9.5)
+                ax.set_title(view, fontsize=9.5, fontweight="normal", color="#52606d")
+            row[0].set_ylabel(f"{name}, {n:,} points\n\n{axis[2]}{offs} (m)", fontsize=9.5)
         return _save(fig, path, dpi)

@@ -5,9 +5,12 @@ from __future__ import annotations
 import html
 from typing import Any
 
+from . import assets
+from .data import ReportData
+from .html import comparison_sets, viewer_section, viewer_sets_payload
 from .text import cell, length, lod_reasons, percent, trivially_exact
 
-__all__ = ["PAGE_CSS", "STAGES", "run_page"]
+__all__ = ["PAGE_CSS", "STAGES", "run_page", "run_viewer_payload"]
 
 #: Stages timed in ``run.json``'s ``timings_s`` (plus ``total``), in order.
 STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
@@ -27,8 +30,47 @@ h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #
 table{border-collapse:collapse;margin:.6em 0}td,th{padding:.25em .8em;border-bottom:1px solid #eee;
 text-align:right}th:first-child,td:first-child{text-align:left}.muted{color:#777}
 .cards{display:flex;gap:1.5em;flex-wrap:wrap}.card{flex:1 1 420px}img{max-width:100%}
-a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}
+a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}.lead{color:#777}
+#page-errors{background:#fde8e8;color:#8a1c1c;padding:.6em 1em}
 """
+
+
+def run_viewer_payload(
+    vs_mesh: ReportData, vs_field: ReportData, *, max_points: int = 40_000, seed: int = 0
+) -> dict[str, Any]:
+    """The run page's 3D view: the simulated cloud coloured by its distance to the field
+    cloud, the field cloud by its distance to the simulated one, and the mesh samples by
+    their distance to the simulated cloud (where the scan did not see the model)."""
+    (_, _, sim, d_sim, v_sim, _, _), (_, _, fld, d_fld, v_fld, _, tau) = comparison_sets(vs_field)
+    mesh_set = comparison_sets(vs_mesh)[1]
+    sets = [
+        (
+            "sim_vs_field",
+            "Simulated → field",
+            sim,
+            d_sim,
+            v_sim,
+            "distance to the field cloud",
+            None,
+        ),
+        (
+            "field_vs_sim",
+            "Field → simulated",
+            fld,
+            d_fld,
+            v_fld,
+            "distance to the simulated cloud",
+            tau,
+        ),
+        (
+            "mesh_vs_sim",
+            "Mesh → simulated",
+            *mesh_set[2:5],
+            "distance to the simulated cloud",
+            mesh_set[6],
+        ),
+    ]
+    return viewer_sets_payload(sets, max_points=max_points, seed=seed)
 
 
 #: Rows of the reconstruction-vs-reference table: (key, label, unit, scale).
@@ -73,6 +115,10 @@ def reference_qsm_section(s: dict[str, Any]) -> str:
     )
 
 
+def _per_m2(v: Any) -> str:
+    return f"{v:,.0f}" if isinstance(v, (int, float)) else "–"
+
+
 def clouds_section(s: dict[str, Any]) -> str:
     """The field and simulated clouds side by side: one table, the same views."""
     c = s.get("clouds")
@@ -94,8 +140,8 @@ def clouds_section(s: dict[str, Any]) -> str:
         ),
         (
             "points per m² of the mesh surface",
-            cell(f["points_per_m2"], digits=4),
-            cell(m["points_per_m2"], digits=4),
+            _per_m2(f["points_per_m2"]),
+            _per_m2(m["points_per_m2"]),
             ratio(m["points_per_m2"], f["points_per_m2"]),
         ),
         ("height", cell(f["height_m"], " m"), cell(m["height_m"], " m"), "–"),
@@ -116,7 +162,7 @@ def clouds_section(s: dict[str, Any]) -> str:
     )
 
 
-def run_page(s: dict[str, Any], version: str) -> str:
+def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:
     """A small self-contained page: the tree, the scan, both comparisons, links.
 
     Parameters
@@ -125,6 +171,8 @@ def run_page(s: dict[str, Any], version: str) -> str:
         ``run.json``'s content (:func:`pipeline.run.run_tree` builds it).
     version : str
         treesim's version, shown in the page's byline.
+    viewer : dict, optional
+        The 3D view's data (:func:`run_viewer_payload`); no 3D view without it.
     """
     esc = html.escape
     rec = s["reconstruction"]
@@ -228,9 +276,21 @@ def run_page(s: dict[str, Any], version: str) -> str:
     files = "".join(
         f'<li><a href="{esc(v)}">{esc(v)}</a></li>' for v in dict.fromkeys(s["files"].values())
     )
+    viewer_html = (
+        viewer_section(
+            viewer,
+            "The simulated and field clouds and the mesh's surface samples, each coloured by "
+            "its distance to the other cloud: bright where they differ, or where the scan "
+            "did not see the model. ",
+        )
+        if viewer
+        else ""
+    )
+    viewer_js = f"<script>{assets.VIEWER_JS}</script>" if viewer else ""
     return f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
-<title>treesim run: {esc(s["name"])}</title><style>{PAGE_CSS}</style></head><body>
-<h1>treesim run: {esc(s["name"])}</h1>
+<title>treesim run: {esc(s["name"])}</title><script>{assets.ERROR_HOOK_JS}</script>
+<style>{PAGE_CSS}{assets.VIEWER_VARS}{assets.VIEWER_CSS if viewer else ""}</style></head><body>
+<h1>treesim run: {esc(s["name"])}</h1><div id="page-errors" hidden></div>
 <p class="muted">field cloud {esc(str(s["inputs"].get("cloud") or "in memory"))} ·
 preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
 <div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
@@ -238,7 +298,8 @@ preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(ver
 {reference_qsm_section(s)}
 {clouds_section(s)}
 <div class="cards">{"".join(cards)}</div>
+{viewer_html}
 <h2>Time per stage</h2>{table(rows_time)}
 <h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,
-timings, every figure)</li></ul></body></html>
+timings, every figure)</li></ul>{viewer_js}</body></html>
 """

@@ -385,3 +385,17 @@ def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_r
         json.loads(files["report_json"].read_text())["occlusion_profile"]
         == (rep["occlusion_profile"])
     )
+
+
+def test_the_run_page_has_a_3d_view_that_draws_in_chromium(sapling_run):
+    from tests.report.browser import open_page
+
+    result, _ = sapling_run
+    html = result.report_html.read_text()
+    data = json.loads(html.split('id="viewer-data">')[1].split("</script>")[0])
+    assert [d["key"] for d in data["datasets"]] == ["sim_vs_field", "field_vs_sim", "mesh_vs_sim"]
+    assert f"of {result.summary['scan']['points']:,} points" in data["datasets"][0]["caption"]
+    page = open_page(result.report_html)
+    assert page["errors"] == "0", page["console"]
+    assert page["viewer"] == "ready" and page["drawn"] > 500
+    assert page["images_ok"] and page["console"] == [] and page["outside"] == []
