@@ -98,3 +98,34 @@ def test_print_params_is_a_config_file(tmp_path, capsys):
 
     p = load_config(cfg)
     assert p.preset == "fine" and p.reconstruct.method == "poisson"
+
+
+def test_a_missing_reference_qsm_says_so_in_one_line(saplings, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["run", str(saplings["sapling0"]), "-o", str(out), "--reference-qsm", "no.csv"])
+    assert rc == 1
+    assert "reference QSM no.csv not found" in one_line_error(capsys)
+    assert not (out / "tree.ply").exists()
+
+
+def test_the_demo_sets_the_bundled_treeqsm_model_beside_the_reconstruction(
+    tmp_path, monkeypatch, capsys
+):
+    from pipeline.cli.demo import SAMPLE_QSM
+    from pipeline.errors import ReconstructionError
+    from pipeline.models import read_cylinders
+
+    given = {}
+
+    def fake(cloud, params, outdir, **kwargs):
+        given.update(kwargs)
+        raise ReconstructionError("stopped here")
+
+    monkeypatch.setattr("pipeline.run.run_tree", fake)
+    assert main(["demo", "-o", str(tmp_path / "o")]) == 1
+    capsys.readouterr()
+    assert given["reference_qsm"] == SAMPLE_QSM
+    # the model PROVENANCE.md describes: 1,136 cylinders, DBH 7.35 cm, 21.6 L
+    s = read_cylinders(SAMPLE_QSM).summary()
+    assert s["n_cylinders"] == 1136
+    assert round(s["dbh_m"] * 100, 2) == 7.35 and round(s["volume_total_m3"] * 1000, 1) == 21.6
