@@ -304,6 +304,9 @@ class Comparison:
     params: CompareParams
     frame: LocalFrame
     timings_s: dict[str, float] = field(default_factory=dict)
+    #: How τ was chosen, in words, when a caller fixed it (a run: from the field cloud);
+    #: default ``"given"`` or ``"3 × point_spacing_m"``.
+    tolerance_rule: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The figures as JSON-ready values (no per-point arrays)."""
@@ -322,9 +325,8 @@ class Comparison:
             "parameters": {
                 **asdict(self.params),
                 "tolerance_m": self.tolerance_m,
-                "tolerance_rule": "given"
-                if self.params.tolerance_m is not None
-                else "3 × point_spacing_m",
+                "tolerance_rule": self.tolerance_rule
+                or ("given" if self.params.tolerance_m is not None else "3 × point_spacing_m"),
                 "sample_spacing_m": self.sample_spacing_m,
                 "sample_spacing_rule": None
                 if self.sample_spacing_m is None

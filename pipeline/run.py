@@ -6,17 +6,24 @@
    ``cylinders.csv`` (qsm), ``tree.json``;
 2. scans that mesh with the virtual TLS scanner (:func:`pipeline.scan.scan`) from a ring
    of stations around it placed by the station rule (:mod:`pipeline.scan.stations`):
-   ``scan.laz`` (0.1 mm LAZ with the per-point fields) and ``scan.json``;
+   ``scan.laz`` (0.1 mm LAZ with the per-point fields), ``scan.ply`` (the same in float64,
+   exactly what was compared) and ``scan.json``;
 3. compares the simulated cloud, in float64, with the mesh it was scanned from
    (``vs_mesh/``: how well the scan design samples the model) and with the original field
-   cloud (``vs_field/``: how close the simulation comes to the real scan):
-   ``comparison.json`` and the distance clouds in each folder;
-4. draws a report per comparison (``vs_*/report.html`` and plots) and one run page,
-   ``report.html`` (:mod:`pipeline.report.run_page`), that presents both;
+   cloud (``vs_field/``: how close the simulation comes to the real scan), both with one
+   coverage tolerance τ (:func:`run_tolerance`): ``comparison.json`` and the distance
+   clouds in each folder;
+4. draws a report per comparison (``vs_*/report.html`` and plots) from the files just
+   written, so that ``treesim report vs_mesh`` draws the same figures again, the field and
+   simulated clouds side by side (``clouds.png``), and one run page, ``report.html``
+   (:mod:`pipeline.report.run_page`), that presents it all;
 
 and writes ``run.json`` last: the parameters, software versions, ``timings_s`` per stage,
-and the figures under ``reconstruction`` (``tree.json``'s names), ``scan``, ``vs_mesh`` and
-``vs_field`` (``comparison.json``'s names).
+and the figures under ``reconstruction`` (``tree.json``'s names), ``tolerance``,
+``clouds``, ``scan``, ``vs_mesh`` and ``vs_field`` (``comparison.json``'s names), and
+``reference_qsm`` when one was given. Inputs outside the folder are named by their path
+relative to it (and their SHA-256), links inside it are relative, and every page is
+self-contained or links within the folder, so an output folder can be moved.
 
 The parameters (:class:`~pipeline.params.RunParams`), the run presets and the TOML
 language are the parameter model's, :mod:`pipeline.params`.
@@ -42,11 +49,19 @@ from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
-from .report.run_page import STAGES, run_page
+from .report.data import ReportData
+from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress
 
-__all__ = ["STAGES", "RunResult", "file_sha256", "run_tree", "software_versions"]
+__all__ = [
+    "STAGES",
+    "RunResult",
+    "file_sha256",
+    "run_tolerance",
+    "run_tree",
+    "software_versions",
+]
 
 Progress = Callable[[float, str], None]
 
@@ -145,12 +160,98 @@ def _lod_scene(
     return scene, info
 
 
+#: The figures a reference QSM and the reconstruction are compared on (``tree.json``'s and
+#: :meth:`~pipeline.models.CylinderTable.summary`'s names).
+REFERENCE_FIGURES = (
+    "dbh_m",
+    "height_m",
+    "volume_total_m3",
+    "volume_stem_m3",
+    "volume_branch_m3",
+    "n_cylinders",
+)
+
+
+def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> dict[str, Any]:
+    """A reference QSM's figures beside the reconstruction's.
+
+    Parameters
+    ----------
+    path : str or Path
+        A cylinder table: TreeQSM (CSV or text export), SimpleForest or treesim's CSV
+        (:func:`pipeline.models.read_cylinders` detects which).
+    reconstruction : dict
+        ``tree.json``'s figures.
+
+    Returns
+    -------
+    dict
+        ``figures`` (the reference's, :data:`REFERENCE_FIGURES`), ``difference``
+        (reconstruction − reference, same units) and ``relative`` (that difference over
+        the reference's value), each ``None`` where either side has no value; ``sha256``.
+    """
+    from .models import read_cylinders
+
+    table = read_cylinders(path)
+    summary = table.summary()
+    ref = {k: summary.get(k) for k in REFERENCE_FIGURES}
+    diff: dict[str, float | None] = {}
+    rel: dict[str, float | None] = {}
+    for k in REFERENCE_FIGURES:
+        a, b = reconstruction.get(k), ref[k]
+        ok = isinstance(a, (int, float)) and isinstance(b, (int, float))
+        diff[k] = float(a - b) if ok else None
+        rel[k] = float(a / b - 1.0) if ok and b else None
+    return {"figures": ref, "difference": diff, "relative": rel, "sha256": file_sha256(path)}
+
+
+def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
+    """The one coverage tolerance τ of a run, used by both of its comparisons.
+
+    ``params.compare.tolerance_m`` when given; else
+    :data:`~pipeline.compare.TOLERANCE_FACTOR` × the *field* cloud's median point spacing,
+    measured once. Deriving τ from the field cloud, never from the simulated one, keeps it
+    fixed for a tree whatever the scan design, so runs of one tree with different
+    stations or resolutions report coverage within the same distance (the sweep's rule,
+    :func:`pipeline.sweep.trees.derive_tolerance`, for one tree).
+
+    Returns
+    -------
+    dict
+        ``tolerance_m``, ``rule`` (in words), the field cloud's median point spacing
+        ``field_point_spacing_m`` and, when τ is derived from it, ``factor``.
+    """
+    from .compare import TOLERANCE_FACTOR
+    from .frame import LocalFrame
+    from .geometry import point_spacing
+
+    cp = params.compare
+    pts = LocalFrame.around(field_cloud.points).to_local(field_cloud.points)
+    spacing = point_spacing(pts, subsample=cp.spacing_subsample, seed=cp.seed)
+    if cp.tolerance_m is not None:
+        tau = float(cp.tolerance_m)
+        return {
+            "tolerance_m": tau,
+            "rule": f"given ({tau * 1000:.4g} mm, --tolerance-m)",
+            "field_point_spacing_m": spacing,
+        }
+    tau = TOLERANCE_FACTOR * spacing
+    return {
+        "tolerance_m": tau,
+        "rule": f"{TOLERANCE_FACTOR:g} × the field cloud's median point spacing "
+        f"({spacing * 1000:.3g} mm), one τ for the whole run",
+        "factor": TOLERANCE_FACTOR,
+        "field_point_spacing_m": spacing,
+    }
+
+
 def run_tree(
     cloud: Cloud | np.ndarray | str | Path,
     params: RunParams | None = None,
     outdir: str | Path = "out/run",
     *,
     name: str | None = None,
+    reference_qsm: str | Path | None = None,
     progress: Progress | None = None,
 ) -> RunResult:
     """Run the whole loop on one tree and write every artefact into ``outdir``.
@@ -165,6 +266,10 @@ def run_tree(
         Created if missing; existing files of the same names are replaced.
     name : str, optional
         The tree's name in the report (default the file's stem).
+    reference_qsm : str or Path, optional
+        A QSM of the same tree made elsewhere (TreeQSM or SimpleForest cylinder table):
+        its DBH, height and volumes are shown beside the reconstruction's
+        (:func:`reference_qsm_figures`; ``run.json``'s ``reference_qsm``).
     progress : callable(fraction, message), optional
         Called as the stages advance.
 
@@ -199,13 +304,23 @@ def run_tree(
     # -- read ------------------------------------------------------------------------------
     if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
         raise InputFormatError(f"{cloud} not found; check the path")
+    if reference_qsm is not None:
+        from .models import read_cylinders
+
+        if not Path(reference_qsm).is_file():
+            raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
+        read_cylinders(reference_qsm)  # a bad table fails now, not after the whole run
     say(0.0, "reading")
     t0 = time.perf_counter()
     inputs: dict[str, Any]
     if isinstance(cloud, (str, Path)):
         path = Path(cloud)
         field_cloud = read_cloud(path)
-        inputs = {"cloud": str(path), "sha256": file_sha256(path), "bytes": path.stat().st_size}
+        inputs = {
+            "cloud": _relative(path, out),
+            "sha256": file_sha256(path),
+            "bytes": path.stat().st_size,
+        }
         name = name or path.stem
     elif isinstance(cloud, Cloud):
         field_cloud = cloud
@@ -255,6 +370,8 @@ def run_tree(
         result.lod["facets"] = facet_lod
     sim = result.cloud
     scan_path = write_cloud(out / "scan.laz", sim)
+    # the simulated cloud exactly as compared (float64): the LAZ keeps 0.1 mm
+    scan_ply = write_cloud(out / "scan.ply", sim)
     scan_summary = {
         "mesh": scanned_mesh,
         "triangles": scene.n_triangles,
@@ -277,12 +394,14 @@ def run_tree(
     }
 
     # -- compare ---------------------------------------------------------------------------
-    cp = replace(params.compare, nthreads=threads)
     say(0.5, "comparing with the mesh")
     t0 = time.perf_counter()
+    tolerance = run_tolerance(field_cloud, params)
+    cp = replace(params.compare, nthreads=threads, tolerance_m=tolerance["tolerance_m"])
     vs_mesh = compare(sim, scene, params=cp)
+    vs_mesh.tolerance_rule = tolerance["rule"]
     in_mesh = {
-        "cloud": "../scan.laz",
+        "cloud": f"../{scan_ply.name}",
         "reference": f"../{scanned_mesh}",
         "scan": scan_inputs,
     }
@@ -291,9 +410,13 @@ def run_tree(
     say(0.62, "comparing with the field cloud")
     t0 = time.perf_counter()
     vs_field = compare(sim, field_cloud, params=cp)
+    vs_field.tolerance_rule = tolerance["rule"]
     in_field = {
-        "cloud": "../scan.laz",
-        "reference": inputs["cloud"] or "field cloud (memory)",
+        "cloud": f"../{scan_ply.name}",
+        "reference": _relative(cloud, out / "vs_field")
+        if isinstance(cloud, (str, Path))
+        else "field cloud (memory)",
+        "reference_sha256": inputs.get("sha256"),
         "scan": scan_inputs,
     }
     write_comparison(vs_field, out / "vs_field", inputs=in_field, formats=(".laz",))
@@ -302,9 +425,11 @@ def run_tree(
     # -- report ----------------------------------------------------------------------------
     say(0.72, "drawing the reports")
     t0 = time.perf_counter()
-    build_report(vs_mesh, out / "vs_mesh", params=params.report, inputs=in_mesh)
+    # drawn from the written files, so that drawing them again gives the same report
+    build_report(out / "vs_mesh", params=params.report)
     say(0.86, "drawing the reports")
-    build_report(vs_field, out / "vs_field", params=params.report, inputs=in_field)
+    build_report(out / "vs_field", params=params.report)
+    clouds = _clouds_side_by_side(field_cloud, sim, vs_mesh, tolerance, out, params)
     mesh_fig = {k: v for k, v in vs_mesh.to_dict().items() if k in COMPARISON_FIGURES}
     field_fig = {k: v for k, v in vs_field.to_dict().items() if k in COMPARISON_FIGURES}
     summary: dict[str, Any] = {
@@ -316,6 +441,8 @@ def run_tree(
         "threads": threads,
         "software": software_versions(),
         "reconstruction": dict(model.figures),
+        "tolerance": tolerance,
+        "clouds": clouds,
         "scan": {
             "points": len(sim),
             "rays_cast": result.rays_cast,
@@ -332,7 +459,9 @@ def run_tree(
             **({"cylinders": written["cylinders"].name} if "cylinders" in written else {}),
             "tree_json": written["json"].name,
             "scan": scan_path.name,
+            "scan_float64": scan_ply.name,
             "scan_json": "scan.json",
+            **({"clouds": clouds["figure"]} if clouds["figure"] else {}),
             "vs_mesh": "vs_mesh/comparison.json",
             "vs_field": "vs_field/comparison.json",
             "vs_mesh_report": "vs_mesh/report.html",
@@ -344,7 +473,18 @@ def run_tree(
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
-    write_text(out / "report.html", run_page(summary, __version__))
+    if reference_qsm is not None:
+        summary["reference_qsm"] = {
+            "path": _relative(reference_qsm, out),
+            **reference_qsm_figures(reference_qsm, model.figures),
+        }
+    viewer = run_viewer_payload(
+        ReportData.from_comparison(vs_mesh),
+        ReportData.from_comparison(vs_field),
+        max_points=params.report.max_view_points,
+        seed=params.report.seed,
+    )
+    write_text(out / "report.html", run_page(summary, __version__, viewer))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
     return RunResult(
@@ -353,6 +493,63 @@ def run_tree(
         run_json=out / "run.json",
         summary=_jsonable(summary),
     )
+
+
+def _clouds_side_by_side(
+    field: Cloud, sim: Cloud, vs_mesh: Any, tolerance: dict[str, Any], out: Path, params: RunParams
+) -> dict[str, Any]:
+    """The field and simulated clouds' sizes and densities in one table, and
+    ``clouds.png``: both in the same views on the same axes."""
+    from .report import figures
+
+    area = vs_mesh.reference_info.get("area_m2")
+
+    def facts(c: Cloud, spacing: float) -> dict[str, Any]:
+        z = c.points[:, 2]
+        return {
+            "points": len(c),
+            "point_spacing_m": spacing,
+            "points_per_m2": len(c) / area if area else None,
+            "height_m": float(z.max() - z.min()),
+        }
+
+    def _cloud_table() -> dict[str, Any]:
+        return {
+            "field": facts(field, tolerance["field_point_spacing_m"]),
+            "simulated": facts(sim, vs_mesh.point_spacing_m),
+            "mesh_area_m2": area,
+        }
+
+    rp = params.report
+    origin = vs_mesh.frame.origin_array
+    figure = out / "clouds.png"
+    if not rp.plots:  # report.plots = false: the table only
+        figure.unlink(missing_ok=True)
+        return {**_cloud_table(), "figure": None}
+    figures.clouds_side_by_side(
+        [
+            ("field cloud", field.points, figures.FIELD_COLOUR),
+            ("simulated cloud", sim.points, figures.SIMULATED_COLOUR),
+        ],
+        figure,
+        origin=origin if np.abs(origin).max() > 1e4 else np.zeros(3),
+        max_points=rp.max_plot_points,
+        seed=rp.seed,
+        dpi=rp.dpi,
+    )
+    return {**_cloud_table(), "figure": figure.name}
+
+
+def _relative(path: str | Path, base: str | Path) -> str:
+    """``path`` relative to folder ``base`` (POSIX separators), so that a record stays
+    true when an output folder and its inputs move together; absolute where no relative
+    path exists (another drive)."""
+    import os
+
+    try:
+        return Path(os.path.relpath(Path(path).resolve(), Path(base).resolve())).as_posix()
+    except ValueError:
+        return Path(path).resolve().as_posix()
 
 
 def _summary_texts(out: Path) -> dict[str, str]:

@@ -36,6 +36,15 @@ def print_run_summary(result: Any) -> None:
         f"wood volume {_fmt(rec.get('volume_total_m3'), 1000, 'L')}, "
         f"{rec.get('n_cylinders') or 0:,} cylinders, {rec.get('n_triangles') or 0:,} triangles"
     )
+    ref = s.get("reference_qsm")
+    if ref:
+        f = ref["figures"]
+        print(
+            f"reference QSM {Path(ref['path']).name}: DBH {_fmt(f.get('dbh_m'), 100, 'cm')}, "
+            f"height {_fmt(f.get('height_m'), 1, 'm')}, "
+            f"wood volume {_fmt(f.get('volume_total_m3'), 1000, 'L')}, "
+            f"{f.get('n_cylinders') or 0:,} cylinders"
+        )
     print(
         f"scan: {rule['n_stations']} stations {rule['distance_m']:.1f} m out, "
         f"{spec['horizontal_resolution_deg']:g}° steps: {sc['points']:,} points"
@@ -71,7 +80,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("give the output folder with -o OUTDIR")
     output_folder(args.output)
     cloud = Path(args.cloud)
-    result = run_tree(cloud, params, args.output, progress=progress_printer(label="run"))
+    result = run_tree(
+        cloud,
+        params,
+        args.output,
+        reference_qsm=args.reference_qsm,
+        progress=progress_printer(label="run"),
+    )
     print_run_summary(result)
     return 0
 
@@ -90,6 +105,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     rp.add_argument("cloud", nargs="?", metavar="CLOUD", help="the field point cloud of one tree")
     rp.add_argument("-o", "--output", metavar="OUTDIR", help="output folder")
+    rp.add_argument(
+        "--reference-qsm",
+        metavar="CSV",
+        help="a QSM of the same tree made elsewhere (TreeQSM or SimpleForest cylinder "
+        "table): its DBH, height and volumes are shown beside the reconstruction's",
+    )
     add_settings(rp)
     param_option(rp, RunParams, "threads", metavar="N")
     rp.add_argument(

@@ -17,7 +17,9 @@ class CompareParams:
     Parameters
     ----------
     tolerance_m : float, optional
-        Coverage tolerance τ (m); default ``3 × point_spacing_m``.
+        Coverage tolerance τ (m); default ``3 × point_spacing_m`` of the compared cloud
+        (``treesim compare``); a run uses one τ for both its comparisons, by default 3 ×
+        the field cloud's spacing (:func:`pipeline.run.run_tolerance`).
     sample_spacing_m : float, optional
         Mesh references: spacing of the surface samples for completeness (m), i.e. one
         sample per ``sample_spacing_m²``; default ``point_spacing_m``.
@@ -36,7 +38,7 @@ class CompareParams:
         None,
         help="coverage tolerance τ",
         unit="m",
-        none_means="3 × the cloud's point spacing",
+        none_means="3 × the point spacing (a run: the field cloud's, one τ for both)",
         gt=0,
     )
     sample_spacing_m: float | None = param(
@@ -88,6 +90,9 @@ class ReportParams:
         Draw the PNG plots. Off, the report keeps its figures, text and 3D view and says
         where each plot would be: for sweeps and tests, where drawing is most of a run's
         time and only the figures count.
+    profile_bin_m : float, optional
+        Height of the occlusion profile's slices (m); default a round height giving about
+        20 slices (:func:`pipeline.report.profile.auto_bin_m`).
     """
 
     max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)
@@ -95,6 +100,13 @@ class ReportParams:
     seed: int = param(0, help="seed of the subsamples", ge=0)
     dpi: int = param(130, help="resolution of the PNG plots", ge=1)
     plots: bool = param(True, help="draw the PNG plots (off: figures, text and 3D view only)")
+    profile_bin_m: float | None = param(
+        None,
+        help="height of the occlusion profile's slices",
+        unit="m",
+        none_means="a round height giving about 20 slices",
+        gt=0,
+    )
 
     def __post_init__(self) -> None:
         check_bounds(self)

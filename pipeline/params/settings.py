@@ -95,6 +95,7 @@ SETTINGS: dict[str, Setting] = {
         _setting(("scan", "distance_m")),
         _setting(("scan", "height_m")),
         _setting(("scan", "lod")),
+        _setting(("compare", "tolerance_m")),
         Setting(
             "resolution_deg",
             (

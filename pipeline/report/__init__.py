@@ -9,6 +9,9 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 * ``views_accuracy.png``, ``views_completeness.png``: side and top views of the cloud and
   of the reference samples coloured by distance;
 * ``coverage.png``: coverage by station (and by hit label);
+* ``occlusion.png``: the occlusion profile, coverage and point density by height slice,
+  per station and all together (:mod:`pipeline.report.profile`; its numbers in
+  ``report.json``'s ``occlusion_profile``);
 * ``report.html``: all of it in one self-contained page (images and data inline, no
   external resources), with an interactive 3D view of a subsample.
 """
@@ -29,7 +32,8 @@ from ..params import ReportParams
 from . import figures
 from .data import ReportData
 from .html import build_html
-from .text import summary_paragraph
+from .profile import occlusion_profile
+from .text import exactness_note, summary_paragraph
 
 __all__ = ["PNG_FILES", "ReportData", "ReportParams", "build_report", "summary_paragraph"]
 
@@ -40,6 +44,7 @@ PNG_FILES = {
     "views_accuracy": "views_accuracy.png",
     "views_completeness": "views_completeness.png",
     "coverage": "coverage.png",
+    "occlusion": "occlusion.png",
 }
 
 
@@ -87,8 +92,9 @@ def build_report(
     s["report_software"] = {"matplotlib": software_versions("matplotlib")["matplotlib"]}
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}
+    profile = occlusion_profile(data, bin_m=params.profile_bin_m)
     if params.plots:
-        _draw(data, pngs, params)
+        _draw(data, pngs, params, profile)
     else:  # and no plot of an earlier report stays beside this one
         for p in pngs.values():
             p.unlink(missing_ok=True)
@@ -104,6 +110,7 @@ def build_report(
         max_view_points=params.max_view_points,
         seed=params.seed,
         dpi=params.dpi,
+        profile=profile,
     )
     html_path = out / "report.html"
     write_text(html_path, page)
@@ -112,7 +119,9 @@ def build_report(
         "kind": "treesim.report",
         "generated": generated,
         "summary": paragraph,
+        "notes": [n for n in (exactness_note(s),) if n],
         "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
+        "occlusion_profile": profile,
         "parameters": {**s.get("parameters", {}), "report": asdict(params)},
         "inputs": s.get("inputs", {}),
         "definitions": s.get("definitions", {}),
@@ -124,7 +133,9 @@ def build_report(
     return {"report_json": json_path, "report_html": html_path, **pngs}
 
 
-def _draw(data: ReportData, pngs: dict[str, Path], params: ReportParams) -> None:
+def _draw(
+    data: ReportData, pngs: dict[str, Path], params: ReportParams, profile: dict[str, Any]
+) -> None:
     """The PNG plots of one report."""
     s = data.summary
     figures.histograms(data, pngs["histograms"], dpi=params.dpi)
@@ -162,3 +173,4 @@ def _draw(data: ReportData, pngs: dict[str, Path], params: ReportParams) -> None
         dpi=params.dpi,
     )
     figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
+    figures.occlusion_profile(profile, pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)

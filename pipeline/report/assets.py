@@ -28,7 +28,46 @@ ERROR_HOOK_JS = r"""
 })();
 """
 
-CSS = r"""
+#: The 3D viewer's style (its colours are :data:`VIEWER_VARS`'s).
+VIEWER_CSS = r"""
+/* 3D viewer */
+.viewer { display: grid; grid-template-columns: 1fr 210px; gap: 18px; }
+@media (max-width: 860px) { .viewer { grid-template-columns: 1fr; } }
+.viewer canvas { width: 100%; height: 560px; display: block; background: #fbfcfd;
+  border: 1px solid var(--line); border-radius: 8px; cursor: grab; touch-action: none; }
+.viewer canvas.dragging { cursor: grabbing; }
+.controls { display: flex; flex-direction: column; gap: 14px; font-size: 13.5px; }
+.controls .group { display: flex; flex-direction: column; gap: 6px; }
+.controls .label { font-size: 12.5px; color: var(--muted); font-weight: 500; }
+.seg { display: flex; flex-wrap: wrap; gap: 6px; }
+button {
+  font: inherit; font-size: 13px; border: 1px solid #cbd2d9; background: #fff; color: var(--ink);
+  padding: 5px 10px; border-radius: 6px; cursor: pointer;
+}
+button:hover { border-color: var(--faint); background: #f7f9fb; }
+button[aria-pressed="true"] { background: var(--ink); color: #fff; border-color: var(--ink); }
+.legend { display: flex; gap: 10px; align-items: stretch; height: 190px; }
+.legend .bar { width: 16px; border-radius: 4px; border: 1px solid var(--line); position: relative; }
+.legend .ticks { position: relative; flex: 1; font-size: 12px; color: var(--muted);
+  font-variant-numeric: tabular-nums; }
+.legend .ticks span { position: absolute; left: 0; transform: translateY(-50%);
+  white-space: nowrap; }
+.legend .ticks span.tau { color: var(--tau); font-weight: 600; }
+.legend .bar i { position: absolute; left: -3px; right: -3px; height: 2px; background: var(--tau); }
+.hint { color: var(--muted); font-size: 12.5px; line-height: 1.45; }
+input[type=range] { width: 100%; accent-color: var(--ink); }
+"""
+
+#: The colour variables the viewer's style uses (part of :data:`CSS`).
+VIEWER_VARS = r"""
+:root {
+  --ink: #1f2933; --muted: #616e7c; --faint: #9aa5b1; --line: #e4e7eb;
+  --tau: #b83232;
+}
+"""
+
+CSS = (
+    r"""
 :root {
   --ink: #1f2933; --muted: #616e7c; --faint: #9aa5b1; --line: #e4e7eb;
   --paper: #ffffff; --bg: #f3f5f8; --acc: #2c6e9b; --comp: #c2612d; --tau: #b83232;
@@ -60,6 +99,8 @@ h3 { font-size: 15px; margin: 18px 0 6px; font-weight: 600; }
 .lead { color: var(--muted); margin: 0 0 14px; font-size: 14px; }
 .summary p { margin: 0; font-size: 16.5px; line-height: 1.65; max-width: 82ch; }
 .summary { border-left: 4px solid var(--acc); }
+.note { border-left: 4px solid var(--warn); background: #fffaf0; }
+.note p { margin: 0; max-width: 90ch; }
 .cards { display: grid; grid-template-columns: repeat(auto-fit, minmax(190px, 1fr)); gap: 14px; }
 .card {
   background: var(--paper); border: 1px solid var(--line); border-radius: 10px;
@@ -100,33 +141,10 @@ footer { color: var(--muted); font-size: 13px; padding: 8px 0 40px; }
 footer .versions { display: flex; flex-wrap: wrap; gap: 6px 16px; }
 #page-errors { background: #fde8e8; color: #8a1c1c; border: 1px solid #f5b5b5; padding: 10px 14px;
   border-radius: 8px; margin: 16px 0; }
-/* 3D viewer */
-.viewer { display: grid; grid-template-columns: 1fr 210px; gap: 18px; }
-@media (max-width: 860px) { .viewer { grid-template-columns: 1fr; } }
-.viewer canvas { width: 100%; height: 560px; display: block; background: #fbfcfd;
-  border: 1px solid var(--line); border-radius: 8px; cursor: grab; touch-action: none; }
-.viewer canvas.dragging { cursor: grabbing; }
-.controls { display: flex; flex-direction: column; gap: 14px; font-size: 13.5px; }
-.controls .group { display: flex; flex-direction: column; gap: 6px; }
-.controls .label { font-size: 12.5px; color: var(--muted); font-weight: 500; }
-.seg { display: flex; flex-wrap: wrap; gap: 6px; }
-button {
-  font: inherit; font-size: 13px; border: 1px solid #cbd2d9; background: #fff; color: var(--ink);
-  padding: 5px 10px; border-radius: 6px; cursor: pointer;
-}
-button:hover { border-color: var(--faint); background: #f7f9fb; }
-button[aria-pressed="true"] { background: var(--ink); color: #fff; border-color: var(--ink); }
-.legend { display: flex; gap: 10px; align-items: stretch; height: 190px; }
-.legend .bar { width: 16px; border-radius: 4px; border: 1px solid var(--line); position: relative; }
-.legend .ticks { position: relative; flex: 1; font-size: 12px; color: var(--muted);
-  font-variant-numeric: tabular-nums; }
-.legend .ticks span { position: absolute; left: 0; transform: translateY(-50%);
-  white-space: nowrap; }
-.legend .ticks span.tau { color: var(--tau); font-weight: 600; }
-.legend .bar i { position: absolute; left: -3px; right: -3px; height: 2px; background: var(--tau); }
-.hint { color: var(--muted); font-size: 12.5px; line-height: 1.45; }
-input[type=range] { width: 100%; accent-color: var(--ink); }
 """
+    + VIEWER_CSS
+)
+
 
 #: The interactive point viewer: canvas 2D, orthographic, z-buffered splats, depth shading.
 VIEWER_JS = r"""

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .data import ReportData
+from .text import FLOAT_NOISE_M
 
 #: Colours of the two directions, used by every plot and by the HTML page.
 ACCURACY_COLOUR = "#2c6e9b"
@@ -124,7 +125,32 @@ def histograms(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
         for ax, (title, d, st, colour, ylabel) in zip(axes, panels, strict=True):
             d = np.asarray(d, dtype=np.float64)
             top = float(st["p99_m"] or 0.0)
-            xmax = top * 1.15 if top > 0 else max(float(st["max_m"] or 0.0), 1e-12)
+            if top < FLOAT_NOISE_M:
+                # float rounding (a noiseless scan on its own mesh): no histogram of noise,
+                # the scale of τ and what the distances are, in words
+                xmax = max(tau, 1e-4)
+                unit, k = unit_for(xmax)
+                ax.text(
+                    0.5,
+                    0.55,
+                    f"every distance ≤ {float(st['max_m'] or 0.0) * 1e9:.2g} nm:\n"
+                    "float rounding, exact by construction",
+                    transform=ax.transAxes,
+                    ha="center",
+                    va="center",
+                    fontsize=10,
+                    color="#323f4b",
+                )
+                ax.axvline(tau * k, color="#b83232", lw=1.2, ls="-", label=f"τ {_num(tau * k)}")
+                ax.set_xlim(0, xmax * k)
+                ax.set_ylim(0, 100)
+                ax.set_xlabel(f"distance ({unit})")
+                ax.set_ylabel(ylabel)
+                ax.set_title(f"{title}\n", loc="left")
+                ax.text(0, 1.02, f"n = {len(d):,}", transform=ax.transAxes, fontsize=8.5)
+                ax.legend(title=unit, fontsize=8, title_fontsize=8, loc="upper right")
+                continue
+            xmax = top * 1.15
             unit, k = unit_for(xmax)
             bins = np.linspace(0.0, xmax * k, 61)
             shown = d[d <= xmax]
@@ -386,4 +412,121 @@ def coverage_bars(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
             ax.set_xlabel("hit label")
             ax.set_title("Coverage by part")
             ax.grid(axis="x", visible=False)
+        return _save(fig, path, dpi)
+
+
+#: Line colours of the stations in the occlusion profile (then grey).
+STATION_COLOURS = ("#2c6e9b", "#c2612d", "#4f8a3a", "#8a5a34", "#7d3c98", "#b7791f")
+
+
+def occlusion_profile(
+    profile: dict[str, Any], path: Path, *, ref_word: str, dpi: int = 130
+) -> Path:
+    """Coverage (left) and point density (right) by height slice: one line per station
+    alone and a thick one for all stations together (:mod:`pipeline.report.profile`)."""
+    import matplotlib
+
+    edges = np.asarray(profile["edges_m"], dtype=np.float64)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    tau = float(profile["tolerance_m"])
+    unit, k = unit_for(tau)
+    names = ["all", *profile["stations"]]
+    dens = profile.get("density_per_m2")
+    with matplotlib.rc_context(_RC):
+        fig = _new_figure(11.0, 4.6)
+        ax_c, ax_d = fig.subplots(1, 2, sharey=True)
+        for i, name in enumerate(names):
+            whole = name == "all"
+            colour = "#1f2933" if whole else STATION_COLOURS[(i - 1) % len(STATION_COLOURS)]
+            style = {"color": colour, "lw": 2.6 if whole else 1.3, "marker": "o", "ms": 3}
+            label = "all stations" if whole else f"{name} alone"
+            cov = np.array([np.nan if v is None else 100 * v for v in profile["coverage"][name]])
+            ax_c.plot(cov, mid, label=label, **style)
+            if dens is not None:
+                d = np.array([np.nan if v is None else v for v in dens[name]])
+                ax_d.plot(d, mid, label=label, **style)
+            else:
+                ax_d.plot(profile["cloud_points"][name], mid, label=label, **style)
+        if dens is None:
+            ax_d.plot(
+                profile["reference_points"],
+                mid,
+                color="#7b8794",
+                lw=2.0,
+                ls="--",
+                label=f"{ref_word} points",
+            )
+        ax_c.set_xlim(-2, 102)
+        ax_c.set_xlabel(f"{ref_word} within τ = {tau * k:.3g} {unit} (%)")
+        ax_c.set_ylabel("height above the lowest reference point (m)")
+        ax_c.set_title("Coverage by height")
+        ax_c.set_ylim(edges[0], edges[-1])
+        ax_d.set_xlabel(
+            f"cloud points per m² of {ref_word} surface"
+            if dens is not None
+            else f"points per {profile['bin_m']:g} m slice"
+        )
+        ax_d.set_xlim(left=0)
+        ax_d.set_title("Point density by height" if dens is not None else "Points by height")
+        ax_d.legend(loc="best", fontsize=8)
+        return _save(fig, path, dpi)
+
+
+#: Colours of the clouds set side by side on the run page.
+FIELD_COLOUR = "#52606d"
+SIMULATED_COLOUR = ACCURACY_COLOUR
+
+
+def clouds_side_by_side(
+    clouds: list[tuple[str, np.ndarray, str]],
+    path: Path,
+    *,
+    origin: np.ndarray,
+    max_points: int = 120_000,
+    seed: int = 0,
+    dpi: int = 130,
+) -> Path:
+    """Clouds in the same three views on the same axes, one row each: side (x-z, y-z) and
+    top (x-y).
+
+    Parameters
+    ----------
+    clouds : list of (name, (n, 3) float64 points, colour)
+    origin : (3,) float64
+        Subtracted for display.
+    """
+    import matplotlib
+
+    shown = []
+    for i, (name, pts, colour) in enumerate(clouds):
+        idx = _subsample(len(pts), max_points, seed + i)
+        shown.append((name, np.asarray(pts, dtype=np.float64)[idx] - origin, colour, len(pts)))
+    allp = np.concatenate([p for _, p, _, _ in shown])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    pad = 0.03 * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    ext = np.maximum(hi - lo, 1e-6)
+    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], ext[0] / ext[1]], 0.35, 3.0)
+    panel_h = 3.6
+    width = float(ratios.sum() * panel_h + 0.8)
+    if width > 12.0:
+        panel_h *= 12.0 / width
+        width = 12.0
+    specs = ((0, 2, "side view (along +y)"), (1, 2, "side view (along −x)"), (0, 1, "top view"))
+    axis = "xyz"
+    offs = "" if not np.any(origin) else " − origin"
+    with matplotlib.rc_context({**_RC, "axes.grid": False}):
+        fig = _new_figure(width, (panel_h + 0.5) * len(shown))
+        axes = np.atleast_2d(fig.subplots(len(shown), 3, width_ratios=list(ratios)))
+        for row, (name, p, colour, n) in zip(axes, shown, strict=True):
+            size = float(np.clip(12_000 / max(len(p), 1), 0.1, 4.0))
+            for ax, (i, j, view) in zip(row, specs, strict=True):
+                ax.scatter(p[:, i], p[:, j], s=size, c=colour, linewidths=0, rasterized=True)
+                ax.set_xlim(lo[i], hi[i])
+                ax.set_ylim(lo[j], hi[j])
+                ax.set_aspect("equal", adjustable="box")
+                ax.set_xlabel(f"{axis[i]}{offs} (m)")
+                ax.set_ylabel(f"{axis[j]}{offs} (m)")
+                ax.set_title(view, fontsize=9.5, fontweight="normal", color="#52606d")
+            row[0].set_ylabel(f"{name}, {n:,} points\n\n{axis[2]}{offs} (m)", fontsize=9.5)
         return _save(fig, path, dpi)

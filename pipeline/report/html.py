@@ -12,7 +12,7 @@ import numpy as np
 
 from . import assets, figures
 from .data import ReportData
-from .text import length, lod_reasons, mm, percent
+from .text import exactness_note, length, lod_reasons, mm, percent
 
 
 def _b64(data: bytes) -> str:
@@ -42,39 +42,20 @@ def _json_script(obj: Any) -> str:
     return text.replace("</", "<\\/").replace("<!--", "<\\!--")
 
 
-def viewer_payload(data: ReportData, *, max_points: int = 40_000, seed: int = 0) -> dict[str, Any]:
-    """The 3D viewer's data: subsampled points quantised to 16 bits per axis in the common
-    bounding box, colour indices (0-255) into a 256-entry colour table, and legends."""
-    from matplotlib.colors import Normalize  # noqa: F401  (matplotlib present: figures need it)
+#: One data set of the 3D view: key, name, points (n, 3), distances (n,), top of the
+#: colour scale (m), colour legend, τ (m) or None.
+ViewerSet = tuple[str, str, np.ndarray, np.ndarray, float, str, "float | None"]
 
-    s = data.summary
-    ref_word = figures._ref_word(s)
+
+def viewer_sets_payload(
+    sets: list[ViewerSet], *, max_points: int = 40_000, seed: int = 0
+) -> dict[str, Any]:
+    """The 3D viewer's data for any data sets in one coordinate system: subsampled points
+    quantised to 16 bits per axis in their common bounding box, colour indices (0-255)
+    into a 256-entry colour table, and legends."""
     lut = (figures.cmap()(np.linspace(0, 1, 256))[:, :3] * 255).round().astype(np.uint8)
-    sets = [
-        (
-            "accuracy",
-            f"Cloud → {ref_word}",
-            data.cloud_points,
-            data.cloud_distance_m,
-            figures.accuracy_colour_limit(s),
-            f"distance to the {ref_word}",
-            None,
-        ),
-        (
-            "completeness",
-            f"{ref_word.capitalize()} → cloud",
-            data.reference_points,
-            data.reference_distance_m,
-            figures.completeness_colour_limit(s),
-            "distance to the cloud",
-            float(s["tolerance_m"]),
-        ),
-    ]
-    picked = []
-    for i, (_, _, pts, _, _, _, _) in enumerate(sets):
-        idx = figures._subsample(len(pts), max_points, seed + i)
-        picked.append(idx)
-    allp = np.concatenate([sets[i][2][picked[i]] for i in range(2)])
+    picked = [figures._subsample(len(st[2]), max_points, seed + i) for i, st in enumerate(sets)]
+    allp = np.concatenate([st[2][idx] for st, idx in zip(sets, picked, strict=True)])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     size = np.maximum(hi - lo, 1e-9)
     out = []
@@ -98,6 +79,69 @@ def viewer_payload(data: ReportData, *, max_points: int = 40_000, seed: int = 0)
             }
         )
     return {"datasets": out, "lut": _b64(lut.tobytes()), "bbox_size_m": size.tolist()}
+
+
+def comparison_sets(data: ReportData, *, prefix: str = "") -> list[ViewerSet]:
+    """A comparison's two data sets: the cloud coloured by accuracy, the reference
+    coloured by completeness (with τ)."""
+    s = data.summary
+    ref_word = figures._ref_word(s)
+    return [
+        (
+            f"{prefix}accuracy",
+            f"Cloud → {ref_word}",
+            data.cloud_points,
+            data.cloud_distance_m,
+            figures.accuracy_colour_limit(s),
+            f"distance to the {ref_word}",
+            None,
+        ),
+        (
+            f"{prefix}completeness",
+            f"{ref_word.capitalize()} → cloud",
+            data.reference_points,
+            data.reference_distance_m,
+            figures.completeness_colour_limit(s),
+            "distance to the cloud",
+            float(s["tolerance_m"]),
+        ),
+    ]
+
+
+def viewer_payload(data: ReportData, *, max_points: int = 40_000, seed: int = 0) -> dict[str, Any]:
+    """The 3D viewer's data of one comparison (:func:`comparison_sets`)."""
+    return viewer_sets_payload(comparison_sets(data), max_points=max_points, seed=seed)
+
+
+def viewer_section(payload: dict[str, Any], lead: str = "") -> str:
+    """The 3D view's ``<section id="viewer">``: canvas, controls and data (the page must
+    carry :data:`assets.VIEWER_CSS` and, after it, :data:`assets.VIEWER_JS`)."""
+    set_buttons = "".join(
+        f'<button type="button" data-set="{i}" aria-pressed="{"true" if i == 0 else "false"}">'
+        f"{escape(d['name'])}</button>"
+        for i, d in enumerate(payload["datasets"])
+    )
+    return f"""<section class="panel" id="viewer">
+  <h2>Interactive 3D view</h2>
+  <p class="lead">{lead}Drag to rotate, shift-drag or right-drag to pan, scroll to zoom,
+  double-click to reset. Colours as in the legend; darker points are farther away.</p>
+  <div class="viewer">
+    <canvas aria-label="3D view of the points coloured by distance"></canvas>
+    <div class="controls">
+      <div class="group"><div class="label">Points</div><div class="seg">{set_buttons}</div></div>
+      <div class="group"><div class="label">View</div><div class="seg">
+        <button type="button" data-view="home">Oblique</button>
+        <button type="button" data-view="side">Side</button>
+        <button type="button" data-view="top">Top</button></div></div>
+      <div class="group"><div class="label">Point size</div>
+        <input type="range" min="1" max="6" step="1" value="2" aria-label="point size"></div>
+      <div class="group"><div class="label legend-title"></div>
+        <div class="legend"><div class="bar"></div><div class="ticks"></div></div></div>
+      <div class="hint count"></div>
+    </div>
+  </div>
+  <script type="application/json" id="viewer-data">{_json_script(payload)}</script>
+</section>"""
 
 
 def _stats_rows(s: dict[str, Any], ref_word: str) -> str:
@@ -187,6 +231,53 @@ def _station_table(s: dict[str, Any], stations_pos: dict[str, list[float]]) -> s
     )
 
 
+def _profile_table(p: dict[str, Any] | None, ref_word: str) -> str:
+    """The occlusion profile's numbers, highest slice first."""
+    if not p:
+        return ""
+    edges = p["edges_m"]
+    names = ["all", *p["stations"]]
+    dens = p.get("density_per_m2")
+    head = (
+        f'<th>height (m)</th><th class="n">{escape(ref_word)} samples</th>'
+        + "".join(f'<th class="n">coverage {escape(n)}</th>' for n in names)
+        + (
+            '<th class="n">points / m² (all)</th>'
+            if dens is not None
+            else f'<th class="n">cloud points</th><th class="n">{escape(ref_word)} points</th>'
+        )
+    )
+    rows = []
+    for i in reversed(range(len(edges) - 1)):
+        cells = [f"{p['reference_points'][i]:,}"]
+        cells += [
+            percent(p["coverage"][n][i]) if p["coverage"][n][i] is not None else "–" for n in names
+        ]
+        if dens is not None:
+            d = dens["all"][i]
+            cells.append("–" if d is None else f"{d:,.0f}")
+        else:
+            cells += [f"{p['cloud_points']['all'][i]:,}", f"{p['reference_points'][i]:,}"]
+        rows.append(
+            f"<tr><td>{edges[i]:.2f}–{edges[i + 1]:.2f}</td>"
+            + "".join(f'<td class="n">{c}</td>' for c in cells)
+            + "</tr>"
+        )
+    return (
+        '<div class="scroll"><table><thead><tr>'
+        + head
+        + "</tr></thead><tbody>"
+        + "".join(rows)
+        + "</tbody></table></div>"
+    )
+
+
+def _note_html(note: str | None) -> str:
+    if not note:
+        return ""
+    return f'<section class="panel note" id="exact-note"><p>{escape(note)}</p></section>'
+
+
 def _kv_table(rows: list[tuple[str, str]]) -> str:
     body = "".join(f"<tr><td>{escape(k)}</td><td>{v}</td></tr>" for k, v in rows)
     return f'<table class="kv"><tbody>{body}</tbody></table>'
@@ -254,6 +345,7 @@ def build_html(
     max_view_points: int = 40_000,
     seed: int = 0,
     dpi: int = 130,
+    profile: dict[str, Any] | None = None,
 ) -> str:
     """The page as one string (every image and the viewer's data inline); a plot missing
     from ``pngs`` (``report.plots = false``) is said, not drawn."""
@@ -302,11 +394,6 @@ def build_html(
         for c, k, v, sub in cards
     )
     payload = viewer_payload(data, max_points=max_view_points, seed=seed)
-    set_buttons = "".join(
-        f'<button type="button" data-set="{i}" aria-pressed="{"true" if i == 0 else "false"}">'
-        f"{escape(d['name'])}</button>"
-        for i, d in enumerate(payload["datasets"])
-    )
     defs = s.get("definitions", {})
     defs_html = "".join(f"<dt>{escape(k)}</dt><dd>{escape(v)}</dd>" for k, v in defs.items())
     versions = {**s.get("software", {}), **s.get("report_software", {})}
@@ -333,6 +420,7 @@ def build_html(
 <main class="wrap">
 <div id="page-errors" hidden></div>
 <section class="panel summary"><p>{escape(paragraph)}</p></section>
+{_note_html(exactness_note(s))}
 
 <section class="cards">{cards_html}</section>
 
@@ -348,27 +436,7 @@ def build_html(
   {_station_table(s, stations_pos)}
 </section>
 
-<section class="panel" id="viewer">
-  <h2>Interactive 3D view</h2>
-  <p class="lead">Drag to rotate, shift-drag or right-drag to pan, scroll to zoom,
-  double-click to reset. Colours as in the legend; darker points are farther away.</p>
-  <div class="viewer">
-    <canvas aria-label="3D view of the points coloured by distance"></canvas>
-    <div class="controls">
-      <div class="group"><div class="label">Points</div><div class="seg">{set_buttons}</div></div>
-      <div class="group"><div class="label">View</div><div class="seg">
-        <button type="button" data-view="home">Oblique</button>
-        <button type="button" data-view="side">Side</button>
-        <button type="button" data-view="top">Top</button></div></div>
-      <div class="group"><div class="label">Point size</div>
-        <input type="range" min="1" max="6" step="1" value="2" aria-label="point size"></div>
-      <div class="group"><div class="label legend-title"></div>
-        <div class="legend"><div class="bar"></div><div class="ticks"></div></div></div>
-      <div class="hint count"></div>
-    </div>
-  </div>
-  <script type="application/json" id="viewer-data">{_json_script(payload)}</script>
-</section>
+{viewer_section(payload)}
 
 <section class="panel">
   <h2>Distributions</h2>
@@ -398,6 +466,22 @@ def build_html(
   <figure>{img("coverage", "Coverage of the reference by station")}
     <figcaption>Share of the {ref_word} within τ = {tau_txt} of the cloud, by all stations
     together and by each station alone.</figcaption></figure>
+</section>
+
+<section class="panel" id="occlusion">
+  <h2>Occlusion by height</h2>
+  <p class="lead">The {ref_word} cut into {length(profile["bin_m"]) if profile else ""} slices
+  from its lowest point up: the share of each slice within τ = {tau_txt} of the cloud, for
+  every station alone and all together, and how densely the cloud samples it. Where the
+  stations together fall short, no station saw that part of the tree.</p>
+  <figure>{img("occlusion", "Coverage and point density by height")}
+    <figcaption>Left: coverage by height slice; right: cloud points per slice
+    {
+        "per m² of surface"
+        if profile and profile.get("density_per_m2")
+        else "beside the reference's"
+    }.</figcaption></figure>
+  {_profile_table(profile, ref_word)}
 </section>
 
 <section class="two">

@@ -5,9 +5,12 @@ from __future__ import annotations
 import html
 from typing import Any
 
-from .text import cell, length, lod_reasons, percent
+from . import assets
+from .data import ReportData
+from .html import comparison_sets, viewer_section, viewer_sets_payload
+from .text import cell, length, lod_reasons, percent, trivially_exact
 
-__all__ = ["PAGE_CSS", "STAGES", "run_page"]
+__all__ = ["PAGE_CSS", "STAGES", "run_page", "run_viewer_payload"]
 
 #: Stages timed in ``run.json``'s ``timings_s`` (plus ``total``), in order.
 STAGES = ("read", "reconstruct", "scan", "compare_mesh", "compare_field", "report")
@@ -27,11 +30,143 @@ h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #
 table{border-collapse:collapse;margin:.6em 0}td,th{padding:.25em .8em;border-bottom:1px solid #eee;
 text-align:right}th:first-child,td:first-child{text-align:left}.muted{color:#777}
 .cards{display:flex;gap:1.5em;flex-wrap:wrap}.card{flex:1 1 420px}img{max-width:100%}
-a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}
+a{color:#0a58ca}code{background:#f4f4f4;padding:0 .2em}.lead{color:#777}
+#page-errors{background:#fde8e8;color:#8a1c1c;padding:.6em 1em}
 """
 
 
-def run_page(s: dict[str, Any], version: str) -> str:
+def run_viewer_payload(
+    vs_mesh: ReportData, vs_field: ReportData, *, max_points: int = 40_000, seed: int = 0
+) -> dict[str, Any]:
+    """The run page's 3D view: the simulated cloud coloured by its distance to the field
+    cloud, the field cloud by its distance to the simulated one, and the mesh samples by
+    their distance to the simulated cloud (where the scan did not see the model)."""
+    (_, _, sim, d_sim, v_sim, _, _), (_, _, fld, d_fld, v_fld, _, tau) = comparison_sets(vs_field)
+    mesh_set = comparison_sets(vs_mesh)[1]
+    sets = [
+        (
+            "sim_vs_field",
+            "Simulated → field",
+            sim,
+            d_sim,
+            v_sim,
+            "distance to the field cloud",
+            None,
+        ),
+        (
+            "field_vs_sim",
+            "Field → simulated",
+            fld,
+            d_fld,
+            v_fld,
+            "distance to the simulated cloud",
+            tau,
+        ),
+        (
+            "mesh_vs_sim",
+            "Mesh → simulated",
+            *mesh_set[2:5],
+            "distance to the simulated cloud",
+            mesh_set[6],
+        ),
+    ]
+    return viewer_sets_payload(sets, max_points=max_points, seed=seed)
+
+
+#: Rows of the reconstruction-vs-reference table: (key, label, unit, scale).
+_REFERENCE_ROWS = (
+    ("dbh_m", "DBH", " cm", 100.0),
+    ("height_m", "height", " m", 1.0),
+    ("volume_total_m3", "wood volume", " L", 1000.0),
+    ("volume_stem_m3", "stem volume", " L", 1000.0),
+    ("volume_branch_m3", "branch volume", " L", 1000.0),
+    ("n_cylinders", "cylinders", "", 1.0),
+)
+
+
+def reference_qsm_section(s: dict[str, Any]) -> str:
+    """The reconstruction beside a reference QSM (``run.json``'s ``reference_qsm``):
+    DBH, height, volumes; empty when the run had none."""
+    ref = s.get("reference_qsm")
+    if not ref:
+        return ""
+    rec = s["reconstruction"]
+    rows = []
+    for key, label, unit, scale in _REFERENCE_ROWS:
+        d, r = ref["difference"].get(key), ref["relative"].get(key)
+        if d is None:
+            delta = "–"
+        elif key == "n_cylinders":
+            delta = f"{int(d):+,}"
+        else:
+            delta = f"{d * scale:+.3g}{unit}"
+        if r is not None:
+            delta += f" ({r * 100:+.1f} %)"
+        rows.append(
+            f"<tr><td>{label}</td><td>{cell(rec.get(key), unit, scale)}</td>"
+            f"<td>{cell(ref['figures'].get(key), unit, scale)}</td><td>{delta}</td></tr>"
+        )
+    return (
+        '<h2 id="reference-qsm">Reconstruction vs the reference QSM</h2>'
+        f'<p class="muted">reference: <code>{html.escape(str(ref["path"]))}</code> '
+        "(a QSM of the same tree made elsewhere); difference = reconstruction − reference</p>"
+        "<table><tr><th>figure</th><th>reconstruction</th><th>reference QSM</th>"
+        "<th>difference</th></tr>" + "".join(rows) + "</table>"
+    )
+
+
+def _per_m2(v: Any) -> str:
+    return f"{v:,.0f}" if isinstance(v, (int, float)) else "–"
+
+
+def clouds_section(s: dict[str, Any]) -> str:
+    """The field and simulated clouds side by side: one table, the same views."""
+    c = s.get("clouds")
+    if not c:
+        return ""
+    f, m = c["field"], c["simulated"]
+
+    def ratio(a: Any, b: Any) -> str:
+        ok = isinstance(a, (int, float)) and isinstance(b, (int, float)) and b
+        return f"{a / b:.3g} ×" if ok else "–"
+
+    rows = [
+        ("points", cell(f["points"]), cell(m["points"]), ratio(m["points"], f["points"])),
+        (
+            "median point spacing",
+            _len(f["point_spacing_m"]),
+            _len(m["point_spacing_m"]),
+            ratio(m["point_spacing_m"], f["point_spacing_m"]),
+        ),
+        (
+            "points per m² of the mesh surface",
+            _per_m2(f["points_per_m2"]),
+            _per_m2(m["points_per_m2"]),
+            ratio(m["points_per_m2"], f["points_per_m2"]),
+        ),
+        ("height", cell(f["height_m"], " m"), cell(m["height_m"], " m"), "–"),
+    ]
+    body = "".join(
+        f"<tr><td>{a}</td><td>{b}</td><td>{d}</td><td>{r}</td></tr>" for a, b, d, r in rows
+    )
+    area = c.get("mesh_area_m2")
+    return (
+        '<h2 id="clouds">Field and simulated clouds</h2>'
+        '<p class="muted">Both clouds in the same views on the same axes; densities over the '
+        f"reconstructed mesh's surface ({cell(area, ' m²')}). The occlusion profile of "
+        '<a href="vs_field/report.html#occlusion">the comparison with the field cloud</a> '
+        "sets their densities side by side by height.</p>"
+        "<table><tr><th></th><th>field cloud</th><th>simulated cloud</th>"
+        f"<th>simulated / field</th></tr>{body}</table>"
+        + (
+            f'<img src="{html.escape(c["figure"])}" alt="field and simulated clouds, same views">'
+            if c.get("figure")
+            else '<p class="note">views not drawn (report.plots = false)</p>'
+        )
+    )
+
+
+def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:
     """A small self-contained page: the tree, the scan, both comparisons, links.
 
     Parameters
@@ -40,6 +175,8 @@ def run_page(s: dict[str, Any], version: str) -> str:
         ``run.json``'s content (:func:`pipeline.run.run_tree` builds it).
     version : str
         treesim's version, shown in the page's byline.
+    viewer : dict, optional
+        The 3D view's data (:func:`run_viewer_payload`); no 3D view without it.
     """
     esc = html.escape
     rec = s["reconstruction"]
@@ -79,6 +216,11 @@ def run_page(s: dict[str, Any], version: str) -> str:
         ("models", esc(", ".join(sc["models_active"]) or "geometry only")),
         *((f"level of detail: {what}", esc(why)) for what, why in lod_reasons(sc.get("lod"))),
     ]
+    tol = s.get("tolerance") or {}
+    if tol:
+        rows_scan.append(
+            ("coverage tolerance τ", f"{_len(tol.get('tolerance_m'))}: {esc(str(tol.get('rule')))}")
+        )
     t = s["timings_s"]
     rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]
 
@@ -122,7 +264,14 @@ def run_page(s: dict[str, Any], version: str) -> str:
         cards.append(
             f'<div class="card"><h2>{title}</h2><p class="muted">{what}</p>'
             f"<p>{esc(s['summary_text'].get(key, ''))}</p>"
-            f"<table>{cmp_rows(s[key])}</table>"
+            + (
+                '<p class="muted"><b>Trivially exact:</b> a scan without noise lies on the '
+                "mesh it was scanned from; its accuracy is float rounding, its coverage is "
+                "what this comparison measures.</p>"
+                if trivially_exact(s[key])
+                else ""
+            )
+            + f"<table>{cmp_rows(s[key])}</table>"
             f'<p><a href="{key}/report.html">full report</a> · '
             f'<a href="{key}/comparison.json">comparison.json</a></p>'
             f'<a href="{key}/report.html"><img src="{key}/{view}" '
@@ -131,15 +280,30 @@ def run_page(s: dict[str, Any], version: str) -> str:
     files = "".join(
         f'<li><a href="{esc(v)}">{esc(v)}</a></li>' for v in dict.fromkeys(s["files"].values())
     )
+    viewer_html = (
+        viewer_section(
+            viewer,
+            "The simulated and field clouds and the mesh's surface samples, each coloured by "
+            "its distance to the other cloud: bright where they differ, or where the scan "
+            "did not see the model. ",
+        )
+        if viewer
+        else ""
+    )
+    viewer_js = f"<script>{assets.VIEWER_JS}</script>" if viewer else ""
     return f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
-<title>treesim run: {esc(s["name"])}</title><style>{PAGE_CSS}</style></head><body>
-<h1>treesim run: {esc(s["name"])}</h1>
+<title>treesim run: {esc(s["name"])}</title><script>{assets.ERROR_HOOK_JS}</script>
+<style>{PAGE_CSS}{assets.VIEWER_VARS}{assets.VIEWER_CSS if viewer else ""}</style></head><body>
+<h1>treesim run: {esc(s["name"])}</h1><div id="page-errors" hidden></div>
 <p class="muted">field cloud {esc(str(s["inputs"].get("cloud") or "in memory"))} ·
 preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
 <div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
 <div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
+{reference_qsm_section(s)}
+{clouds_section(s)}
 <div class="cards">{"".join(cards)}</div>
+{viewer_html}
 <h2>Time per stage</h2>{table(rows_time)}
 <h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,
-timings, every figure)</li></ul></body></html>
+timings, every figure)</li></ul>{viewer_js}</body></html>
 """

@@ -62,6 +62,53 @@ def _ref_words(summary: dict[str, Any]) -> tuple[str, str]:
     return "the reference cloud", "of the reference cloud"
 
 
+#: Distances below this (m) are float rounding, not measurement: a p99 accuracy under it
+#: makes a comparison trivially exact.
+FLOAT_NOISE_M = 1e-6
+
+
+def trivially_exact(summary: dict[str, Any]) -> bool:
+    """Whether the cloud lies on the reference to float rounding (accuracy p99 under
+    :data:`FLOAT_NOISE_M`)."""
+    p99 = summary["accuracy"].get("p99_m")
+    return p99 is not None and p99 < FLOAT_NOISE_M
+
+
+def exactness_note(summary: dict[str, Any]) -> str | None:
+    """A note for a trivially exact comparison (:func:`trivially_exact`): what its
+    accuracy does and does not say; ``None`` otherwise."""
+    if not trivially_exact(summary):
+        return None
+    acc = summary["accuracy"]
+    scan = (summary.get("inputs") or {}).get("scan") or {}
+    noise = [m for m in scan.get("models_active") or [] if "noise" in m or "jitter" in m]
+    if scan and not noise and summary.get("reference", {}).get("kind") == "mesh":
+        what = (
+            "a scan without noise models against the mesh it was scanned from: every "
+            "point is a ray's hit on that mesh, so it lies on it by construction"
+        )
+    else:
+        what = "the cloud lies on the reference to float rounding"
+    return (
+        f"This comparison is trivially exact ({what}). Its accuracy (p99 "
+        f"{_tiny(acc['p99_m'])}, farthest {_tiny(acc['max_m'])}) is float rounding, not a "
+        "measurement, and says nothing about the scanner; the accuracy plots are drawn on "
+        "the scale of τ for that reason. What this comparison measures is completeness: "
+        "the coverage, and where the surface was not seen."
+    )
+
+
+def _tiny(x: float | None) -> str:
+    """A distance that may be nanometres: ``"0.42 nm"``, ``"3.1 µm"`` or :func:`length`."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if x < 1e-6:
+        return f"{x * 1e9:.2g} nm"
+    if x < 1e-4:
+        return f"{x * 1e6:.2g} µm"
+    return length(x)
+
+
 def summary_paragraph(summary: dict[str, Any]) -> str:
     """One plain-language paragraph from a comparison's figures (no markup)."""
     acc = summary["accuracy"]

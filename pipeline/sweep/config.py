@@ -96,7 +96,8 @@ def _leaf_paths() -> dict[str, tuple[str, ...]]:
 
 def known_names() -> list[str]:
     """Every name a sweep accepts: the flat settings, then every dotted leaf path."""
-    return [*SETTINGS, *(n for n, p in _leaf_paths().items() if p not in RESERVED)]
+    flat = [n for n, s in SETTINGS.items() if not any(p in RESERVED for p in s.paths)]
+    return [*flat, *(n for n, p in _leaf_paths().items() if p not in RESERVED)]
 
 
 def paths_of(name: str, *, where: str = "") -> tuple[tuple[str, ...], ...]:
@@ -108,14 +109,13 @@ def paths_of(name: str, *, where: str = "") -> tuple[tuple[str, ...], ...]:
         For an unknown name (one line listing the known ones) or a field the sweep sets
         itself (threads, τ).
     """
-    if name in SETTINGS:
-        return SETTINGS[name].paths
     leaves = _leaf_paths()
-    if name in leaves:
-        path = leaves[name]
+    paths = SETTINGS[name].paths if name in SETTINGS else (leaves[name],) if name in leaves else ()
+    for path in paths:
         if path in RESERVED:
             raise InvalidParameterError(f"{where}{name} cannot be swept: {RESERVED[path]}")
-        return (path,)
+    if paths:
+        return paths
     import difflib
 
     close = difflib.get_close_matches(name, known_names(), n=3, cutoff=0.6)

@@ -61,6 +61,15 @@ def saplings(tmp_path_factory) -> dict[str, Path]:
 
 
 @pytest.fixture(scope="session")
+def sapling0_qsm(tmp_path_factory) -> Path:
+    """The exact cylinder table of ``sapling0``'s tree (its truth), as treesim's CSV."""
+    from pipeline.models import write_cylinders
+
+    tree = generate_tree("sapling", seed=0, leaves=False)
+    return write_cylinders(tmp_path_factory.mktemp("qsm") / "sapling0_truth.csv", tree.cylinders)
+
+
+@pytest.fixture(scope="session")
 def quick() -> RunParams:
     """The draft preset, reports without plots (drawing them was most of a run's time;
     tests/report draws them)."""

@@ -3,6 +3,7 @@ path on success, one line and a non-zero exit on bad input."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -23,11 +24,15 @@ def test_run_prints_the_figures_and_the_report_path(saplings, quick, tmp_path, c
     cfg = tmp_path / "quick.toml"
     cfg.write_text(to_toml(quick))
     out = tmp_path / "out"
-    rc = main(
-        ["run", str(saplings["sapling1"]), "-o", str(out), "--config", str(cfg), "--stations", "4"]
-    )
+    args = ["run", str(saplings["sapling1"]), "-o", str(out), "--config", str(cfg)]
+    rc = main([*args, "--stations", "4", "--tolerance-m", "0.004"])
     assert rc == 0
     printed = capsys.readouterr().out
+    run = json.loads((out / "run.json").read_text())
+    assert run["parameters"]["compare"]["tolerance_m"] == 0.004
+    assert run["vs_mesh"]["tolerance_m"] == run["vs_field"]["tolerance_m"] == 0.004
+    assert run["tolerance"]["rule"].startswith("given")
+    assert "within 4 mm" in printed
     report = Path(printed.strip().splitlines()[-1].removeprefix("report: "))
     assert report == (out / "report.html").resolve() and report.is_file()
     assert "DBH" in printed and "vs mesh" in printed and "vs field" in printed
@@ -93,3 +98,34 @@ def test_print_params_is_a_config_file(tmp_path, capsys):
 
     p = load_config(cfg)
     assert p.preset == "fine" and p.reconstruct.method == "poisson"
+
+
+def test_a_missing_reference_qsm_says_so_in_one_line(saplings, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["run", str(saplings["sapling0"]), "-o", str(out), "--reference-qsm", "no.csv"])
+    assert rc == 1
+    assert "reference QSM no.csv not found" in one_line_error(capsys)
+    assert not (out / "tree.ply").exists()
+
+
+def test_the_demo_sets_the_bundled_treeqsm_model_beside_the_reconstruction(
+    tmp_path, monkeypatch, capsys
+):
+    from pipeline.cli.demo import SAMPLE_QSM
+    from pipeline.errors import ReconstructionError
+    from pipeline.models import read_cylinders
+
+    given = {}
+
+    def fake(cloud, params, outdir, **kwargs):
+        given.update(kwargs)
+        raise ReconstructionError("stopped here")
+
+    monkeypatch.setattr("pipeline.run.run_tree", fake)
+    assert main(["demo", "-o", str(tmp_path / "o")]) == 1
+    capsys.readouterr()
+    assert given["reference_qsm"] == SAMPLE_QSM
+    # the model PROVENANCE.md describes: 1,136 cylinders, DBH 7.35 cm, 21.6 L
+    s = read_cylinders(SAMPLE_QSM).summary()
+    assert s["n_cylinders"] == 1136
+    assert round(s["dbh_m"] * 100, 2) == 7.35 and round(s["volume_total_m3"] * 1000, 1) == 21.6

@@ -6,10 +6,12 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
 from pipeline.errors import InputFormatError, InvalidParameterError
+from pipeline.models import generate_tree
 from pipeline.params import RUN_PRESETS as PRESETS
 from pipeline.params import (
     RunParams,
@@ -47,10 +49,18 @@ ARTEFACTS = (
 
 
 @pytest.fixture(scope="module")
-def sapling_run(saplings, quick, tmp_path_factory):
+def sapling_run(saplings, sapling0_qsm, quick, tmp_path_factory):
+    """The one run of these tests that draws its plots (small ones)."""
     out = tmp_path_factory.mktemp("run") / "sapling"
     seen = []
-    result = run_tree(saplings["sapling0"], quick, out, progress=lambda f, m: seen.append(f))
+    drawn = replace(quick, report=replace(quick.report, plots=True, dpi=50, max_plot_points=5000))
+    result = run_tree(
+        saplings["sapling0"],
+        drawn,
+        out,
+        reference_qsm=sapling0_qsm,
+        progress=lambda f, m: seen.append(f),
+    )
     return result, seen
 
 
@@ -127,6 +137,52 @@ def test_run_page_presents_both_comparisons(sapling_run):
     for link in ("vs_mesh/report.html", "vs_field/report.html", "run.json", "tree.ply"):
         assert f'href="{link}"' in page
     assert 'src="http' not in page and 'href="http' not in page  # works offline
+
+
+def test_one_tolerance_from_the_field_cloud_serves_both_comparisons(sapling_run, saplings):
+    from pipeline.frame import LocalFrame
+    from pipeline.geometry import point_spacing
+    from pipeline.io import read_cloud
+
+    result, _ = sapling_run
+    field = read_cloud(saplings["sapling0"]).points
+    spacing = point_spacing(LocalFrame.around(field).to_local(field), subsample=50_000, seed=0)
+    tol = result.summary["tolerance"]
+    assert tol["tolerance_m"] == pytest.approx(3.0 * spacing, rel=1e-12)
+    assert tol["field_point_spacing_m"] == pytest.approx(spacing, rel=1e-12)
+    for key in ("vs_mesh", "vs_field"):
+        assert result.summary[key]["tolerance_m"] == tol["tolerance_m"], key
+        rep = json.loads((result.outdir / key / "report.json").read_text())
+        assert rep["figures"]["tolerance_m"] == tol["tolerance_m"]
+        assert "field cloud's median point spacing" in rep["parameters"]["tolerance_rule"]
+    # not the simulated cloud's spacing, which the stand-alone comparison would use
+    assert result.vs_mesh["point_spacing_m"] * 3.0 != pytest.approx(tol["tolerance_m"], rel=0.05)
+
+
+def test_a_reference_qsm_is_set_beside_the_reconstruction(sapling_run, sapling0_qsm):
+    result, _ = sapling_run
+    ref = result.summary["reference_qsm"]
+    truth = generate_tree("sapling", seed=0, leaves=False).cylinders.summary()
+    assert ref["figures"]["dbh_m"] == pytest.approx(README_SAPLING_DBH_M, abs=README_DBH_ROUNDING_M)
+    for key in ("dbh_m", "height_m", "volume_total_m3", "volume_stem_m3", "n_cylinders"):
+        assert ref["figures"][key] == truth[key], key
+        assert ref["difference"][key] == pytest.approx(result.reconstruction[key] - truth[key])
+    assert ref["relative"]["volume_total_m3"] == pytest.approx(
+        result.reconstruction["volume_total_m3"] / truth["volume_total_m3"] - 1.0
+    )
+    assert not Path(ref["path"]).is_absolute()
+    assert (result.outdir / ref["path"]).resolve() == sapling0_qsm.resolve()
+    page = result.report_html.read_text()
+    assert "Reconstruction vs the reference QSM" in page
+    assert f"{truth['dbh_m'] * 100:.3g} cm" in page  # the reference's DBH, in the table
+
+
+def test_a_bad_reference_qsm_fails_before_the_run(saplings, quick, tmp_path):
+    bad = tmp_path / "qsm.csv"
+    bad.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(InputFormatError, match="matches no known cylinder table"):
+        run_tree(saplings["sapling0"], quick, tmp_path / "out", reference_qsm=bad)
+    assert not (tmp_path / "out" / "tree.ply").exists()
 
 
 def test_station_distance_rule():
@@ -249,3 +305,99 @@ def test_lod_auto_scans_a_qsm_mesh_with_facets_from_the_projected_size(sapling_r
     assert scan["triangles"] == facets["n_triangles"]
     page = result.report_html.read_text()
     assert "level of detail: facets" in page and "level of detail: rays" in page
+
+
+def test_trivially_exact_comparisons_say_so(sapling_run):
+    result, _ = sapling_run
+    mesh = json.loads((result.outdir / "vs_mesh" / "report.json").read_text())
+    field = json.loads((result.outdir / "vs_field" / "report.json").read_text())
+    # a scan without noise against its own mesh is exact by construction; against the
+    # field cloud it is not
+    assert len(mesh["notes"]) == 1 and "trivially exact" in mesh["notes"][0]
+    assert "scan without noise models against the mesh it was scanned from" in mesh["notes"][0]
+    assert field["notes"] == []
+    assert 'id="exact-note"' in (result.outdir / "vs_mesh" / "report.html").read_text()
+    assert 'id="exact-note"' not in (result.outdir / "vs_field" / "report.html").read_text()
+
+
+def test_field_and_simulated_clouds_side_by_side(sapling_run, saplings):
+    from pipeline.io import read_cloud
+
+    result, _ = sapling_run
+    c = result.summary["clouds"]
+    field = read_cloud(saplings["sapling0"])
+    assert c["field"]["points"] == len(field)
+    assert c["simulated"]["points"] == result.summary["scan"]["points"]
+    assert c["simulated"]["point_spacing_m"] == result.vs_mesh["point_spacing_m"]
+    area = result.vs_mesh["reference"]["area_m2"]
+    assert c["mesh_area_m2"] == area
+    assert c["field"]["points_per_m2"] == pytest.approx(len(field) / area)
+    assert (result.outdir / "clouds.png").read_bytes().startswith(b"\x89PNG")
+    page = result.report_html.read_text()
+    assert "Field and simulated clouds" in page and 'src="clouds.png"' in page
+    assert f"{len(field):,}" in page
+    assert page.count("Trivially exact") == 1  # vs mesh only
+
+
+def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_run, tmp_path):
+    import re
+    import shutil
+
+    from pipeline.compare import compare
+    from pipeline.io import read_cloud, read_reference
+    from pipeline.params import CompareParams
+    from pipeline.report import ReportParams, build_report
+
+    result, _ = sapling_run
+    moved = tmp_path / "elsewhere" / "run"
+    shutil.copytree(result.outdir, moved)
+    # every link and image of every page resolves inside the moved folder
+    for page in (moved / "report.html", moved / "vs_mesh/report.html"):
+        refs = re.findall(r'(?:href|src)="([^"#]+)', page.read_text())
+        refs = [r for r in refs if not r.startswith("data:")]
+        assert refs or page.name == "report.html"
+        for ref in refs:
+            target = (page.parent / ref).resolve()
+            assert target.is_file() and moved.resolve() in target.parents, ref
+    # inputs outside the folder are named relative to it, and identified by content
+    run = json.loads((moved / "run.json").read_text())
+    assert not Path(run["inputs"]["cloud"]).is_absolute()
+    assert (result.outdir / run["inputs"]["cloud"]).is_file()
+    field_in = json.loads((moved / "vs_field/comparison.json").read_text())["inputs"]
+    assert (result.outdir / "vs_field" / field_in["reference"]).is_file()
+    assert field_in["reference_sha256"] == run["inputs"]["sha256"]
+    # the comparison again, from the moved float64 scan and mesh: the same figures
+    comp = json.loads((moved / "vs_mesh/comparison.json").read_text())
+    rep = json.loads((moved / "vs_mesh/report.json").read_text())
+    par = comp["parameters"]
+    keep = ("tolerance_m", "seed", "min_samples", "max_samples", "spacing_subsample")
+    again = compare(
+        read_cloud(moved / "vs_mesh" / comp["inputs"]["cloud"]),
+        read_reference(moved / "vs_mesh" / comp["inputs"]["reference"])[0],
+        params=CompareParams(**{k: par[k] for k in keep}),
+    )
+    assert again.accuracy.to_dict() == rep["figures"]["accuracy"]
+    assert again.completeness.to_dict() == rep["figures"]["completeness"]
+    assert again.coverage == rep["figures"]["coverage"]
+    assert {str(k): v for k, v in again.by_station.items()} == rep["figures"]["by_station"]
+    # the report drawn again from the moved files has the same occlusion profile
+    drawn = ReportParams(**run["parameters"]["report"])
+    files = build_report(moved / "vs_mesh", tmp_path / "again", params=drawn)
+    assert (
+        json.loads(files["report_json"].read_text())["occlusion_profile"]
+        == (rep["occlusion_profile"])
+    )
+
+
+def test_the_run_page_has_a_3d_view_that_draws_in_chromium(sapling_run):
+    from tests.report.browser import open_page
+
+    result, _ = sapling_run
+    html = result.report_html.read_text()
+    data = json.loads(html.split('id="viewer-data">')[1].split("</script>")[0])
+    assert [d["key"] for d in data["datasets"]] == ["sim_vs_field", "field_vs_sim", "mesh_vs_sim"]
+    assert f"of {result.summary['scan']['points']:,} points" in data["datasets"][0]["caption"]
+    page = open_page(result.report_html)
+    assert page["errors"] == "0", page["console"]
+    assert page["viewer"] == "ready" and page["drawn"] > 500
+    assert page["images_ok"] and page["console"] == [] and page["outside"] == []

@@ -1,0 +1,131 @@
+"""The occlusion profile: coverage and point density by height, per station and together.
+
+A comparison's coverage is one number; where a tree is occluded is a question of height
+(the crown hides itself, the lower stem is seen from every station). The profile cuts the
+reference into horizontal slices of ``bin_m`` from its lowest point up and gives, per slice:
+
+* ``reference_points``: reference samples (mesh) or points (cloud) in the slice;
+* ``coverage``: the share of them within τ of the cloud, for all stations together
+  (``"all"``, from the comparison's completeness distances) and for each station's points
+  alone (``"S0"``, ``"S1"``, ...: each station's own k-d tree, queried up to τ);
+* ``cloud_points``: points of the cloud in the slice, all and per station;
+* ``density_per_m2`` (mesh references): those points over the slice's reference surface
+  area (the area's share is its share of the area-uniform samples).
+
+Everything is computed from what a report reads (:class:`~pipeline.report.data.ReportData`),
+so a report drawn again from the saved files gives the same profile.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..geometry import kdtree
+from .data import ReportData
+
+__all__ = ["TARGET_BINS", "auto_bin_m", "occlusion_profile"]
+
+#: About this many slices when the slice height is not given.
+TARGET_BINS = 20
+
+
+def auto_bin_m(height_m: float, target: int = TARGET_BINS) -> float:
+    """A round slice height (1, 2, 2.5 or 5 × 10^k m) giving at most about ``target``
+    slices over ``height_m``."""
+    if not math.isfinite(height_m) or height_m <= 0:
+        return 1.0
+    raw = height_m / target
+    k = math.floor(math.log10(raw))
+    for m in (1.0, 2.0, 2.5, 5.0, 10.0):
+        step = m * 10.0**k
+        if step >= raw * (1 - 1e-9):
+            return float(f"{step:.6g}")
+    return float(10.0 ** (k + 1))  # pragma: no cover (10 × 10^k always qualifies)
+
+
+def occlusion_profile(
+    data: ReportData, *, bin_m: float | None = None, workers: int = -1
+) -> dict[str, Any]:
+    """Coverage and point density by height slice, per station and all together.
+
+    Parameters
+    ----------
+    data : ReportData
+        A comparison's figures and per-point distances (its τ is ``tolerance_m``).
+    bin_m : float, optional
+        Slice height (m); default :func:`auto_bin_m` of the reference's height.
+    workers : int
+        Threads of the k-d tree queries (-1: all).
+
+    Returns
+    -------
+    dict
+        ``bin_m``, ``base_z_m`` (the reference's lowest z: heights are above it),
+        ``edges_m`` (slice bounds, heights), ``stations`` (names, ``"S0"`` ...),
+        ``reference_points`` (per slice), ``coverage`` (name -> per slice, ``None``
+        where a slice has no reference), ``cloud_points`` (name -> per slice) and, for a
+        mesh reference, ``area_m2`` (per slice) and ``density_per_m2`` (name -> per
+        slice, ``None`` where a slice has no surface). Cloud points outside the
+        reference's height range fall in the end slices.
+    """
+    s = data.summary
+    tau = float(s["tolerance_m"])
+    ref = np.asarray(data.reference_points, dtype=np.float64)
+    cloud = np.asarray(data.cloud_points, dtype=np.float64)
+    base = float(ref[:, 2].min())
+    top = float(ref[:, 2].max())
+    step = float(bin_m) if bin_m is not None else auto_bin_m(top - base)
+    n_bins = max(1, math.ceil((top - base) / step - 1e-9))
+    edges = base + step * np.arange(n_bins + 1)
+
+    def slot(z: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((z - base) / step).astype(np.int64), 0, n_bins - 1)
+
+    ref_bin = slot(ref[:, 2])
+    cloud_bin = slot(cloud[:, 2])
+    n_ref = np.bincount(ref_bin, minlength=n_bins)
+
+    def share(mask: np.ndarray) -> list[float | None]:
+        hit = np.bincount(ref_bin, weights=mask.astype(np.float64), minlength=n_bins)
+        return [float(h / n) if n else None for h, n in zip(hit, n_ref, strict=True)]
+
+    covered = {"all": share(np.asarray(data.reference_distance_m) <= tau)}
+    counts = {"all": np.bincount(cloud_bin, minlength=n_bins)}
+    stations: list[str] = []
+    if data.cloud_station is not None:
+        st = np.asarray(data.cloud_station)
+        for code in np.unique(st):
+            name = f"S{int(code)}"
+            stations.append(name)
+            sel = st == code
+            d, _ = kdtree(cloud[sel] - ref.mean(axis=0)).query(
+                ref - ref.mean(axis=0),
+                k=1,
+                distance_upper_bound=tau * (1 + 1e-12),
+                workers=workers,
+            )
+            covered[name] = share(d <= tau)
+            counts[name] = np.bincount(cloud_bin[sel], minlength=n_bins)
+    out: dict[str, Any] = {
+        "bin_m": step,
+        "base_z_m": base,
+        "edges_m": [float(e - base) for e in edges],
+        "tolerance_m": tau,
+        "stations": stations,
+        "reference_points": [int(n) for n in n_ref],
+        "coverage": covered,
+        "cloud_points": {k: [int(c) for c in v] for k, v in counts.items()},
+    }
+    info = s.get("reference") or {}
+    area, samples = info.get("area_m2"), info.get("samples")
+    if info.get("kind") == "mesh" and area and samples:
+        slice_area = n_ref * (float(area) / float(samples))
+        out["area_m2"] = [float(a) for a in slice_area]
+        out["density_per_m2"] = {
+            k: [float(c / a) if a > 0 else None for c, a in zip(v, slice_area, strict=True)]
+            for k, v in counts.items()
+        }
+    return out
