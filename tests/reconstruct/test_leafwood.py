@@ -70,7 +70,8 @@ def test_separation_finds_the_wood_of_the_leaf_on_aspen(leafon_scan):
     precision, recall = wood_scores(result.wood, truth)
     print(f"\naspen-leafon at {STEP_DEG} deg: wood precision {precision:.3f}, recall {recall:.3f}")
     assert precision >= 0.95
-    assert recall >= 0.94  # 0.947 measured at 0.08 deg; 0.970 at 0.06 deg (README)
+    # 0.947 measured at this step: 95 % is not reached yet (see the README)
+    assert recall >= 0.94
 
 
 def test_separation_refuses_a_tiny_cloud():
