@@ -54,6 +54,6 @@ else
   "${PIP[@]}" --upgrade pip
   "${PIP[@]}" -e ".[dev,dask,e57]"
 fi
-"$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh" \
+"$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh, pgeof" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
 say "ready ($("$VENV/bin/python" --version), treesim in $VENV)"

@@ -38,6 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="turn statistical outlier removal off (as --sor-std-ratio none)",
     )
     param_options(g, PrepareParams, ["remove_ground"], path=prep)
+    lv = p.add_argument_group("leaves")
+    param_options(lv, ReconstructParams, ["separate_leaves", "leaf_layer", "leaf_side_m"])
     q = p.add_argument_group("qsm")
     param_options(q, QSMParams, ["slice_m", "twig_radius_m"], path=("qsm",))
     param_option(q, ReconstructParams, "facets")
@@ -79,7 +81,13 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     )
     for step in model.preparation.get("steps", []):
         print(f"  {step['step']}: removed {step['removed']:,}")
-    if fig["leaves_present"]:
+    if "points_wood" in fig:
+        print(
+            f"  leaves separated ({fig['leaf_separation']}): {fig['points_wood']:,} wood, "
+            f"{fig['points_leaf']:,} leaf points (labels.laz); "
+            f"{fig.get('n_leaves', 0):,} leaves modelled"
+        )
+    elif fig["leaves_present"]:
         print(
             f"  leaves present: about {fig['leaf_fraction'] * 100:.0f} % of points look leaf-like; "
             "wood volume figures include them as modelled twigs"

@@ -10,8 +10,17 @@ from ._fields import check_bounds, param
 
 Method = Literal["qsm", "poisson", "bpa"]
 METHODS: tuple[str, ...] = ("qsm", "poisson", "bpa")
+LeafMode = Literal["auto", "on", "off"]
+LEAF_MODES: tuple[str, ...] = ("auto", "on", "off")
 
-__all__ = ["METHODS", "MIN_CLOUD_POINTS", "PrepareParams", "QSMParams", "ReconstructParams"]
+__all__ = [
+    "LEAF_MODES",
+    "METHODS",
+    "MIN_CLOUD_POINTS",
+    "PrepareParams",
+    "QSMParams",
+    "ReconstructParams",
+]
 
 #: Fewest points of a cloud that can be measured at all: four can span a volume, three
 #: always lie in a plane. Reconstruction never accepts fewer (``PrepareParams.min_points``
@@ -198,9 +207,27 @@ class ReconstructParams:
         Ball radii; default from the point spacing.
     timeout_s : float
         Longest a pymeshlab step may run before it is stopped.
+    separate_leaves : {"auto", "on", "off"}
+        Label points wood or leaf (:mod:`pipeline.reconstruct.leafwood`) and build the
+        model from the wood only: ``on`` always, ``off`` never, ``auto`` when preparation
+        finds leaves (``leaves_present``: a quarter of the points in foliage-like
+        neighbourhoods; leaf-off trees measure 0.01-0.17), so that leaf-off clouds cost
+        nothing more.
+    leaf_layer : bool
+        With leaves separated, add leaf quads (label ``leaf``) in the leaf points' volume
+        to the mesh (:mod:`pipeline.models.leaves`), so the model can be scanned leaf-on.
+    leaf_side_m : float
+        Side of a modelled leaf quad (m); 5 cm gives 25 cm², a typical broadleaf leaf.
     """
 
     method: Method = param("qsm", help="reconstruction method", choices=METHODS)
+    separate_leaves: LeafMode = param(
+        "auto",
+        help="separate wood from leaves before reconstructing (auto: when leaves are found)",
+        choices=LEAF_MODES,
+    )
+    leaf_layer: bool = param(True, help="model the separated leaves as leaf quads in the mesh")
+    leaf_side_m: float = param(0.05, help="side of a modelled leaf quad", unit="m", gt=0, le=1)
     prepare: PrepareParams = param(help="input preparation", factory=PrepareParams)
     qsm: QSMParams = param(help="cylinder fitting (qsm only)", factory=QSMParams)
     facets: int = param(32, help="facets per cylinder ring of the QSM mesh", ge=3, le=512)
@@ -224,6 +251,11 @@ class ReconstructParams:
         if self.method not in METHODS:
             raise InvalidParameterError(
                 f"method must be one of {', '.join(METHODS)}, got {self.method!r}"
+            )
+        if self.separate_leaves not in LEAF_MODES:
+            raise InvalidParameterError(
+                f"separate_leaves must be one of {', '.join(LEAF_MODES)}, "
+                f"got {self.separate_leaves!r}"
             )
         check_bounds(self)
 

@@ -48,7 +48,12 @@ __all__ = [
 
 #: The files :meth:`TreeModel.write` writes into its folder, by key of the paths it
 #: returns (``cylinders`` for qsm only).
-OUTPUT_FILES = {"mesh": "tree.ply", "cylinders": "cylinders.csv", "json": "tree.json"}
+OUTPUT_FILES = {
+    "mesh": "tree.ply",
+    "cylinders": "cylinders.csv",
+    "json": "tree.json",
+    "labels": "labels.laz",
+}
 
 
 @dataclass
@@ -74,6 +79,9 @@ class TreeModel:
     params : dict
     timings_s : dict
     diagnostics : dict
+    labels : Cloud or None
+        With leaves separated: the prepared points in the input's coordinates with a
+        ``label`` field (``LABEL_CODES``: 1 wood, 2 leaf), written as ``labels.laz``.
     """
 
     method: str
@@ -86,6 +94,7 @@ class TreeModel:
     params: dict[str, Any]
     timings_s: dict[str, float]
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    labels: Cloud | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """``tree.json``'s content."""
@@ -115,6 +124,10 @@ class TreeModel:
         }
         if self.cylinders is not None:
             paths["cylinders"] = write_cylinders(out / name["cylinders"], self.cylinders)
+        if self.labels is not None:
+            from ..io.las import write_las
+
+            paths["labels"] = write_las(out / name["labels"], self.labels)
         paths["json"] = write_json(out / name["json"], self.to_dict())
         return paths
 
@@ -192,6 +205,9 @@ def reconstruct(
 
     prepared = prepare(cloud, params.prepare)
     t_prep = time.perf_counter() - t0
+    separated = _separate(prepared, params, say)
+    if separated is not None:
+        prepared = separated.wood
     say(0.3, f"reconstructing ({params.method})")
     t1 = time.perf_counter()
     if params.method == "qsm":
@@ -199,6 +215,8 @@ def reconstruct(
     else:
         model = _surface_model(prepared, params)
     t_rec = time.perf_counter() - t1
+    if separated is not None:
+        separated.apply(model, params)
     model.timings_s = {
         "prepare": t_prep,
         "reconstruct": t_rec,
@@ -207,6 +225,17 @@ def reconstruct(
     }
     say(1.0, "done")
     return model
+
+
+def _separate(prepared: PreparedCloud, params: ReconstructParams, say: Any) -> Any:
+    """Wood/leaf separation when ``params.separate_leaves`` asks for it (else None)."""
+    mode = params.separate_leaves
+    if mode == "off" or (mode == "auto" and not prepared.leaves_present):
+        return None
+    say(0.2, "separating wood from leaves")
+    from ._leaves import separate
+
+    return separate(prepared, mode)
 
 
 def _common_figures(prepared: PreparedCloud) -> dict[str, Any]:

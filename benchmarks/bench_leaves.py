@@ -1,0 +1,107 @@
+"""Leaf-on field clouds: wood/leaf separation and the QSM on a leaf-on scan (issue 13 §4).
+
+Measures, on the ``aspen-leafon`` preset and its leaf-off twin (``aspen``; seed 0, which
+the wood/leaf classifier was not fitted on), each scanned with the RIEGL VZ-400 noise
+model from three stations at ``--step`` degrees (default 0.08; 0.04 is the field
+standard and costs about four times as much):
+
+1. wood precision and recall of :func:`pipeline.reconstruct.leafwood.separate_leaves`
+   against the scanner's exact labels (points after 5 mm voxels), and its time;
+2. the QSM's DBH error (mm), stem and total volume errors (%) against the generator's
+   cylinder table for: the leaf-off scan, the leaf-on scan as it is
+   (``--separate-leaves off``: leaves taken for twigs), the leaf-on scan separated
+   (``on``); with the number of modelled leaves and their area beside the truth's.
+3. On the real leaf-on Lille tree (``../shared/data/trees/adtree/Lille_2.xyz``, skipped
+   when absent): DBH, volumes and points per label with separation off and on.
+
+Usage: ``python benchmarks/bench_leaves.py [--step 0.08]``. Prints measured figures only;
+about 5 minutes at 0.08° on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pipeline.cloud import LABEL_CODES, Cloud  # noqa: E402
+from pipeline.reconstruct import ReconstructParams, reconstruct  # noqa: E402
+from pipeline.reconstruct.leafwood import separate_leaves  # noqa: E402
+from pipeline.reconstruct.preprocess import voxel_downsample  # noqa: E402
+from tests.reconstruct.test_leafwood import scan_preset  # noqa: E402
+
+LILLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "trees" / "adtree" / "Lille_2.xyz"
+
+
+def qsm_row(label: str, points: np.ndarray, truth: dict, mode: str) -> None:
+    t0 = time.perf_counter()
+    fig = reconstruct(Cloud(points), ReconstructParams(separate_leaves=mode)).figures
+    dt = time.perf_counter() - t0
+    extra = ""
+    if "n_leaves" in fig:
+        extra = f", {fig['n_leaves']:,} leaves modelled ({fig['leaf_area_m2']:.1f} m²)"
+    print(
+        f"  {label:<28} DBH {(fig['dbh_m'] - truth['dbh_m']) * 1e3:+6.1f} mm  "
+        f"stem {(fig['volume_stem_m3'] / truth['volume_stem_m3'] - 1) * 100:+6.1f} %  "
+        f"total {(fig['volume_total_m3'] / truth['volume_total_m3'] - 1) * 100:+6.1f} %  "
+        f"({dt:.0f} s{extra})",
+        flush=True,
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--step", type=float, default=0.08, help="angular step (deg)")
+    args = ap.parse_args()
+    print(
+        f"bench_leaves ({date.today()}, {platform.processor() or platform.machine()}, "
+        f"Python {platform.python_version()}); scans at {args.step} deg, VZ-400 noise, "
+        "3 stations"
+    )
+    tree_on, on = scan_preset("aspen-leafon", args.step)
+    tree_off, off = scan_preset("aspen", args.step)
+    truth = tree_off.truth(32)
+    local = on.points - on.points.mean(axis=0)
+    pts, _, inv = voxel_downsample(local, 0.005)
+    is_wood = on.fields["label"] == LABEL_CODES["wood"]
+    wood = np.bincount(inv, weights=is_wood) / np.bincount(inv) >= 0.5
+    t0 = time.perf_counter()
+    res = separate_leaves(pts)
+    dt = time.perf_counter() - t0
+    tp = float((res.wood & wood).sum())
+    print(
+        f"separation on aspen-leafon: {len(pts):,} points, wood precision "
+        f"{tp / res.wood.sum():.3f}, recall {tp / wood.sum():.3f} ({dt:.1f} s)"
+    )
+    print(f"QSM against the truth (leaf area of the truth: {tree_on.leaf_area_m2:.1f} m²):")
+    qsm_row("aspen (leaf-off)", off.points, truth, "off")
+    qsm_row("aspen-leafon, not separated", on.points, truth, "off")
+    qsm_row("aspen-leafon, separated", on.points, truth, "on")
+    if not LILLE.is_file():
+        print(f"Lille: skipped ({LILLE} is absent)")
+        return
+    from pipeline.io import read_cloud
+
+    cloud = read_cloud(LILLE)
+    for mode in ("off", "on"):
+        fig = reconstruct(cloud, ReconstructParams(separate_leaves=mode)).figures
+        labels = (
+            f", {fig['points_wood']:,} wood / {fig['points_leaf']:,} leaf points"
+            if "points_wood" in fig
+            else ""
+        )
+        print(
+            f"Lille_2, separation {mode}: DBH {fig['dbh_m'] * 100:.1f} cm, total "
+            f"{fig['volume_total_m3']:.2f} m³ (stem {fig['volume_stem_m3']:.2f} m³){labels}"
+        )
+
+
+if __name__ == "__main__":
+    main()
