@@ -41,7 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     lv = p.add_argument_group("leaves")
     param_options(lv, ReconstructParams, ["separate_leaves", "leaf_layer", "leaf_side_m"])
     q = p.add_argument_group("qsm")
-    param_options(q, QSMParams, ["slice_m", "twig_radius_m"], path=("qsm",))
+    param_options(
+        q, QSMParams, ["slice_m", "twig_radius_m", "resolve_sigmas", "min_radius_m"], path=("qsm",)
+    )
     param_option(q, ReconstructParams, "facets")
     s = p.add_argument_group("surface methods")
     param_options(s, ReconstructParams, ["poisson_depth", "bpa_radii_m", "timeout_s"])

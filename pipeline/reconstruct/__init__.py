@@ -281,6 +281,7 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
         "n_triangles": int(len(f)),
         "mesh_volume_m3": float(mesh_volume(v, f)),
         "cylinders_by_tag": res.diagnostics["cylinders_by_tag"],
+        "noise_sd_m": res.diagnostics["noise"]["sd_m"],
         **_crown(prepared.points, base_z, crown_base),
         **_common_figures(prepared),
     }

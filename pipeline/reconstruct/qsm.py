@@ -50,6 +50,8 @@ class QSMResult:
     node_position: np.ndarray  # (m, 3)
     node_radius: np.ndarray  # (m,)
     node_measured: np.ndarray  # (m,) bool
+    #: per node, the circle fit's radius, residual scatter, coverage (NaN: no fit)
+    node_fit: dict[str, np.ndarray] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
 
@@ -159,6 +161,7 @@ class CircleFit:
     rms: float
     coverage_deg: float
     inlier_share: float
+    scatter: float  # robust scale (1.4826 MAD) of every point's residual, inliers or not
 
 
 def fit_circle(
@@ -197,6 +200,8 @@ def fit_circle(
     if inl.sum() < 5:
         return None
     rms = float(np.sqrt(np.average(d_all[inl] ** 2, weights=w[inl])))
+    res_all = np.linalg.norm(q - x[:2], axis=1) - r
+    scatter = 1.4826 * float(np.median(np.abs(res_all - np.median(res_all))))
     ang = np.arctan2(q[inl, 1] - x[1], q[inl, 0] - x[0])
     sectors = np.unique(np.floor((ang + np.pi) / (2 * np.pi) * 36).astype(int) % 36)
     return CircleFit(
@@ -205,6 +210,7 @@ def fit_circle(
         rms=rms,
         coverage_deg=10.0 * len(sectors),
         inlier_share=float(w[inl].sum() / w.sum()),
+        scatter=scatter,
     )
 
 
@@ -258,6 +264,49 @@ def _isotonic_decreasing(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.repeat(vals, cnt)
 
 
+#: Without a noise estimate, the smallest measured radius is this many point spacings
+#: (the rule before noise was estimated).
+NO_NOISE_MIN_RADIUS_SPACINGS = 1.5
+#: Fewest well-measured fits a noise estimate is taken from.
+NOISE_MIN_FITS = 3
+
+
+def estimate_noise(
+    scatter: np.ndarray,
+    good_fit: np.ndarray,
+    coverage_deg: np.ndarray,
+    radius: np.ndarray,
+    on_stem: np.ndarray,
+    params: QSMParams,
+    spacing_m: float,
+) -> dict[str, Any]:
+    """The noise of the points about the wood's surface, from the circle fits.
+
+    Each fit's scatter is the robust scale (1.4826 × MAD) of its points' radial
+    residuals. The estimate is their median over the *well-measured* fits: on the stem,
+    arcs of at least ``min_coverage_deg`` passing every gate, radius at least two point
+    spacings (a cross-section the scan samples densely, so the scatter is the points'
+    noise, not the fit's). Failing three of those, every such fit of the tree; failing
+    that, no estimate (``sd_m`` None).
+
+    Returns
+    -------
+    dict
+        ``sd_m`` (float or None), ``fits`` (how many it is the median of), ``from``
+        (``"stem"``, ``"branches"`` or ``None``).
+    """
+    well = (
+        good_fit
+        & np.isfinite(scatter)
+        & (coverage_deg >= params.min_coverage_deg)
+        & (radius >= 2.0 * spacing_m)
+    )
+    for source, sel in (("stem", well & on_stem), ("branches", well)):
+        if sel.sum() >= NOISE_MIN_FITS:
+            return {"sd_m": float(np.median(scatter[sel])), "fits": int(sel.sum()), "from": source}
+    return {"sd_m": None, "fits": 0, "from": None}
+
+
 # ---------------------------------------------------------------------------- main
 def fit_qsm(
     points: np.ndarray,
@@ -286,7 +335,7 @@ def fit_qsm(
     """
     params = params or QSMParams()
     res = params.resolved(spacing_m)
-    h, link, band, r_min = res["slice_m"], res["link_m"], res["base_band_m"], res["min_radius_m"]
+    h, link, band = res["slice_m"], res["link_m"], res["base_band_m"]
     p = np.asarray(points, dtype=np.float64)
     n = len(p)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
@@ -386,7 +435,10 @@ def fit_qsm(
     pos = centroid.copy()
     radius = np.full(m, np.nan)
     quality = np.zeros(m)
-    measured = np.zeros(m, dtype=bool)
+    good_fit = np.zeros(m, dtype=bool)  # passes every gate but the radius floor
+    fit_centre = np.zeros((m, 3))
+    scatter = np.full(m, np.nan)
+    coverage = np.full(m, np.nan)
     members_sorted = np.argsort(cl, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(np.bincount(cl, minlength=m))])
     rng_base = params.seed * 1_000_003
@@ -425,6 +477,7 @@ def fit_qsm(
             if fit is None:
                 continue
             radius[v] = fit.radius
+            scatter[v], coverage[v] = fit.scatter, fit.coverage_deg
             full = (
                 fit.coverage_deg >= params.min_coverage_deg
                 and fit.rms <= params.max_rel_residual * fit.radius + 0.5 * spacing_m
@@ -433,16 +486,28 @@ def fit_qsm(
                 fit.coverage_deg >= params.partial_coverage_deg
                 and fit.rms <= params.partial_rel_residual * fit.radius + 0.25 * spacing_m
             )
-            ok = (
+            if (
                 (full or partial)
                 and fit.inlier_share >= 0.6
-                and fit.radius >= r_min
                 and fit.radius <= 0.6 * float(np.ptp(q, axis=0).max()) + band_min
-            )
-            if ok:
-                measured[v] = True
+            ):
+                good_fit[v] = True
                 quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
-                pos[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
+                fit_centre[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
+
+    # 5b. the noise of the points about the surface, from the stem's well-measured fits,
+    # and the smallest radius the noise lets a circle fit resolve (k sigma)
+    noise = estimate_noise(scatter, good_fit, coverage, radius, branch_of == 0, params, spacing_m)
+    if params.min_radius_m is not None:
+        r_min, r_min_rule = params.min_radius_m, "given"
+    elif noise["sd_m"] is not None:
+        r_min = max(params.resolve_sigmas * noise["sd_m"], res["min_radius_floor_m"])
+        r_min_rule = f"max({params.resolve_sigmas:g} × noise σ, floor)"
+    else:
+        r_min, r_min_rule = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m, "1.5 × spacing (no σ)"
+    measured = good_fit & (radius >= r_min)
+    quality[~measured] = 0.0
+    pos[measured] = fit_centre[measured]
 
     # 6. radius model (S: growth length, the length of the subtree a node supports):
     # r^(1/b) = r_tip^(1/b) + a * S; b = 0.5 is the pipe model, "cross-section area = tip
@@ -576,8 +641,9 @@ def fit_qsm(
         tag=np.asarray(tags),
     )
     diagnostics = {
-        "params": {**asdict(params), **res},
+        "params": {**asdict(params), **res, "min_radius_m": r_min},
         "points": n,
+        "noise": {**noise, "min_radius_m": r_min, "min_radius_rule": r_min_rule},
         "graph_bridges": n_bridges,
         "nodes": int(keep.sum()),
         "nodes_measured": int(measured.sum()),
@@ -590,5 +656,12 @@ def fit_qsm(
         node_position=pos,
         node_radius=final_r,
         node_measured=measured,
+        node_fit={
+            "radius_m": radius,
+            "scatter_m": scatter,
+            "coverage_deg": coverage,
+            "branch": branch_of,
+            "growth_m": grow,
+        },
         diagnostics=diagnostics,
     )

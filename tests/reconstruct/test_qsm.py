@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pipeline.models import CylinderTable, cylinders_to_mesh
-from pipeline.reconstruct.qsm import QSMParams, fit_circle, fit_qsm
+from pipeline.reconstruct.qsm import QSMParams, estimate_noise, fit_circle, fit_qsm
 from pipeline.scan import ScannerSpec, ring_layout, scan
 from pipeline.scene import MeshPart, Scene
 
@@ -95,3 +95,56 @@ def test_bad_parameters_are_refused():
         QSMParams(slice_m=-1)
     with pytest.raises(InvalidParameterError):
         QSMParams(neighbors=1)
+
+
+@pytest.mark.parametrize("range_noise_m", [0.0, 0.003])
+def test_the_noise_is_estimated_from_the_stem_fits(range_noise_m):
+    # a 10 cm pole scanned from three stations with Gaussian range noise: a point moves
+    # off the surface by the range error times the cosine of its incidence; with points
+    # uniform across the stem's projected width, E[cos²] = 2/3, so the scatter the fits
+    # see is about 0.8 (RMS; its robust scale a little less) of the range σ
+    pole = CylinderTable.from_endpoints(
+        np.array([[0.0, 0.0, 0.0]]),
+        np.array([[0.0, 0.0, 3.0]]),
+        np.array([0.1]),
+        parent=np.array([-1]),
+        branch=np.array([1]),
+        branch_order=np.array([0]),
+    )
+    v, f = cylinders_to_mesh(pole, facets=128)
+    scene = Scene([MeshPart(vertices=v, faces=f, label="wood")])
+    st = ring_layout(3, distance_m=8.0, height_m=1.5, centre_xy=(0.0, 0.0), base_z_m=0.0)
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.06, vertical_resolution_deg=0.06, range_noise_sd_m=range_noise_m
+    )
+    pts = scan(scene, st, spec).cloud.points
+    spacing = float(np.median(cKDTree(pts).query(pts, k=2)[0][:, 1]))
+    res = fit_qsm(pts, spacing_m=spacing)
+    noise = res.diagnostics["noise"]
+    print(range_noise_m, noise)
+    assert noise["from"] == "stem" and noise["fits"] >= 10
+    if range_noise_m:
+        assert 0.6 * range_noise_m <= noise["sd_m"] <= 0.9 * range_noise_m
+        assert noise["min_radius_m"] == pytest.approx(4 * noise["sd_m"])
+    else:
+        assert noise["sd_m"] < 3e-4  # the 128-gon's own departure from the circle
+    # the stem itself is resolved: measured at its radius whatever the noise
+    assert res.diagnostics["nodes_measured"] > 0.8 * res.diagnostics["nodes"]
+    assert np.median(res.node_radius[res.node_measured]) == pytest.approx(0.1, rel=0.02)
+
+
+def test_noise_estimate_prefers_the_stem_and_says_when_it_has_none():
+    p = QSMParams()
+    n = 8
+    scatter = np.array([1, 1, 1, 1, 5, 5, 5, 5], float) * 1e-3
+    good = np.ones(n, bool)
+    cov = np.full(n, 300.0)
+    radius = np.full(n, 0.05)
+    stem = np.arange(n) < 4
+    est = estimate_noise(scatter, good, cov, radius, stem, p, 0.005)
+    assert est == {"sd_m": pytest.approx(1e-3), "fits": 4, "from": "stem"}
+    # a stem of partial arcs or of radii under two spacings is not well measured
+    est = estimate_noise(scatter, good, np.where(stem, 150.0, 300.0), radius, stem, p, 0.005)
+    assert est["from"] == "branches" and est["sd_m"] == pytest.approx(5e-3)
+    est = estimate_noise(scatter, good, cov, np.full(n, 0.009), stem, p, 0.005)
+    assert est == {"sd_m": None, "fits": 0, "from": None}

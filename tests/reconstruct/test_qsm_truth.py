@@ -1,5 +1,6 @@
-"""Known truth: procedural presets scanned from three stations at 0.04°, rebuilt by the
-QSM, scored against the generator's own cylinder table (issue 5's targets)."""
+"""Known truth: procedural presets scanned from three stations at 0.04° with the RIEGL
+VZ-400's noise (3 mm range σ, seeded), rebuilt by the QSM, scored against the generator's
+own cylinder table (issue 5's targets, under issue 13's noise)."""
 
 from __future__ import annotations
 
@@ -12,20 +13,23 @@ import pytest
 from pipeline.cloud import Cloud
 from pipeline.models import SPECIES as PRESETS
 from pipeline.models import generate_tree
+from pipeline.params import instrument, model_fields
 from pipeline.reconstruct import ReconstructParams, reconstruct
 from pipeline.scan import ScannerSpec, ring_layout, scan
 from pipeline.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
 README = Path(__file__).resolve().parents[2] / "README.md"
-README_COLUMNS = ("dbh_mm", "stem_pct", "total_pct", "height_pct")
+README_COLUMNS = ("dbh_mm", "stem_pct", "total_pct", "height_pct", "noise_mm")
+#: The instrument whose noise the field clouds carry (range σ 3 mm, pointing 0.0005°).
+INSTRUMENT = instrument("riegl-vz400")
 
 
 def readme_qsm_table() -> dict[str, dict[str, tuple[float, float]]]:
     """The README's QSM table (section "the cylinder QSM"): per preset, per column, the
     printed figure and half its last printed digit (the figure's own rounding)."""
     text = README.read_text(encoding="utf-8")
-    head = "| preset | DBH error | stem volume | total volume | height |"
+    head = "| preset | DBH error | stem volume | total volume | height | noise σ (estimated) |"
     assert head in text, "the README's QSM table header changed; update this test with it"
     rows = {}
     for line in text[text.index(head) :].splitlines()[2:]:
@@ -46,12 +50,14 @@ def readme_qsm_table() -> dict[str, dict[str, tuple[float, float]]]:
 
 
 def measured(truth: dict, fig: dict) -> dict[str, float]:
-    """The table's figures: DBH error in mm, the others in % of the truth."""
+    """The table's figures: DBH error in mm, volumes and height in % of the truth, the
+    noise σ the QSM estimated in mm."""
     return {
         "dbh_mm": (fig["dbh_m"] - truth["dbh_m"]) * 1e3,
         "stem_pct": (fig["volume_stem_m3"] / truth["volume_stem_m3"] - 1) * 100,
         "total_pct": (fig["volume_total_m3"] / truth["volume_total_m3"] - 1) * 100,
         "height_pct": (fig["height_m"] / truth["height_m"] - 1) * 100,
+        "noise_mm": fig["noise_sd_m"] * 1e3,
     }
 
 
@@ -67,7 +73,12 @@ def scan_preset(name: str):
         centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
         base_z_m=lo[2],
     )
-    spec = ScannerSpec(horizontal_resolution_deg=0.04, vertical_resolution_deg=0.04)
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.04,
+        vertical_resolution_deg=0.04,
+        seed=0,
+        **model_fields(beam=False, noise=True, figures=vars(INSTRUMENT)),
+    )
     return tree.truth(32), scan(scene, stations, spec).cloud
 
 
@@ -78,39 +89,31 @@ def rebuilt(name: str):
     return truth, reconstruct(Cloud(cloud.points), ReconstructParams(method="qsm")).figures
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", LEAF_OFF)
-def test_qsm_meets_the_targets_on_every_leaf_off_preset(name):
-    truth, fig = rebuilt(name)
-    report = {
-        k: (fig[k], truth[k]) for k in ("dbh_m", "height_m", "volume_stem_m3", "volume_total_m3")
-    }
-    print(name, report)
-    assert abs(fig["dbh_m"] - truth["dbh_m"]) <= 0.005, report
-    assert fig["volume_total_m3"] == pytest.approx(truth["volume_total_m3"], rel=0.10), report
-    assert fig["height_m"] == pytest.approx(truth["height_m"], rel=0.02), report
-    assert fig["watertight"] is True
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", LEAF_OFF)
-def test_qsm_stem_volume_within_5_percent(name):
-    truth, fig = rebuilt(name)
-    assert fig["volume_stem_m3"] == pytest.approx(truth["volume_stem_m3"], rel=0.05)
-
-
 def test_readme_qsm_table_lists_every_leaf_off_preset():
     assert sorted(readme_qsm_table()) == sorted(LEAF_OFF)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", LEAF_OFF)
-def test_qsm_reproduces_the_readme_table(name):
-    # deterministic code: each figure must round to what the README prints, so the
-    # tolerance is half the printed last digit (0.05 mm, 0.05 %) and nothing more
-    printed = readme_qsm_table()[name]
-    got = measured(*rebuilt(name))
+def test_qsm_on_noisy_scans_meets_the_targets_and_the_readme(name):
+    """Issue 13's targets on the VZ-400-noisy scans (DBH within 5 mm, stem volume within
+    5 %, total within 10 %; height within 2 %), the noise σ estimated from the data, and
+    the README's figures."""
+    truth, fig = rebuilt(name)
+    got = measured(truth, fig)
     print(name, {k: round(v, 3) for k, v in got.items()})
+    assert abs(got["dbh_mm"]) <= 5.0, got
+    assert abs(got["stem_pct"]) <= 5.0, got
+    assert abs(got["total_pct"]) <= 10.0, got
+    assert abs(got["height_pct"]) <= 2.0, got
+    assert fig["watertight"] is True
+    # the points' scatter about the surface, as the stem's circle fits see it: the range
+    # noise projected on the surface normal (incidence 0-90°, so below the range σ) and
+    # somewhat averaged by the 5 mm voxels; nowhere near a noiseless scan's ~0.3 mm
+    assert 0.4 * INSTRUMENT.range_noise_sd_m <= fig["noise_sd_m"] <= INSTRUMENT.range_noise_sd_m
+    # deterministic code and seeded noise: each figure must round to what the README
+    # prints, so the tolerance is half the printed last digit (0.05 mm, 0.05 %)
+    printed = readme_qsm_table()[name]
     off = {
         col: (round(got[col], 3), value)
         for col, (value, half_digit) in printed.items()
