@@ -12,17 +12,20 @@ out.
 * :func:`inside_other_parts`: for points on the mesh (each with the part it lies on),
   whether it lies strictly inside another closed part.
 
-The inside test is ray parity per part, along one full line through each point: Open3D's
+The inside test is ray parity per part, along a line through each point: Open3D's
 ``RaycastingScene.list_intersections`` (float32, in the caller's local frame) lists every
-crossing of a line that starts and ends outside the mesh's bounding box; crossings of
-part ``B`` before the point and after it must both be odd for the point to be inside
-``B`` (a closed surface is crossed an even number of times along a whole line). Float32
-can pass a ray through a shared edge twice or not at all (DESIGN: 0.02-0.12 % of rays
-through shared vertices); crossings of one part closer than ``eps`` along a line are
-merged into one, and a line whose counts for some part are odd in total (a crossing was
-missed) is cast again in other directions until one is consistent (else the majority of
-the directions decides). A point within ``eps`` of another part's surface is on that
-surface, not inside it (coincident surfaces are kept).
+crossing of the half-line ahead of the point, and, for the points with an odd count of
+some part there, of the half-line behind it; both counts must be odd for the point to be
+inside that part (a closed surface is crossed an even number of times along a whole
+line). Float32 can pass a ray through a shared edge twice or not at all (DESIGN:
+0.02-0.12 % of rays through shared vertices); crossings of one part closer than ``eps``
+along a line are merged into one, and a point whose two counts for some part disagree (a
+crossing was missed) is cast again in other directions until one is consistent (else
+the majority of the directions decides). A point within ``eps`` of another part's
+surface is on that surface, not inside it (coincident surfaces are kept). Points whose
+line ahead crosses every other part an even number of times are outside them all (only
+the second half-line could show a missed crossing there, and only for an inside point
+whose line lost its single crossing: a float32 accident on a measure-zero set).
 """
 
 from __future__ import annotations
@@ -35,8 +38,9 @@ from ..errors import InvalidGeometryError
 
 __all__ = ["MeshParts", "inside_other_parts", "mesh_parts"]
 
-#: Lines cast at a time (list_intersections returns every crossing: ~25 bytes each).
-_CHUNK = 1 << 17
+#: Lines cast at a time (list_intersections returns every crossing, ~25 bytes each, and a
+#: line through a large crown crosses a hundred triangles or more).
+_CHUNK = 1 << 15
 #: Directions tried for a point whose first line is inconsistent, besides the first.
 _RETRIES = 4
 #: Crossings closer than this fraction of the mesh's bounding-box diagonal along a line
@@ -121,6 +125,55 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     return MeshParts(part_of_face, closed)
 
 
+def _crossings(
+    scene: object,
+    points: np.ndarray,
+    point_part: np.ndarray,
+    closed_part_of_face: np.ndarray,
+    n_parts: int,
+    direction: np.ndarray,
+    eps: float,
+    nthreads: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Crossings of other closed parts along the half-lines from ``points`` along
+    ``direction``: per (point, part) met, its key ``point * n_parts + part`` (sorted),
+    whether the count beyond ``eps`` is odd, and whether a crossing lies within ``eps``
+    of the point (the point is on that part's surface)."""
+    import open3d as o3d
+
+    keys, odd, on = [], [], []
+    for lo in range(0, len(points), _CHUNK):
+        p = points[lo : lo + _CHUNK]
+        rays = np.empty((len(p), 6), dtype=np.float32)
+        rays[:, :3] = p
+        rays[:, 3:] = direction
+        hits = scene.list_intersections(  # type: ignore[attr-defined]
+            o3d.core.Tensor(rays), nthreads=int(nthreads)
+        )
+        ray = hits["ray_ids"].numpy().astype(np.int64) + lo
+        if ray.size == 0:
+            continue
+        t = hits["t_hit"].numpy().astype(np.float64)
+        part = closed_part_of_face[hits["primitive_ids"].numpy().astype(np.int64)]
+        keep = part != point_part[ray]
+        group, t = ray[keep] * n_parts + part[keep], t[keep]
+        order = np.lexsort((t, group))
+        group, t = group[order], t[order]
+        # crossings of one part closer than eps along the line count once (a shared edge)
+        dup = np.zeros(len(t), dtype=bool)
+        dup[1:] = (group[1:] == group[:-1]) & (t[1:] - t[:-1] < eps)
+        group, t = group[~dup], t[~dup]
+        k, idx = np.unique(group, return_inverse=True)
+        idx = idx.reshape(-1)
+        keys.append(k)
+        odd.append(np.bincount(idx, weights=t > eps, minlength=len(k)) % 2 == 1)
+        on.append(np.bincount(idx, weights=t <= eps, minlength=len(k)) > 0)
+    if not keys:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty.astype(bool), empty.astype(bool)
+    return np.concatenate(keys), np.concatenate(odd), np.concatenate(on)
+
+
 def _line_verdicts(
     scene: object,
     points: np.ndarray,
@@ -128,51 +181,45 @@ def _line_verdicts(
     closed_part_of_face: np.ndarray,
     n_parts: int,
     direction: np.ndarray,
-    reach: float,
     eps: float,
     nthreads: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per point: (inside another closed part, the line's counts were consistent)."""
-    import open3d as o3d
+    """Per point: (inside another closed part, the line's counts were consistent).
 
+    The half-line ahead of every point first; the one behind only for the points that
+    have an odd count ahead for some part (the others are outside every part, or a
+    crossing was missed, which the line behind could only show for the former)."""
     n = len(points)
     inside = np.zeros(n, dtype=bool)
     consistent = np.ones(n, dtype=bool)
-    for lo in range(0, n, _CHUNK):
-        p = points[lo : lo + _CHUNK]
-        m = len(p)
-        rays = np.empty((m, 6), dtype=np.float32)
-        rays[:, :3] = p - reach * direction
-        rays[:, 3:] = direction
-        hits = scene.list_intersections(  # type: ignore[attr-defined]
-            o3d.core.Tensor(rays), nthreads=int(nthreads)
-        )
-        ray = hits["ray_ids"].numpy().astype(np.int64)
-        if ray.size == 0:
-            continue
-        t = hits["t_hit"].numpy().astype(np.float64)
-        part = closed_part_of_face[hits["primitive_ids"].numpy().astype(np.int64)]
-        keep = part != point_part[lo + ray]
-        ray, t, part = ray[keep], t[keep], part[keep]
-        order = np.lexsort((t, part, ray))
-        ray, t, part = ray[order], t[order], part[order]
-        group = ray * n_parts + part
-        # merge crossings of one part closer than eps along the line (a shared edge)
-        dup = np.zeros(len(t), dtype=bool)
-        dup[1:] = (group[1:] == group[:-1]) & (t[1:] - t[:-1] < eps)
-        ray, t, group = ray[~dup], t[~dup], group[~dup]
-        keys, idx = np.unique(group, return_inverse=True)
-        idx = idx.reshape(-1)
-        k = len(keys)
-        before = np.bincount(idx, weights=t < reach - eps, minlength=k)
-        after = np.bincount(idx, weights=t > reach + eps, minlength=k)
-        on = np.bincount(idx, weights=np.abs(t - reach) <= eps, minlength=k)
-        ray_of_key = keys // n_parts
-        clear = on == 0
-        in_part = clear & (before % 2 == 1) & (after % 2 == 1)
-        odd_total = clear & ((before + after) % 2 == 1)
-        inside[lo + ray_of_key[in_part]] = True
-        consistent[lo + ray_of_key[odd_total]] = False
+    args = (closed_part_of_face, n_parts)
+    k_ahead, odd_ahead, on_ahead = _crossings(
+        scene, points, point_part, *args, direction, eps, nthreads
+    )
+    maybe = odd_ahead & ~on_ahead
+    cand = np.unique(k_ahead[maybe] // n_parts)
+    if cand.size == 0:
+        return inside, consistent
+    k_behind, odd_behind, on_behind = _crossings(
+        scene, points[cand], point_part[cand], *args, -direction, eps, nthreads
+    )
+    k_behind = cand[k_behind // n_parts] * n_parts + k_behind % n_parts
+    # per (point, part) met on either side: odd ahead, odd behind, on the surface
+    sel = np.isin(k_ahead // n_parts, cand)
+    keys = np.concatenate([k_ahead[sel], k_behind])
+    uniq, idx = np.unique(keys, return_inverse=True)
+    idx = idx.reshape(-1)
+    m = int(sel.sum())
+    ahead = np.zeros(len(uniq), dtype=bool)
+    behind = np.zeros(len(uniq), dtype=bool)
+    on = np.zeros(len(uniq), dtype=bool)
+    ahead[idx[:m]] = odd_ahead[sel]
+    behind[idx[m:]] = odd_behind
+    on[idx[:m]] |= on_ahead[sel]
+    on[idx[m:]] |= on_behind
+    point = uniq // n_parts
+    inside[point[~on & ahead & behind]] = True
+    consistent[point[~on & (ahead ^ behind)]] = False
     return inside, consistent
 
 
@@ -235,9 +282,7 @@ def inside_other_parts(
     point_part = parts.part_of_face[pf]
     used = v[np.unique(f)]
     lo, hi = used.min(axis=0), used.max(axis=0)
-    diagonal = float(np.linalg.norm(hi - lo))
-    reach = 1.01 * diagonal + 1e-3  # from outside the box, whatever the point and direction
-    eps = _EPS_REL * max(diagonal, 1e-3)
+    eps = _EPS_REL * max(float(np.linalg.norm(hi - lo)), 1e-3)
     rng = np.random.default_rng(seed)
     directions = rng.normal(size=(1 + _RETRIES, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -253,7 +298,6 @@ def inside_other_parts(
             closed_part_of_face,
             parts.n_parts,
             d,
-            reach,
             eps,
             nthreads,
         )
