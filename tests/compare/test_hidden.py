@@ -187,3 +187,19 @@ def test_keep_measures_the_hidden_area_as_uncovered(coaxial_cloud):
     strips = 2 * polygon_perimeter(R_B) * tau / COAXIAL_AREA
     slack = 4 * math.sqrt(p * (1 - p) / res.completeness.n)
     assert p - strips - slack <= 1 - res.coverage <= p + slack
+
+
+def test_the_cli_says_what_it_left_out(coaxial_cloud, tmp_path, capsys):
+    from pipeline.cli import main
+    from pipeline.io import write_cloud
+    from pipeline.io.mesh import write_mesh
+
+    v, f, pts = coaxial_cloud
+    mesh = write_mesh(tmp_path / "pair.ply", v, f)
+    cloud = write_cloud(tmp_path / "cloud.ply", Cloud(pts[::20]))
+    args = ["compare", str(cloud), str(mesh), "-o", str(tmp_path / "out")]
+    assert main([*args, "--sample-spacing-m", "0.02", "--min-samples", "1000"]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("hidden"))
+    assert "inside other closed parts of the mesh (2 closed of 2)" in line
+    share = float(line.split("(")[1].split(" %")[0]) / 100
+    assert share == pytest.approx(COAXIAL_HIDDEN / COAXIAL_AREA, abs=0.03)  # ~10k samples
