@@ -11,6 +11,15 @@ another cloud (the field scan):
   points. Small values mean the reference was seen. Accuracy alone can never show
   occlusion: a cloud covering half a stem has perfect accuracy and 50 % coverage.
 
+Only surface a scanner could see counts: a mesh made of overlapping closed parts (separate
+cylinders whose end caps are buried in the next one, branches starting inside their
+parents) has area inside the solid, and samples there would measure the mesh's
+construction, not the scan. Samples that lie inside another closed part of the same mesh
+(ray parity per part, :func:`pipeline.geometry.inside_other_parts`) are dropped, and
+``reference.hidden_surface`` says how much area that was (estimated from the
+area-uniform samples, with its standard error) and why (``hidden_surface="keep"`` keeps
+them).
+
 Definitions used throughout (and written into ``comparison.json``):
 
 * ``hausdorff_m``: ``max(accuracy.max_m, completeness.max_m)``, the symmetric Hausdorff
@@ -73,7 +82,14 @@ from .errors import (
     InvalidParameterError,
 )
 from .frame import LocalFrame
-from .geometry import kdtree, point_spacing, point_to_mesh_distances, sample_surface
+from .geometry import (
+    inside_other_parts,
+    kdtree,
+    mesh_parts,
+    point_spacing,
+    point_to_mesh_distances,
+    sample_surface,
+)
 from .jsonio import write_json
 from .params import MIN_CLOUD_POINTS, CompareParams
 from .scene import MeshPart, Scene
@@ -99,6 +115,8 @@ DEFINITIONS: dict[str, str] = {
     "tolerance_m": "default 3 × point_spacing_m (the cloud's median nearest-neighbour distance)",
     "point_spacing_m": "median distance from a cloud point to its nearest other point",
     "sample_spacing_m": "mesh references: one surface sample per sample_spacing_m² of area",
+    "hidden_surface": "mesh references: area inside another closed part of the same mesh, "
+    "which no scanner outside can see; its samples are left out of completeness and coverage",
 }
 
 #: Default coverage tolerance, in multiples of the cloud's median point spacing.
@@ -457,10 +475,18 @@ def compare(
         samples_local, ref_face = sample_surface(
             verts_local, ref.faces, n_samples, seed=params.seed
         )
+        timings["sampling"] = time.perf_counter() - t0
+        info.update(area_m2=area, samples=n_samples)
+        if params.hidden_surface == "drop":
+            t0 = time.perf_counter()
+            visible, hidden_info = _visible_samples(
+                samples_local, ref_face, verts_local, ref.faces, area, params
+            )
+            samples_local, ref_face = samples_local[visible], ref_face[visible]
+            info.update(samples=int(visible.sum()), hidden_surface=hidden_info)
+            timings["hidden_surface"] = time.perf_counter() - t0
         ref_local = samples_local
         ref_label = ref.face_label[ref_face] if ref.face_label is not None else None
-        info.update(area_m2=area, samples=n_samples)
-        timings["sampling"] = time.perf_counter() - t0
     else:
         ref_local = frame.to_local(ref.points)
         ref_tree = kdtree(ref_local)
@@ -513,6 +539,44 @@ def compare(
         frame=frame,
         timings_s=timings,
     )
+
+
+#: Why hidden surface is left out of completeness (``reference.hidden_surface.why``).
+HIDDEN_WHY = (
+    "surface inside another closed part of the same mesh (buried end caps, branch bases "
+    "inside their parents) cannot be seen by a scanner outside the mesh"
+)
+
+
+def _visible_samples(
+    samples: np.ndarray,
+    sample_face: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    area: float,
+    params: CompareParams,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Which surface samples a scanner outside the mesh could see, and the account of
+    the area left out (estimated from the samples: they are area-uniform)."""
+    parts = mesh_parts(vertices, faces)
+    hidden = inside_other_parts(
+        samples, sample_face, vertices, faces, parts, seed=params.seed, nthreads=params.nthreads
+    )
+    n = len(samples)
+    share = float(hidden.mean()) if n else 0.0
+    return ~hidden, {
+        "rule": "drop",
+        "why": HIDDEN_WHY,
+        "parts": parts.n_parts,
+        "closed_parts": parts.n_closed,
+        "samples_drawn": n,
+        "samples_dropped": int(hidden.sum()),
+        "area_m2": area * share,
+        "area_share": share,
+        # binomial standard error of the estimate from n area-uniform samples
+        "area_se_m2": area * math.sqrt(share * (1.0 - share) / n) if n else 0.0,
+        "visible_area_m2": area * (1.0 - share),
+    }
 
 
 def _split_by_label(

@@ -135,12 +135,14 @@ def _lod_scene(
     import math
 
     from .cloud import LABEL_CODES
-    from .models import cylinders_to_mesh, plan_lod
+    from .models import plan_lod, sink_branches, tubes_to_mesh
 
     spec = params.scan.scanner
     spacing = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+    # the rows as meshed (reconstruct's branch_tubes): branch starts sunk into parents
+    table = sink_branches(model.cylinders).table
     plan = plan_lod(
-        model.cylinders,
+        table,
         np.array([st.position_m for st in stations]),
         spacing,
         max_facets=int(params.reconstruct.facets),
@@ -148,14 +150,16 @@ def _lod_scene(
     )
     if (plan.facets == int(params.reconstruct.facets)).all():
         return None
-    v, f = cylinders_to_mesh(model.cylinders, facets=plan.facets)
+    tubes = tubes_to_mesh(table, facets=plan.facets)
+    v, f = tubes.vertices, tubes.faces
     label = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
-    info = plan.describe()
+    info = plan.describe(joints="miter")
     info["why"] = (
         f"QSM mesh for the scan: {len(f):,} triangles instead of {len(model.faces):,}, "
-        f"each cylinder with the fewest facets (>= {int(plan.facets.min())}) whose sagitta is "
-        f"at most {RUN_LOD_TOLERANCE:g} of the point spacing at the nearest station"
+        f"each branch's tube with the fewest facets (>= {int(plan.facets.min())}) whose "
+        f"sagitta is at most {RUN_LOD_TOLERANCE:g} of the point spacing at the nearest "
+        "station on every cylinder of it"
     )
     return scene, info
 

@@ -43,6 +43,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         f"compared {cloud_path.name} ({step.details['points']:,} points, spacing "
         f"{length(result.point_spacing_m)}) with {Path(args.reference).name} ({what})"
     )
+    hidden = ref.get("hidden_surface")
+    if hidden and hidden["samples_dropped"]:
+        print(
+            f"hidden surface left out: {hidden['area_m2']:.3g} m² ({percent(hidden['area_share'])}"
+            f", {hidden['samples_dropped']:,} samples) inside other closed parts of the mesh "
+            f"({hidden['closed_parts']:,} closed of {hidden['parts']:,})"
+        )
     head = "".join(f"{h:>9}" for h in ("mean", "RMS", "median", "p95", "p99", "max"))
     print(f"{'(mm)':<14}{'n':>11}{head}")
     for name, st in (("accuracy", result.accuracy), ("completeness", result.completeness)):

@@ -7,9 +7,12 @@ At the bottom of the package, beside ``cloud``, ``frame`` and ``io``: it imports
 * :mod:`~pipeline.geometry.triangles`: exact point-to-triangle and point-to-mesh distances,
   and the triangles around vertices;
 * :mod:`~pipeline.geometry.sampling`: area-uniform sampling of a mesh surface;
+* :mod:`~pipeline.geometry.hidden`: a mesh's closed parts, and which points on it lie
+  inside another closed part (surface no scanner outside can see);
 * :mod:`~pipeline.geometry.spacing`: a cloud's nearest-neighbour spacing, k-d trees.
 """
 
+from .hidden import MeshParts, inside_other_parts, mesh_parts
 from .sampling import sample_surface
 from .spacing import kdtree, point_spacing
 from .triangles import (
@@ -21,8 +24,11 @@ from .triangles import (
 )
 
 __all__ = [
+    "MeshParts",
     "closest_points_on_triangles",
+    "inside_other_parts",
     "kdtree",
+    "mesh_parts",
     "point_spacing",
     "point_to_mesh_distances",
     "sample_surface",

@@ -4,6 +4,8 @@
   SimpleForest, treesim CSV), validated, measured and written;
 * :mod:`.mesh`: tables as triangle meshes, a closed prism per cylinder or a closed,
   mitred tube per branch (:func:`tubes_to_mesh`);
+* :mod:`.junctions`: QSM tables meshed with closed junctions, each branch's tube
+  starting inside its parent (:func:`branch_tubes`, :func:`sink_branches`);
 * :mod:`.lod`: level of detail, facets per cylinder from the point spacing a scanner
   gets at it (:func:`lod_facets`, :func:`plan_lod`);
 * :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`SPECIES`) whose
@@ -22,6 +24,7 @@ from .cylinders import (
     read_cylinders,
     write_cylinders,
 )
+from .junctions import SunkTable, branch_tubes, sink_branches
 from .lod import LOD_MIN_FACETS, LOD_TOLERANCE, LodPlan, lod_facets, plan_lod
 from .mesh import (
     JOINTS,
@@ -65,8 +68,10 @@ __all__ = [
     "LodPlan",
     "ProceduralTree",
     "StemLevel",
+    "SunkTable",
     "TreeParams",
     "TubeMesh",
+    "branch_tubes",
     "cylinder_mesh",
     "cylinders_to_mesh",
     "faces_per_cylinder",
@@ -79,6 +84,7 @@ __all__ = [
     "species_preset",
     "read_cylinders",
     "shape_ratio",
+    "sink_branches",
     "tubes_to_mesh",
     "vertices_per_cylinder",
     "write_cylinders",

@@ -7,7 +7,10 @@ from dataclasses import dataclass
 from ..errors import InvalidParameterError
 from ._fields import check_bounds, param
 
-__all__ = ["CompareParams", "ReportParams"]
+__all__ = ["HIDDEN_SURFACE", "CompareParams", "ReportParams"]
+
+#: What a comparison does with mesh surface inside another closed part of the same mesh.
+HIDDEN_SURFACE = ("drop", "keep")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -30,6 +33,11 @@ class CompareParams:
         them; the effective spacing is reported).
     spacing_subsample : int
         Points used to estimate the cloud's median spacing (all if fewer).
+    hidden_surface : {"drop", "keep"}
+        Mesh references: surface samples inside another closed part of the same mesh
+        (buried end caps, branch bases inside their parents), which no scanner outside
+        can see, are left out of completeness and coverage (``drop``, and their area is
+        reported) or kept (``keep``).
     nthreads : int
         Threads for Open3D and the k-d tree queries (0: all cores).
     """
@@ -55,6 +63,12 @@ class CompareParams:
     )
     spacing_subsample: int = param(
         50_000, help="points used to estimate the cloud's median spacing", ge=2
+    )
+    hidden_surface: str = param(
+        "drop",
+        help="mesh surface inside another closed part of the same mesh (buried caps, branch "
+        "bases inside their parents): drop it from the samples, or keep it",
+        choices=HIDDEN_SURFACE,
     )
     nthreads: int = param(
         0,

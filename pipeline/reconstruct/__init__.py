@@ -3,8 +3,10 @@
 ``reconstruct(cloud, ReconstructParams(method=...))`` prepares the cloud (validation,
 voxel downsampling, outlier removal, optional ground removal, normals), then builds
 
-* ``qsm`` (default): a cylinder QSM (:mod:`pipeline.reconstruct.qsm`), meshed as
-  closed frusta labelled wood;
+* ``qsm`` (default): a cylinder QSM (:mod:`pipeline.reconstruct.qsm`), meshed as one
+  closed, mitred tube per branch whose start is sunk into its parent
+  (:func:`pipeline.models.branch_tubes`: no buried end caps between a branch's
+  cylinders, no notches at bends or junctions), labelled wood;
 * ``poisson``: a screened Poisson surface (pymeshlab, in a child process), trimmed by
   density;
 * ``bpa``: a ball-pivoting surface (pymeshlab, in a child process).
@@ -27,7 +29,7 @@ import numpy as np
 from ..cloud import LABEL_CODES, Cloud
 from ..errors import ReconstructionError
 from ..jsonio import write_json
-from ..models import CylinderTable, cylinders_to_mesh, mesh_volume, write_cylinders
+from ..models import CylinderTable, branch_tubes, mesh_volume, write_cylinders
 from ..params import METHODS, PrepareParams, QSMParams, ReconstructParams
 
 if TYPE_CHECKING:  # the stages import scipy: loaded when a reconstruction runs, so that
@@ -73,7 +75,10 @@ class TreeModel:
     figures : dict
         ``dbh_m``, ``height_m``, ``volume_total_m3``, ``volume_stem_m3``,
         ``volume_branch_m3``, ``n_cylinders``, ``watertight``, ``n_triangles``,
-        ``branches_per_order``, crown extent, ``leaves_present``...
+        ``branches_per_order``, crown extent, ``leaves_present``... For qsm the volumes
+        are the cylinder table's; ``mesh_volume_m3`` is the mesh's (its closed tubes'
+        volumes summed: the table's inscribed prisms plus ``junction_volume_m3``, the
+        branch starts sunk into their parents), ``n_tubes`` its closed pieces.
     preparation : dict
         What preparation did (points removed per step, spacing).
     params : dict
@@ -261,7 +266,8 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
     table = replace(res.table, start=res.table.start + origin)
     table.validate()
     t0 = time.perf_counter()
-    v, f = cylinders_to_mesh(table, facets=params.facets)
+    tubes, sunk = branch_tubes(table, facets=params.facets)
+    v, f = tubes.vertices, tubes.faces
     t_mesh = time.perf_counter() - t0
     s = table.summary()
     base_z = float(prepared.points[:, 2].min())
@@ -279,7 +285,9 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
         "branches_per_order": s["branches_per_order"],
         "watertight": _edge_watertight(f),
         "n_triangles": int(len(f)),
+        "n_tubes": tubes.n_tubes,
         "mesh_volume_m3": float(mesh_volume(v, f)),
+        "junction_volume_m3": sunk.plug_volume_m3(params.facets),
         "cylinders_by_tag": res.diagnostics["cylinders_by_tag"],
         "noise_sd_m": res.diagnostics["noise"]["sd_m"],
         **_crown(prepared.points, base_z, crown_base),
@@ -295,7 +303,15 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
         preparation=prepared.summary(),
         params=params.to_dict(),
         timings_s={"mesh": t_mesh},
-        diagnostics=res.diagnostics,
+        diagnostics={
+            **res.diagnostics,
+            "mesh": {
+                "joints": "miter",
+                "tubes": tubes.n_tubes,
+                "branch_starts": sunk.branch_starts,
+                "branch_starts_sunk": sunk.n_plugs,
+            },
+        },
     )
 
 

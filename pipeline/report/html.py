@@ -301,6 +301,19 @@ def _parameter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
                 f"({ref.get('degenerate_triangles_dropped', 0)} degenerate dropped)",
             )
         )
+        hid = ref.get("hidden_surface")
+        if isinstance(hid, dict):
+            rows.append(
+                (
+                    "hidden surface dropped",
+                    f"{hid.get('area_m2', 0.0):.4g} m² ± {hid.get('area_se_m2', 0.0):.2g} "
+                    f"({percent(hid.get('area_share'))}; {hid.get('samples_dropped', 0):,} of "
+                    f"{hid.get('samples_drawn', 0):,} samples): "
+                    f"{escape(str(hid.get('why', '')))} "
+                    f"({hid.get('closed_parts', 0):,} closed parts of "
+                    f"{hid.get('parts', 0):,})",
+                )
+            )
         rows.append(
             (
                 "surface samples",

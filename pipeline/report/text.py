@@ -109,6 +109,20 @@ def _tiny(x: float | None) -> str:
     return length(x)
 
 
+def hidden_sentence(summary: dict[str, Any]) -> str:
+    """What a mesh comparison left out as hidden surface, and why ("" when nothing)."""
+    ref = summary.get("reference", {})
+    hid = ref.get("hidden_surface")
+    if not isinstance(hid, dict) or not hid.get("samples_dropped"):
+        return ""
+    return (
+        f"{hid['area_m2']:.3g} m² ({percent(hid.get('area_share'))}) of the mesh's "
+        f"{ref.get('area_m2', 0.0):.3g} m² lies inside other closed parts of it (buried "
+        f"end caps, branch bases inside their parents), where no scanner can see; it is "
+        f"left out of completeness and coverage."
+    )
+
+
 def summary_paragraph(summary: dict[str, Any]) -> str:
     """One plain-language paragraph from a comparison's figures (no markup)."""
     acc = summary["accuracy"]
@@ -141,6 +155,9 @@ def summary_paragraph(summary: dict[str, Any]) -> str:
             f"{percent(1 - cov)} lies farther than τ from every point (occluded, or outside "
             f"the scanners' view), the farthest part {length(comp['max_m'])} away."
         )
+    hidden = hidden_sentence(summary)
+    if hidden:
+        parts.append(hidden)
     labels = {
         k: v
         for k, v in summary.get("by_label", {}).items()

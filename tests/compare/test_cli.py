@@ -68,7 +68,12 @@ def test_compare_writes_comparison_json(half_cylinder, tmp_path, capsys):
     assert 0.4 < summary["coverage"] < 0.6  # half the surface is missing
     assert summary["accuracy"]["max_m"] < 1e-4  # LAZ stores 0.1 mm steps
     assert summary["reference"]["kind"] == "mesh"
+    # an open mesh hides nothing: checked, nothing dropped, nothing said
+    hidden = summary["reference"]["hidden_surface"]
+    assert (hidden["parts"], hidden["closed_parts"], hidden["samples_dropped"]) == (1, 0, 0)
+    assert "hidden surface" not in printed
     assert summary["parameters"]["seed"] == 3
+    assert summary["parameters"]["hidden_surface"] == "drop"
     assert summary["parameters"]["tolerance_rule"] == "3 × point_spacing_m"
     assert set(summary["by_station"]) == {"0", "1"}
     assert "wood" in summary["by_label"]

@@ -39,6 +39,27 @@ def test_reconstruct_bundled_coffee_tree_writes_every_output(tmp_path, capsys):
     assert tree["n_cylinders"] > 100 and tree["watertight"] is True
     assert (tmp_path / "tree.ply").stat().st_size > 0
     assert (tmp_path / "cylinders.csv").read_text().startswith("radius,length,start_x")
+    # the mesh: one closed tube per branch (or per run between sharp bends), every branch
+    # start sunk into its parent; its volume is the table's prisms plus those plugs
+    from pipeline.geometry import mesh_parts
+    from pipeline.io import load_scene
+    from pipeline.models import mesh_volume, read_cylinders
+
+    scene = load_scene([tmp_path / "tree.ply"])
+    parts = mesh_parts(scene.vertices, scene.faces)
+    table = read_cylinders(tmp_path / "cylinders.csv")
+    branches = len(np.unique(table.branch))
+    assert parts.n_parts == parts.n_closed == tree["n_tubes"] >= branches
+    mesh = tree["diagnostics"]["mesh"]
+    assert mesh["branch_starts"] == branches - 1
+    assert mesh["branch_starts_sunk"] >= 0.9 * mesh["branch_starts"]  # 67 of 67 measured
+    facets = tree["params"]["facets"]
+    prisms = float(table.prism_volume_m3(facets).sum())
+    assert 0 < tree["junction_volume_m3"] < 0.05 * prisms
+    assert tree["mesh_volume_m3"] == pytest.approx(
+        mesh_volume(scene.vertices, scene.faces), rel=1e-9
+    )
+    assert tree["mesh_volume_m3"] == pytest.approx(prisms + tree["junction_volume_m3"], rel=1e-6)
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:

@@ -184,9 +184,51 @@ def test_summary_paragraph_known_text():
     assert "Coverage by part: wood 78 %, leaf 45 %." in text
     assert "Station 1 alone covers the most (41 %); all 3 together cover 62 %." in text
     assert "Hausdorff distance is 0.153 m" in text and "Chamfer distance" in text
+    assert "closed parts" not in text
     exact = dict(s, accuracy=dict(s["accuracy"], p95_m=1e-12, max_m=2e-12), coverage=0.999)
     text = summary_paragraph(exact)
     assert "to numerical precision" in text and "practically all" in text
+
+
+def test_hidden_surface_is_reported_with_its_reason():
+    """The dropped area and why: in the summary sentence and the HTML parameter rows."""
+    from pipeline.compare import HIDDEN_WHY
+    from pipeline.report.html import _parameter_rows
+
+    hidden = {
+        "rule": "drop",
+        "why": HIDDEN_WHY,
+        "parts": 497,
+        "closed_parts": 497,
+        "samples_drawn": 100_000,
+        "samples_dropped": 23_400,
+        "area_m2": 0.653,
+        "area_share": 0.234,
+        "area_se_m2": 0.0037,
+        "visible_area_m2": 2.137,
+    }
+    stats = {k: 0.001 for k in ("mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")}
+    s = {
+        "accuracy": {"n": 10, **stats},
+        "completeness": {"n": 76_600, **stats},
+        "hausdorff_m": 0.001,
+        "chamfer_m": 0.001,
+        "tolerance_m": 0.004,
+        "coverage": 0.9,
+        "reference": {"kind": "mesh", "area_m2": 2.79, "hidden_surface": hidden},
+    }
+    assert (
+        "0.653 m² (23.4 %) of the mesh's 2.79 m² lies inside other closed parts of it (buried "
+        "end caps, branch bases inside their parents), where no scanner can see; it is left "
+        "out of completeness and coverage." in summary_paragraph(s)
+    )
+    rows = dict(_parameter_rows(s))
+    assert rows["hidden surface dropped"] == (
+        f"0.653 m² ± 0.0037 (23.4 %; 23,400 of 100,000 samples): {html.escape(HIDDEN_WHY)} "
+        "(497 closed parts of 497)"
+    )
+    none = dict(s, reference=dict(s["reference"], hidden_surface=dict(hidden, samples_dropped=0)))
+    assert "closed parts" not in summary_paragraph(none)
 
 
 def test_length_format():

@@ -303,6 +303,12 @@ def test_lod_auto_scans_a_qsm_mesh_with_facets_from_the_projected_size(sapling_r
     scan = json.loads((result.outdir / "scan.json").read_text())
     assert scan["mesh"] == "scan_mesh.ply" and (result.outdir / "scan_mesh.ply").is_file()
     assert scan["triangles"] == facets["n_triangles"]
+    assert facets["joints"] == "miter"
+    # the scanned mesh is the reconstruction's tubes: its closed parts are those the
+    # comparison with the mesh found, and it left out what lies inside them
+    hidden = run["vs_mesh"]["reference"]["hidden_surface"]
+    assert hidden["parts"] == hidden["closed_parts"] == run["reconstruction"]["n_tubes"]
+    assert 0 < hidden["area_share"] < 0.1
     page = result.report_html.read_text()
     assert "level of detail: facets" in page and "level of detail: rays" in page
 
