@@ -190,7 +190,7 @@ def reconstruct(
     say(0.0, "preparing")
     from .preprocess import prepare
 
-    prepared = prepare(cloud, params.prepare)
+    prepared = prepare(cloud, params.prepare, normals=params.method != "qsm")
     t_prep = time.perf_counter() - t0
     say(0.3, f"reconstructing ({params.method})")
     t1 = time.perf_counter()
@@ -226,7 +226,11 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
     from .qsm import fit_qsm
 
     res: QSMResult = fit_qsm(
-        prepared.points, spacing_m=prepared.spacing_m, weights=prepared.weights, params=params.qsm
+        prepared.points,
+        spacing_m=prepared.spacing_m,
+        weights=prepared.weights,
+        params=params.qsm,
+        neighbors=prepared.neighbors,
     )
     origin = prepared.frame.origin_array
     table = replace(res.table, start=res.table.start + origin)
