@@ -150,6 +150,49 @@ def nearest_neighbors(
     return nb, nearest
 
 
+def _lengths(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Euclidean lengths of the pairs (i, j), computed as ``cKDTree.query`` computes its
+    distances (the same float64 operations in the same order, so the same bits)."""
+    diff = points[i] - points[j]
+    return np.sqrt((diff * diff).sum(axis=-1))
+
+
+def _neighbors_of_kept(
+    points: np.ndarray,
+    neighbors: np.ndarray,
+    keep: np.ndarray,
+    k: int,
+    tree: cKDTree,
+    *,
+    workers: int = 1,
+) -> np.ndarray:
+    """The ``k`` nearest kept points of each kept point, numbered among the kept points.
+
+    ``neighbors`` are the nearest points among all ``points`` (``tree``'s). A kept point
+    whose ``k`` nearest were all kept has the same list among the kept points; the
+    others (those next to a removed point) are searched again, deeper, and their first
+    ``k`` kept neighbours taken: the result of a new search over the kept points, without
+    building its tree or searching every point again.
+    """
+    n_all = len(points)
+    kept = np.flatnonzero(keep)
+    new = np.full(n_all, -1, dtype=neighbors.dtype)
+    new[kept] = np.arange(len(kept), dtype=neighbors.dtype)
+    k = int(min(k, len(kept)))
+    out = new[neighbors[kept, :k]]
+    redo = np.flatnonzero((out < 0).any(axis=1))
+    depth = k
+    while len(redo):
+        depth = int(min(2 * depth, n_all))
+        _, j = tree.query(points[kept[redo]], k=depth, workers=workers)
+        m = new[j.reshape(len(redo), depth)]
+        enough = ((m >= 0).sum(axis=1) >= k) | (depth == n_all)
+        first = np.argsort(m[enough] < 0, axis=1, kind="stable")[:, :k]
+        out[redo[enough]] = np.take_along_axis(m[enough], first, axis=1)
+        redo = redo[~enough]
+    return out
+
+
 # --------------------------------------------------------------------------- parameters
 
 
@@ -362,7 +405,12 @@ def voxel_downsample(
 
 
 def statistical_outliers(
-    points: np.ndarray, neighbors: int, std_ratio: float, *, workers: int = 1
+    points: np.ndarray,
+    neighbors: int,
+    std_ratio: float,
+    *,
+    workers: int = 1,
+    knn: np.ndarray | None = None,
 ) -> np.ndarray:
     """Boolean mask of the points statistical outlier removal keeps.
 
@@ -381,6 +429,9 @@ def statistical_outliers(
         k nearest neighbours (the point itself excluded).
     std_ratio : float
         Threshold in standard deviations above the mean of the mean neighbour distance.
+    knn : (n, >= neighbors + 1) int, optional
+        Each point's nearest points, itself first (:func:`nearest_neighbors`), to use
+        instead of a search.
 
     Returns
     -------
@@ -392,11 +443,17 @@ def statistical_outliers(
         return np.ones(n, dtype=bool)
     # in chunks, neighbours kept as int32: the (n, k) float64 distances and int64
     # indices of one query over the whole cloud were 0.4 GB at 1.4 M points
-    tree = cKDTree(pts)
+    reuse = knn is not None and knn.shape[1] > neighbors
+    tree = None if reuse else cKDTree(pts)
     mean_d = np.empty(n)
     nb = np.empty((n, neighbors), dtype=_index_dtype(n))
     for lo in range(0, n, _CHUNK):
-        d, j = tree.query(pts[lo : lo + _CHUNK], k=neighbors + 1, workers=workers)
+        if reuse:
+            j = knn[lo : lo + _CHUNK, : neighbors + 1]  # type: ignore[index]
+            i = np.arange(lo, lo + len(j))[:, None]
+            d = _lengths(pts, i, j)
+        else:
+            d, j = tree.query(pts[lo : lo + _CHUNK], k=neighbors + 1, workers=workers)  # type: ignore[union-attr]
         mean_d[lo : lo + len(d)] = d[:, 1:].mean(axis=1)
         nb[lo : lo + len(d)] = j[:, 1:]
     del tree
@@ -900,11 +957,24 @@ def prepare(
             _step("voxel_downsample", n0, len(pts), enabled=True, voxel_size_m=params.voxel_size_m)
         )
 
-    # 2. statistical outlier removal
+    # 2. statistical outlier removal; one neighbour search of the thinned cloud serves
+    # it, the spacing, the PCA and the QSM's graph (see step 4)
     n1 = len(pts)
+    k_pca = params.normals_neighbors or 24
+    k_keep = max(KEPT_NEIGHBORS, k_pca)
+    tree = cKDTree(pts)
+    k_search = k_keep if params.sor_std_ratio is None else max(k_keep, params.sor_neighbors + 1)
+    neighbors, nearest = nearest_neighbors(pts, k_search, tree, workers=w)
     if params.sor_std_ratio is not None:
-        keep = statistical_outliers(pts, params.sor_neighbors, params.sor_std_ratio, workers=w)
-        pts, weights = pts[keep], weights[keep]
+        keep = statistical_outliers(
+            pts, params.sor_neighbors, params.sor_std_ratio, workers=w, knn=neighbors
+        )
+        if not keep.all():
+            neighbors = _neighbors_of_kept(pts, neighbors, keep, k_keep, tree, workers=w)
+            nearest = None
+            pts, weights = pts[keep], weights[keep]
+            tree = None
+    neighbors = neighbors[:, :k_keep]
     steps.append(
         _step(
             "outlier_removal",
@@ -918,9 +988,9 @@ def prepare(
 
     # 3. ground removal
     n2 = len(pts)
-    tree = cKDTree(pts)
     ground_info: dict[str, Any] = {}
     if params.remove_ground:
+        tree = cKDTree(pts) if tree is None else tree
         spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
         ground, ground_info = find_ground(
             pts, params.ground_tolerance_m, spacing, tree=tree, workers=w
@@ -928,6 +998,7 @@ def prepare(
         if ground.any():
             pts, weights = pts[~ground], weights[~ground]
             tree = cKDTree(pts)
+            neighbors, nearest = nearest_neighbors(pts, k_keep, tree, workers=w)
     steps.append(
         _step(
             "ground_removal",
@@ -945,10 +1016,10 @@ def prepare(
         )
     validate_tree_cloud(pts, min_points=min(params.min_points, len(pts)))
 
-    # 4. spacing, normals and leaves: one neighbour search serves the spacing (median
-    # nearest-neighbour distance), the PCA and the QSM's graph
-    k_pca = params.normals_neighbors or 24
-    neighbors, nearest = nearest_neighbors(pts, max(KEPT_NEIGHBORS, k_pca), tree, workers=w)
+    # 4. spacing (median nearest-neighbour distance), normals and leaves, from the
+    # neighbours found in step 2
+    if nearest is None:
+        nearest = _lengths(pts, np.arange(len(pts)), neighbors[:, 1])
     spacing = float(np.median(nearest))
     oriented: np.ndarray | None = None
     if params.normals_neighbors is not None and normals:

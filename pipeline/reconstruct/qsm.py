@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError
 from ..models import CylinderTable
 from ..params import QSMParams
-from .preprocess import nearest_neighbors
+from .preprocess import _lengths, nearest_neighbors
 
 
 @dataclass
@@ -59,13 +59,6 @@ class QSMResult:
 _CHUNK = 65536
 #: Neighbours of each point searched for gap-bridging candidates.
 BRIDGE_NEIGHBORS = 24
-
-
-def _lengths(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """Euclidean lengths of the pairs (i, j), computed as ``cKDTree.query`` computes its
-    distances (the same float64 operations in the same order, so the same bits)."""
-    diff = points[i] - points[j]
-    return np.sqrt((diff * diff).sum(axis=-1))
 
 
 def _knn_graph(

@@ -172,3 +172,23 @@ def test_prepare_params_default_neighbours_cover_the_qsm():
 
     assert KEPT_NEIGHBORS >= max(QSMParams().neighbors + 1, BRIDGE_NEIGHBORS)
     assert PrepareParams().normals_neighbors <= KEPT_NEIGHBORS
+
+
+@pytest.mark.parametrize("kept_share", [0.9, 0.3])
+def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_share):
+    keep = np.random.default_rng(7).random(len(clumpy)) < kept_share
+    tree = cKDTree(clumpy)
+    nb, _ = nearest_neighbors(clumpy, 24, tree)
+    got = _preprocess._neighbors_of_kept(clumpy, nb, keep, 24, tree)
+    _, plain = cKDTree(clumpy[keep]).query(clumpy[keep], k=24)
+    assert np.array_equal(got, plain)
+
+
+def test_prepare_with_outliers_removed_keeps_a_plain_search_of_what_is_left(clumpy):
+    rng = np.random.default_rng(5)
+    p = np.concatenate([clumpy, rng.uniform(-2.0, 3.0, (40, 3))])
+    prep = prepare(p, PrepareParams(voxel_size_m=None), normals=False)
+    assert prep.steps[1]["removed"] > 0
+    _, plain = cKDTree(prep.points).query(prep.points, k=24)
+    assert np.array_equal(prep.neighbors, plain)
+    assert prep.spacing_m == point_spacing(prep.points, distinct=False)
