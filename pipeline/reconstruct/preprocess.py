@@ -179,7 +179,9 @@ def _neighbors_of_kept(
     new = np.full(n_all, -1, dtype=neighbors.dtype)
     new[kept] = np.arange(len(kept), dtype=neighbors.dtype)
     k = int(min(k, len(kept)))
-    out = new[neighbors[kept, :k]]
+    out = np.empty((len(kept), k), dtype=neighbors.dtype)
+    for lo in range(0, len(kept), _CHUNK):  # no (n, k) temporary beside the two tables
+        out[lo : lo + _CHUNK] = new[neighbors[kept[lo : lo + _CHUNK], :k]]
     redo = np.flatnonzero((out < 0).any(axis=1))
     depth = k
     while len(redo):
@@ -446,7 +448,7 @@ def statistical_outliers(
     reuse = knn is not None and knn.shape[1] > neighbors
     tree = None if reuse else cKDTree(pts)
     mean_d = np.empty(n)
-    nb = np.empty((n, neighbors), dtype=_index_dtype(n))
+    nb = knn[:, 1 : neighbors + 1] if reuse else np.empty((n, neighbors), _index_dtype(n))  # type: ignore[index]
     for lo in range(0, n, _CHUNK):
         if reuse:
             j = knn[lo : lo + _CHUNK, : neighbors + 1]  # type: ignore[index]
@@ -455,7 +457,8 @@ def statistical_outliers(
         else:
             d, j = tree.query(pts[lo : lo + _CHUNK], k=neighbors + 1, workers=workers)  # type: ignore[union-attr]
         mean_d[lo : lo + len(d)] = d[:, 1:].mean(axis=1)
-        nb[lo : lo + len(d)] = j[:, 1:]
+        if not reuse:
+            nb[lo : lo + len(d)] = j[:, 1:]
     del tree
     threshold = mean_d.mean() + std_ratio * mean_d.std()
     local = np.empty(n)

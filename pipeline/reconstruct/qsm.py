@@ -121,6 +121,17 @@ def _knn_graph(
     return g
 
 
+def _components(g: sparse.csr_matrix) -> tuple[int, np.ndarray]:
+    """``connected_components(g, directed=False)`` of a symmetric ``g``, numbered the same
+    way (by each component's lowest vertex), without SciPy's transposed copy of ``g``:
+    the strong components of ``g`` as a directed graph are the same sets."""
+    m, lab = connected_components(g, directed=True, connection="strong")
+    first = np.unique(lab, return_index=True)[1]  # lowest vertex of each label
+    rank = np.empty(m, dtype=lab.dtype)
+    rank[np.argsort(first, kind="stable")] = np.arange(m, dtype=lab.dtype)
+    return m, rank[lab]
+
+
 def _roots(parent: np.ndarray) -> np.ndarray:
     """The union-find root of every element (pointer jumping, vectorised)."""
     root = parent.copy()
@@ -143,7 +154,7 @@ def _bridge(
     neighbour table.
     """
     n = len(points)
-    ncomp, labels = connected_components(g, directed=False)
+    ncomp, labels = _components(g)
     if ncomp == 1:
         return g, 0
     k = min(BRIDGE_NEIGHBORS, n)
@@ -396,7 +407,7 @@ def fit_qsm(
     same = sl[row] == sl[g.indices]
     gs = sparse.coo_matrix((g.data[same], (row[same], g.indices[same])), shape=g.shape)
     del g, row, same
-    m, cl = connected_components(gs, directed=False)
+    m, cl = _components(gs)  # gs is symmetric too
     del gs
     # parent cluster by predecessor votes
     has_pred = pred >= 0

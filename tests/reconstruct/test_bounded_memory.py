@@ -192,3 +192,13 @@ def test_prepare_with_outliers_removed_keeps_a_plain_search_of_what_is_left(clum
     _, plain = cKDTree(prep.points).query(prep.points, k=24)
     assert np.array_equal(prep.neighbors, plain)
     assert prep.spacing_m == point_spacing(prep.points, distinct=False)
+
+
+@pytest.mark.parametrize("link_m", [0.01, 0.03])
+def test_components_of_the_symmetric_graph_are_numbered_as_scipy_numbers_them(clumpy, link_m):
+    nb, _ = nearest_neighbors(clumpy, 24)
+    g = _knn_graph(clumpy, nb, 10, link_m)
+    m, labels = _qsm._components(g)
+    m_ref, labels_ref = connected_components(g, directed=False)
+    assert m == m_ref > 1
+    assert np.array_equal(labels, labels_ref)
