@@ -24,9 +24,21 @@ Measures, in one run (issue 5's Benchmark section):
    is the larger of the two maxima. For ``qsm`` also the error of the total volume
    (cylinder table, and the closed mesh's enclosed volume) against the generator's truth.
 
-Usage: ``python benchmarks/bench_reconstruct.py [--quick]`` (``--quick``: two real
-trees, fewer settings). Prints measured figures and ratios only; about 3 minutes in full
-and under 1 minute with ``--quick`` on 2 cores (measured: 182 s and 47 s).
+4. **Points scaling** (issue 13): the ``old-tupelo`` preset (leaf-off, 29.6 m) scanned
+   with the RIEGL VZ-400's noise model (3 mm range noise, 0.0005° jitter) from three
+   stations, at the angular resolutions that give about 100k, 500k, 1.5 M and 5 M points
+   (``--quick``: 100k and 500k; 0.04° gives about 0.71 M, and the count goes with the
+   inverse square of the step). Each size runs ``reconstruct()`` (qsm, default
+   parameters) in a fresh child process: wall time, CPU time (user + system) and peak
+   RSS (``ru_maxrss`` of the child), then the fitted log-log slope of each against the
+   number of points (1: linear). Target: the 1.44 M-point cloud under 50 s and 1 GB.
+
+Usage: ``python benchmarks/bench_reconstruct.py [--quick] [--sections ...]``
+(``--quick``: two real trees, fewer settings and sizes; ``--sections scaling`` runs only
+section 4). Prints measured figures and ratios only; sections 1-3 take about 3 minutes in
+full and under 1 minute with ``--quick`` on 2 cores (measured: 182 s and 47 s); section 4
+about 3 minutes in full, the 5 M scan and reconstruction most of it (measured: 180 s at
+load average 1-2) and about 1 minute with ``--quick``.
 """
 
 from __future__ import annotations
@@ -57,6 +69,13 @@ REAL = [
 ]
 METHODS = ("qsm", "poisson", "bpa")
 TARGET_POINTS = 100_000
+SCALING_POINTS = (100_000, 500_000, 1_500_000, 5_000_000)
+SCALING_POINTS_QUICK = (100_000, 500_000)
+SCALING_PRESET = "old-tupelo"
+SCALING_INSTRUMENT = "riegl-vz400"
+SCALING_TARGET_S = 50.0
+SCALING_TARGET_MIB = 1024.0
+SECTIONS = ("real", "100k", "curve", "scaling")
 TARGET_QSM_S = 30.0
 CURVE_RES_DEG = 0.04
 SAMPLE_SPACING_M = 0.002
@@ -152,6 +171,8 @@ def child(source: str, method: str, write_to: str = "") -> None:
         out["timings_s"] = model.timings_s
     except Exception as e:  # reported in the table, not raised
         out["error"] = f"{type(e).__name__}: {e}"
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    out["cpu_s"] = usage.ru_utime + usage.ru_stime
     out["rss_self_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out["rss_children_mib"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     print(json.dumps(out, default=float))
@@ -400,10 +421,119 @@ def curve(quick: bool) -> None:
     )
 
 
+def instrument_points(scene, stations, res_deg: float) -> np.ndarray:
+    """Points of a scan at ``res_deg`` with the scaling instrument's noise model."""
+    from pipeline.params.scanner import instrument
+    from pipeline.scan import scan
+
+    spec = instrument(SCALING_INSTRUMENT).spec(
+        noise=True, horizontal_resolution_deg=res_deg, vertical_resolution_deg=res_deg
+    )
+    return scan(scene, stations, spec).cloud.points
+
+
+def log_slope(x: list[float], y: list[float]) -> float | None:
+    """Least-squares slope of log(y) against log(x) (None with fewer than two sizes)."""
+    if len(x) < 2:
+        return None
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+def scaling(quick: bool) -> None:
+    sizes = SCALING_POINTS_QUICK if quick else SCALING_POINTS
+    print(
+        f"\n== 4. points scaling: {SCALING_PRESET} (leaf-off) scanned with the "
+        f"{SCALING_INSTRUMENT} noise model from 3 stations, qsm in a fresh child per size"
+    )
+    tree, scene, stations = preset_scene(SCALING_PRESET)
+    ref_res = 0.04
+    n_ref = len(instrument_points(scene, stations, ref_res))
+    print(f"{SCALING_PRESET}: {n_ref:,} points at {ref_res}°; resolution per size from that")
+    rows, done = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for target in sizes:
+            res = ref_res * (n_ref / target) ** 0.5
+            t0 = time.perf_counter()
+            pts = instrument_points(scene, stations, res)
+            scan_s = time.perf_counter() - t0
+            src = Path(tmp) / "cloud.npy"
+            np.save(src, pts)
+            n = len(pts)
+            del pts
+            r = run_child(src, "qsm")
+            if "error" in r:
+                rows.append([f"{n:,}", f"{res:.4f}", fmt(scan_s), *["-"] * 8, "error"])
+                print(f"failed at {n:,} points: {r['error']}")
+                continue
+            f, ts = r["figures"], r["timings_s"]
+            done.append((n, r["reconstruct_s"], r["cpu_s"], r["rss_self_mib"]))
+            rows.append(
+                [
+                    f"{n:,}",
+                    f"{res:.4f}",
+                    fmt(scan_s),
+                    f"{f['points_used']:,}",
+                    fmt(ts["prepare"]),
+                    fmt(ts["reconstruct"] - ts.get("mesh", 0.0)),
+                    fmt(r["reconstruct_s"]),
+                    fmt(r["cpu_s"]),
+                    fmt(r["rss_self_mib"], digits=0),
+                    fmt(f["dbh_m"], 100),
+                    fmt(f["volume_total_m3"], 1000, 0),
+                    f"{f['n_cylinders']:,}",
+                ]
+            )
+    table(
+        [
+            "points",
+            "step (°)",
+            "scan (s)",
+            "points used",
+            "prepare (s)",
+            "QSM + mesh (s)",
+            "reconstruct (s)",
+            "child CPU (s)",
+            "peak RSS (MiB)",
+            "DBH (cm)",
+            "volume (L)",
+            "cylinders",
+        ],
+        rows,
+    )
+    n, secs, cpu, mib = (list(c) for c in zip(*done, strict=True)) if done else ([], [], [], [])
+    slopes = [log_slope(n, y) for y in (secs, cpu, mib)]
+    print(
+        "log-log slope against points: reconstruct time "
+        + ", CPU time ".join(fmt(sl) for sl in slopes[:2])
+        + f", peak RSS {fmt(slopes[2])} (1 = linear)"
+    )
+    near = [d for d in done if 1_000_000 <= d[0] <= 2_000_000]
+    for n_i, s_i, c_i, m_i in near:
+        print(
+            f"{n_i:,} points: {s_i:.1f} s ({s_i / SCALING_TARGET_S:.2f} of the "
+            f"{SCALING_TARGET_S:.0f} s target), peak RSS {m_i:.0f} MiB "
+            f"({m_i / SCALING_TARGET_MIB:.2f} of {SCALING_TARGET_MIB:.0f} MiB); CPU {c_i:.1f} s"
+        )
+    print(
+        "reconstruct (s): reconstruct() in the child, preparation included (the wall time, "
+        "which a busy machine inflates; child CPU is user + system time of the whole child, "
+        "reading and imports included); peak RSS: the child's ru_maxrss."
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer trees and settings")
+    ap.add_argument("--quick", action="store_true", help="fewer trees, settings and sizes")
+    ap.add_argument(
+        "--sections",
+        default=",".join(SECTIONS),
+        help=f"comma-separated sections to run, of {', '.join(SECTIONS)} (default: all)",
+    )
     args = ap.parse_args()
+    chosen = [x.strip() for x in args.sections.split(",") if x.strip()]
+    unknown = sorted(set(chosen) - set(SECTIONS))
+    if unknown:
+        ap.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     print(
         f"machine: {cores} cores usable ({os.cpu_count()} online), load average "
@@ -411,9 +541,10 @@ def main() -> None:
         + ("; --quick" if args.quick else "")
     )
     t0 = time.perf_counter()
-    real_trees(args.quick)
-    hundred_k(args.quick)
-    curve(args.quick)
+    runs = {"real": real_trees, "100k": hundred_k, "curve": curve, "scaling": scaling}
+    for name in SECTIONS:
+        if name in chosen:
+            runs[name](args.quick)
     print(f"\nbenchmark wall time: {time.perf_counter() - t0:.0f} s")
 
 

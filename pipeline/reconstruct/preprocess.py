@@ -54,6 +54,7 @@ __all__ = [
     "estimate_normals",
     "find_ground",
     "leaf_measure",
+    "nearest_neighbors",
     "prepare",
     "validate_tree_cloud",
     "voxel_downsample",
@@ -100,6 +101,99 @@ LEAF_PRESENT_FRACTION = 0.25
 #: Points processed at a time in neighbourhood computations (bounds temporary memory).
 _CHUNK = 32768
 
+#: Neighbours per point that :func:`prepare` finds once and keeps
+#: (:attr:`PreparedCloud.neighbors`): the PCA's ``normals_neighbors`` (24 by default)
+#: and the QSM's graph (``neighbors + 1``) and gap bridging (24) read them instead of
+#: searching the cloud again.
+KEPT_NEIGHBORS = 24
+
+
+def _index_dtype(n: int) -> type:
+    """The narrowest integer type that indexes ``n`` points (int32 below 2**31)."""
+    return np.int32 if n < 2**31 - 1 else np.int64
+
+
+def nearest_neighbors(
+    points: np.ndarray, k: int, tree: cKDTree | None = None, *, workers: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest points of every point (itself included), searched in chunks.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    k : int
+        Neighbours per point, the point itself included (at most ``n`` are returned).
+    tree : cKDTree, optional
+        A tree already built on ``points``.
+
+    Returns
+    -------
+    neighbors : (n, min(k, n)) int32 (int64 past 2**31 points)
+        Row indices sorted by distance, as ``cKDTree.query`` returns them (the point
+        itself first unless it has a duplicate).
+    nearest_m : (n,) float64
+        Distance to the nearest other row (the second column's distance): its median is
+        :func:`~pipeline.geometry.point_spacing` with ``distinct=False``.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    n = len(pts)
+    tree = cKDTree(pts) if tree is None else tree
+    k = int(min(k, n))
+    nb = np.empty((n, k), dtype=_index_dtype(n))
+    nearest = np.zeros(n)
+    for lo in range(0, n, _CHUNK):
+        d, j = tree.query(pts[lo : lo + _CHUNK], k=k, workers=workers)
+        d, j = d.reshape(len(d), k), j.reshape(len(d), k)
+        nb[lo : lo + len(d)] = j
+        if k > 1:
+            nearest[lo : lo + len(d)] = d[:, 1]
+    return nb, nearest
+
+
+def _lengths(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Euclidean lengths of the pairs (i, j), computed as ``cKDTree.query`` computes its
+    distances (the same float64 operations in the same order, so the same bits)."""
+    diff = points[i] - points[j]
+    return np.sqrt((diff * diff).sum(axis=-1))
+
+
+def _neighbors_of_kept(
+    points: np.ndarray,
+    neighbors: np.ndarray,
+    keep: np.ndarray,
+    k: int,
+    tree: cKDTree,
+    *,
+    workers: int = 1,
+) -> np.ndarray:
+    """The ``k`` nearest kept points of each kept point, numbered among the kept points.
+
+    ``neighbors`` are the nearest points among all ``points`` (``tree``'s). A kept point
+    whose ``k`` nearest were all kept has the same list among the kept points; the
+    others (those next to a removed point) are searched again, deeper, and their first
+    ``k`` kept neighbours taken: the result of a new search over the kept points, without
+    building its tree or searching every point again.
+    """
+    n_all = len(points)
+    kept = np.flatnonzero(keep)
+    new = np.full(n_all, -1, dtype=neighbors.dtype)
+    new[kept] = np.arange(len(kept), dtype=neighbors.dtype)
+    k = int(min(k, len(kept)))
+    out = np.empty((len(kept), k), dtype=neighbors.dtype)
+    for lo in range(0, len(kept), _CHUNK):  # no (n, k) temporary beside the two tables
+        out[lo : lo + _CHUNK] = new[neighbors[kept[lo : lo + _CHUNK], :k]]
+    redo = np.flatnonzero((out < 0).any(axis=1))
+    depth = k
+    while len(redo):
+        depth = int(min(2 * depth, n_all))
+        _, j = tree.query(points[kept[redo]], k=depth, workers=workers)
+        m = new[j.reshape(len(redo), depth)]
+        enough = ((m >= 0).sum(axis=1) >= k) | (depth == n_all)
+        first = np.argsort(m[enough] < 0, axis=1, kind="stable")[:, :k]
+        out[redo[enough]] = np.take_along_axis(m[enough], first, axis=1)
+        redo = redo[~enough]
+    return out
+
 
 # --------------------------------------------------------------------------- parameters
 
@@ -132,6 +226,11 @@ class PreparedCloud:
         Points in the input cloud.
     params : PrepareParams
         The parameters used.
+    neighbors : (n, k) int32 or None
+        Each point's ``k = max(KEPT_NEIGHBORS, normals_neighbors)`` nearest points (itself
+        first), sorted by distance (:func:`nearest_neighbors`); the QSM builds its graph
+        from them instead of searching the cloud again. ``None`` on a cloud built by
+        hand.
     """
 
     frame: LocalFrame
@@ -144,6 +243,7 @@ class PreparedCloud:
     leaf_fraction: float
     n_input: int
     params: PrepareParams = field(default_factory=PrepareParams)
+    neighbors: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -307,7 +407,12 @@ def voxel_downsample(
 
 
 def statistical_outliers(
-    points: np.ndarray, neighbors: int, std_ratio: float, *, workers: int = 1
+    points: np.ndarray,
+    neighbors: int,
+    std_ratio: float,
+    *,
+    workers: int = 1,
+    knn: np.ndarray | None = None,
 ) -> np.ndarray:
     """Boolean mask of the points statistical outlier removal keeps.
 
@@ -326,6 +431,9 @@ def statistical_outliers(
         k nearest neighbours (the point itself excluded).
     std_ratio : float
         Threshold in standard deviations above the mean of the mean neighbour distance.
+    knn : (n, >= neighbors + 1) int, optional
+        Each point's nearest points, itself first (:func:`nearest_neighbors`), to use
+        instead of a search.
 
     Returns
     -------
@@ -335,10 +443,27 @@ def statistical_outliers(
     n = len(pts)
     if n <= neighbors:
         return np.ones(n, dtype=bool)
-    dist, idx = cKDTree(pts).query(pts, k=neighbors + 1, workers=workers)
-    mean_d = dist[:, 1:].mean(axis=1)
+    # in chunks, neighbours kept as int32: the (n, k) float64 distances and int64
+    # indices of one query over the whole cloud were 0.4 GB at 1.4 M points
+    reuse = knn is not None and knn.shape[1] > neighbors
+    tree = None if reuse else cKDTree(pts)
+    mean_d = np.empty(n)
+    nb = knn[:, 1 : neighbors + 1] if reuse else np.empty((n, neighbors), _index_dtype(n))  # type: ignore[index]
+    for lo in range(0, n, _CHUNK):
+        if reuse:
+            j = knn[lo : lo + _CHUNK, : neighbors + 1]  # type: ignore[index]
+            i = np.arange(lo, lo + len(j))[:, None]
+            d = _lengths(pts, i, j)
+        else:
+            d, j = tree.query(pts[lo : lo + _CHUNK], k=neighbors + 1, workers=workers)  # type: ignore[union-attr]
+        mean_d[lo : lo + len(d)] = d[:, 1:].mean(axis=1)
+        if not reuse:
+            nb[lo : lo + len(d)] = j[:, 1:]
+    del tree
     threshold = mean_d.mean() + std_ratio * mean_d.std()
-    local = np.median(mean_d[idx[:, 1:]], axis=1)
+    local = np.empty(n)
+    for lo in range(0, n, _CHUNK):
+        local[lo : lo + _CHUNK] = np.median(mean_d[nb[lo : lo + _CHUNK]], axis=1)
     sparse_but_consistent = (mean_d <= SOR_LOCAL_RATIO * local) & (
         mean_d <= SOR_MAX_SPARSITY * np.median(mean_d)
     )
@@ -355,8 +480,10 @@ def _local_frames(
     rows: np.ndarray | None = None,
     *,
     workers: int = 1,
+    neighbors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """PCA of the k-neighbourhoods of the points ``rows`` (default all).
+    """PCA of the k-neighbourhoods of the points ``rows`` (default all); ``neighbors``
+    (from :func:`nearest_neighbors`, at least ``k`` columns) saves the search.
 
     Returns
     -------
@@ -370,15 +497,19 @@ def _local_frames(
         Unit eigenvectors of the largest eigenvalue (the local line direction).
     """
     pts = np.asarray(points, dtype=np.float64)
-    tree = cKDTree(pts) if tree is None else tree
     k = int(min(k, len(pts)))
+    reuse = neighbors is not None and neighbors.shape[1] >= k
+    tree = cKDTree(pts) if tree is None and not reuse else tree
     rows = np.arange(len(pts)) if rows is None else np.asarray(rows)
     m = len(rows)
     evals, normals = np.empty((m, 3)), np.empty((m, 3))
     centroids, major = np.empty((m, 3)), np.empty((m, 3))
     for lo in range(0, m, _CHUNK):
         r = rows[lo : lo + _CHUNK]
-        _, idx = tree.query(pts[r], k=k, workers=workers)
+        if reuse:
+            idx = neighbors[r, :k]  # type: ignore[index]
+        else:
+            _, idx = tree.query(pts[r], k=k, workers=workers)
         nb = pts[idx.reshape(len(r), k)]
         c = nb.mean(axis=1)
         nb = nb - c[:, None, :]
@@ -396,9 +527,12 @@ def _local_pca(
     rows: np.ndarray | None = None,
     *,
     workers: int = 1,
+    neighbors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (ascending) and unit smallest-eigenvalue vectors of k-neighbourhoods."""
-    evals, normals, _, _ = _local_frames(points, k, tree, rows, workers=workers)
+    evals, normals, _, _ = _local_frames(
+        points, k, tree, rows, workers=workers, neighbors=neighbors
+    )
     return evals, normals
 
 
@@ -498,16 +632,21 @@ def _estimate_normals(
     axis_points: np.ndarray | None = None,
     spacing_m: float | None = None,
     workers: int = 1,
+    tree: cKDTree | None = None,
+    neighbors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`estimate_normals`, also returning the k-neighbourhood eigenvalues (ascending)
-    and the plain (unoriented) PCA normals."""
+    and the plain (unoriented) PCA normals; ``tree`` and ``neighbors`` (built on
+    ``points``) save searches."""
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 3:
         raise EmptyInputError(f"normals need at least 3 points, got {len(pts)}")
     if int(k) != k or k < 3:
         raise InvalidParameterError(f"k must be an integer >= 3, got {k}")
-    tree = cKDTree(pts)
-    evals, normals, centroids, major = _local_frames(pts, int(k), tree, workers=workers)
+    tree = cKDTree(pts) if tree is None else tree
+    evals, normals, centroids, major = _local_frames(
+        pts, int(k), tree, workers=workers, neighbors=neighbors
+    )
     pca_normals = normals.copy()
     if axis_points is not None:
         axis = np.asarray(axis_points, dtype=np.float64).reshape(-1, 3)
@@ -557,8 +696,11 @@ def _estimate_normals(
     if unsure.any() and (~unsure).any():
         kk = int(min(k, len(pts)))
         rows = np.flatnonzero(unsure)
-        _, nb = tree.query(pts[rows], k=kk, workers=workers)
-        nb = nb.reshape(len(rows), kk)
+        if neighbors is not None and neighbors.shape[1] >= kk:
+            nb = neighbors[rows, :kk]
+        else:
+            _, nb = tree.query(pts[rows], k=kk, workers=workers)
+            nb = nb.reshape(len(rows), kk)
         conf = np.where(unsure, 0.0, score)
         for _ in range(8):
             agree = np.einsum("nkd,nd->nk", normals[nb], normals[rows])
@@ -733,16 +875,24 @@ def leaf_measure(
     else:  # 1 on a clean surface or line, 0 where the neighbourhood is a ball of noise
         ev = np.clip(np.asarray(evals, dtype=np.float64), 0.0, None)
         trust = np.clip(1.0 - 3.0 * ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300), 0.0, 1.0)
-    outer = (np.einsum("ni,nj->nij", nrm, nrm) * trust[:, None, None]).reshape(-1, 9)
-    sums = np.stack([np.bincount(inv, weights=outer[:, c], minlength=m) for c in range(9)], 1)
+    # per cell, the sum of trust-weighted n nᵀ: six distinct entries, each one bincount
+    # over (n,) temporaries (the (n, 3, 3) products took 0.5 GB at 1.4 M points)
+    sums = np.empty((m, 9))
+    for a in range(3):
+        for b in range(a, 3):
+            col = np.bincount(inv, weights=nrm[:, a] * nrm[:, b] * trust, minlength=m)
+            sums[:, 3 * a + b] = sums[:, 3 * b + a] = col
     counts = np.bincount(inv, weights=trust, minlength=m)
     sums = np.vstack([sums, np.zeros((1, 9))])
     counts = np.append(counts, 0.0)
     k = int(min(64, m))
     _, j = cKDTree(cent).query(cent, k=k, distance_upper_bound=radius, workers=workers)
     j = j.reshape(m, k)
-    total = sums[j].sum(axis=1)
-    num = counts[j].sum(axis=1)
+    total, num = np.empty((m, 9)), np.empty(m)
+    for lo in range(0, m, _CHUNK // 8):  # (cells, k, 9) gathers, a chunk at a time
+        jj = j[lo : lo + _CHUNK // 8]
+        total[lo : lo + len(jj)] = sums[jj].sum(axis=1)
+        num[lo : lo + len(jj)] = counts[jj].sum(axis=1)
     mat = (total / np.maximum(num, 1.0)[:, None]).reshape(m, 3, 3)
     spread = np.linalg.eigvalsh(mat)[:, 0]
     leafy_cell = (spread > LEAF_NORMAL_SPREAD) & (num >= 10)
@@ -764,7 +914,9 @@ def _step(name: str, before: int, after: int, **params: Any) -> dict[str, Any]:
     }
 
 
-def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> PreparedCloud:
+def prepare(
+    cloud: Cloud | np.ndarray, params: PrepareParams | None = None, *, normals: bool = True
+) -> PreparedCloud:
     """Check, thin and clean a tree cloud, and estimate its normals.
 
     Parameters
@@ -774,6 +926,11 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
     params : PrepareParams, optional
         Defaults: 5 mm voxels, outlier removal (16 neighbours, 2.5 σ), no ground
         removal, normals from 24 neighbours.
+    normals : bool
+        Orient normals (``params.normals_neighbors``); ``False`` leaves
+        :attr:`PreparedCloud.normals` ``None`` for a method that does not use them (the
+        QSM), which saves their orientation, the dearest step on large clouds. The leaf
+        measure is the same either way: it reads the unoriented PCA.
 
     Returns
     -------
@@ -803,11 +960,24 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
             _step("voxel_downsample", n0, len(pts), enabled=True, voxel_size_m=params.voxel_size_m)
         )
 
-    # 2. statistical outlier removal
+    # 2. statistical outlier removal; one neighbour search of the thinned cloud serves
+    # it, the spacing, the PCA and the QSM's graph (see step 4)
     n1 = len(pts)
+    k_pca = params.normals_neighbors or 24
+    k_keep = max(KEPT_NEIGHBORS, k_pca)
+    tree = cKDTree(pts)
+    k_search = k_keep if params.sor_std_ratio is None else max(k_keep, params.sor_neighbors + 1)
+    neighbors, nearest = nearest_neighbors(pts, k_search, tree, workers=w)
     if params.sor_std_ratio is not None:
-        keep = statistical_outliers(pts, params.sor_neighbors, params.sor_std_ratio, workers=w)
-        pts, weights = pts[keep], weights[keep]
+        keep = statistical_outliers(
+            pts, params.sor_neighbors, params.sor_std_ratio, workers=w, knn=neighbors
+        )
+        if not keep.all():
+            neighbors = _neighbors_of_kept(pts, neighbors, keep, k_keep, tree, workers=w)
+            nearest = None
+            pts, weights = pts[keep], weights[keep]
+            tree = None
+    neighbors = neighbors[:, :k_keep]
     steps.append(
         _step(
             "outlier_removal",
@@ -821,17 +991,17 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
 
     # 3. ground removal
     n2 = len(pts)
-    tree = cKDTree(pts)
-    spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
     ground_info: dict[str, Any] = {}
     if params.remove_ground:
+        tree = cKDTree(pts) if tree is None else tree
+        spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
         ground, ground_info = find_ground(
             pts, params.ground_tolerance_m, spacing, tree=tree, workers=w
         )
         if ground.any():
             pts, weights = pts[~ground], weights[~ground]
             tree = cKDTree(pts)
-            spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
+            neighbors, nearest = nearest_neighbors(pts, k_keep, tree, workers=w)
     steps.append(
         _step(
             "ground_removal",
@@ -849,21 +1019,26 @@ def prepare(cloud: Cloud | np.ndarray, params: PrepareParams | None = None) -> P
         )
     validate_tree_cloud(pts, min_points=min(params.min_points, len(pts)))
 
-    # 4. normals and leaves
-    if params.normals_neighbors is not None:
-        normals: np.ndarray | None
-        normals, evals, unoriented = _estimate_normals(
-            pts, params.normals_neighbors, spacing_m=spacing, workers=w
+    # 4. spacing (median nearest-neighbour distance), normals and leaves, from the
+    # neighbours found in step 2
+    if nearest is None:
+        nearest = _lengths(pts, np.arange(len(pts)), neighbors[:, 1])
+    spacing = float(np.median(nearest))
+    oriented: np.ndarray | None = None
+    if params.normals_neighbors is not None and normals:
+        oriented, evals, unoriented = _estimate_normals(
+            pts, k_pca, spacing_m=spacing, workers=w, tree=tree, neighbors=neighbors
         )
     else:
-        normals = None
-        evals, unoriented = _local_pca(pts, 24, tree, workers=w)
+        evals, unoriented = _local_pca(pts, k_pca, tree, workers=w, neighbors=neighbors)
+    del tree
     leaf_fraction, _ = leaf_measure(pts, unoriented, spacing, weights, evals=evals, workers=w)
     return PreparedCloud(
         frame=frame,
         points=pts,
         weights=weights,
-        normals=normals,
+        normals=oriented,
+        neighbors=neighbors,
         spacing_m=spacing,
         steps=steps,
         leaves_present=leaf_fraction >= LEAF_PRESENT_FRACTION,

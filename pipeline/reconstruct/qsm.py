@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError
 from ..models import CylinderTable
 from ..params import QSMParams
+from .preprocess import _lengths, nearest_neighbors
 
 
 @dataclass
@@ -56,30 +57,118 @@ class QSMResult:
 
 
 # ---------------------------------------------------------------------------- graph
-def _knn_graph(points: np.ndarray, k: int, link_m: float) -> tuple[sparse.csr_matrix, cKDTree]:
-    tree = cKDTree(points)
-    k = min(k + 1, len(points))
-    d, idx = tree.query(points, k=k)
-    rows = np.repeat(np.arange(len(points)), k - 1)
-    cols = idx[:, 1:].ravel()
-    w = d[:, 1:].ravel()
-    keep = np.isfinite(w) & (w <= link_m) & (cols < len(points))
-    g = sparse.coo_matrix(
-        (np.maximum(w[keep], 1e-9), (rows[keep], cols[keep])), shape=(len(points),) * 2
-    ).tocsr()
-    return g.maximum(g.T).tocsr(), tree
+#: Points handled at a time when the graph is built (bounds temporary memory).
+_CHUNK = 65536
+#: Neighbours of each point searched for gap-bridging candidates.
+BRIDGE_NEIGHBORS = 24
+
+
+def _knn_graph(
+    points: np.ndarray, neighbors: np.ndarray, k: int, link_m: float
+) -> sparse.csr_matrix:
+    """Symmetric graph joining each point to its ``k`` nearest others within ``link_m``,
+    weighted by length (at least 1e-9).
+
+    ``neighbors`` (n, >= k + 1) are each point's nearest points, itself first
+    (:func:`~pipeline.reconstruct.preprocess.nearest_neighbors`). The symmetric matrix
+    is filled in place, a chunk of points at a time, in two passes (count, then fill):
+    each edge a point keeps, and its mirror when the far end does not keep it too. The
+    result equals ``A.maximum(A.T)`` of the one-sided graph ``A`` (both directions of an
+    edge have the same length, bit for bit) without building ``A``, ``A.T`` and the
+    merge: about a third of the memory.
+    """
+    n = len(points)
+    k = min(k + 1, n)
+
+    def chunks():  # (first row, far ends, lengths, kept, kept by the far end too)
+        for lo in range(0, n, _CHUNK):
+            j = neighbors[lo : lo + _CHUNK, 1:k]
+            i = np.arange(lo, lo + len(j), dtype=j.dtype)[:, None]
+            w = _lengths(points, i, j)
+            keep = w <= link_m
+            mutual = (neighbors[j, 1:k] == i[:, :, None]).any(axis=2)
+            yield lo, j, w, keep, keep & ~mutual
+
+    own = np.zeros(n, dtype=np.int64)
+    mirrored = np.zeros(n, dtype=np.int64)
+    for lo, j, _, keep, lone in chunks():
+        own[lo : lo + len(j)] = keep.sum(axis=1)
+        mirrored += np.bincount(j[lone], minlength=n)
+    nnz = int(own.sum() + mirrored.sum())
+    itype = np.int32 if max(nnz, n) < 2**31 - 1 else np.int64
+    indptr = np.zeros(n + 1, dtype=itype)
+    np.cumsum(own + mirrored, out=indptr[1:])
+    indices = np.empty(nnz, dtype=itype)
+    data = np.empty(nnz)
+    cursor = indptr[:-1] + own  # next free slot of each row's mirrored part
+    del own, mirrored
+    for lo, j, w, keep, lone in chunks():
+        rank = np.cumsum(keep, axis=1) - 1
+        pos = (indptr[lo : lo + len(j), None] + rank)[keep]
+        indices[pos] = j[keep]
+        data[pos] = np.maximum(w[keep], 1e-9)
+        far = j[lone]  # rows that receive a mirrored edge, grouped by row
+        if len(far):
+            near = np.broadcast_to(np.arange(lo, lo + len(j))[:, None], j.shape)[lone]
+            order = np.argsort(far, kind="stable")
+            far, near, wl = far[order], near[order], w[lone][order]
+            head = np.flatnonzero(np.r_[True, far[1:] != far[:-1]])
+            rank = np.arange(len(far)) - np.repeat(head, np.diff(np.r_[head, len(far)]))
+            pos = cursor[far] + rank
+            indices[pos] = near
+            data[pos] = np.maximum(wl, 1e-9)
+            cursor += np.bincount(far, minlength=n).astype(itype)
+    g = sparse.csr_matrix((data, indices, indptr), shape=(n, n))
+    g.sort_indices()
+    return g
+
+
+def _components(g: sparse.csr_matrix) -> tuple[int, np.ndarray]:
+    """``connected_components(g, directed=False)`` of a symmetric ``g``, numbered the same
+    way (by each component's lowest vertex), without SciPy's transposed copy of ``g``:
+    the strong components of ``g`` as a directed graph are the same sets."""
+    m, lab = connected_components(g, directed=True, connection="strong")
+    first = np.unique(lab, return_index=True)[1]  # lowest vertex of each label
+    rank = np.empty(m, dtype=lab.dtype)
+    rank[np.argsort(first, kind="stable")] = np.arange(m, dtype=lab.dtype)
+    return m, rank[lab]
+
+
+def _roots(parent: np.ndarray) -> np.ndarray:
+    """The union-find root of every element (pointer jumping, vectorised)."""
+    root = parent.copy()
+    while True:
+        nxt = root[root]
+        if np.array_equal(nxt, root):
+            return root
+        root = nxt
 
 
 def _bridge(
-    points: np.ndarray, g: sparse.csr_matrix, tree: cKDTree, main_hint: int
+    points: np.ndarray, g: sparse.csr_matrix, neighbors: np.ndarray, main_hint: int
 ) -> tuple[sparse.csr_matrix, int]:
-    """Join every component to the rest by its shortest gaps; returns (graph, bridges)."""
+    """Join every component to the rest by its shortest gaps; returns (graph, bridges).
+
+    Candidate gaps are the pairs (point, one of its ``BRIDGE_NEIGHBORS`` nearest) that
+    lie in different components; Borůvka rounds join each component by its shortest
+    candidate; components left without one join the main component at their nearest
+    point. Only the candidate pairs are kept (a few per stray point), never the whole
+    neighbour table.
+    """
     n = len(points)
-    ncomp, labels = connected_components(g, directed=False)
+    ncomp, labels = _components(g)
     if ncomp == 1:
         return g, 0
-    k = min(24, n)
-    d, idx = tree.query(points, k=k)
+    k = min(BRIDGE_NEIGHBORS, n)
+    ci_l, cj_l = [], []
+    for lo in range(0, n, _CHUNK):
+        j = neighbors[lo : lo + _CHUNK, :k]
+        cross = labels[lo : lo + len(j), None] != labels[j]
+        ci_l.append(np.broadcast_to(np.arange(lo, lo + len(j))[:, None], j.shape)[cross])
+        cj_l.append(j[cross].astype(np.int64))
+    ci, cj = np.concatenate(ci_l), np.concatenate(cj_l)  # in (point, rank) order
+    cw = _lengths(points, ci, cj)
+    lab_i, lab_j = labels[ci], labels[cj]
     extra_r, extra_c, extra_w = [], [], []
     parent = np.arange(ncomp)
 
@@ -90,22 +179,18 @@ def _bridge(
         return x
 
     for _ in range(64):  # Borůvka rounds over the candidate pairs
-        lab = np.array([find(c) for c in range(ncomp)])[labels]
-        li = np.repeat(lab, k)
-        lj = lab[idx.ravel()]
-        cross = li != lj
-        if not cross.any():
+        root = _roots(parent)
+        li, lj = root[lab_i], root[lab_j]
+        cross = np.flatnonzero(li != lj)
+        if len(cross) == 0:
             break
-        ci = np.repeat(np.arange(n), k)[cross]
-        cj = idx.ravel()[cross]
-        cw = d.ravel()[cross]
         comp = li[cross]
-        order = np.lexsort((cw, comp))
+        order = cross[np.lexsort((cw[cross], comp))]
         first = np.ones(len(order), dtype=bool)
-        first[1:] = comp[order][1:] != comp[order][:-1]
+        first[1:] = li[order][1:] != li[order][:-1]
         merged = False
         for e in order[first]:
-            a, b = find(int(labels[ci[e]])), find(int(labels[cj[e]]))
+            a, b = find(int(lab_i[e])), find(int(lab_j[e]))
             if a != b:
                 parent[a] = b
                 extra_r.append(ci[e])
@@ -114,7 +199,7 @@ def _bridge(
                 merged = True
         if not merged:
             break
-    lab = np.array([find(c) for c in range(ncomp)])[labels]
+    lab = _roots(parent)[labels]
     roots = np.unique(lab)
     if len(roots) > 1:  # components with no candidate pair: nearest point of the main one
         main = lab[main_hint]
@@ -314,6 +399,7 @@ def fit_qsm(
     spacing_m: float,
     weights: np.ndarray | None = None,
     params: QSMParams | None = None,
+    neighbors: np.ndarray | None = None,
 ) -> QSMResult:
     """Fit a cylinder QSM to a single-tree cloud.
 
@@ -327,6 +413,11 @@ def fit_qsm(
     weights : (n,) float, optional
         Points represented by each point (voxel counts); default 1.
     params : QSMParams
+    neighbors : (n, k) int, optional
+        Each point's nearest points, itself first, sorted by distance
+        (:attr:`~pipeline.reconstruct.preprocess.PreparedCloud.neighbors`); searched here
+        when absent or when it has fewer than ``max(params.neighbors + 1,
+        BRIDGE_NEIGHBORS)`` columns.
 
     Returns
     -------
@@ -343,22 +434,44 @@ def fit_qsm(
         raise ReconstructionError(f"only {n} points after preparation; a QSM needs hundreds")
 
     # 1-2. graph, bridging, geodesic distance from the base
-    g, tree = _knn_graph(p, params.neighbors, link)
+    k_needed = min(max(params.neighbors + 1, BRIDGE_NEIGHBORS), n)
+    if neighbors is None or len(neighbors) != n or neighbors.shape[1] < k_needed:
+        neighbors, _ = nearest_neighbors(p, k_needed)
+    g = _knn_graph(p, neighbors, params.neighbors, link)
     zmin = float(p[:, 2].min())
     sources = np.flatnonzero(p[:, 2] <= zmin + band)
-    g, n_bridges = _bridge(p, g, tree, int(sources[0]))
+    g, n_bridges = _bridge(p, g, neighbors, int(sources[0]))
+    del neighbors
+    # g is symmetric: as a directed graph it gives the same distances and predecessors
+    # as directed=False, without SciPy's transposed copy of the graph
     dist, pred, _ = dijkstra(
-        g, directed=False, indices=sources, min_only=True, return_predecessors=True
+        g, directed=True, indices=sources, min_only=True, return_predecessors=True
     )
     if not np.isfinite(dist).all():
         raise ReconstructionError("the point graph is not connected after gap bridging")
 
     # 3. slices -> clusters (nodes)
     sl = np.floor(dist / h).astype(np.int64)
-    coo = g.tocoo()
-    same = sl[coo.row] == sl[coo.col]
-    gs = sparse.coo_matrix((coo.data[same], (coo.row[same], coo.col[same])), shape=g.shape)
-    m, cl = connected_components(gs, directed=False)
+    # the graph's edges within a slice, a chunk of rows at a time (whole-graph row and
+    # slice arrays were 1.2 GB of temporaries at 3.9 M points)
+    same = np.empty(g.nnz, dtype=bool)
+    per_row = np.empty(n, dtype=g.indptr.dtype)
+    for lo in range(0, n, _CHUNK):
+        hi = min(lo + _CHUNK, n)
+        a, b = g.indptr[lo], g.indptr[hi]
+        count = np.diff(g.indptr[lo : hi + 1])
+        keep = np.repeat(sl[lo:hi], count) == sl[g.indices[a:b]]
+        same[a:b] = keep
+        per_row[lo:hi] = np.bincount(
+            np.repeat(np.arange(hi - lo), count), weights=keep, minlength=hi - lo
+        )
+    indptr = np.zeros(n + 1, dtype=g.indptr.dtype)
+    np.cumsum(per_row, out=indptr[1:])
+    data, indices = g.data[same], g.indices[same]
+    del g, same, per_row
+    gs = sparse.csr_matrix((data, indices, indptr), shape=(n, n))
+    m, cl = _components(gs)  # gs is symmetric too
+    del gs, data, indices
     # parent cluster by predecessor votes
     has_pred = pred >= 0
     ci, cp = cl[has_pred], cl[pred[has_pred]]
