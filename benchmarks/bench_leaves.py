@@ -34,8 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.cloud import LABEL_CODES, Cloud  # noqa: E402
 from pipeline.reconstruct import ReconstructParams, reconstruct  # noqa: E402
 from pipeline.reconstruct.leafwood import separate_leaves  # noqa: E402
-from pipeline.reconstruct.preprocess import voxel_downsample  # noqa: E402
-from tests.reconstruct.test_leafwood import scan_preset  # noqa: E402
+from tests.reconstruct.leafon import labelled_voxels, scan_preset  # noqa: E402
 
 LILLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "trees" / "adtree" / "Lille_2.xyz"
 
@@ -68,10 +67,7 @@ def main() -> None:
     tree_on, on = scan_preset("aspen-leafon", args.step)
     tree_off, off = scan_preset("aspen", args.step)
     truth = tree_off.truth(32)
-    local = on.points - on.points.mean(axis=0)
-    pts, _, inv = voxel_downsample(local, 0.005)
-    is_wood = on.fields["label"] == LABEL_CODES["wood"]
-    wood = np.bincount(inv, weights=is_wood) / np.bincount(inv) >= 0.5
+    pts, wood = labelled_voxels(on.points, on.fields["label"] == LABEL_CODES["wood"], 0.005)
     t0 = time.perf_counter()
     res = separate_leaves(pts)
     dt = time.perf_counter() - t0

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.cloud import LABEL_CODES  # noqa: E402
 from pipeline.reconstruct.leafwood import base_features as features  # noqa: E402
 from pipeline.reconstruct.leafwood import neighbours  # noqa: E402
-from pipeline.reconstruct.preprocess import voxel_downsample  # noqa: E402
+from tests.reconstruct.leafon import labelled_voxels, scan_preset  # noqa: E402
 
 #: (preset, seed, angular step in degrees): the training scans.
 TRAINING = (
@@ -42,42 +42,6 @@ VOXEL_M = 0.005
 STAGES = 3
 #: Leaf-on presets (the threshold balances precision and recall on their scans).
 LEAF_ON = ("aspen-leafon", "balsam-fir")
-
-
-def scan_labelled(name: str, seed: int, step_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """A preset scanned from three stations with the VZ-400 noise: points, wood mask."""
-    from pipeline.models import SPECIES, generate_tree
-    from pipeline.scan import instrument, ring_layout, scan
-    from pipeline.scene import MeshPart, Scene
-
-    tree = generate_tree(name, seed=seed, leaves=SPECIES[name].leaves_on)
-    v, f, lab = tree.mesh(32)
-    parts = [
-        MeshPart(vertices=v, faces=f[lab == code], label=part, name=part)
-        for part, code in (("wood", LABEL_CODES["wood"]), ("leaf", LABEL_CODES["leaf"]))
-        if (lab == code).any()
-    ]
-    scene = Scene(parts)
-    lo, hi = scene.bounds
-    stations = ring_layout(
-        3,
-        distance_m=max(10.0, 0.5 * (hi[2] - lo[2])),
-        height_m=1.5,
-        centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
-        base_z_m=float(lo[2]),
-    )
-    spec = instrument("riegl-vz400").spec(
-        noise=True, horizontal_resolution_deg=step_deg, vertical_resolution_deg=step_deg
-    )
-    cloud = scan(scene, stations, spec, nthreads=2).cloud
-    return cloud.points, cloud.fields["label"] == LABEL_CODES["wood"]
-
-
-def labelled_voxels(points: np.ndarray, wood: np.ndarray):
-    local = points - points.mean(axis=0)
-    pts, _, inv = voxel_downsample(local, VOXEL_M)
-    share = np.bincount(inv, weights=wood, minlength=len(pts)) / np.bincount(inv)
-    return pts, share >= 0.5
 
 
 def fit_logistic(x: np.ndarray, y: np.ndarray, ridge: float = 1e-2) -> dict:
@@ -124,8 +88,9 @@ def main() -> None:
             d = np.load(cached)
             vox, y = d["points"], d["wood"]
         else:
-            pts, wood = scan_labelled(name, seed, step)
-            vox, y = labelled_voxels(pts, wood)
+            _, cloud = scan_preset(name, step, seed=seed)
+            wood = cloud.fields["label"] == LABEL_CODES["wood"]
+            vox, y = labelled_voxels(cloud.points, wood, VOXEL_M)
             if cached is not None:
                 cached.parent.mkdir(parents=True, exist_ok=True)
                 np.savez(cached, points=vox, wood=y)

@@ -16,37 +16,9 @@ from pipeline.errors import ModelError, ReconstructionError
 from pipeline.models.leaves import leaf_layer
 from pipeline.reconstruct import reconstruct
 from pipeline.reconstruct.leafwood import separate_leaves
-from pipeline.reconstruct.preprocess import voxel_downsample
+from tests.reconstruct.leafon import labelled_voxels, scan_preset
 
 STEP_DEG = 0.08
-
-
-def scan_preset(name: str, step_deg: float):
-    """A preset (seed 0) scanned as the training scans are: VZ-400 noise, three stations."""
-    from pipeline.models import SPECIES, generate_tree
-    from pipeline.scan import instrument, ring_layout, scan
-    from pipeline.scene import MeshPart, Scene
-
-    tree = generate_tree(name, seed=0, leaves=SPECIES[name].leaves_on)
-    v, f, lab = tree.mesh(32)
-    parts = [
-        MeshPart(vertices=v, faces=f[lab == code], label=part, name=part)
-        for part, code in LABEL_CODES.items()
-        if (lab == code).any()
-    ]
-    scene = Scene(parts)
-    lo, hi = scene.bounds
-    stations = ring_layout(
-        3,
-        distance_m=max(10.0, 0.5 * (hi[2] - lo[2])),
-        height_m=1.5,
-        centre_xy=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
-        base_z_m=float(lo[2]),
-    )
-    spec = instrument("riegl-vz400").spec(
-        noise=True, horizontal_resolution_deg=step_deg, vertical_resolution_deg=step_deg
-    )
-    return tree, scan(scene, stations, spec, nthreads=2).cloud
 
 
 @pytest.fixture(scope="module")
@@ -62,10 +34,8 @@ def wood_scores(wood: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 @pytest.mark.slow
 def test_separation_finds_the_wood_of_the_leaf_on_aspen(leafon_scan):
     _, cloud = leafon_scan
-    local = cloud.points - cloud.points.mean(axis=0)
-    pts, _, inv = voxel_downsample(local, 0.005)
     is_wood = cloud.fields["label"] == LABEL_CODES["wood"]
-    truth = np.bincount(inv, weights=is_wood) / np.bincount(inv) >= 0.5
+    pts, truth = labelled_voxels(cloud.points, is_wood, 0.005)
     result = separate_leaves(pts)
     precision, recall = wood_scores(result.wood, truth)
     print(f"\naspen-leafon at {STEP_DEG} deg: wood precision {precision:.3f}, recall {recall:.3f}")
