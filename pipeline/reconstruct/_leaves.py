@@ -44,6 +44,7 @@ class Separated:
             points=p.points[m],
             weights=p.weights[m],
             normals=None if p.normals is None else p.normals[m],
+            neighbors=None,  # the full cloud's indices: the QSM searches the wood's own
         )
 
     def labels(self) -> Cloud:
