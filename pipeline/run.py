@@ -153,6 +153,12 @@ def _lod_scene(
     tubes = tubes_to_mesh(table, facets=plan.facets)
     v, f = tubes.vertices, tubes.faces
     label = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
+    # what the model holds beside its wood (a leaf layer) is scanned as it is
+    other = np.asarray(model.face_label) != LABEL_CODES["wood"]
+    if other.any():
+        f = np.concatenate([f, np.asarray(model.faces)[other] + len(v)])
+        v = np.concatenate([v, np.asarray(model.vertices)])
+        label = np.concatenate([label, np.asarray(model.face_label)[other]])
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
     info = plan.describe(joints="miter")
     info["why"] = (

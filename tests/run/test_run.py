@@ -407,3 +407,39 @@ def test_the_run_page_has_a_3d_view_that_draws_in_chromium(sapling_run):
     assert page["errors"] == "0", page["console"]
     assert page["viewer"] == "ready" and page["drawn"] > 500
     assert page["images_ok"] and page["console"] == [] and page["outside"] == []
+
+
+def test_lod_scan_keeps_the_models_leaf_layer():
+    """Under lod auto the run scans the QSM tubes remeshed with fewer facets; a leaf layer
+    beside them (a leaf-on reconstruction) must be scanned too, not dropped."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from pipeline.cloud import LABEL_CODES
+    from pipeline.models import generate_tree
+    from pipeline.params import run_preset
+    from pipeline.run import _lod_scene
+    from pipeline.scan import Station
+
+    tree = generate_tree("sapling", seed=0, leaves=False)
+    wood_v, wood_f, _ = tree.mesh(32)
+    leaf_v = np.array([[0.0, 0.0, 3.0], [0.05, 0.0, 3.0], [0.05, 0.05, 3.0], [0.0, 0.05, 3.0]])
+    leaf_f = np.array([[0, 1, 2], [0, 2, 3]]) + len(wood_v)
+    model = SimpleNamespace(
+        cylinders=tree.cylinders,
+        vertices=np.concatenate([wood_v, leaf_v]),
+        faces=np.concatenate([wood_f, leaf_f]),
+        face_label=np.concatenate(
+            [
+                np.full(len(wood_f), LABEL_CODES["wood"], np.uint8),
+                np.full(2, LABEL_CODES["leaf"], np.uint8),
+            ]
+        ),
+    )
+    far = [Station(position_m=(40.0, 0.0, 1.5))]  # far: the tubes get fewer facets
+    scene, info = _lod_scene(model, far, run_preset("draft"))
+    labels = {p.label: len(p.faces) for p in scene.parts}
+    assert labels["leaf"] == 2
+    assert labels["wood"] < len(wood_f)  # the wood was remeshed coarser
+    assert "why" in info
