@@ -437,6 +437,14 @@ class RowCounts:
     def n_reused(self) -> int:
         return sum(1 for r in self.rows if r.get("reused"))
 
+    def tally(self, noun: str) -> str:
+        """One line of what ran: ``"12 trees: 3 run, 9 unchanged (not run again), 0
+        failed"`` (``noun`` plural)."""
+        return (
+            f"{len(self.rows)} {noun}: {self.n_ok - self.n_reused} run, {self.n_reused} "
+            f"unchanged (not run again), {self.n_failed} failed"
+        )
+
 
 @dataclass
 class BatchResult(RowCounts):

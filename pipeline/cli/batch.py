@@ -47,11 +47,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     for r in result.rows:
         if r["status"] == "failed":
             print(f"failed {r['id']} ({r['input']}): {r.get('error_class')}: {r.get('error')}")
-    n_run = result.n_ok - result.n_reused
-    print(
-        f"{len(result.rows)} trees: {n_run} run, {result.n_reused} unchanged (not run again), "
-        f"{result.n_failed} failed, in {result.elapsed_s:.1f} s on {result.plan.describe()}"
-    )
+    print(f"{result.tally('trees')}, in {result.elapsed_s:.1f} s on {result.plan.describe()}")
     print(f"summary: {result.summary_csv.resolve()} (and summary.json)")
     print(f"index: {result.index_html.resolve()}")
     return 1 if result.n_failed else 0

@@ -84,10 +84,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if r["status"] == "failed":
             print(f"failed {r['id']}: {r.get('error_class')}: {r.get('error')}")
     print(
-        f"{len(result.rows)} points: {result.n_ok - result.n_reused} run, {result.n_reused} "
-        f"unchanged (not run again), {result.n_failed} failed, in "
-        f"{result.elapsed_s:.1f} s on {result.plan.describe()}; τ = "
-        f"{result.tolerance['tolerance_m'] * 1000:.3g} mm"
+        f"{result.tally('points')}, in {result.elapsed_s:.1f} s on {result.plan.describe()}; "
+        f"τ = {result.tolerance['tolerance_m'] * 1000:.3g} mm"
     )
     print(f"table: {result.csv.resolve()} (and sweep.json)")
     print(f"page: {result.html.resolve()}")
