@@ -49,8 +49,9 @@ from pipeline.models import (  # noqa: E402
 from pipeline.params import run_preset  # noqa: E402
 from pipeline.reconstruct import reconstruct  # noqa: E402
 from pipeline.run import RUN_LOD_TOLERANCE  # noqa: E402
-from pipeline.scan import scan, stations_for  # noqa: E402
+from pipeline.scan import stations_for  # noqa: E402
 from pipeline.scene import Scene  # noqa: E402
+from pipeline.steps import scan_scene  # noqa: E402
 
 CLOUD = ROOT / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
 
@@ -113,15 +114,7 @@ def main() -> None:
         lod_scene = Scene.from_labelled_mesh(
             sv, sf, np.full(len(sf), LABEL_CODES["wood"], np.uint8)
         )
-        cloud = scan(
-            lod_scene,
-            stations,
-            sp.scanner,
-            chunk_rays=int(sp.chunk_rays),
-            max_rays=int(sp.max_rays),
-            nthreads=threads,
-            lod=sp.lod,
-        ).cloud
+        cloud = scan_scene(lod_scene, stations, sp, threads=threads).cloud
         cp = replace(params.compare, nthreads=threads)
         keep = compare(cloud, lod_scene, params=replace(cp, hidden_surface="keep"))
         drop = compare(cloud, lod_scene, params=cp)

@@ -52,7 +52,7 @@ from .params import RunParams, params_hash, run_preset
 from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
-from .steps import scale_progress
+from .steps import scale_progress, scan_scene
 
 __all__ = [
     "STAGES",
@@ -299,7 +299,7 @@ def run_tree(
     from .io import read_cloud, write_cloud, write_mesh
     from .reconstruct import reconstruct
     from .report import build_report
-    from .scan import scan, stations_for
+    from .scan import stations_for
 
     params = params or run_preset()
     if not isinstance(params, RunParams):
@@ -366,15 +366,8 @@ def run_tree(
         scanned_mesh = "scan_mesh.ply"
         write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
     say(0.35, "scanning")
-    result = scan(
-        scene,
-        stations,
-        sp.scanner,
-        chunk_rays=int(sp.chunk_rays),
-        max_rays=int(sp.max_rays),
-        nthreads=threads,
-        progress=scale_progress(say, 0.35, 0.5),
-        lod=sp.lod,
+    result = scan_scene(
+        scene, stations, sp, threads=threads, progress=scale_progress(say, 0.35, 0.5)
     )
     if facet_lod is not None:
         result.lod["facets"] = facet_lod
