@@ -34,7 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -58,6 +58,7 @@ __all__ = [
     "STAGES",
     "RunResult",
     "file_sha256",
+    "lod_plan",
     "run_tolerance",
     "run_tree",
     "software_versions",
@@ -126,28 +127,37 @@ def software_versions() -> dict[str, str]:
 RUN_LOD_TOLERANCE = 0.1
 
 
+def lod_plan(table: Any, stations: Sequence[Any], spec: Any, max_facets: int) -> Any:
+    """A run's level of detail for a cylinder table scanned with ``spec`` (a
+    :class:`~pipeline.params.ScannerSpec`) from ``stations``: facets per row from the
+    point spacing at the nearest station (the finer of the scanner's two steps) within
+    :data:`RUN_LOD_TOLERANCE`, at most ``max_facets``
+    (:func:`pipeline.models.plan_lod`; returns its ``LodPlan``)."""
+    import math
+
+    from .models import plan_lod
+
+    return plan_lod(
+        table,
+        np.array([st.position_m for st in stations]),
+        math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg)),
+        max_facets=int(max_facets),
+        tolerance=RUN_LOD_TOLERANCE,
+    )
+
+
 def _lod_scene(
     model: Any, stations: list[Any], params: RunParams
 ) -> tuple[Scene, dict[str, Any]] | None:
     """The scene a run scans under ``lod="auto"``: the QSM table meshed with facets from
-    the projected size at the nearest station, and why; None when that changes
-    nothing."""
-    import math
-
+    the projected size at the nearest station (:func:`lod_plan`), and why; None when
+    that changes nothing."""
     from .cloud import LABEL_CODES
-    from .models import plan_lod, sink_branches, tubes_to_mesh
+    from .models import sink_branches, tubes_to_mesh
 
-    spec = params.scan.scanner
-    spacing = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
     # the rows as meshed (reconstruct's branch_tubes): branch starts sunk into parents
     table = sink_branches(model.cylinders).table
-    plan = plan_lod(
-        table,
-        np.array([st.position_m for st in stations]),
-        spacing,
-        max_facets=int(params.reconstruct.facets),
-        tolerance=RUN_LOD_TOLERANCE,
-    )
+    plan = lod_plan(table, stations, params.scan.scanner, int(params.reconstruct.facets))
     if (plan.facets == int(params.reconstruct.facets)).all():
         return None
     tubes = tubes_to_mesh(table, facets=plan.facets)
