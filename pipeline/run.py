@@ -166,8 +166,10 @@ def _lod_scene(
     # what the model holds beside its wood (a leaf layer) is scanned as it is
     other = np.asarray(model.face_label) != LABEL_CODES["wood"]
     if other.any():
-        f = np.concatenate([f, np.asarray(model.faces)[other] + len(v)])
-        v = np.concatenate([v, np.asarray(model.vertices)])
+        # only the vertices those triangles use: the rest are the full-detail wood's
+        used, of = np.unique(np.asarray(model.faces)[other], return_inverse=True)
+        f = np.concatenate([f, of.reshape(-1, 3) + len(v)])
+        v = np.concatenate([v, np.asarray(model.vertices)[used]])
         label = np.concatenate([label, np.asarray(model.face_label)[other]])
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
     info = plan.describe(joints="miter")
