@@ -23,7 +23,6 @@ only.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import platform
 import sys
@@ -42,15 +41,15 @@ from pipeline.io import read_cloud  # noqa: E402
 from pipeline.models import (  # noqa: E402
     branch_tubes,
     cylinders_to_mesh,
-    plan_lod,
     sink_branches,
     tubes_to_mesh,
 )
 from pipeline.params import run_preset  # noqa: E402
 from pipeline.reconstruct import reconstruct  # noqa: E402
-from pipeline.run import RUN_LOD_TOLERANCE  # noqa: E402
-from pipeline.scan import scan, stations_for  # noqa: E402
+from pipeline.run import lod_plan  # noqa: E402
+from pipeline.scan import stations_for  # noqa: E402
 from pipeline.scene import Scene  # noqa: E402
+from pipeline.steps import scan_scene  # noqa: E402
 
 CLOUD = ROOT / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
 
@@ -70,14 +69,7 @@ def _mesh(table, facets, how: str) -> tuple[np.ndarray, np.ndarray]:
 def _scan_mesh(table, facets: int, how: str, stations, spec) -> tuple[np.ndarray, np.ndarray]:
     """The mesh the run scans (lod auto): facets per row from the projected size."""
     rows = table if how == "separate" else sink_branches(table).table
-    spacing = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
-    plan = plan_lod(
-        rows,
-        np.array([st.position_m for st in stations]),
-        spacing,
-        max_facets=facets,
-        tolerance=RUN_LOD_TOLERANCE,
-    )
+    plan = lod_plan(rows, stations, spec, facets)
     if how == "separate":
         return cylinders_to_mesh(rows, facets=plan.facets)
     tubes = tubes_to_mesh(rows, facets=plan.facets)
@@ -113,15 +105,7 @@ def main() -> None:
         lod_scene = Scene.from_labelled_mesh(
             sv, sf, np.full(len(sf), LABEL_CODES["wood"], np.uint8)
         )
-        cloud = scan(
-            lod_scene,
-            stations,
-            sp.scanner,
-            chunk_rays=int(sp.chunk_rays),
-            max_rays=int(sp.max_rays),
-            nthreads=threads,
-            lod=sp.lod,
-        ).cloud
+        cloud = scan_scene(lod_scene, stations, sp, threads=threads).cloud
         cp = replace(params.compare, nthreads=threads)
         keep = compare(cloud, lod_scene, params=replace(cp, hidden_surface="keep"))
         drop = compare(cloud, lod_scene, params=cp)

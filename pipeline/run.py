@@ -34,7 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -52,12 +52,13 @@ from .params import RunParams, params_hash, run_preset
 from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
-from .steps import scale_progress
+from .steps import scale_progress, scan_scene
 
 __all__ = [
     "STAGES",
     "RunResult",
     "file_sha256",
+    "lod_plan",
     "run_tolerance",
     "run_tree",
     "software_versions",
@@ -126,28 +127,37 @@ def software_versions() -> dict[str, str]:
 RUN_LOD_TOLERANCE = 0.1
 
 
+def lod_plan(table: Any, stations: Sequence[Any], spec: Any, max_facets: int) -> Any:
+    """A run's level of detail for a cylinder table scanned with ``spec`` (a
+    :class:`~pipeline.params.ScannerSpec`) from ``stations``: facets per row from the
+    point spacing at the nearest station (the finer of the scanner's two steps) within
+    :data:`RUN_LOD_TOLERANCE`, at most ``max_facets``
+    (:func:`pipeline.models.plan_lod`; returns its ``LodPlan``)."""
+    import math
+
+    from .models import plan_lod
+
+    return plan_lod(
+        table,
+        np.array([st.position_m for st in stations]),
+        math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg)),
+        max_facets=int(max_facets),
+        tolerance=RUN_LOD_TOLERANCE,
+    )
+
+
 def _lod_scene(
     model: Any, stations: list[Any], params: RunParams
 ) -> tuple[Scene, dict[str, Any]] | None:
     """The scene a run scans under ``lod="auto"``: the QSM table meshed with facets from
-    the projected size at the nearest station, and why; None when that changes
-    nothing."""
-    import math
-
+    the projected size at the nearest station (:func:`lod_plan`), and why; None when
+    that changes nothing."""
     from .cloud import LABEL_CODES
-    from .models import plan_lod, sink_branches, tubes_to_mesh
+    from .models import sink_branches, tubes_to_mesh
 
-    spec = params.scan.scanner
-    spacing = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
     # the rows as meshed (reconstruct's branch_tubes): branch starts sunk into parents
     table = sink_branches(model.cylinders).table
-    plan = plan_lod(
-        table,
-        np.array([st.position_m for st in stations]),
-        spacing,
-        max_facets=int(params.reconstruct.facets),
-        tolerance=RUN_LOD_TOLERANCE,
-    )
+    plan = lod_plan(table, stations, params.scan.scanner, int(params.reconstruct.facets))
     if (plan.facets == int(params.reconstruct.facets)).all():
         return None
     tubes = tubes_to_mesh(table, facets=plan.facets)
@@ -156,8 +166,10 @@ def _lod_scene(
     # what the model holds beside its wood (a leaf layer) is scanned as it is
     other = np.asarray(model.face_label) != LABEL_CODES["wood"]
     if other.any():
-        f = np.concatenate([f, np.asarray(model.faces)[other] + len(v)])
-        v = np.concatenate([v, np.asarray(model.vertices)])
+        # only the vertices those triangles use: the rest are the full-detail wood's
+        used, of = np.unique(np.asarray(model.faces)[other], return_inverse=True)
+        f = np.concatenate([f, of.reshape(-1, 3) + len(v)])
+        v = np.concatenate([v, np.asarray(model.vertices)[used]])
         label = np.concatenate([label, np.asarray(model.face_label)[other]])
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="reconstruction (lod):")
     info = plan.describe(joints="miter")
@@ -299,7 +311,7 @@ def run_tree(
     from .io import read_cloud, write_cloud, write_mesh
     from .reconstruct import reconstruct
     from .report import build_report
-    from .scan import scan, stations_for
+    from .scan import stations_for
 
     params = params or run_preset()
     if not isinstance(params, RunParams):
@@ -366,15 +378,8 @@ def run_tree(
         scanned_mesh = "scan_mesh.ply"
         write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
     say(0.35, "scanning")
-    result = scan(
-        scene,
-        stations,
-        sp.scanner,
-        chunk_rays=int(sp.chunk_rays),
-        max_rays=int(sp.max_rays),
-        nthreads=threads,
-        progress=scale_progress(say, 0.35, 0.5),
-        lod=sp.lod,
+    result = scan_scene(
+        scene, stations, sp, threads=threads, progress=scale_progress(say, 0.35, 0.5)
     )
     if facet_lod is not None:
         result.lod["facets"] = facet_lod

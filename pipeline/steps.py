@@ -31,6 +31,7 @@ __all__ = [
     "scale_progress",
     "reconstruct_files",
     "scan_files",
+    "scan_scene",
     "scan_sidecar",
 ]
 
@@ -118,6 +119,28 @@ def reconstruct_files(
     return StepResult(summary, outputs, model)
 
 
+def scan_scene(
+    scene: Any, stations: Sequence[Any], params: ScanParams, *, threads: int = 0, **options: Any
+) -> Any:
+    """:func:`pipeline.scan.scan` of ``scene`` from ``stations`` with the scanner, ray
+    budget and level of detail of ``params`` (the one place a :class:`ScanParams` is
+    unpacked for a scan); ``threads`` are Open3D's (0: all cores); ``options`` go to
+    ``scan`` as they are (``window``, ``progress``, ``sink``, ``estimate``, ...).
+    Returns the :class:`~pipeline.scan.ScanResult`."""
+    from .scan import scan
+
+    return scan(
+        scene,
+        stations,
+        params.scanner,
+        chunk_rays=int(params.chunk_rays),
+        max_rays=int(params.max_rays),
+        nthreads=int(threads),
+        lod=params.lod,
+        **options,
+    )
+
+
 def scan_files(
     mesh_paths: Sequence[str | Path],
     params: ScanParams | None = None,
@@ -140,7 +163,7 @@ def scan_files(
     :class:`~pipeline.scan.ScanEstimate` (for this output's format).
     """
     from .io import open_cloud_writer
-    from .scan import SCAN_FIELDS, scan, scan_metadata
+    from .scan import SCAN_FIELDS, scan_metadata
 
     say = _say(progress)
     params = params or ScanParams()
@@ -168,17 +191,14 @@ def scan_files(
             origin_hint_m=scene.bounds[0],
             threads=int(threads),
         ) as writer:
-            result = scan(
+            result = scan_scene(
                 scene,
                 placed,
-                params.scanner,
+                params,
+                threads=threads,
                 window=window,
-                chunk_rays=int(params.chunk_rays),
-                max_rays=int(params.max_rays),
-                nthreads=int(threads),
                 progress=scale_progress(say, 0.05, 0.95),
                 sink=writer.write,
-                lod=params.lod,
                 estimate=(lambda e: estimate(e.for_suffix(out.suffix))) if estimate else None,
             )
             say(0.95, "writing the cloud")

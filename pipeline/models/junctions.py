@@ -28,7 +28,7 @@ the parent's axis.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -148,20 +148,10 @@ def sink_branches(
     )
     # from_endpoints recomputes the input rows' axes and lengths from their end points;
     # keep the input's own values bit for bit
-    sunk = CylinderTable(
-        start=sunk.start,
+    sunk = replace(
+        sunk,
         axis=stack(table.axis, sunk.axis[n:]),
         length_m=stack(table.length_m, sunk.length_m[n:]),
-        radius_m=sunk.radius_m,
-        parent=sunk.parent,
-        branch=sunk.branch,
-        branch_order=sunk.branch_order,
-        position_in_branch=sunk.position_in_branch,
-        end_radius_m=sunk.end_radius_m,
-        tag=sunk.tag,
-        extension=sunk.extension,
-        added=sunk.added,
-        unmod_radius_m=sunk.unmod_radius_m,
     ).validate()
     source = np.concatenate([np.arange(n, dtype=np.int64), rows])
     return SunkTable(sunk, source, n, starts)

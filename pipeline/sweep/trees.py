@@ -162,8 +162,9 @@ def _procedural(
 ) -> tuple[Any, dict[str, Any]]:
     from ..io import write_cloud, write_mesh
     from ..models import generate_tree
-    from ..scan import scan, stations_for
+    from ..scan import stations_for
     from ..scene import Scene
+    from ..steps import scan_scene
 
     m = spec.model
     assert m is not None
@@ -172,15 +173,7 @@ def _procedural(
     write_mesh(out / "truth.ply", v, f, face_label=label)
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="truth:")
     stations, rule = stations_for(scene.bounds, reference)
-    res = scan(
-        scene,
-        stations,
-        reference.scanner,
-        chunk_rays=int(reference.chunk_rays),
-        max_rays=int(reference.max_rays),
-        nthreads=threads,
-        lod=reference.lod,
-    )
+    res = scan_scene(scene, stations, reference, threads=threads)
     cloud = res.cloud
     write_cloud(out / "field.ply", cloud)
     truth = tree.truth(int(m.facets))

@@ -9,6 +9,7 @@ import pytest
 
 from pipeline.geometry import inside_other_parts, mesh_parts, sample_surface
 from pipeline.models import CylinderTable, branch_tubes, mesh_volume, sink_branches
+from tests.models.geometry import triangle_areas
 
 R_TRUNK, R_BRANCH = 0.15, 0.06
 
@@ -102,10 +103,7 @@ def test_branch_tubes_close_the_junction(facets):
     # the trunk is seen everywhere but inside the branch's footprint, an ellipse of
     # area pi r^2 / sin(60 deg) on a flat wall (less on the curved one, more for a polygon)
     trunk = tubes.face_tube == tubes.tube_of_row[0]
-    tri = v[f[trunk]]
-    trunk_area = (
-        0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
-    )
+    trunk_area = triangle_areas(v, f[trunk]).sum()
     footprint = math.pi * R_BRANCH**2 / math.sin(math.radians(60.0))
     on_trunk = trunk[face]
     assert 0 < hidden[on_trunk].mean() < 1.5 * footprint / trunk_area

@@ -443,3 +443,7 @@ def test_lod_scan_keeps_the_models_leaf_layer():
     assert labels["leaf"] == 2
     assert labels["wood"] < len(wood_f)  # the wood was remeshed coarser
     assert "why" in info
+    # the scanned mesh (written as scan_mesh.ply) holds no vertex of the full-detail wood:
+    # every vertex its parts share is used by one of them
+    used = np.unique(np.concatenate([p.faces.ravel() for p in scene.parts]))
+    assert len(used) == len(scene.parts[0].vertices)
