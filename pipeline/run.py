@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,6 +53,9 @@ from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress
+
+if TYPE_CHECKING:
+    from .models import CylinderTable
 
 __all__ = [
     "STAGES",
@@ -182,14 +185,14 @@ REFERENCE_FIGURES = (
 )
 
 
-def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> dict[str, Any]:
+def reference_qsm_figures(table: CylinderTable, reconstruction: dict[str, Any]) -> dict[str, Any]:
     """A reference QSM's figures beside the reconstruction's.
 
     Parameters
     ----------
-    path : str or Path
-        A cylinder table: TreeQSM (CSV or text export), SimpleForest or treesim's CSV
-        (:func:`pipeline.models.read_cylinders` detects which).
+    table : CylinderTable
+        The reference, as :func:`pipeline.models.read_cylinders` read it (TreeQSM CSV or
+        text export, SimpleForest or treesim's CSV).
     reconstruction : dict
         ``tree.json``'s figures.
 
@@ -198,11 +201,8 @@ def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> d
     dict
         ``figures`` (the reference's, :data:`REFERENCE_FIGURES`), ``difference``
         (reconstruction − reference, same units) and ``relative`` (that difference over
-        the reference's value), each ``None`` where either side has no value; ``sha256``.
+        the reference's value), each ``None`` where either side has no value.
     """
-    from .models import read_cylinders
-
-    table = read_cylinders(path)
     summary = table.summary()
     ref = {k: summary.get(k) for k in REFERENCE_FIGURES}
     diff: dict[str, float | None] = {}
@@ -212,7 +212,7 @@ def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> d
         ok = isinstance(a, (int, float)) and isinstance(b, (int, float))
         diff[k] = float(a - b) if ok else None
         rel[k] = float(a / b - 1.0) if ok and b else None
-    return {"figures": ref, "difference": diff, "relative": rel, "sha256": file_sha256(path)}
+    return {"figures": ref, "difference": diff, "relative": rel}
 
 
 def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
@@ -314,12 +314,13 @@ def run_tree(
     # -- read ------------------------------------------------------------------------------
     if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
         raise InputFormatError(f"{cloud} not found; check the path")
+    ref_table = None
     if reference_qsm is not None:
         from .models import read_cylinders
 
         if not Path(reference_qsm).is_file():
             raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
-        read_cylinders(reference_qsm)  # a bad table fails now, not after the whole run
+        ref_table = read_cylinders(reference_qsm)  # a bad table fails now, not after the run
     say(0.0, "reading")
     t0 = time.perf_counter()
     inputs: dict[str, Any]
@@ -483,10 +484,11 @@ def run_tree(
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
-    if reference_qsm is not None:
+    if ref_table is not None:
         summary["reference_qsm"] = {
             "path": _relative(reference_qsm, out),
-            **reference_qsm_figures(reference_qsm, model.figures),
+            **reference_qsm_figures(ref_table, model.figures),
+            "sha256": file_sha256(reference_qsm),
         }
     viewer = run_viewer_payload(
         ReportData.from_comparison(vs_mesh),
