@@ -440,7 +440,14 @@ def run_tree(
     build_report(out / "vs_mesh", params=params.report)
     say(0.86, "drawing the reports")
     build_report(out / "vs_field", params=params.report)
-    clouds = _clouds_side_by_side(field_cloud, sim, vs_mesh, tolerance, out, params)
+    mesh_data = ReportData.from_comparison(vs_mesh)
+    clouds = _clouds_side_by_side(field_cloud, sim, mesh_data, tolerance, out, params)
+    viewer = run_viewer_payload(
+        mesh_data,
+        ReportData.from_comparison(vs_field),
+        max_points=params.report.max_view_points,
+        seed=params.report.seed,
+    )
     mesh_fig = {k: v for k, v in vs_mesh.to_dict().items() if k in COMPARISON_FIGURES}
     field_fig = {k: v for k, v in vs_field.to_dict().items() if k in COMPARISON_FIGURES}
     summary: dict[str, Any] = {
@@ -490,12 +497,6 @@ def run_tree(
             **reference_qsm_figures(ref_table, model.figures),
             "sha256": file_sha256(reference_qsm),
         }
-    viewer = run_viewer_payload(
-        ReportData.from_comparison(vs_mesh),
-        ReportData.from_comparison(vs_field),
-        max_points=params.report.max_view_points,
-        seed=params.report.seed,
-    )
     write_text(out / "report.html", run_page(summary, __version__, viewer))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
@@ -508,13 +509,19 @@ def run_tree(
 
 
 def _clouds_side_by_side(
-    field: Cloud, sim: Cloud, vs_mesh: Any, tolerance: dict[str, Any], out: Path, params: RunParams
+    field: Cloud,
+    sim: Cloud,
+    vs_mesh: ReportData,
+    tolerance: dict[str, Any],
+    out: Path,
+    params: RunParams,
 ) -> dict[str, Any]:
     """The field and simulated clouds' sizes and densities in one table, and
-    ``clouds.png``: both in the same views on the same axes."""
+    ``clouds.png``: both in the same views on the same axes (the comparison with the
+    mesh's display origin)."""
     from .report import figures
 
-    area = vs_mesh.reference_info.get("area_m2")
+    area = vs_mesh.summary["reference"].get("area_m2")
 
     def facts(c: Cloud, spacing: float) -> dict[str, Any]:
         z = c.points[:, 2]
@@ -528,12 +535,11 @@ def _clouds_side_by_side(
     def _cloud_table() -> dict[str, Any]:
         return {
             "field": facts(field, tolerance["field_point_spacing_m"]),
-            "simulated": facts(sim, vs_mesh.point_spacing_m),
+            "simulated": facts(sim, vs_mesh.summary["point_spacing_m"]),
             "mesh_area_m2": area,
         }
 
     rp = params.report
-    origin = vs_mesh.frame.origin_array
     figure = out / "clouds.png"
     if not rp.plots:  # report.plots = false: the table only
         figure.unlink(missing_ok=True)
@@ -544,7 +550,7 @@ def _clouds_side_by_side(
             ("simulated cloud", sim.points, figures.SIMULATED_COLOUR),
         ],
         figure,
-        origin=origin if np.abs(origin).max() > 1e4 else np.zeros(3),
+        origin=vs_mesh.origin,
         max_points=rp.max_plot_points,
         seed=rp.seed,
         dpi=rp.dpi,
