@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,6 +53,9 @@ from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress, scan_scene
+
+if TYPE_CHECKING:
+    from .models import CylinderTable
 
 __all__ = [
     "STAGES",
@@ -194,14 +197,14 @@ REFERENCE_FIGURES = (
 )
 
 
-def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> dict[str, Any]:
+def reference_qsm_figures(table: CylinderTable, reconstruction: dict[str, Any]) -> dict[str, Any]:
     """A reference QSM's figures beside the reconstruction's.
 
     Parameters
     ----------
-    path : str or Path
-        A cylinder table: TreeQSM (CSV or text export), SimpleForest or treesim's CSV
-        (:func:`pipeline.models.read_cylinders` detects which).
+    table : CylinderTable
+        The reference, as :func:`pipeline.models.read_cylinders` read it (TreeQSM CSV or
+        text export, SimpleForest or treesim's CSV).
     reconstruction : dict
         ``tree.json``'s figures.
 
@@ -210,11 +213,8 @@ def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> d
     dict
         ``figures`` (the reference's, :data:`REFERENCE_FIGURES`), ``difference``
         (reconstruction − reference, same units) and ``relative`` (that difference over
-        the reference's value), each ``None`` where either side has no value; ``sha256``.
+        the reference's value), each ``None`` where either side has no value.
     """
-    from .models import read_cylinders
-
-    table = read_cylinders(path)
     summary = table.summary()
     ref = {k: summary.get(k) for k in REFERENCE_FIGURES}
     diff: dict[str, float | None] = {}
@@ -224,7 +224,7 @@ def reference_qsm_figures(path: str | Path, reconstruction: dict[str, Any]) -> d
         ok = isinstance(a, (int, float)) and isinstance(b, (int, float))
         diff[k] = float(a - b) if ok else None
         rel[k] = float(a / b - 1.0) if ok and b else None
-    return {"figures": ref, "difference": diff, "relative": rel, "sha256": file_sha256(path)}
+    return {"figures": ref, "difference": diff, "relative": rel}
 
 
 def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
@@ -326,12 +326,13 @@ def run_tree(
     # -- read ------------------------------------------------------------------------------
     if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
         raise InputFormatError(f"{cloud} not found; check the path")
+    ref_table = None
     if reference_qsm is not None:
         from .models import read_cylinders
 
         if not Path(reference_qsm).is_file():
             raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
-        read_cylinders(reference_qsm)  # a bad table fails now, not after the whole run
+        ref_table = read_cylinders(reference_qsm)  # a bad table fails now, not after the run
     say(0.0, "reading")
     t0 = time.perf_counter()
     inputs: dict[str, Any]
@@ -444,7 +445,14 @@ def run_tree(
     build_report(out / "vs_mesh", params=params.report)
     say(0.86, "drawing the reports")
     build_report(out / "vs_field", params=params.report)
-    clouds = _clouds_side_by_side(field_cloud, sim, vs_mesh, tolerance, out, params)
+    mesh_data = ReportData.from_comparison(vs_mesh)
+    clouds = _clouds_side_by_side(field_cloud, sim, mesh_data, tolerance, out, params)
+    viewer = run_viewer_payload(
+        mesh_data,
+        ReportData.from_comparison(vs_field),
+        max_points=params.report.max_view_points,
+        seed=params.report.seed,
+    )
     mesh_fig = {k: v for k, v in vs_mesh.to_dict().items() if k in COMPARISON_FIGURES}
     field_fig = {k: v for k, v in vs_field.to_dict().items() if k in COMPARISON_FIGURES}
     summary: dict[str, Any] = {
@@ -488,17 +496,12 @@ def run_tree(
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
-    if reference_qsm is not None:
+    if ref_table is not None:
         summary["reference_qsm"] = {
             "path": _relative(reference_qsm, out),
-            **reference_qsm_figures(reference_qsm, model.figures),
+            **reference_qsm_figures(ref_table, model.figures),
+            "sha256": file_sha256(reference_qsm),
         }
-    viewer = run_viewer_payload(
-        ReportData.from_comparison(vs_mesh),
-        ReportData.from_comparison(vs_field),
-        max_points=params.report.max_view_points,
-        seed=params.report.seed,
-    )
     write_text(out / "report.html", run_page(summary, __version__, viewer))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
@@ -511,13 +514,19 @@ def run_tree(
 
 
 def _clouds_side_by_side(
-    field: Cloud, sim: Cloud, vs_mesh: Any, tolerance: dict[str, Any], out: Path, params: RunParams
+    field: Cloud,
+    sim: Cloud,
+    vs_mesh: ReportData,
+    tolerance: dict[str, Any],
+    out: Path,
+    params: RunParams,
 ) -> dict[str, Any]:
     """The field and simulated clouds' sizes and densities in one table, and
-    ``clouds.png``: both in the same views on the same axes."""
+    ``clouds.png``: both in the same views on the same axes (the comparison with the
+    mesh's display origin)."""
     from .report import figures
 
-    area = vs_mesh.reference_info.get("area_m2")
+    area = vs_mesh.summary["reference"].get("area_m2")
 
     def facts(c: Cloud, spacing: float) -> dict[str, Any]:
         z = c.points[:, 2]
@@ -531,12 +540,11 @@ def _clouds_side_by_side(
     def _cloud_table() -> dict[str, Any]:
         return {
             "field": facts(field, tolerance["field_point_spacing_m"]),
-            "simulated": facts(sim, vs_mesh.point_spacing_m),
+            "simulated": facts(sim, vs_mesh.summary["point_spacing_m"]),
             "mesh_area_m2": area,
         }
 
     rp = params.report
-    origin = vs_mesh.frame.origin_array
     figure = out / "clouds.png"
     if not rp.plots:  # report.plots = false: the table only
         figure.unlink(missing_ok=True)
@@ -547,7 +555,7 @@ def _clouds_side_by_side(
             ("simulated cloud", sim.points, figures.SIMULATED_COLOUR),
         ],
         figure,
-        origin=origin if np.abs(origin).max() > 1e4 else np.zeros(3),
+        origin=vs_mesh.origin,
         max_points=rp.max_plot_points,
         seed=rp.seed,
         dpi=rp.dpi,

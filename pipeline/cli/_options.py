@@ -137,8 +137,10 @@ def param_option(
     t = info.base_type
     kw: dict[str, Any] = {"dest": "param:" + ".".join(info.path), "default": argparse.SUPPRESS}
     if t == "bool":
-        kw["action"] = argparse.BooleanOptionalAction if info.optional else "store_const"
-        if not info.optional:
+        # --NAME and --no-NAME where the default may be on; a bare --NAME where it is off
+        turn_off = info.optional or info.default is True
+        kw["action"] = argparse.BooleanOptionalAction if turn_off else "store_const"
+        if not turn_off:
             kw["const"] = True
     elif t.startswith("tuple[float,...]"):
         kw.update(action="append", type=number_type(info, element=True), metavar=metavar or "VALUE")

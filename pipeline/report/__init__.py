@@ -88,7 +88,6 @@ def build_report(
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     s = data.summary
-    s.setdefault("report_software", {})
     s["report_software"] = {"matplotlib": software_versions("matplotlib")["matplotlib"]}
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}

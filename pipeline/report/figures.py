@@ -222,6 +222,20 @@ def _subsample(n: int, cap: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng(seed).choice(n, size=cap, replace=False))
 
 
+def _view_layout(
+    ext: np.ndarray, panel_h: float, margin_in: float, max_width_in: float
+) -> tuple[np.ndarray, float, float]:
+    """Width ratios of the side (x-z, y-z) and top (x-y) panels from the data's extent
+    ``ext`` (3,), and the figure's width and panel height (inches): panels ``panel_h``
+    high plus ``margin_in``, scaled down together to at most ``max_width_in`` wide."""
+    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], ext[0] / ext[1]], 0.35, 3.0)
+    width = float(ratios.sum() * panel_h + margin_in)
+    if width > max_width_in:
+        panel_h *= max_width_in / width
+        width = max_width_in
+    return ratios, panel_h, width
+
+
 def views(
     points: np.ndarray,
     distance_m: np.ndarray,
@@ -260,13 +274,7 @@ def views(
     p, d = p[order], d[order]
     lo, hi = p.min(axis=0), p.max(axis=0)
     ext = np.maximum(hi - lo, 1e-6 + 1e-3 * float((hi - lo).max()))
-    top_ext = ext[:2]
-    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], top_ext[0] / top_ext[1]], 0.35, 3.0)
-    panel_h = 4.6
-    width = float(ratios.sum() * panel_h + 1.4)
-    if width > 13.0:
-        panel_h *= 13.0 / width
-        width = 13.0
+    ratios, panel_h, width = _view_layout(ext, 4.6, 1.4, 13.0)
     unit, k = unit_for(vmax_m)
     norm = Normalize(0.0, vmax_m * k)
     size = float(np.clip(25_000 / max(len(p), 1), 0.15, 6.0))
@@ -506,12 +514,7 @@ def clouds_side_by_side(
     pad = 0.03 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
     ext = np.maximum(hi - lo, 1e-6)
-    ratios = np.clip([ext[0] / ext[2], ext[1] / ext[2], ext[0] / ext[1]], 0.35, 3.0)
-    panel_h = 3.6
-    width = float(ratios.sum() * panel_h + 0.8)
-    if width > 12.0:
-        panel_h *= 12.0 / width
-        width = 12.0
+    ratios, panel_h, width = _view_layout(ext, 3.6, 0.8, 12.0)
     specs = ((0, 2, "side view (along +y)"), (1, 2, "side view (along −x)"), (0, 1, "top view"))
     axis = "xyz"
     offs = "" if not np.any(origin) else " − origin"

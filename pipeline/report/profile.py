@@ -97,12 +97,14 @@ def occlusion_profile(
     stations: list[str] = []
     if data.cloud_station is not None:
         st = np.asarray(data.cloud_station)
+        centre = ref.mean(axis=0)
+        ref_c = ref - centre  # queried once per station
         for code in np.unique(st):
             name = f"S{int(code)}"
             stations.append(name)
             sel = st == code
-            d, _ = kdtree(cloud[sel] - ref.mean(axis=0)).query(
-                ref - ref.mean(axis=0),
+            d, _ = kdtree(cloud[sel] - centre).query(
+                ref_c,
                 k=1,
                 distance_upper_bound=tau * (1 + 1e-12),
                 workers=workers,

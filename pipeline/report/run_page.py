@@ -246,6 +246,7 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
             "<table>" + "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows) + "</table>"
         )
 
+    plotted = s["parameters"]["report"].get("plots", True)
     cards = []
     for key, title, what, view in (
         (
@@ -274,8 +275,12 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
             + f"<table>{cmp_rows(s[key])}</table>"
             f'<p><a href="{key}/report.html">full report</a> · '
             f'<a href="{key}/comparison.json">comparison.json</a></p>'
-            f'<a href="{key}/report.html"><img src="{key}/{view}" '
-            f'alt="distances ({key})"></a></div>'
+            + (
+                f'<a href="{key}/report.html"><img src="{key}/{view}" alt="distances ({key})"></a>'
+                if plotted
+                else '<p class="note">views not drawn (report.plots = false)</p>'
+            )
+            + "</div>"
         )
     files = "".join(
         f'<li><a href="{esc(v)}">{esc(v)}</a></li>' for v in dict.fromkeys(s["files"].values())

@@ -111,3 +111,24 @@ def test_the_cli_sources_type_no_numeric_default():
                         ):
                             bad.append(f"{path.name}:{node.lineno}")
     assert not bad, bad
+
+
+def test_a_parameter_on_by_default_can_be_turned_off():
+    """A bool parameter whose default is True gets ``--no-NAME`` beside ``--NAME``: the
+    bare flag alone could only set what is already set."""
+    from pipeline.cli._options import collect
+
+    seen = set()
+    for name, parser in PARSERS:
+        for a in parser._actions:
+            info = getattr(a, PARAM, None)
+            if info is None or info.base_type != "bool" or info.default is not True:
+                continue
+            seen.add(info.path[-1])
+            off = "--no-" + info.cli_flag.removeprefix("--")
+            assert off in a.option_strings, (name, a.option_strings)
+    assert {"plots", "leaf_layer"} <= seen
+    args = build_parser().parse_args(["report", "OUT", "--no-plots"])
+    assert collect(args) == {"plots": False}
+    args = build_parser().parse_args(["reconstruct", "c.ply", "-o", "o", "--no-leaf-layer"])
+    assert collect(args)["leaf_layer"] is False

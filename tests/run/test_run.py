@@ -361,7 +361,7 @@ def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_r
     for page in (moved / "report.html", moved / "vs_mesh/report.html"):
         refs = re.findall(r'(?:href|src)="([^"#]+)', page.read_text())
         refs = [r for r in refs if not r.startswith("data:")]
-        assert refs or page.name == "report.html"
+        assert refs or page.parent != moved  # the run page links its files, a report inlines
         for ref in refs:
             target = (page.parent / ref).resolve()
             assert target.is_file() and moved.resolve() in target.parents, ref
@@ -393,6 +393,20 @@ def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_r
         json.loads(files["report_json"].read_text())["occlusion_profile"]
         == (rep["occlusion_profile"])
     )
+
+
+def test_a_run_without_plots_links_no_missing_image(saplings, quick, tmp_path):
+    """report.plots = false: the run page says the views were not drawn instead of
+    showing images that were never written."""
+    import re
+
+    result = run_tree(saplings["sapling1"], quick, tmp_path / "run")
+    assert not list(result.outdir.rglob("*.png"))
+    page = result.report_html.read_text()
+    refs = [r for r in re.findall(r'(?:href|src)="([^"#]+)', page) if not r.startswith("data:")]
+    assert refs
+    for ref in refs:
+        assert (result.outdir / ref).is_file(), ref
 
 
 def test_the_run_page_has_a_3d_view_that_draws_in_chromium(sapling_run):

@@ -5,26 +5,18 @@ that opens the report. The page loads nothing from outside and logs no error."""
 
 from __future__ import annotations
 
-import shutil
-
 import pytest
+
+from tests.report.browser import chromium
 
 from .conftest import BUNDLED_CLOUD
 
 pytestmark = pytest.mark.slow
 
 
-def _browser_path() -> str:
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.skip("chromium is not installed (apt-get install chromium)")
-
-
 def test_jobs_page_uploads_runs_and_links_the_report(serve, tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (dev extra)")
-    exe = _browser_path()
+    exe = chromium()
     base, _ = serve(tmp_path / "data", workers=1, TREESIM_API_TOKEN="page-token")
     outside: list[str] = []
     errors: list[str] = []
