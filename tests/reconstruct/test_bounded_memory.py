@@ -20,7 +20,7 @@ from pipeline.reconstruct.preprocess import (
     statistical_outliers,
 )
 from pipeline.reconstruct.qsm import _bridge, _knn_graph, fit_qsm
-from tests.reconstruct.shapes import tube
+from tests.reconstruct.shapes import stem_on_ground, tube
 
 # `pipeline.reconstruct` the package, not the function `pipeline.reconstruct`
 _edge_watertight = importlib.import_module("pipeline.reconstruct")._edge_watertight
@@ -189,6 +189,15 @@ def test_prepare_with_outliers_removed_keeps_a_plain_search_of_what_is_left(clum
     p = np.concatenate([clumpy, rng.uniform(-2.0, 3.0, (40, 3))])
     prep = prepare(p, PrepareParams(voxel_size_m=None), normals=False)
     assert prep.steps[1]["removed"] > 0
+    _, plain = cKDTree(prep.points).query(prep.points, k=24)
+    assert np.array_equal(prep.neighbors, plain)
+    assert prep.spacing_m == point_spacing(prep.points, distinct=False)
+
+
+def test_prepare_with_the_ground_removed_keeps_a_plain_search_of_what_is_left(chunks):
+    pts, _ = stem_on_ground()
+    prep = prepare(pts, PrepareParams(voxel_size_m=None, remove_ground=True), normals=False)
+    assert prep.steps[2]["removed"] > 10000
     _, plain = cKDTree(prep.points).query(prep.points, k=24)
     assert np.array_equal(prep.neighbors, plain)
     assert prep.spacing_m == point_spacing(prep.points, distinct=False)
