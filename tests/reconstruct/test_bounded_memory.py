@@ -140,10 +140,12 @@ def test_prepare_without_normals_measures_the_same(chunks):
     assert without.spacing_m == point_spacing(without.points, distinct=False)
 
 
-def test_outlier_removal_in_chunks_keeps_the_plain_rule(clumpy, chunks):
+@pytest.mark.parametrize("searched", ["by itself", "by prepare (knn)"])
+def test_outlier_removal_in_chunks_keeps_the_plain_rule(clumpy, chunks, searched):
     rng = np.random.default_rng(5)
     p = np.concatenate([clumpy, rng.uniform(-2.0, 3.0, (40, 3))])
-    keep = statistical_outliers(p, 16, 2.0)
+    knn = nearest_neighbors(p, 24)[0] if searched == "by prepare (knn)" else None
+    keep = statistical_outliers(p, 16, 2.0, knn=knn)
     dist, idx = cKDTree(p).query(p, k=17)
     mean_d = dist[:, 1:].mean(axis=1)
     local = np.median(mean_d[idx[:, 1:]], axis=1)
@@ -178,7 +180,7 @@ def test_prepare_params_default_neighbours_cover_the_qsm():
 
 
 @pytest.mark.parametrize("kept_share", [0.9, 0.3])
-def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_share):
+def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_share, chunks):
     keep = np.random.default_rng(7).random(len(clumpy)) < kept_share
     tree = cKDTree(clumpy)
     nb, _ = nearest_neighbors(clumpy, 24, tree)
