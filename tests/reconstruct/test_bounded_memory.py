@@ -125,6 +125,18 @@ def test_fit_qsm_with_and_without_the_prepared_neighbours_agree(chunks):
         assert np.array_equal(getattr(own.table, name), getattr(given.table, name)), name
 
 
+def test_fit_qsm_in_chunks_equals_fit_qsm_in_one_chunk(monkeypatch):
+    # the graph, the bridges and the within-slice graph carry state across chunks: split
+    # into chunks of 97 points, the fit must not change
+    pts, _ = tube(radius=0.05, height=0.6, n=3000, noise_m=0.0005, seed=1)
+    spacing = point_spacing(pts, distinct=False)
+    whole = fit_qsm(pts, spacing_m=spacing)
+    monkeypatch.setattr(_qsm, "_CHUNK", 97)
+    split = fit_qsm(pts, spacing_m=spacing)
+    assert whole.table.n_cylinders > 3
+    assert whole.table.identical(split.table)
+
+
 def test_prepare_without_normals_measures_the_same(chunks):
     pts, _ = tube(radius=0.1, height=0.8, n=5000, noise_m=0.001, seed=2)
     with_normals = prepare(pts)
