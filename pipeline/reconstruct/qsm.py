@@ -617,7 +617,8 @@ def fit_qsm(
         r_min = max(params.resolve_sigmas * noise["sd_m"], res["min_radius_floor_m"])
         r_min_rule = f"max({params.resolve_sigmas:g} × noise σ, floor)"
     else:
-        r_min, r_min_rule = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m, "1.5 × spacing (no σ)"
+        r_min = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m
+        r_min_rule = f"{NO_NOISE_MIN_RADIUS_SPACINGS:g} × spacing (no σ)"
     measured = good_fit & (radius >= r_min)
     quality[~measured] = 0.0
     pos[measured] = fit_centre[measured]
