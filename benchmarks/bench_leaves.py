@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.cloud import LABEL_CODES, Cloud  # noqa: E402
 from pipeline.reconstruct import ReconstructParams, reconstruct  # noqa: E402
 from pipeline.reconstruct.leafwood import separate_leaves  # noqa: E402
-from tests.reconstruct.leafon import labelled_voxels, scan_preset  # noqa: E402
+from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores  # noqa: E402
 
 LILLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "trees" / "adtree" / "Lille_2.xyz"
 
@@ -71,10 +71,10 @@ def main() -> None:
     t0 = time.perf_counter()
     res = separate_leaves(pts)
     dt = time.perf_counter() - t0
-    tp = float((res.wood & wood).sum())
+    precision, recall = wood_scores(res.wood, wood)
     print(
         f"separation on aspen-leafon: {len(pts):,} points, wood precision "
-        f"{tp / res.wood.sum():.3f}, recall {tp / wood.sum():.3f} ({dt:.1f} s)"
+        f"{precision:.3f}, recall {recall:.3f} ({dt:.1f} s)"
     )
     print(f"QSM against the truth (leaf area of the truth: {tree_on.leaf_area_m2:.1f} m²):")
     qsm_row("aspen (leaf-off)", off.points, truth, "off")

@@ -173,7 +173,7 @@ def child(source: str, method: str, write_to: str = "") -> None:
         out["error"] = f"{type(e).__name__}: {e}"
     usage = resource.getrusage(resource.RUSAGE_SELF)
     out["cpu_s"] = usage.ru_utime + usage.ru_stime
-    out["rss_self_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["rss_self_mib"] = usage.ru_maxrss / 1024
     out["rss_children_mib"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     print(json.dumps(out, default=float))
 

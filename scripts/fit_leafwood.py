@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.cloud import LABEL_CODES  # noqa: E402
 from pipeline.reconstruct.leafwood import base_features as features  # noqa: E402
 from pipeline.reconstruct.leafwood import neighbours  # noqa: E402
-from tests.reconstruct.leafon import labelled_voxels, scan_preset  # noqa: E402
+from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores  # noqa: E402
 
 #: (preset, seed, angular step in degrees): the training scans.
 TRAINING = (
@@ -123,12 +123,8 @@ def main() -> None:
     wood = np.concatenate([s["wood"][s["pick"]] for s in leafy])
     threshold = balanced_threshold(score, wood)
     for s in scans:
-        pred, y = s["score"] > threshold, s["wood"]
-        tp = float((pred & y).sum())
-        print(
-            f"training {s['name']}: wood precision {tp / max(pred.sum(), 1):.3f}, "
-            f"recall {tp / max(y.sum(), 1):.3f}"
-        )
+        precision, recall = wood_scores(s["score"] > threshold, s["wood"])
+        print(f"training {s['name']}: wood precision {precision:.3f}, recall {recall:.3f}")
     model = {
         "description": "wood/leaf classifier of pipeline.reconstruct.leafwood",
         "fitted_by": "scripts/fit_leafwood.py",

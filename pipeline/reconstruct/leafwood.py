@@ -1,7 +1,7 @@
 """Wood and leaf separation of a field cloud, before the QSM.
 
 A leaf-on cloud handed to the QSM as it is gives nonsense: leaves are taken for twigs
-(the aspen-leafon preset comes out +44 % in total volume). :func:`separate_leaves` labels
+(the aspen-leafon preset comes out +33 % in total volume). :func:`separate_leaves` labels
 every point ``wood`` or ``leaf`` so that the QSM sees the wood only.
 
 The classifier is CANUPO's kind (Brodu & Lague 2012, ISPRS J. 68:121): multiscale

@@ -157,6 +157,15 @@ def _lengths(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return np.sqrt((diff * diff).sum(axis=-1))
 
 
+def _spacing(points: np.ndarray, neighbors: np.ndarray, nearest: np.ndarray | None) -> float:
+    """:func:`~pipeline.geometry.point_spacing` with ``distinct=False`` (the same bits)
+    from the :func:`nearest_neighbors` of ``points``: the median of ``nearest`` when the
+    search returned it, else of the lengths to the second column."""
+    if nearest is None:
+        nearest = _lengths(points, np.arange(len(points)), neighbors[:, 1])
+    return float(np.median(nearest))
+
+
 def _neighbors_of_kept(
     points: np.ndarray,
     neighbors: np.ndarray,
@@ -994,14 +1003,15 @@ def prepare(
     ground_info: dict[str, Any] = {}
     if params.remove_ground:
         tree = cKDTree(pts) if tree is None else tree
-        spacing = point_spacing(pts, distinct=False, tree=tree, workers=w)
+        spacing = _spacing(pts, neighbors, nearest)
         ground, ground_info = find_ground(
             pts, params.ground_tolerance_m, spacing, tree=tree, workers=w
         )
         if ground.any():
+            neighbors = _neighbors_of_kept(pts, neighbors, ~ground, k_keep, tree, workers=w)
+            nearest = None
             pts, weights = pts[~ground], weights[~ground]
-            tree = cKDTree(pts)
-            neighbors, nearest = nearest_neighbors(pts, k_keep, tree, workers=w)
+            tree = None
     steps.append(
         _step(
             "ground_removal",
@@ -1021,9 +1031,7 @@ def prepare(
 
     # 4. spacing (median nearest-neighbour distance), normals and leaves, from the
     # neighbours found in step 2
-    if nearest is None:
-        nearest = _lengths(pts, np.arange(len(pts)), neighbors[:, 1])
-    spacing = float(np.median(nearest))
+    spacing = _spacing(pts, neighbors, nearest)
     oriented: np.ndarray | None = None
     if params.normals_neighbors is not None and normals:
         oriented, evals, unoriented = _estimate_normals(

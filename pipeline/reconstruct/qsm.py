@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError
 from ..models import CylinderTable
 from ..params import QSMParams
-from .preprocess import _lengths, nearest_neighbors
+from .preprocess import _index_dtype, _lengths, nearest_neighbors
 
 
 @dataclass
@@ -95,7 +95,7 @@ def _knn_graph(
         own[lo : lo + len(j)] = keep.sum(axis=1)
         mirrored += np.bincount(j[lone], minlength=n)
     nnz = int(own.sum() + mirrored.sum())
-    itype = np.int32 if max(nnz, n) < 2**31 - 1 else np.int64
+    itype = _index_dtype(max(nnz, n))
     indptr = np.zeros(n + 1, dtype=itype)
     np.cumsum(own + mirrored, out=indptr[1:])
     indices = np.empty(nnz, dtype=itype)
@@ -617,7 +617,8 @@ def fit_qsm(
         r_min = max(params.resolve_sigmas * noise["sd_m"], res["min_radius_floor_m"])
         r_min_rule = f"max({params.resolve_sigmas:g} × noise σ, floor)"
     else:
-        r_min, r_min_rule = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m, "1.5 × spacing (no σ)"
+        r_min = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m
+        r_min_rule = f"{NO_NOISE_MIN_RADIUS_SPACINGS:g} × spacing (no σ)"
     measured = good_fit & (radius >= r_min)
     quality[~measured] = 0.0
     pos[measured] = fit_centre[measured]

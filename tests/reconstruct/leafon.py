@@ -1,7 +1,7 @@
 """Procedural trees scanned as the wood/leaf classifier's training and test scans are:
 the RIEGL VZ-400 noise model from three stations, every point labelled exactly by the
 virtual scanner. Shared by ``test_leafwood.py``, ``benchmarks/bench_leaves.py`` and
-``scripts/fit_leafwood.py``."""
+``scripts/fit_leafwood.py``, with the wood precision and recall they report."""
 
 from __future__ import annotations
 
@@ -49,3 +49,9 @@ def labelled_voxels(
     pts, _, inv = voxel_downsample(local, voxel_m)
     share = np.bincount(inv, weights=wood, minlength=len(pts)) / np.bincount(inv)
     return pts, share >= 0.5
+
+
+def wood_scores(wood: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Wood precision and recall of the labels ``wood`` against ``truth`` (both bool)."""
+    tp = float((wood & truth).sum())
+    return tp / max(int(wood.sum()), 1), tp / max(int(truth.sum()), 1)

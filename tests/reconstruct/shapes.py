@@ -27,6 +27,17 @@ def tube(
     return pts, radial
 
 
+def stem_on_ground(seed: int = 0) -> tuple[np.ndarray, int]:
+    """A noisy 15 cm stem 2 m tall standing on a noisy 3 m x 3 m ground plane: the points
+    (stem first) and the number of stem points."""
+    stem, _ = tube(radius=0.15, height=2.0, n=12000, noise_m=0.001, seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    g = np.c_[rng.uniform(-1.5, 1.5, 20000), rng.uniform(-1.5, 1.5, 20000)]
+    g = g[np.hypot(g[:, 0], g[:, 1]) > 0.15]
+    ground = np.c_[g, 0.003 * rng.normal(size=len(g))]
+    return np.vstack([stem, ground]), len(stem)
+
+
 def sphere(radius: float = 0.3, n: int = 6000, *, seed: int = 0) -> np.ndarray:
     """Points on a sphere centred at the origin (uniform by area)."""
     rng = np.random.default_rng(seed)

@@ -20,7 +20,7 @@ from pipeline.reconstruct.preprocess import (
     statistical_outliers,
 )
 from pipeline.reconstruct.qsm import _bridge, _knn_graph, fit_qsm
-from tests.reconstruct.shapes import tube
+from tests.reconstruct.shapes import stem_on_ground, tube
 
 # `pipeline.reconstruct` the package, not the function `pipeline.reconstruct`
 _edge_watertight = importlib.import_module("pipeline.reconstruct")._edge_watertight
@@ -112,14 +112,29 @@ def test_bridges_are_the_shortest_gaps(chunks):
 
 
 def test_fit_qsm_with_and_without_the_prepared_neighbours_agree(chunks):
+    # prepare's neighbours, as reconstruct() hands them over: outliers removed, so they
+    # are derived from the whole cloud's search, not searched again as fit_qsm does
     pts, _ = tube(radius=0.05, height=0.6, n=3000, noise_m=0.0005, seed=1)
-    spacing = point_spacing(pts, distinct=False)
-    own = fit_qsm(pts, spacing_m=spacing)
-    nb, _ = nearest_neighbors(pts, 24)
-    given = fit_qsm(pts, spacing_m=spacing, neighbors=nb)
+    scatter = np.random.default_rng(4).uniform(-0.3, 0.9, (30, 3))
+    prep = prepare(np.vstack([pts, scatter]), PrepareParams(voxel_size_m=None), normals=False)
+    assert prep.steps[1]["removed"] > 0
+    own = fit_qsm(prep.points, spacing_m=prep.spacing_m)
+    given = fit_qsm(prep.points, spacing_m=prep.spacing_m, neighbors=prep.neighbors)
     assert own.table.n_cylinders > 3
     for name in ("start", "axis", "length_m", "radius_m", "parent"):
         assert np.array_equal(getattr(own.table, name), getattr(given.table, name)), name
+
+
+def test_fit_qsm_in_chunks_equals_fit_qsm_in_one_chunk(monkeypatch):
+    # the graph, the bridges and the within-slice graph carry state across chunks: split
+    # into chunks of 97 points, the fit must not change
+    pts, _ = tube(radius=0.05, height=0.6, n=3000, noise_m=0.0005, seed=1)
+    spacing = point_spacing(pts, distinct=False)
+    whole = fit_qsm(pts, spacing_m=spacing)
+    monkeypatch.setattr(_qsm, "_CHUNK", 97)
+    split = fit_qsm(pts, spacing_m=spacing)
+    assert whole.table.n_cylinders > 3
+    assert whole.table.identical(split.table)
 
 
 def test_prepare_without_normals_measures_the_same(chunks):
@@ -137,10 +152,12 @@ def test_prepare_without_normals_measures_the_same(chunks):
     assert without.spacing_m == point_spacing(without.points, distinct=False)
 
 
-def test_outlier_removal_in_chunks_keeps_the_plain_rule(clumpy, chunks):
+@pytest.mark.parametrize("searched", ["by itself", "by prepare (knn)"])
+def test_outlier_removal_in_chunks_keeps_the_plain_rule(clumpy, chunks, searched):
     rng = np.random.default_rng(5)
     p = np.concatenate([clumpy, rng.uniform(-2.0, 3.0, (40, 3))])
-    keep = statistical_outliers(p, 16, 2.0)
+    knn = nearest_neighbors(p, 24)[0] if searched == "by prepare (knn)" else None
+    keep = statistical_outliers(p, 16, 2.0, knn=knn)
     dist, idx = cKDTree(p).query(p, k=17)
     mean_d = dist[:, 1:].mean(axis=1)
     local = np.median(mean_d[idx[:, 1:]], axis=1)
@@ -175,7 +192,7 @@ def test_prepare_params_default_neighbours_cover_the_qsm():
 
 
 @pytest.mark.parametrize("kept_share", [0.9, 0.3])
-def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_share):
+def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_share, chunks):
     keep = np.random.default_rng(7).random(len(clumpy)) < kept_share
     tree = cKDTree(clumpy)
     nb, _ = nearest_neighbors(clumpy, 24, tree)
@@ -189,6 +206,15 @@ def test_prepare_with_outliers_removed_keeps_a_plain_search_of_what_is_left(clum
     p = np.concatenate([clumpy, rng.uniform(-2.0, 3.0, (40, 3))])
     prep = prepare(p, PrepareParams(voxel_size_m=None), normals=False)
     assert prep.steps[1]["removed"] > 0
+    _, plain = cKDTree(prep.points).query(prep.points, k=24)
+    assert np.array_equal(prep.neighbors, plain)
+    assert prep.spacing_m == point_spacing(prep.points, distinct=False)
+
+
+def test_prepare_with_the_ground_removed_keeps_a_plain_search_of_what_is_left(chunks):
+    pts, _ = stem_on_ground()
+    prep = prepare(pts, PrepareParams(voxel_size_m=None, remove_ground=True), normals=False)
+    assert prep.steps[2]["removed"] > 10000
     _, plain = cKDTree(prep.points).query(prep.points, k=24)
     assert np.array_equal(prep.neighbors, plain)
     assert prep.spacing_m == point_spacing(prep.points, distinct=False)

@@ -16,7 +16,7 @@ from pipeline.errors import ModelError, ReconstructionError
 from pipeline.models.leaves import leaf_layer
 from pipeline.reconstruct import reconstruct
 from pipeline.reconstruct.leafwood import separate_leaves
-from tests.reconstruct.leafon import labelled_voxels, scan_preset
+from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores
 
 STEP_DEG = 0.08
 
@@ -24,11 +24,6 @@ STEP_DEG = 0.08
 @pytest.fixture(scope="module")
 def leafon_scan():
     return scan_preset("aspen-leafon", STEP_DEG)
-
-
-def wood_scores(wood: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    tp = float((wood & truth).sum())
-    return tp / max(int(wood.sum()), 1), tp / max(int(truth.sum()), 1)
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ from pipeline.reconstruct.preprocess import (
     voxel_downsample,
 )
 
-from .shapes import GEO, leaves, tube
+from .shapes import GEO, leaves, stem_on_ground, tube
 
 
 def _steps(prep: PreparedCloud) -> dict[str, dict]:
@@ -161,17 +161,8 @@ def test_outlier_removal_can_be_turned_off():
 # --------------------------------------------------------------------------- ground
 
 
-def _stem_on_ground(seed: int = 0) -> tuple[np.ndarray, int]:
-    stem, _ = tube(radius=0.15, height=2.0, n=12000, noise_m=0.001, seed=seed)
-    rng = np.random.default_rng(seed + 1)
-    g = np.c_[rng.uniform(-1.5, 1.5, 20000), rng.uniform(-1.5, 1.5, 20000)]
-    g = g[np.hypot(g[:, 0], g[:, 1]) > 0.15]
-    ground = np.c_[g, 0.003 * rng.normal(size=len(g))]
-    return np.vstack([stem, ground]), len(stem)
-
-
 def test_ground_plane_under_a_stem_is_removed_and_the_stem_kept():
-    pts, n_stem = _stem_on_ground()
+    pts, n_stem = stem_on_ground()
     params = PrepareParams(voxel_size_m=None, remove_ground=True)
     prep = prepare(Cloud(pts + GEO), params)
     step = _steps(prep)["ground_removal"]
@@ -196,7 +187,7 @@ def test_ground_removal_keeps_a_stem_base_without_ground():
 
 
 def test_ground_removal_is_off_by_default():
-    pts, _ = _stem_on_ground()
+    pts, _ = stem_on_ground()
     prep = prepare(pts, PrepareParams(voxel_size_m=None))
     step = _steps(prep)["ground_removal"]
     assert step["removed"] == 0 and step["params"]["enabled"] is False

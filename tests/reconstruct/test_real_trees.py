@@ -24,12 +24,16 @@ TREES = [
 README = Path(__file__).resolve().parents[2] / "README.md"
 
 
-def readme_coffee_figures() -> tuple[float, float]:
-    """(litres, DBH cm) the README prints for treesim on the coffee tree."""
+def readme_coffee_figures() -> tuple[float, float, float]:
+    """(litres, DBH cm, noise σ mm) the README prints for treesim on the coffee tree."""
     text = " ".join(README.read_text(encoding="utf-8").split())
-    m = re.search(r"On the real coffee tree: treesim ([0-9.]+) L, DBH ([0-9.]+) cm", text)
+    m = re.search(
+        r"On the real coffee tree: treesim ([0-9.]+) L, DBH ([0-9.]+) cm "
+        r"\(noise σ estimated ([0-9.]+) mm\)",
+        text,
+    )
     assert m, "the README's coffee-tree sentence changed; update this test with it"
-    return float(m.group(1)), float(m.group(2))
+    return float(m.group(1)), float(m.group(2)), float(m.group(3))
 
 
 def tree_path(folder: str, name: str):
@@ -86,14 +90,16 @@ def test_coffee_tree_beside_the_published_qsms(capsys):
     with capsys.disabled():
         print(
             f"\ncoffee tree: treesim {fig['volume_total_m3'] * 1000:.1f} L, DBH "
-            f"{fig['dbh_m'] * 100:.2f} cm | TreeQSM 2.4.1 21.6 L, 7.35 cm | SimpleForest 30.0 L"
+            f"{fig['dbh_m'] * 100:.2f} cm (noise σ estimated {fig['noise_sd_m'] * 1e3:.1f} mm) "
+            "| TreeQSM 2.4.1 21.6 L, 7.35 cm | SimpleForest 30.0 L"
         )
     # two published models of this cloud differ by 40 %; ours must sit in that span's
     # neighbourhood and the DBH near both tools' 7.35 cm
     assert 15.0 <= fig["volume_total_m3"] * 1000 <= 35.0
     assert abs(fig["dbh_m"] - 0.0735) < 0.005
     # and, deterministic, exactly what the README prints: within half its last digit
-    # (20.9 L: 0.05 L; 7.27 cm: 0.005 cm)
-    litres, dbh_cm = readme_coffee_figures()
+    # (20.9 L: 0.05 L; 7.27 cm: 0.005 cm; 1.5 mm: 0.05 mm)
+    litres, dbh_cm, noise_mm = readme_coffee_figures()
     assert fig["volume_total_m3"] * 1000 == pytest.approx(litres, abs=0.05)
     assert fig["dbh_m"] * 100 == pytest.approx(dbh_cm, abs=0.005)
+    assert fig["noise_sd_m"] * 1e3 == pytest.approx(noise_mm, abs=0.05)
