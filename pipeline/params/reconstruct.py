@@ -118,8 +118,9 @@ class QSMParams:
         ``1.5 × spacing`` when no fit allows an estimate).
     resolve_sigmas : float
         k of the radius a circle fit resolves, ``k σ``: below it a fitted radius is mostly
-        noise and the node takes the pipe model (4: on the procedural presets with 3 mm
-        range noise, fits from 4 σ up err +1..+3 % in median, fits under 3 σ +7..+9 %).
+        noise and the node takes the pipe model (4: the band from which every procedural
+        preset's fits are unbiased under 3 mm range noise, as
+        ``benchmarks/bench_noise_radii.py`` measures).
     twig_radius_m : float
         Radius prior of branch tips (twigs), m: the radius a branch tends to at its tip,
         where no scan resolves it. 1.5 mm is within the range of measured twig diameters
