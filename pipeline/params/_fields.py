@@ -283,9 +283,18 @@ def walk(cls: type, prefix: tuple[str, ...] = ()) -> Iterator[ParamInfo]:
 def check_bounds(obj: Any) -> None:
     """Raise :class:`InvalidParameterError` unless every number field (``int``,
     ``float``) of the dataclass ``obj`` holds a finite number, whole for an ``int``, within
-    the bounds it was declared with (``param(ge=..., ...)``); ``None`` passes for optional
-    fields. Called first by the parameter dataclasses' ``__post_init__``, so the declared
-    range is the one the model enforces (and the one the command line checks)."""
+    the bounds it was declared with (``param(ge=..., ...)``), and every text field with
+    declared ``choices`` holds one of them; ``None`` passes for optional fields. Called
+    first by the parameter dataclasses' ``__post_init__``, so the declared range and
+    choices are the ones the model enforces (and the ones the command line checks)."""
+    for info in _choice_fields(type(obj)):
+        value = getattr(obj, info.name)
+        if value is None and info.optional:
+            continue
+        if value not in info.choices:
+            raise InvalidParameterError(
+                f"{info.name} must be one of {', '.join(info.choices)}, got {value!r}"
+            )
     for info in _number_fields(type(obj)):
         value = getattr(obj, info.name)
         if value is None and info.optional:
@@ -299,6 +308,12 @@ def check_bounds(obj: Any) -> None:
                 raise InvalidParameterError(
                     f"{each}{info.name} must be {info.range_text()}, got {value!r}"
                 )
+
+
+@functools.cache
+def _choice_fields(cls: type) -> tuple[ParamInfo, ...]:
+    """The fields of dataclass ``cls`` declared with ``choices``, read once per class."""
+    return tuple(info for info in describe(cls) if info.choices)
 
 
 @functools.cache

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
-from ..errors import InvalidParameterError
 from ._fields import check_bounds, param
 
 Method = Literal["qsm", "poisson", "bpa"]
@@ -261,15 +260,6 @@ class ReconstructParams:
     )
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise InvalidParameterError(
-                f"method must be one of {', '.join(METHODS)}, got {self.method!r}"
-            )
-        if self.separate_leaves not in LEAF_MODES:
-            raise InvalidParameterError(
-                f"separate_leaves must be one of {', '.join(LEAF_MODES)}, "
-                f"got {self.separate_leaves!r}"
-            )
         check_bounds(self)
 
     def to_dict(self) -> dict[str, Any]:

@@ -97,8 +97,6 @@ class ScanParams:
 
     def __post_init__(self) -> None:
         check_bounds(self)
-        if self.lod not in LODS:
-            raise InvalidParameterError(f"lod must be one of {', '.join(LODS)}, got {self.lod!r}")
         if not isinstance(self.scanner, ScannerSpec):
             raise InvalidParameterError("scanner must be a ScannerSpec")
 

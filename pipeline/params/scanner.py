@@ -154,15 +154,6 @@ class ScannerSpec:
                 "ranges must satisfy 0 <= min_range_m < max_range_m, got "
                 f"{self.min_range_m}, {self.max_range_m}"
             )
-        if self.beam_sampling not in BEAM_SAMPLINGS:
-            raise InvalidParameterError(
-                f"beam_sampling must be one of {', '.join(BEAM_SAMPLINGS)}, "
-                f"got {self.beam_sampling!r}"
-            )
-        if self.return_mode not in RETURN_MODES:
-            raise InvalidParameterError(
-                f"return_mode must be one of {', '.join(RETURN_MODES)}, got {self.return_mode!r}"
-            )
 
     # -- derived -----------------------------------------------------------------------
     @property

@@ -121,3 +121,19 @@ def test_unknown_keys_and_bad_values_are_refused_with_their_place():
         params_from_dict({"scan": {"colour": 1}})
     with pytest.raises(InvalidParameterError, match="unknown preset 'ultra'"):
         run_preset("ultra")
+
+
+def test_every_declared_choice_is_enforced_by_the_model():
+    # every text field declared with choices refuses another value where the dataclass is
+    # built (a TOML file, the service, Python), not only on the command line; CompareParams'
+    # hidden_surface and ModelParams' joints had no check of their own
+    from pipeline.params import CompareParams, ReconstructParams, ScanParams, describe
+
+    checked = []
+    for cls in (CompareParams, ModelParams, ReconstructParams, ScannerSpec, ScanParams):
+        for info in describe(cls):
+            if info.choices:
+                with pytest.raises(InvalidParameterError, match=f"{info.name} must be one of"):
+                    cls(**{info.name: "no-such-choice"})
+                checked.append(info.name)
+    assert {"hidden_surface", "joints", "method", "lod", "return_mode"} <= set(checked)
