@@ -15,7 +15,10 @@ import numpy as np
 from .cloud import LABEL_CODES, LABEL_NAMES
 from .errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
 
-__all__ = ["MeshPart", "Scene", "label_from_name", "labelled_parts"]
+__all__ = ["MAX_TREE_ID", "MeshPart", "Scene", "label_from_name", "labelled_parts"]
+
+#: Largest tree id a part may carry (ids are stored as uint32 in clouds).
+MAX_TREE_ID = 2**32 - 1
 
 _LABEL_PATTERNS: list[tuple[str, re.Pattern[str]]] = [
     ("leaf", re.compile(r"leaf|leaves|foliage|needle|crown_?leaf", re.I)),
@@ -46,17 +49,30 @@ class MeshPart:
         One of ``wood``, ``leaf``, ``ground``, ``other``.
     name : str
         Where the part came from (file and group), for messages and reports.
+    tree_id : int
+        The tree the part belongs to in a plot (>= 1), or 0 (no tree: terrain, a lone
+        tree's scene). A scan of a scene with any tree id labels every point with it.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     label: str = "other"
     name: str = ""
+    tree_id: int = 0
 
     def __post_init__(self) -> None:
         if self.label not in LABEL_CODES:
             raise InvalidParameterError(
                 f"part label must be one of {', '.join(LABEL_CODES)}, got {self.label!r}"
+            )
+        if (
+            isinstance(self.tree_id, bool)
+            or not isinstance(self.tree_id, int | np.integer)
+            or not 0 <= int(self.tree_id) <= MAX_TREE_ID
+        ):
+            raise InvalidParameterError(
+                f"{self.name or 'part'}: tree_id must be an integer in [0, {MAX_TREE_ID}], "
+                f"got {self.tree_id!r}"
             )
 
 
@@ -70,6 +86,9 @@ class Scene:
     faces : (f, 3) int64
     face_label : (f,) uint8
         Label code (see ``pipeline.cloud.LABEL_CODES``) of every triangle.
+    face_tree : (f,) uint32 or None
+        The tree id of every triangle (its part's ``tree_id``; 0: no tree), or None
+        when no part belongs to a tree.
     parts : list of MeshPart
     dropped_degenerate : int
         Zero-area triangles removed during validation (they give NaN normals).
@@ -88,12 +107,13 @@ class Scene:
     vertices: np.ndarray = field(init=False)
     faces: np.ndarray = field(init=False)
     face_label: np.ndarray = field(init=False)
+    face_tree: np.ndarray | None = field(init=False, default=None)
     dropped_degenerate: int = field(init=False, default=0)
 
     def __post_init__(self) -> None:
         if not self.parts:
             raise EmptyInputError("the scene has no mesh parts")
-        verts, faces, labels = [], [], []
+        verts, faces, labels, trees = [], [], [], []
         offset = 0
         dropped = 0
         for part in self.parts:
@@ -126,6 +146,7 @@ class Scene:
             verts.append(v)
             faces.append(f + offset)
             labels.append(np.full(len(f), LABEL_CODES[part.label], dtype=np.uint8))
+            trees.append(np.full(len(f), int(part.tree_id), dtype=np.uint32))
             offset += len(v)
         if not faces or sum(len(f) for f in faces) == 0:
             names = ", ".join(p.name or "mesh" for p in self.parts)
@@ -133,6 +154,8 @@ class Scene:
         self.vertices = np.concatenate(verts)
         self.faces = np.concatenate(faces)
         self.face_label = np.concatenate(labels)
+        if any(int(p.tree_id) for p in self.parts):
+            self.face_tree = np.concatenate(trees)
         self.dropped_degenerate = dropped
         mask = np.zeros(len(self.vertices), dtype=bool)
         mask[self.faces.ravel()] = True
@@ -189,6 +212,14 @@ class Scene:
         """Number of (non-degenerate) triangles."""
         return len(self.faces)
 
+    @property
+    def tree_ids(self) -> list[int]:
+        """The tree ids of the triangles (ascending; 0 where some have none), or [] when
+        no part belongs to a tree."""
+        if self.face_tree is None:
+            return []
+        return [int(t) for t in np.unique(self.face_tree)]
+
     def labels_present(self) -> list[str]:
         """Labels (``wood``, ``leaf``, ...) of the triangles, in label-code order."""
         codes = np.unique(self.face_label)
@@ -203,6 +234,7 @@ def labelled_parts(
     *,
     name_prefix: str = "",
     label: str | None = None,
+    tree_id: int = 0,
 ) -> list[MeshPart]:
     """Split a mesh whose triangles carry label codes into one part per code.
 
@@ -219,6 +251,8 @@ def labelled_parts(
         Prefix of the part names, which end in the code's label name.
     label : str, optional
         Force this label on every part (the names keep the codes' names).
+    tree_id : int
+        The parts' tree id (see :class:`MeshPart`).
 
     Returns
     -------
@@ -235,6 +269,7 @@ def labelled_parts(
                 faces=np.asarray(faces)[codes == code],
                 label=label or name,
                 name=f"{name_prefix}{name}",
+                tree_id=tree_id,
             )
         )
     return parts

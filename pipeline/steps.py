@@ -163,7 +163,7 @@ def scan_files(
     :class:`~pipeline.scan.ScanEstimate` (for this output's format).
     """
     from .io import open_cloud_writer
-    from .scan import SCAN_FIELDS, scan_metadata
+    from .scan import scan_fields, scan_metadata
 
     say = _say(progress)
     params = params or ScanParams()
@@ -186,7 +186,7 @@ def scan_files(
         # the cloud is written while it is cast: memory does not grow with the points
         with open_cloud_writer(
             out,
-            fields=SCAN_FIELDS,
+            fields=scan_fields(scene),
             metadata=scan_metadata(placed),
             origin_hint_m=scene.bounds[0],
             threads=int(threads),

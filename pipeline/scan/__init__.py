@@ -15,7 +15,15 @@ from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, i
 from ..scene import MeshPart, Scene, label_from_name
 from .estimate import ScanEstimate
 from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
-from .trace import SCAN_FIELDS, ScanResult, StationStats, estimate_scan, scan, scan_metadata
+from .trace import (
+    SCAN_FIELDS,
+    ScanResult,
+    StationStats,
+    estimate_scan,
+    scan,
+    scan_fields,
+    scan_metadata,
+)
 
 __all__ = [
     "INSTRUMENTS",
@@ -37,6 +45,7 @@ __all__ = [
     "ring_around",
     "ring_layout",
     "scan",
+    "scan_fields",
     "scan_metadata",
     "station_distance_m",
     "stations_for",

@@ -135,7 +135,7 @@ class ScanResult:
     ``incidence_deg`` (float32), ``label`` (uint8, see ``cloud.metadata['label_names']``),
     ``return_number``, ``number_of_returns`` (uint8), ``intensity`` (uint16),
     ``scan_line`` (elevation step index, int32) and ``scan_column`` (azimuth step index,
-    int32).
+    int32); and ``tree_id`` (uint32) when the scene's parts carry tree ids (a plot).
     """
 
     cloud: Cloud
@@ -215,6 +215,8 @@ class _Caster:
         twice_area = np.linalg.norm(n, axis=1)
         self.normal = n / twice_area[:, None]
         self.label = scene.face_label if keep is None else scene.face_label[keep]
+        ft = scene.face_tree
+        self.tree = None if ft is None else (ft if keep is None else ft[keep])
         self.lo, self.hi = frame.to_local(scene.bounds)
         self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
@@ -1114,7 +1116,9 @@ def scan(
     reflect = np.zeros(len(LABEL_CODES))
     for name, code in LABEL_CODES.items():
         reflect[code] = spec.reflectance.get(name, spec.reflectance.get("other", 0.5))
-    out: dict[str, list[np.ndarray]] = {k: [] for k in _FIELDS}
+    fields_out = scan_fields(scene)
+    with_trees = "tree_id" in fields_out
+    out: dict[str, list[np.ndarray]] = {k: [] for k in fields_out}
     pts: list[np.ndarray] = []
     stats: list[StationStats] = []
     total_pulses = max(1, plan.pulses_cast)
@@ -1190,6 +1194,8 @@ def scan(
                     "scan_line": lines_r[pi].astype(np.int32),
                     "scan_column": cols_r[pi].astype(np.int32),
                 }
+                if with_trees:
+                    chunk_fields["tree_id"] = caster.tree[prim].astype(np.uint32)
                 if sink is not None:
                     sink(frame.to_global(p_local), chunk_fields)
                     n_written += n_rec
@@ -1232,7 +1238,7 @@ def scan(
         fields = {k: np.concatenate(v) for k, v in out.items()}
     else:
         points = np.empty((0, 3))
-        fields = {k: np.empty(0, dtype=_FIELDS[k]) for k in _FIELDS}
+        fields = {k: np.empty(0, dtype=v) for k, v in fields_out.items()}
     cloud = Cloud(points, fields, scan_metadata(stations))
     return ScanResult(
         cloud=cloud,
@@ -1271,8 +1277,18 @@ _FIELDS: dict[str, Any] = {
     "scan_line": np.int32,
     "scan_column": np.int32,
 }
-#: The fields of a simulated cloud and their types (what a streaming writer declares).
+#: The fields of a simulated cloud and their types (what a streaming writer declares);
+#: a scene whose parts carry tree ids adds ``tree_id`` (see :func:`scan_fields`).
 SCAN_FIELDS: dict[str, np.dtype] = {k: np.dtype(v) for k, v in _FIELDS.items()}
+
+
+def scan_fields(scene: Scene) -> dict[str, np.dtype]:
+    """The per-point fields a scan of ``scene`` makes: :data:`SCAN_FIELDS`, plus
+    ``tree_id`` (uint32; 0 where the hit part belongs to no tree) when any part of the
+    scene carries a tree id (a plot)."""
+    if scene.face_tree is None:
+        return dict(SCAN_FIELDS)
+    return {**SCAN_FIELDS, "tree_id": np.dtype(np.uint32)}
 
 
 #: A neighbour's hit farther than this from the plane of a pulse's hit triangle means a
@@ -1610,6 +1626,7 @@ def _beam_returns(
 __all__ = [
     "BYTES_PER_RAY",
     "SCAN_FIELDS",
+    "scan_fields",
     "ScanResult",
     "StationStats",
     "estimate_scan",
