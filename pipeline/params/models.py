@@ -28,7 +28,9 @@ class ModelParams:
     facets : int
         Vertices per ring of the wood mesh.
     joints : {"miter", "separate"}
-        miter: one crack-free tube per branch; separate: a closed prism per cylinder.
+        miter: one crack-free tube per branch, starting inside its parent (a plug
+        sunk into the parent closes the junction, as reconstruct meshes its own
+        tables); separate: a closed prism per cylinder.
     """
 
     species: str | None = param(None, help="tree species (see 'treesim model list')")
@@ -39,7 +41,8 @@ class ModelParams:
     facets: int = param(32, help="vertices per ring of the wood mesh", ge=3)
     joints: str = param(
         "miter",
-        help="miter: one crack-free tube per branch; separate: a closed prism per cylinder",
+        help="miter: one crack-free tube per branch, its start sunk into its parent; "
+        "separate: a closed prism per cylinder",
         choices=JOINTS,
     )
 

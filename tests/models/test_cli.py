@@ -167,10 +167,19 @@ def test_from_qsm_joints(tmp_path: Path, capsys) -> None:
     assert main(["model", "from-qsm", str(table_path), "--facets", "10", "-o", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "miter joints" in printed
+    assert "1 of 1 branch starts sunk into their parents" in printed
     mitred = load_mesh(out)[0]
     # Two tubes: the stem (2 sides, 2 caps, an annulus at its 0.1 -> 0.09 m radius step)
-    # and the branch (1 side, 2 caps), 2 triangles per facet each.
-    assert len(mitred.faces) == (2 + 2 + 2 + 1 + 1 + 2 + 2) * 10
+    # and the branch (its side, the plug's side reaching back into the stem, 2 caps),
+    # 2 triangles per facet each.
+    assert len(mitred.faces) == (2 + 2 + 2 + 1 + 1 + 2 + 2 + 2) * 10
+    # the plug runs back along the branch's axis to where it passes closest to the
+    # stem's (the z axis): x = 0 at z = 0.5 - 0.05 * 0.4 / 0.75; its base ring, of the
+    # branch's 0.03 m radius, lies inside the 0.1 m stem
+    v = mitred.vertices
+    base = v[np.abs(v[:, 0]) < 0.03 + 1e-9]
+    base = base[np.abs(base[:, 2] - (0.5 - 0.05 * 0.4 / 0.75)) < 0.03 + 1e-9]
+    assert len(base) >= 10
     assert main(["model", "from-qsm", str(table_path), "--joints", "separate", "-o", str(out)]) == 0
     assert len(load_mesh(out)[0].faces) == 3 * 4 * 32
 
