@@ -181,7 +181,7 @@ class Scene:
         Parameters
         ----------
         vertices : (v, 3) float
-            Vertex coordinates (m); shared by every part.
+            Vertex coordinates (m); each part keeps the ones its triangles use.
         faces : (f, 3) int
             Triangles as vertex indices.
         face_label : (f,) int
@@ -241,7 +241,8 @@ def labelled_parts(
     Parameters
     ----------
     vertices : (v, 3) float
-        Vertex coordinates (m); shared by every part (not copied).
+        Vertex coordinates (m). One label: the part shares them (not copied); several:
+        each part gets a copy of the vertices its triangles use.
     faces : (f, 3) int
         Triangles as vertex indices.
     face_label : (f,) int
@@ -260,13 +261,23 @@ def labelled_parts(
         In ascending code order; empty if there are no triangles.
     """
     codes = np.asarray(face_label)
+    faces = np.asarray(faces)
+    present = np.unique(codes)
     parts = []
-    for code in np.unique(codes):
+    for code in present:
         name = LABEL_NAMES.get(int(code), "other")
+        part_faces = faces[codes == code]
+        part_vertices = vertices
+        if len(present) > 1:
+            # each part keeps only its own vertices: a plot of leafy trees would
+            # otherwise hold every vertex once per label
+            used, inverse = np.unique(part_faces, return_inverse=True)
+            part_vertices = np.asarray(vertices)[used]
+            part_faces = inverse.reshape(-1, 3)
         parts.append(
             MeshPart(
-                vertices=vertices,
-                faces=np.asarray(faces)[codes == code],
+                vertices=part_vertices,
+                faces=part_faces,
                 label=label or name,
                 name=f"{name_prefix}{name}",
                 tree_id=tree_id,

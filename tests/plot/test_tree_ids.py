@@ -53,3 +53,27 @@ def test_a_scene_without_trees_has_no_tree_field():
 def test_bad_tree_ids_are_refused(bad):
     with pytest.raises(InvalidParameterError, match="tree_id"):
         _box((0, 0, 0), bad)
+
+
+def test_labelled_parts_keep_only_their_own_vertices():
+    from pipeline.models import generate_tree
+    from pipeline.scene import labelled_parts
+
+    v, f, lab = generate_tree("aspen-leafon", seed=3).mesh(facets=8)
+    parts = labelled_parts(v, f, lab, tree_id=4)
+    assert sum(len(p.vertices) for p in parts) == len(np.unique(f))
+    assert all(p.tree_id == 4 for p in parts)
+    # the same triangles, in the same order, as parts that share the whole array
+    shared = Scene([MeshPart(v, f[lab == c], p.label, p.name) for c, p in
+                    zip(np.unique(lab), parts, strict=True)])  # fmt: skip
+    compact = Scene(parts)
+    np.testing.assert_array_equal(compact.vertices[compact.faces], shared.vertices[shared.faces])
+    np.testing.assert_array_equal(compact.face_label, shared.face_label)
+    assert len(compact.vertices) < len(shared.vertices)
+    spec = ScannerSpec(horizontal_resolution_deg=0.3, vertical_resolution_deg=0.3)
+    st = [Station(position_m=(12.0, 0.0, 1.5))]
+    a, b = scan(compact, st, spec).cloud, scan(shared, st, spec).cloud
+    assert len(a) > 1000
+    np.testing.assert_array_equal(a.points, b.points)
+    for k in ("label", "range_m", "intensity"):
+        np.testing.assert_array_equal(a.fields[k], b.fields[k])
