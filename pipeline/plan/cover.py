@@ -19,9 +19,10 @@ still beats the next bound. Stop when every tree that can reach its goal (from a
 candidates together) meets it, when the budget is spent, or when no candidate gains.
 
 **Swap search** (:func:`improve`): with ``k`` greedy stations meeting the goal, try
-``k - 1``: drop the station whose loss is least and swap stations for candidates
-(best improvement of F, every station against every candidate at once) until the goal
-is met again (keep ``k - 1``, try ``k - 2``) or no swap improves F (keep ``k``).
+``k - 1``: drop a station and swap stations for candidates (best improvement of F, every
+station against every candidate at once) until the goal is met again (keep ``k - 1``, try
+``k - 2``) or no swap improves F; a climb that ends on a local optimum is tried again from
+another drop (least loss first, up to ``max_drops``) before ``k`` is kept.
 Finally the kept plan is polished by the same swaps (only the tie-break can move).
 """
 
@@ -251,6 +252,7 @@ def improve(
     *,
     reachable: np.ndarray,
     max_rounds: int = 50,
+    max_drops: int = 8,
 ) -> Selection:
     """Swap search after the greedy (see the module's notes); returns a new Selection."""
     chosen = list(sel.chosen)
@@ -285,12 +287,17 @@ def improve(
 
     if goal_met(chosen):
         while len(chosen) > 1:
-            # drop the station whose loss is least, then climb towards the goal
+            # drop a station (least loss first), then climb towards the goal; a climb can
+            # stop on a local optimum, so up to max_drops different drops are tried
             vals = [value(chosen[:i] + chosen[i + 1 :]) for i in range(len(chosen))]
             evals += len(chosen)
-            drop = int(np.argmax(vals))
-            trial, ok = climb(chosen[:drop] + chosen[drop + 1 :], stop_when_met=True)
-            history.append({"tried_stations": len(trial), "goal_met": ok})
+            ok = False
+            for drop in np.argsort(vals)[::-1][:max_drops]:
+                d = int(drop)
+                trial, ok = climb(chosen[:d] + chosen[d + 1 :], stop_when_met=True)
+                if ok:
+                    break
+            history.append({"tried_stations": len(chosen) - 1, "goal_met": ok})
             if not ok:
                 break
             chosen = trial

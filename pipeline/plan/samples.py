@@ -176,10 +176,20 @@ def _band(
     if not keep.any():
         return empty
     fk = f[keep]
-    # oversample: the triangles reach past the band; keep the samples inside it
-    pts, fi = sample_surface(v, fk, 4 * n, seed=seed + 7919)
-    inb = (pts[:, 2] >= z0) & (pts[:, 2] <= z1)
-    pts, fi = pts[inb][:n], fi[inb][:n]
+    # oversample: the triangles reach past the band (a tube's facets may span metres);
+    # keep the samples inside it, drawing again as many as the first draw's share needs
+    m = 4 * n
+    for _ in range(2):
+        pts, fi = sample_surface(v, fk, m, seed=seed + 7919)
+        inb = (pts[:, 2] >= z0) & (pts[:, 2] <= z1)
+        share = float(inb.mean())
+        if inb.sum() >= n or share == 0:
+            break
+        m = int(min(200 * n, math.ceil(1.2 * n / share)))
+    pts, fi = pts[inb], fi[inb]
+    if len(pts) > n:  # samples come in face order: thin them evenly, not the first n
+        keep_idx = np.linspace(0, len(pts) - 1, n).round().astype(np.int64)
+        pts, fi = pts[keep_idx], fi[keep_idx]
     if len(pts) < 8:
         return empty
     axis = pts[:, :2].mean(axis=0)

@@ -130,8 +130,9 @@ class VisibilityCaster:
     def _thickness(self) -> np.ndarray:
         """Per sample, the distance along its inward normal (outward normals assumed, as
         closed tubes have) to the next surface: a branch's diameter; inf for open sheets
-        (leaves, whose extent, not their thickness, matters)."""
-        eps = 1e-5
+        (leaves, whose extent, not their thickness, matters). The ray starts 1 mm inside,
+        clear of the sample's own triangle whatever float32 makes of it."""
+        eps = 1e-3
         n = self.samples.normals
         rays = np.concatenate([self.pts - eps * n, -n], axis=1)
         out = np.empty(len(rays))
