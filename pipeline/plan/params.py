@@ -103,7 +103,7 @@ class PlanParams:
     verify: bool = param(
         True, help="scan the plan (and the best baseline) at full resolution and measure it"
     )
-    seed: int = param(0, help="seed of the surface samples", ge=0)
+    sample_seed: int = param(0, help="seed of the surface samples", ge=0)
     threads: int = param(0, help="Open3D threads (0: all cores)", ge=0, execution_only=True)
 
     def __post_init__(self) -> None:

@@ -314,7 +314,7 @@ def plan_scans(
         band_samples=p.band_samples,
         band_m=p.dbh_band_m,
         arc_bin_deg=p.arc_bin_deg,
-        seed=p.seed,
+        seed=p.sample_seed,
         nthreads=p.threads,
         progress=lambda f, m: say(0.1 * f, m),
     )
@@ -376,8 +376,8 @@ def plan_scans(
     ring_d = p.ring_distance_m
     if ring_d is None:
         if single_tree:
-            lo, hi = scene.bounds
-            ext = hi - lo
+            v = np.concatenate([np.asarray(q.vertices) for t in targets for q in t.parts])
+            ext = v.max(axis=0) - v.min(axis=0)
             ring_d = station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
         else:
             ring_d = 0.5 * plot.radius_m
@@ -437,7 +437,7 @@ def plan_scans(
             samples,
             obj,
             tolerance_m=p.tolerance_m,
-            seed=p.seed,
+            seed=p.sample_seed,
             nthreads=p.threads,
         )
         timings["verify_plan"] = time.perf_counter() - t0
@@ -454,7 +454,7 @@ def plan_scans(
                 samples,
                 obj,
                 tolerance_m=p.tolerance_m,
-                seed=p.seed,
+                seed=p.sample_seed,
                 nthreads=p.threads,
             )
             baseline_verification = {"name": name, **bver}

@@ -10,7 +10,8 @@ measures per tree:
   goal, with compare's own denser samples);
 * ``coverage_samples``: the planner's own coverage samples with a point within τ (the
   predicted figure's sample set, for a like-for-like check of the visibility model);
-* ``arc_deg``: the planner's band samples with a point within τ, by the goal's sector rule.
+* ``arc_deg``: the planner's band samples with a point within τ on their own side of the
+  stem axis, by the goal's sector rule.
 
 The scan is the one place this module touches the plot's geometry
 (:func:`_scan_plot`): at merge it is meant to become :func:`pipeline.plot.scan.scan_plot`,
@@ -79,13 +80,23 @@ def verify_plan(
         entry: dict[str, Any] = {"points": int(len(sel))}
         sl = samples.tree_slice(i)
         if len(sel):
-            tree = kdtree(cloud.points[sel] - samples.points[sl].mean(axis=0))
-            d, _ = tree.query(
-                samples.points[sl] - samples.points[sl].mean(axis=0),
-                k=1,
-                distance_upper_bound=tolerance_m * (1 + 1e-12),
+            centre = samples.points[sl].mean(axis=0)
+            pts = cloud.points[sel]
+            tree = kdtree(pts - centre)
+            d, j = tree.query(
+                samples.points[sl] - centre, k=1, distance_upper_bound=tolerance_m * (1 + 1e-12)
             )
-            seen[sl] = (d <= tolerance_m).astype(np.uint8)
+            ok = d <= tolerance_m
+            # a band sample counts only with a point on its own side of the stem axis
+            band = samples.band[sl]
+            if band.any():
+                axis = samples.stem_xy[i]
+                js = np.where(ok, j, 0)
+                radial_s = samples.points[sl][:, :2] - axis
+                radial_p = pts[js, :2] - axis
+                same = np.einsum("ij,ij->i", radial_s, radial_p) > 0
+                ok &= ~band | same
+            seen[sl] = ok.astype(np.uint8)
         if len(sel) >= MIN_CLOUD_POINTS:
             v, f, _ = t.mesh()
             try:

@@ -5,7 +5,8 @@
 1. the first surface the ray from the station towards the sample meets lies within τ
    of the sample (its own surface, or one in front of it closer than τ: a thin branch's
    near side for a sample on its far side), so the return along that ray is a point
-   within τ;
+   within τ; for a DBH band sample, the first surface met must be its own (a point on
+   the near side of a stem does not measure its far side);
 2. its range is within the scanner's ``min_range_m`` .. ``max_range_m`` and its elevation
    within the vertical field of view (and its azimuth within the horizontal one, for a
    station heading 0);
@@ -197,6 +198,9 @@ class VisibilityCaster:
         r_hit = np.minimum(t_hit, 1.0) * dc
         w = np.where(own, self.thickness_m[idx[cand]], np.inf)
         first &= max_spacing_ok(r_hit, cos_inc, step, tau_m, w)
+        # band samples (DBH) count only on their own side of the stem: the first hit is
+        # their own surface, not the stem's near side within τ of them
+        first &= own | ~s.band[idx[cand]]
         seen = np.flatnonzero(first)
         q[idx[cand[seen]]] = np.clip(np.rint(255.0 * cos_inc[seen]), 1, 255).astype(np.uint8)
         return q, int(len(cand)), int(len(trees))
