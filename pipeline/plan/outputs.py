@@ -98,9 +98,9 @@ def map_png(result: PlanResult, path: Path) -> Path:
         linewidths=0.5,
         zorder=3,
     )
-    for i in np.flatnonzero(~result.reachable):
-        if True:
-            ax.scatter([xy[i, 0]], [xy[i, 1]], s=160, facecolors="none", edgecolors="red", zorder=4)
+    out = ~result.reachable  # trees no candidate can bring to the goal: ringed in red
+    if out.any():
+        ax.scatter(xy[out, 0], xy[out, 1], s=160, facecolors="none", edgecolors="red", zorder=4)
     fig.colorbar(sc, ax=ax, label="coverage (" + ("verified" if ver else "predicted") + ")")
     best = result.comparison.get("best_baseline")
     lay = next((x for x in result.baseline_layouts if x.name == best), None)
