@@ -96,7 +96,7 @@ class PlanParams:
         None,
         help="baselines: square grid spacings",
         unit="m",
-        none_means="1/3, 1/2 and 2/3 of the plot radius",
+        none_means="1/3, 1/2 and 2/3 of the plot radius, to 0.1 m",
         flag="--grid-spacing-m",
         gt=0,
     )

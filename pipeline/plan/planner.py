@@ -28,7 +28,7 @@ from .layouts import Layout, TreeClearance, candidate_grid, classic_layouts
 from .params import PlanParams
 from .samples import SampleSet, TreeTarget, sample_trees
 from .verify import verify_plan
-from .visibility import VisibilityCaster, visibility
+from .visibility import Visibility, VisibilityCaster, visibility
 
 __all__ = ["PlanResult", "plan_scans", "tree_targets"]
 
@@ -72,6 +72,8 @@ class PlanResult:
     verification: dict[str, Any] | None
     baseline_verification: dict[str, Any] | None
     plot_info: dict[str, Any]
+    objective: Objective
+    visibility: Visibility
     timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -381,7 +383,9 @@ def plan_scans(
             ring_d = station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
         else:
             ring_d = 0.5 * plot.radius_m
-    spacings = p.grid_spacings_m or tuple(plot.radius_m * f for f in (1 / 3, 1 / 2, 2 / 3))
+    spacings = p.grid_spacings_m or tuple(
+        round(plot.radius_m * f, 1) for f in (1 / 3, 1 / 2, 2 / 3)
+    )
     layouts = classic_layouts(
         plot.terrain,
         plot.centre_xy,
@@ -497,5 +501,7 @@ def plan_scans(
             "triangles": int(len(scene.faces)),
             "single_tree": single_tree,
         },
+        objective=obj,
+        visibility=vis,
         timings_s=timings,
     )

@@ -8,9 +8,10 @@ Per tree, two strata, both area-uniform and seeded (:func:`pipeline.geometry.sam
   that coverage is of the surface a scanner could see;
 * **band samples** (``band_samples``) on the stem between ``dbh_band_m`` above the stem
   base: the wood triangles that reach into the band within ``STEM_SEARCH_M`` of the stem
-  base, cut to the band. The stem axis there is the mean of the band samples (area-uniform
-  samples of a round stem average to its centre); samples farther than twice their median
-  distance from it (a branch leaving in the band) are left out. Each band sample gets the
+  base (of a mesh of separate tubes, only the stem's: the piece holding the lowest wood
+  triangle), cut to the band. The stem axis and radius there are a circle fitted to the band
+  samples (Kasa's least squares), started from their median and refitted on the samples
+  within 30 % of its radius: a branch leaving in the band is left out. Each band sample gets the
   ``arc_bin_deg`` sector of its angle around the axis.
 
 Samples are stored tree by tree, each tree's band samples first (sorted by sector), then
@@ -149,6 +150,15 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
 
 
+def _circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares circle through points (Kasa): centre (2,), radius."""
+    a = np.column_stack([xy, np.ones(len(xy))])
+    b = -(xy**2).sum(axis=1)
+    (d, e, f), *_ = np.linalg.lstsq(a, b, rcond=None)
+    c = np.array([-d / 2, -e / 2])
+    return c, float(np.sqrt(max(c @ c - f, 0.0)))
+
+
 def _band(
     v: np.ndarray,
     f: np.ndarray,
@@ -158,6 +168,7 @@ def _band(
     n: int,
     seed: int,
     bin_deg: float,
+    part_of_face: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Band samples (points, normals, sector), axis xy and median radius."""
     empty = (
@@ -173,6 +184,15 @@ def _band(
     cxy = tri[:, :, :2].mean(axis=1)
     near = np.hypot(cxy[:, 0] - base[0], cxy[:, 1] - base[1]) <= STEM_SEARCH_M
     keep = (lab == LABEL_CODES["wood"]) & (zmax >= z0) & (zmin <= z1) & near
+    if part_of_face is not None:
+        # a mesh of separate tubes (procedural, QSM): the stem is the piece holding the
+        # lowest wood triangle; its band alone, when it reaches the band
+        wood = np.flatnonzero(lab == LABEL_CODES["wood"])
+        if len(wood):
+            stem = part_of_face[wood[np.argmin(zmin[wood])]]
+            on_stem = keep & (part_of_face == stem)
+            if on_stem.any():
+                keep = on_stem
     if not keep.any():
         return empty
     fk = f[keep]
@@ -192,13 +212,21 @@ def _band(
         pts, fi = pts[keep_idx], fi[keep_idx]
     if len(pts) < 8:
         return empty
-    axis = pts[:, :2].mean(axis=0)
+    # the stem's axis and radius: a circle fit (Kasa's algebraic fit), refitted on the
+    # samples near the circle, so that a branch leaving in the band pulls neither
+    # (started from the median of the samples: a branch is a minority of them)
+    axis = np.median(pts[:, :2], axis=0)
+    rad = float(np.median(np.hypot(pts[:, 0] - axis[0], pts[:, 1] - axis[1])))
+    for _ in range(4):
+        r = np.hypot(pts[:, 0] - axis[0], pts[:, 1] - axis[1])
+        ok = np.abs(r - rad) <= max(0.3 * rad, 0.005)
+        if ok.sum() < 8:
+            return empty
+        axis, rad = _circle(pts[ok, :2])
     r = np.hypot(pts[:, 0] - axis[0], pts[:, 1] - axis[1])
-    rmed = float(np.median(r))
-    ok = r <= 2.0 * rmed
+    ok = np.abs(r - rad) <= max(0.3 * rad, 0.005)
     pts, fi = pts[ok], fi[ok]
-    axis = pts[:, :2].mean(axis=0)
-    r = np.hypot(pts[:, 0] - axis[0], pts[:, 1] - axis[1])
+    r = r[ok]
     ang = np.degrees(np.arctan2(pts[:, 1] - axis[1], pts[:, 0] - axis[0])) % 360.0
     n_bins = int(round(360.0 / bin_deg))
     sector = np.minimum((ang / (360.0 / n_bins)).astype(np.int64), n_bins - 1)
@@ -248,7 +276,12 @@ def sample_trees(
         v, f, lab = t.mesh()
         base = np.asarray(t.base_xyz, dtype=np.float64)
         s = int(seed) + int(t.tree_id)
-        bp, bn, bs, axis, r = _band(v, f, lab, base, band_m, band_samples, s, arc_bin_deg)
+        frame = LocalFrame.around(v)
+        vl = frame.to_local(v)
+        parts = mesh_parts(vl, f)
+        bp, bn, bs, axis, r = _band(
+            v, f, lab, base, band_m, band_samples, s, arc_bin_deg, parts.part_of_face
+        )
         if len(bp):
             order = np.argsort(bs, kind="stable")
             bp, bn, bs = bp[order], bn[order], bs[order]
@@ -265,10 +298,8 @@ def sample_trees(
             n += len(bp)
         cp, cf = sample_surface(v, f, samples_per_tree, seed=s)
         if hidden:
-            frame = LocalFrame.around(v)
-            vl = frame.to_local(v)
             inside = inside_other_parts(
-                frame.to_local(cp), cf, vl, f, mesh_parts(vl, f), seed=s, nthreads=nthreads
+                frame.to_local(cp), cf, vl, f, parts, seed=s, nthreads=nthreads
             )
             hidden_dropped[i] = int(inside.sum())
             cp, cf = cp[~inside], cf[~inside]
