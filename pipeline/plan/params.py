@@ -60,7 +60,7 @@ class PlanParams:
         le=90,
     )
     max_stations: int | None = param(
-        20, help="budget: most stations", none_means="no limit", ge=1, le=10_000
+        20, help="budget: most stations", none_means="no limit", gt=0, le=10_000
     )
     max_field_time_min: float | None = param(
         None,
