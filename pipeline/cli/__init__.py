@@ -37,6 +37,7 @@ COMMANDS = (
     "run",
     "batch",
     "sweep",
+    "plan",
     "demo",
 )
 

@@ -266,6 +266,20 @@ class InstrumentPreset:
     angular_jitter_sd_deg: float
     wavelength_nm: float
     source: str
+    measurement_rate_hz: float
+    setup_time_min: float
+    timing_source: str
+
+    def scan_time_s(self, spec: ScannerSpec) -> float:
+        """Seconds one scan takes: the pulses in ``spec``'s full field of view (at its
+        resolution, :attr:`ScannerSpec.n_azimuth` × :attr:`ScannerSpec.n_elevation`)
+        over :attr:`measurement_rate_hz`."""
+        return spec.n_azimuth * spec.n_elevation / float(self.measurement_rate_hz)
+
+    def station_time_s(self, spec: ScannerSpec) -> float:
+        """Field time of one station (s): :attr:`setup_time_min` (carry, level, target
+        and move) plus :meth:`scan_time_s`."""
+        return 60.0 * float(self.setup_time_min) + self.scan_time_s(spec)
 
     def spec(self, *, beam: bool = False, noise: bool = False, **overrides: object) -> ScannerSpec:
         """A ``ScannerSpec`` from these figures; ``overrides`` replace any field."""
@@ -293,6 +307,23 @@ class InstrumentPreset:
 #:   (-60°/+90°) × 360°, beam divergence 0.19 mrad (0.011°), range 0.6-330 m, ranging noise
 #:   0.3 mm at 10 m on 90 % reflectance (raw), wavelength 1550 nm; step 0.009° at full
 #:   resolution, 0.036° at the common 1/4 resolution setting used here.
+#:
+#: Field time (``measurement_rate_hz``, ``setup_time_min``; :meth:`InstrumentPreset.
+#: station_time_s`): one station costs its set-up plus the pulses of the full field of view
+#: at the chosen resolution over the measurement rate.
+#:
+#: - ``riegl-vz400``: effective measurement rate 122,000 measurements/s at the 300 kHz pulse
+#:   repetition rate (high-speed mode, range up to 350 m at 90 % reflectance; the long-range
+#:   mode's 600 m above comes with 42,000 meas./s at 100 kHz) -- same data sheet. At 0.04°
+#:   the 360° × 100° field is 9,000 × 2,501 pulses: 184 s, within the 1-3 min per scan
+#:   forest teams report for it (Wilkes et al. 2017, RSE 196; treesim's planning notes).
+#:   Set-up 4 min per position (carry, level, place targets; makers publish none): with the
+#:   scan, 7.1 min per station, inside the 5-10 min per position reported for it.
+#: - ``faro-focus3d-x330``: measurement speed 122,000 points/s, the lowest of the tech
+#:   sheet's four (122k/244k/488k/976k; the higher-quality settings forest scans use run
+#:   at the low speeds). At 0.036° the 360° × 150° field is 10,000 × 4,167 pulses: 342 s,
+#:   within the 3-8 min per scan reported for FARO Focus scanners. Set-up 3 min (a lighter
+#:   instrument, no tilt mount; an assumption like the RIEGL's).
 INSTRUMENTS: dict[str, InstrumentPreset] = {
     "riegl-vz400": InstrumentPreset(
         name="riegl-vz400",
@@ -307,6 +338,10 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
         angular_jitter_sd_deg=0.0005,
         wavelength_nm=1550.0,
         source="RIEGL VZ-400 data sheet, 2014-09-19",
+        measurement_rate_hz=122_000.0,
+        setup_time_min=4.0,
+        timing_source="RIEGL VZ-400 data sheet, 2014-09-19 (effective measurement rate at "
+        "300 kHz PRR); set-up: typical field practice (5-10 min per position with the scan)",
     ),
     "faro-focus3d-x330": InstrumentPreset(
         name="faro-focus3d-x330",
@@ -321,6 +356,10 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
         angular_jitter_sd_deg=0.0005,
         wavelength_nm=1550.0,
         source="FARO Focus3D X 330 tech sheet, 2013",
+        measurement_rate_hz=122_000.0,
+        setup_time_min=3.0,
+        timing_source="FARO Focus3D X 330 tech sheet, 2013 (lowest measurement speed); "
+        "set-up: typical field practice (3-8 min per scan reported)",
     ),
 }
 

@@ -19,6 +19,7 @@ NOT_PARAMETERS = {
     ("batch", "--threads"): "threads per tree chosen by the executor (cores // workers)",
     ("sweep", "--threads"): "threads per point chosen by the executor (cores // workers)",
     ("scan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
+    ("plan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("run", "--preset"): "picks the run preset to start from (RunParams.preset records it)",
     ("batch", "--preset"): "picks the run preset to start from (RunParams.preset records it)",
 }

@@ -48,13 +48,15 @@ LAYER = {
     "batch": 3,
     "sweep": 3,
     "executors": 3,
+    "plot": 3,
+    "plan": 3,
     "cli": 4,
 }
 #: The one allowed arrow between stages.
 STAGE_ARROWS = {("reconstruct", "models")}
 #: Order inside the top library layer: a batch runs trees on executors; a sweep runs its
 #: points through the batch's engine; steps are the single stages on files, beside run.
-TOP_ORDER = ["executors", "steps", "run", "batch", "sweep"]
+TOP_ORDER = ["executors", "steps", "plot", "run", "batch", "sweep", "plan"]
 WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
 
 

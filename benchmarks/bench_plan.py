@@ -1,0 +1,127 @@
+"""Planner run time against the number of candidates and against the scene's size.
+
+Two series on one seeded plot of procedural trees (``aspen``, leaf-off, on flat ground;
+no verification scan, which is a scan's cost, measured by ``bench_scan.py``):
+
+1. **Candidates.** Tubes at 16 facets; candidate grid spacings chosen to give roughly
+   25 to 400 candidates. Expected: the visibility step (rays to the samples of the trees
+   in each candidate's range) and the choice grow linearly with the candidates.
+2. **Scene size.** Candidates fixed; tubes at 8, 16, 32 and 64 facets per ring (the
+   triangles grow ~8×). Expected: the visibility step stays nearly flat (rays ×
+   log(triangles)); what grows with the triangles is paid once per plan: building the
+   ray-casting scene and the per-tree sampling (its hidden-surface test casts lines
+   through the tree).
+
+Each row prints the planner's own ``timings_s`` (``plan.json``). Usage:
+``python benchmarks/bench_plan.py [--quick]`` (``--quick``: 4 trees, fewer points).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pipeline.params import instrument  # noqa: E402
+from pipeline.plan import PlanParams, plan_scans  # noqa: E402
+from pipeline.plot import Plot, PlotTree  # noqa: E402
+
+
+def stand(n: int, radius_m: float, facets: int, seed: int = 3) -> Plot:
+    rng = np.random.default_rng(seed)
+    pts: list[np.ndarray] = []
+    while len(pts) < n:
+        p = rng.uniform(-radius_m, radius_m, 2)
+        if np.hypot(*p) <= radius_m - 1 and all(np.hypot(*(p - q)) >= 4.0 for q in pts):
+            pts.append(p)
+    trees = [
+        PlotTree(
+            tree_id=i + 1,
+            x_m=float(x),
+            y_m=float(y),
+            species="aspen",
+            seed=i,
+            leaves=False,
+            rotation_deg=float(rng.uniform(0, 360)),
+        )
+        for i, (x, y) in enumerate(pts)
+    ]
+    return Plot(trees, radius_m=radius_m, facets=facets)
+
+
+def run(plot: Plot, spacing: float, samples: int) -> dict:
+    inst = instrument("riegl-vz400")
+    spec = inst.spec()
+    for t in plot.trees:  # meshing the trees is the generator's cost, not the planner's
+        plot.tree_parts(t.tree_id)
+    t0 = time.perf_counter()
+    r = plan_scans(
+        plot,
+        spec=spec,
+        instrument=inst,
+        params=PlanParams(candidate_spacing_m=spacing, samples_per_tree=samples, verify=False),
+    )
+    wall = time.perf_counter() - t0
+    d = r.to_dict()
+    tm = d["timings_s"]
+    return {
+        "candidates": d["candidates"]["count"],
+        "triangles": d["plot"]["triangles"],
+        "rays": d["candidates"]["rays_cast"],
+        "stations": d["plan"]["n_stations"],
+        "sampling": tm["sampling"],
+        "build": tm["scene_build"],
+        "visibility": tm["visibility"],
+        "choice": tm["greedy"] + tm["swap_search"],
+        "baselines": tm["baselines"],
+        "total": wall,
+    }
+
+
+HEAD = (
+    f"{'candidates':>10} {'triangles':>10} {'rays':>10} {'stations':>8} {'sampling s':>10} "
+    f"{'build s':>8} {'visib. s':>8} {'µs/ray':>7} {'choice s':>8} {'baselines s':>11} "
+    f"{'total s':>8}"
+)
+
+
+def line(r: dict) -> str:
+    return (
+        f"{r['candidates']:>10} {r['triangles']:>10,} {r['rays']:>10,} {r['stations']:>8} "
+        f"{r['sampling']:>10.2f} {r['build']:>8.2f} {r['visibility']:>8.2f} "
+        f"{1e6 * r['visibility'] / max(1, r['rays']):>7.2f} {r['choice']:>8.2f} "
+        f"{r['baselines']:>11.2f} {r['total']:>8.2f}"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    n, radius, samples = (4, 10.0, 500) if args.quick else (8, 12.0, 1000)
+    print(
+        f"bench_plan.py, {date.today()}, {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} cores; {n} aspens (leaf-off) in a {radius:g} m plot, "
+        f"{samples} samples per tree, riegl-vz400 at 0.04°, no verification"
+    )
+    print("\n1. against the number of candidates (16 facets)")
+    print(HEAD)
+    plot = stand(n, radius, 16)
+    for spacing in (4.0, 2.0, 1.0) if args.quick else (4.0, 2.5, 1.5, 1.0):
+        print(line(run(plot, spacing, samples)), flush=True)
+    print("\n2. against the scene's size (candidate spacing 2 m)")
+    print(HEAD)
+    for facets in (8, 16, 32) if args.quick else (8, 16, 32, 64):
+        print(line(run(stand(n, radius, facets), 2.0, samples)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,507 @@
+"""``plan_scans``: from a plot, an instrument, a goal and a budget to an ordered set of stations.
+
+The steps (timed apart in ``plan.json``'s ``timings_s``): sample every tree
+(:mod:`pipeline.plan.samples`), build the plot's ray-casting scene once, lay the candidate
+grid (:mod:`pipeline.plan.layouts`), cast each candidate's rays to the samples of the trees
+in its range and window (:mod:`pipeline.plan.visibility`), choose stations (lazy greedy,
+then swaps: :mod:`pipeline.plan.cover`), evaluate the classic layouts with the same model,
+and, unless ``params.verify`` is off, scan the plan and the best classic layout at full
+resolution and measure each tree (:mod:`pipeline.plan.verify`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..params import InstrumentPreset, ScannerSpec
+from ..scan import Station
+from ..scan.stations import station_distance_m
+from .cover import Objective, Selection, improve, lazy_greedy, reachable_trees
+from .layouts import Layout, TreeClearance, candidate_grid, classic_layouts
+from .params import PlanParams
+from .samples import SampleSet, TreeTarget, sample_trees
+from .verify import verify_plan
+from .visibility import Visibility, VisibilityCaster, visibility
+
+__all__ = ["PlanResult", "plan_scans", "tree_targets"]
+
+
+def tree_targets(plot: Any, tree_ids: Sequence[int] | None = None) -> list[TreeTarget]:
+    """Each plot tree as a :class:`TreeTarget`: its placed parts and stem base (its
+    position, at the height of its lowest point)."""
+    out = []
+    ids = [t.tree_id for t in plot.trees] if tree_ids is None else list(tree_ids)
+    for tid in ids:
+        t = plot.tree(tid)
+        parts = plot.tree_parts(tid)
+        zmin = min(float(np.asarray(p.vertices)[:, 2].min()) for p in parts)
+        out.append(TreeTarget(tid, parts, (float(t.x_m), float(t.y_m), zmin)))
+    return out
+
+
+@dataclass
+class PlanResult:
+    """Everything ``treesim plan`` writes (see :meth:`to_dict`), and what its figures need."""
+
+    params: PlanParams
+    instrument: InstrumentPreset
+    spec: ScannerSpec
+    station_time_s: float
+    max_stations: int
+    targets: list[TreeTarget]
+    samples: SampleSet
+    candidates: np.ndarray
+    candidate_info: dict[str, Any]
+    selection: Selection
+    greedy: Selection
+    predicted: dict[str, np.ndarray]
+    met: np.ndarray
+    reachable: np.ndarray
+    achievable: dict[str, np.ndarray]
+    curve: list[dict[str, Any]]
+    baselines: list[dict[str, Any]]
+    baseline_layouts: list[Layout]
+    comparison: dict[str, Any]
+    verification: dict[str, Any] | None
+    baseline_verification: dict[str, Any] | None
+    plot_info: dict[str, Any]
+    objective: Objective
+    visibility: Visibility
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def stations(self) -> list[Station]:
+        return [Station(position_m=tuple(self.candidates[j])) for j in self.selection.chosen]
+
+    @property
+    def goal_met(self) -> bool:
+        return bool(self.met[self.reachable].all()) if self.reachable.any() else False
+
+    def stations_table(self) -> list[dict[str, Any]]:
+        rows = []
+        for k, (j, g) in enumerate(zip(self.selection.chosen, self.selection.gains, strict=True)):
+            x, y, z = (float(v) for v in self.candidates[j])
+            rows.append(
+                {
+                    "order": k + 1,
+                    "x_m": x,
+                    "y_m": y,
+                    "z_m": z,
+                    "heading_deg": 0.0,
+                    "candidate": int(j),
+                    "predicted_gain": float(g),
+                    "field_time_min": self.station_time_s / 60.0,
+                    "cumulative_field_time_min": (k + 1) * self.station_time_s / 60.0,
+                }
+            )
+        return rows
+
+    def to_dict(self) -> dict[str, Any]:
+        p = self.params
+        trees = []
+        for i, t in enumerate(self.targets):
+            e: dict[str, Any] = {
+                "tree_id": t.tree_id,
+                "base_xyz_m": list(t.base_xyz),
+                "samples": int((self.samples.tree_of == i).sum()),
+                "stem_radius_m": float(self.samples.stem_radius_m[i]),
+                "dbh_sectors": int(self.samples.n_sectors[i]),
+                "predicted": {
+                    "coverage": float(self.predicted["coverage"][i]),
+                    "arc_deg": float(self.predicted["arc_deg"][i]),
+                    "goal_met": bool(self.met[i]),
+                },
+                "reachable": bool(self.reachable[i]),
+                "best_from_all_candidates": {
+                    "coverage": float(self.achievable["coverage"][i]),
+                    "arc_deg": float(self.achievable["arc_deg"][i]),
+                },
+            }
+            if self.verification is not None:
+                e["verified"] = self.verification["trees"][t.tree_id]
+            trees.append(e)
+        return {
+            "goal": p.goal_dict(),
+            "budget": {
+                "max_stations": p.max_stations,
+                "max_field_time_min": p.max_field_time_min,
+                "stations_allowed": self.max_stations,
+            },
+            "instrument": {
+                "name": self.instrument.name,
+                "resolution_deg": [
+                    self.spec.horizontal_resolution_deg,
+                    self.spec.vertical_resolution_deg,
+                ],
+                "measurement_rate_hz": self.instrument.measurement_rate_hz,
+                "setup_time_min": self.instrument.setup_time_min,
+                "scan_time_min": self.instrument.scan_time_s(self.spec) / 60.0,
+                "station_time_min": self.station_time_s / 60.0,
+                "timing_source": self.instrument.timing_source,
+                "field_time_rule": "set-up + pulses of the full field of view at the "
+                "resolution / measurement rate, per station",
+            },
+            "scanner": self.spec.to_dict(),
+            "visibility_rule": (
+                "a sample is seen when the ray from the station meets no surface before it "
+                "(within 1 mm), it lies within the range limits and field of view, and "
+                "half the diagonal of the pulse grid's cell there, ½·√(a² + (a/cos i)²) "
+                "with a = range × angular step, is at most τ"
+            ),
+            "plot": self.plot_info,
+            "samples": self.samples.summary(),
+            "candidates": {
+                **self.candidate_info,
+                "count": int(len(self.candidates)),
+                "positions_m": self.candidates.tolist(),
+            },
+            "plan": {
+                "stations": self.stations_table(),
+                "n_stations": len(self.selection.chosen),
+                "field_time_min": len(self.selection.chosen) * self.station_time_s / 60.0,
+                "goal_met": self.goal_met,
+                "trees_meeting_goal": int(self.met.sum()),
+                "trees": int(len(self.targets)),
+                "stop_reason": self.selection.stop_reason,
+                "greedy_stations": len(self.greedy.chosen),
+                "objective_evaluations": self.selection.evaluations,
+                "swaps": self.selection.swaps,
+                "swap_search": self.selection.history,
+            },
+            "unreachable_trees": [
+                int(self.targets[i].tree_id) for i in np.flatnonzero(~self.reachable)
+            ],
+            "trees": trees,
+            "curve": self.curve,
+            "baselines": self.baselines,
+            "comparison": self.comparison,
+            "verification": None
+            if self.verification is None
+            else {k: v for k, v in self.verification.items() if k != "trees"},
+            "baseline_verification": self.baseline_verification,
+            "timings_s": self.timings_s,
+        }
+
+
+def _summary(obj: Objective, best: np.ndarray, reachable: np.ndarray) -> dict[str, Any]:
+    figs = obj.figures(best)
+    met = obj.met(figs)[0]
+    return {
+        "mean_coverage": float(figs["coverage"][0].mean()),
+        "min_coverage": float(figs["coverage"][0].min()),
+        "mean_arc_deg": float(figs["arc_deg"][0].mean()),
+        "trees_meeting_goal": int(met.sum()),
+        "goal_met": bool(reachable.any() and met[reachable].all()),
+        "objective": float(obj.value(best)[0]),
+    }
+
+
+def _compare(plan: dict[str, Any], baselines: list[dict[str, Any]]) -> dict[str, Any]:
+    """Plan against the best classic layout that reaches the goal (fewest stations)."""
+    reaching = [b for b in baselines if b["goal_met"]]
+    out: dict[str, Any] = {
+        "plan_stations": plan["n_stations"],
+        "plan_goal_met": plan["goal_met"],
+        "plan_field_time_min": plan["field_time_min"],
+    }
+    if not reaching:
+        best = max(baselines, key=lambda b: b["objective"]) if baselines else None
+        out.update(best_baseline=None if best is None else best["name"], baseline_goal_met=False)
+        out["verdict"] = "plan only" if plan["goal_met"] else "neither"
+        out["statement"] = (
+            f"no classic layout reaches the goal; the plan does with {plan['n_stations']} "
+            f"stations ({plan['field_time_min']:.1f} min)"
+            if plan["goal_met"]
+            else "neither the plan nor any classic layout reaches the goal within the budget"
+        )
+        return out
+    best = min(reaching, key=lambda b: (b["n_stations"], b["field_time_min"]))
+    out.update(
+        best_baseline=best["name"],
+        baseline_goal_met=True,
+        baseline_stations=best["n_stations"],
+        baseline_field_time_min=best["field_time_min"],
+    )
+    ds = best["n_stations"] - plan["n_stations"]
+    dt = best["field_time_min"] - plan["field_time_min"]
+    if not plan["goal_met"]:
+        out["verdict"] = "baseline better"
+        out["statement"] = (
+            f"the classic layout {best['name']} reaches the goal with {best['n_stations']} "
+            "stations; the plan does not"
+        )
+    elif ds > 0:
+        out["verdict"] = "plan better"
+        out["statement"] = (
+            f"the plan reaches the goal with {plan['n_stations']} stations, {ds} fewer than "
+            f"the best classic layout that reaches it ({best['name']}, {best['n_stations']}): "
+            f"{dt:.1f} min less field time"
+        )
+    elif ds == 0:
+        out["verdict"] = "as good"
+        out["statement"] = (
+            f"the classic layout {best['name']} is as good: it reaches the goal with the same "
+            f"{best['n_stations']} stations"
+        )
+    else:
+        out["verdict"] = "baseline better"
+        out["statement"] = (
+            f"the classic layout {best['name']} is better: it reaches the goal with "
+            f"{best['n_stations']} stations, the plan needs {plan['n_stations']}"
+        )
+    out["fewer_stations"] = ds
+    out["less_field_time_min"] = dt
+    return out
+
+
+def plan_scans(
+    plot: Any,
+    *,
+    spec: ScannerSpec,
+    instrument: InstrumentPreset,
+    params: PlanParams | None = None,
+    progress: Any = None,
+    single_tree: bool = False,
+) -> PlanResult:
+    """Plan the stations that scan ``plot`` to the goal within the budget.
+
+    Parameters
+    ----------
+    plot : pipeline.plot.Plot
+        The trees and terrain (``trees``, ``tree(id)``, ``tree_parts(id)``, ``terrain``,
+        ``radius_m``, ``centre_xy``, ``scene()``).
+    spec : ScannerSpec
+        The scanner at the resolution the field scans will use: it sets the visibility
+        rule's point spacing, the field time and the verification scans.
+    instrument : InstrumentPreset
+        Measurement rate and set-up time (field time).
+    params : PlanParams
+        Goal, budget, candidates, samples (default ``PlanParams()``).
+    progress : callable(fraction, message), optional
+    single_tree : bool
+        The plot is one tree: the baselines' ring stands at the station rule's distance.
+
+    Returns
+    -------
+    PlanResult
+    """
+    p = params or PlanParams()
+    say = progress or (lambda f, m: None)
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+    station_s = instrument.station_time_s(spec)
+    max_st = p.max_stations if p.max_stations is not None else 10_000
+    if p.max_field_time_min is not None:
+        by_time = int(math.floor(60.0 * p.max_field_time_min / station_s + 1e-9))
+        if by_time < 1:
+            raise InvalidParameterError(
+                f"max_field_time_min {p.max_field_time_min:g} is less than one station "
+                f"({station_s / 60:.1f} min with {instrument.name} at "
+                f"{spec.horizontal_resolution_deg:g}°)"
+            )
+        max_st = min(max_st, by_time)
+
+    t0 = time.perf_counter()
+    targets = tree_targets(plot)
+    samples = sample_trees(
+        targets,
+        samples_per_tree=p.samples_per_tree,
+        band_samples=p.band_samples,
+        band_m=p.dbh_band_m,
+        arc_bin_deg=p.arc_bin_deg,
+        seed=p.sample_seed,
+        nthreads=p.threads,
+        progress=lambda f, m: say(0.1 * f, m),
+    )
+    timings["sampling"] = time.perf_counter() - t0
+
+    say(0.1, "building the plot's ray-casting scene")
+    scene = plot.scene()
+    caster = VisibilityCaster(scene, samples, nthreads=p.threads)
+    timings["scene_build"] = caster.build_s
+    t0 = time.perf_counter()
+    clearance = TreeClearance([q for t in targets for q in t.parts], nthreads=p.threads)
+    cands, cinfo = candidate_grid(
+        plot.terrain,
+        plot.centre_xy,
+        plot.radius_m,
+        spacing_m=p.candidate_spacing_m,
+        height_m=p.height_m,
+        clearance=clearance,
+        clearance_m=p.clearance_m,
+    )
+    cinfo.update(spacing_m=p.candidate_spacing_m, height_m=p.height_m, clearance_m=p.clearance_m)
+    timings["candidates"] = time.perf_counter() - t0
+
+    vis = visibility(
+        caster, cands, spec, p.tolerance_m, progress=lambda f, m: say(0.1 + 0.4 * f, m)
+    )
+    timings["visibility"] = vis.timings_s["cast"]
+    cinfo["rays_cast"] = int(vis.rays_cast.sum())
+    cinfo["mean_trees_tested"] = float(vis.trees_tested.mean()) if len(cands) else 0.0
+
+    say(0.5, "choosing stations")
+    t0 = time.perf_counter()
+    obj = Objective(samples, p.goal_coverage, p.dbh_arc_deg)
+    reachable = reachable_trees(obj, vis.quality)
+    ach = obj.figures(vis.quality.max(axis=0))
+    greedy = lazy_greedy(obj, vis.quality, max_st, reachable=reachable)
+    timings["greedy"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sel = improve(obj, vis.quality, greedy, reachable=reachable) if p.local_search else greedy
+    timings["swap_search"] = time.perf_counter() - t0
+
+    best = vis.quality[sel.chosen].max(axis=0) if sel.chosen else np.zeros(len(samples), np.uint8)
+    figs = obj.figures(best)
+    met = obj.met(figs)[0]
+    curve = []
+    acc = np.zeros(len(samples), np.uint8)
+    for k, j in enumerate(sel.chosen):
+        acc = np.maximum(acc, vis.quality[j])
+        curve.append(
+            {
+                "stations": k + 1,
+                "field_time_min": (k + 1) * station_s / 60.0,
+                **_summary(obj, acc, reachable),
+            }
+        )
+
+    say(0.6, "classic layouts")
+    t0 = time.perf_counter()
+    ring_d = p.ring_distance_m
+    if ring_d is None:
+        if single_tree:
+            v = np.concatenate([np.asarray(q.vertices) for t in targets for q in t.parts])
+            ext = v.max(axis=0) - v.min(axis=0)
+            ring_d = station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
+        else:
+            ring_d = 0.5 * plot.radius_m
+    spacings = p.grid_spacings_m or tuple(
+        round(plot.radius_m * f, 1) for f in (1 / 3, 1 / 2, 2 / 3)
+    )
+    layouts = classic_layouts(
+        plot.terrain,
+        plot.centre_xy,
+        plot.radius_m,
+        ring_distance_m=ring_d,
+        grid_spacings_m=spacings,
+        height_m=p.height_m,
+        clearance=clearance,
+        clearance_m=p.clearance_m,
+    )
+    baselines = []
+    base_best: dict[str, np.ndarray] = {}
+    for lay in layouts:
+        bv = visibility(caster, lay.positions, spec, p.tolerance_m)
+        bb = bv.quality.max(axis=0)
+        base_best[lay.name] = bb
+        bfig = obj.figures(bb)
+        baselines.append(
+            {
+                "name": lay.name,
+                "description": lay.description,
+                "n_stations": int(len(lay.positions)),
+                "field_time_min": len(lay.positions) * station_s / 60.0,
+                "positions_m": lay.positions.tolist(),
+                "moved_m": lay.moved_m,
+                **_summary(obj, bb, reachable),
+                "per_tree": {
+                    int(t.tree_id): {
+                        "coverage": float(bfig["coverage"][0, i]),
+                        "arc_deg": float(bfig["arc_deg"][0, i]),
+                    }
+                    for i, t in enumerate(targets)
+                },
+            }
+        )
+    timings["baselines"] = time.perf_counter() - t0
+    plan_summary = {
+        "n_stations": len(sel.chosen),
+        "field_time_min": len(sel.chosen) * station_s / 60.0,
+        "goal_met": bool(reachable.any() and met[reachable].all()),
+    }
+    comparison = _compare(plan_summary, baselines)
+
+    verification = baseline_verification = None
+    if p.verify and sel.chosen:
+        say(0.7, "verifying the plan")
+        t0 = time.perf_counter()
+        verification = verify_plan(
+            plot,
+            [Station(position_m=tuple(cands[j])) for j in sel.chosen],
+            spec,
+            targets,
+            samples,
+            obj,
+            tolerance_m=p.tolerance_m,
+            seed=p.sample_seed,
+            nthreads=p.threads,
+        )
+        timings["verify_plan"] = time.perf_counter() - t0
+        name = comparison.get("best_baseline")
+        lay = next((x for x in layouts if x.name == name), None)
+        if lay is not None:
+            say(0.85, f"verifying the classic layout {name}")
+            t0 = time.perf_counter()
+            bver = verify_plan(
+                plot,
+                [Station(position_m=tuple(q)) for q in lay.positions],
+                spec,
+                targets,
+                samples,
+                obj,
+                tolerance_m=p.tolerance_m,
+                seed=p.sample_seed,
+                nthreads=p.threads,
+            )
+            baseline_verification = {"name": name, **bver}
+            timings["verify_baseline"] = time.perf_counter() - t0
+        comparison["verified"] = {
+            "plan_trees_meeting_goal": verification["trees_meeting_goal"],
+            "baseline_trees_meeting_goal": None
+            if baseline_verification is None
+            else baseline_verification["trees_meeting_goal"],
+            "trees": len(targets),
+        }
+    timings["total"] = time.perf_counter() - t_all
+    say(1.0, "done")
+    return PlanResult(
+        params=p,
+        instrument=instrument,
+        spec=spec,
+        station_time_s=station_s,
+        max_stations=max_st,
+        targets=targets,
+        samples=samples,
+        candidates=cands,
+        candidate_info=cinfo,
+        selection=sel,
+        greedy=greedy,
+        predicted={k: v[0] for k, v in figs.items()},
+        met=met,
+        reachable=reachable,
+        achievable={k: v[0] for k, v in ach.items()},
+        curve=curve,
+        baselines=baselines,
+        baseline_layouts=layouts,
+        comparison=comparison,
+        verification=verification,
+        baseline_verification=baseline_verification,
+        plot_info={
+            "trees": len(targets),
+            "radius_m": plot.radius_m,
+            "centre_xy": list(plot.centre_xy),
+            "triangles": int(len(scene.faces)),
+            "single_tree": single_tree,
+        },
+        objective=obj,
+        visibility=vis,
+        timings_s=timings,
+    )

@@ -1,0 +1,80 @@
+"""One tree as a plot to plan for: a procedural species, or a mesh file.
+
+A single tree is planned as a plot of one tree (id 1) on flat ground at its stem base,
+the candidates within ``radius_m`` of it: by default 1.5 × the station rule's distance
+(:func:`pipeline.scan.stations.station_distance_m`), so that the rule's ring lies well
+inside the candidate area.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import EmptyInputError
+from ..io.mesh import load_mesh
+from ..plot import Plot, PlotTree, Terrain
+from ..scan.stations import station_distance_m
+from ..scene import MeshPart
+
+__all__ = ["mesh_tree_plot", "species_tree_plot"]
+
+#: The default candidate area of a single tree, in station-rule distances.
+RADIUS_FACTOR = 1.5
+
+
+def _radius(vertices: np.ndarray, base_xy: np.ndarray) -> float:
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    ext = hi - lo
+    return RADIUS_FACTOR * station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
+
+
+def species_tree_plot(
+    species: str,
+    *,
+    seed: int = 0,
+    leaves: bool | None = None,
+    facets: int = 16,
+    radius_m: float | None = None,
+) -> Plot:
+    """A plot of one procedural tree at the origin on flat ground."""
+    tree = PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species=species, seed=int(seed), leaves=leaves)
+    plot = Plot([tree], radius_m=radius_m or 1.0, facets=facets)
+    if radius_m is None:
+        v = np.concatenate([p.vertices for p in plot.tree_parts(1)])
+        plot.radius_m = _radius(v, np.zeros(2))
+    return plot
+
+
+class _MeshPlot(Plot):
+    """A plot whose one tree is read from a mesh file (until plot trees from files land
+    in :mod:`pipeline.plot`)."""
+
+    def __init__(
+        self,
+        parts: list[MeshPart],
+        tree: PlotTree,
+        terrain: Terrain,
+        radius_m: float,
+        centre_xy: tuple[float, float],
+    ) -> None:
+        super().__init__([tree], terrain=terrain, radius_m=radius_m, centre_xy=centre_xy)
+        self._parts[1] = parts
+
+
+def mesh_tree_plot(path: str | Path, *, radius_m: float | None = None) -> Plot:
+    """A plot of the tree in a mesh file, where it stands: its stem base is the mean x, y
+    of the vertices within 5 cm of its lowest point, on flat ground at that height."""
+    parts = load_mesh(path)
+    parts = [p for p in parts if p.label != "ground"]
+    if not parts:
+        raise EmptyInputError(f"{path}: no tree parts (every part is labelled ground)")
+    v = np.concatenate([np.asarray(p.vertices, np.float64) for p in parts])
+    low = v[:, 2] <= v[:, 2].min() + 0.05
+    bx, by = (float(c) for c in v[low, :2].mean(axis=0))
+    z0 = float(v[:, 2].min())
+    parts = [MeshPart(p.vertices, p.faces, p.label, p.name, 1) for p in parts]
+    tree = PlotTree(tree_id=1, x_m=bx, y_m=by, source="mesh", path=str(path))
+    r = radius_m or _radius(v, np.array([bx, by]))
+    return _MeshPlot(parts, tree, Terrain(z0_m=z0), r, (bx, by))

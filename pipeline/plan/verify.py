@@ -1,0 +1,134 @@
+"""Verification: scan a plan at full resolution and measure each tree for real.
+
+:func:`verify_plan` scans the plot from the stations with the scanner's own settings (the
+instrument at the chosen resolution: every pulse of the field of view that can reach the
+scene, not the planner's rays to samples), splits the cloud by its ``tree_id`` field and
+measures per tree:
+
+* ``coverage``: :func:`pipeline.compare.compare` of the tree's points against the tree's
+  own mesh at τ (its surface samples, hidden surface dropped: the same definition as the
+  goal, with compare's own denser samples);
+* ``coverage_samples``: the planner's own coverage samples with a point within τ (the
+  predicted figure's sample set, for a like-for-like check of the visibility model);
+* ``arc_deg``: the planner's band samples with a point within τ on their own side of the
+  stem axis, by the goal's sector rule.
+
+The scan is the one place this module touches the plot's geometry
+(:func:`_scan_plot`): at merge it is meant to become :func:`pipeline.plot.scan.scan_plot`,
+which loads per station only the trees that matter.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..cloud import Cloud
+from ..compare import compare
+from ..errors import EmptyInputError
+from ..geometry import kdtree
+from ..params import MIN_CLOUD_POINTS, CompareParams, ScannerSpec
+from ..scan import Station, scan
+from .cover import Objective
+from .samples import SampleSet, TreeTarget
+
+__all__ = ["verify_plan"]
+
+
+def _scan_plot(
+    plot: Any, stations: Sequence[Station], spec: ScannerSpec, *, nthreads: int, progress: Any
+) -> Cloud:
+    """The plot scanned from ``stations`` (every tree and the terrain)."""
+    result = scan(plot.scene(), list(stations), spec, nthreads=nthreads, progress=progress)
+    return result.cloud
+
+
+def verify_plan(
+    plot: Any,
+    stations: Sequence[Station],
+    spec: ScannerSpec,
+    targets: Sequence[TreeTarget],
+    samples: SampleSet,
+    objective: Objective,
+    *,
+    tolerance_m: float,
+    seed: int = 0,
+    nthreads: int = 0,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """Scan ``stations`` at full resolution and measure every tree (module notes).
+
+    Returns
+    -------
+    dict
+        ``trees``: per tree id, ``points``, ``coverage``, ``coverage_samples``,
+        ``arc_deg``, ``goal_met``; ``points``, ``all_goals_met``, ``timings_s``.
+    """
+    t0 = time.perf_counter()
+    cloud = _scan_plot(plot, stations, spec, nthreads=nthreads, progress=progress)
+    t_scan = time.perf_counter() - t0
+    tid = np.asarray(cloud.fields.get("tree_id", np.zeros(len(cloud))), np.int64)
+    t1 = time.perf_counter()
+    # which samples have a real point within τ: a k-d tree per tree's points
+    seen = np.zeros(len(samples), np.uint8)
+    out: dict[int, dict[str, Any]] = {}
+    for i, t in enumerate(targets):
+        sel = np.flatnonzero(tid == t.tree_id)
+        entry: dict[str, Any] = {"points": int(len(sel))}
+        sl = samples.tree_slice(i)
+        if len(sel):
+            centre = samples.points[sl].mean(axis=0)
+            pts = cloud.points[sel]
+            tree = kdtree(pts - centre)
+            d, j = tree.query(
+                samples.points[sl] - centre, k=1, distance_upper_bound=tolerance_m * (1 + 1e-12)
+            )
+            ok = d <= tolerance_m
+            # a band sample counts only with a point on its own side of the stem axis
+            band = samples.band[sl]
+            if band.any():
+                axis = samples.stem_xy[i]
+                js = np.where(ok, j, 0)
+                radial_s = samples.points[sl][:, :2] - axis
+                radial_p = pts[js, :2] - axis
+                same = np.einsum("ij,ij->i", radial_s, radial_p) > 0
+                ok &= ~band | same
+            seen[sl] = ok.astype(np.uint8)
+        if len(sel) >= MIN_CLOUD_POINTS:
+            v, f, _ = t.mesh()
+            try:
+                c = compare(
+                    cloud.subset(sel),
+                    (v, f),
+                    params=CompareParams(tolerance_m=tolerance_m, seed=seed, nthreads=nthreads),
+                )
+                entry["coverage"] = c.coverage
+                entry["compare_samples"] = int(c.reference_info.get("samples", 0))
+            except EmptyInputError as exc:
+                entry["coverage"] = 0.0
+                entry["why"] = str(exc)
+        else:
+            entry["coverage"] = 0.0
+            entry["why"] = f"{len(sel)} points: too few to compare"
+        out[t.tree_id] = entry
+    figs = objective.figures(seen[None] * 255)
+    met = objective.met(figs)[0]
+    for i, t in enumerate(targets):
+        e = out[t.tree_id]
+        e["coverage_samples"] = float(figs["coverage"][0, i])
+        e["arc_deg"] = float(figs["arc_deg"][0, i])
+        cov_ok = objective.g_cov == 0 or e["coverage"] >= objective.g_cov - 1e-12
+        arc_ok = objective.g_arc == 0 or e["arc_deg"] >= objective.g_arc - 1e-9
+        e["goal_met"] = bool(cov_ok and arc_ok)
+        e["goal_met_samples"] = bool(met[i])
+    return {
+        "stations": len(stations),
+        "points": int(len(cloud)),
+        "resolution_deg": [spec.horizontal_resolution_deg, spec.vertical_resolution_deg],
+        "trees": out,
+        "trees_meeting_goal": int(sum(e["goal_met"] for e in out.values())),
+        "timings_s": {"scan": t_scan, "measure": time.perf_counter() - t1},
+    }

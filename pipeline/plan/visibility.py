@@ -1,0 +1,234 @@
+"""Which samples each candidate station sees, and how well.
+
+**The visibility rule.** A sample is seen from a station when all of these hold:
+
+1. the first surface the ray from the station towards the sample meets lies within τ
+   of the sample (its own surface, or one in front of it closer than τ: a thin branch's
+   near side for a sample on its far side), so the return along that ray is a point
+   within τ; for a DBH band sample, the first surface met must be its own (a point on
+   the near side of a stem does not measure its far side);
+2. its range is within the scanner's ``min_range_m`` .. ``max_range_m`` and its elevation
+   within the vertical field of view (and its azimuth within the horizontal one, for a
+   station heading 0);
+3. the scan there is dense enough for the tolerance τ: at range ``r`` a pulse grid of step
+   ``δ`` (the larger of the two angular resolutions, rad) lays points ``a = r·δ`` apart
+   across the beam and ``b = a / cos(i)`` along a surface met at incidence ``i``, and the
+   farthest a surface point can be from its cell's corners is half the cell's diagonal:
+   seen when ``½·√(a² + b²) <= τ``, ``i`` the incidence on the surface the ray meets.
+   A feature thinner than the cell (a twig of width ``w < a``, the sample's thickness:
+   the distance along its inward normal to the tree's far side) is hit by the grid once
+   per ``a²/w`` of its length on average: seen when ``½·√((a²/w)² + w²) <= τ``.
+
+The *quality* of a seen sample is ``cos(i)`` (stored as ``1 .. 255``; 0: not seen), the
+planner's tie-break between plans that meet the goal equally (better incidence, even
+spacing around stems).
+
+**Cost.** One Open3D ``RaycastingScene`` holds the whole plot (trees and terrain, float32 in a
+float64 local frame around the plot). A candidate casts one ray per sample of only the
+trees whose bounding box lies within its range and field of view (the scanner's angular
+window of a box, :func:`pipeline.scan.rays.box_window`). The cost is rays × log(triangles):
+it grows with the candidates and samples, and only logarithmically with the scene's
+triangles (built once).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..frame import LocalFrame
+from ..params import ScannerSpec
+from ..scan.rays import box_window
+from ..scene import Scene
+from .samples import SampleSet
+
+__all__ = ["HIT_TOLERANCE_M", "Visibility", "max_spacing_ok", "visibility"]
+
+#: Least slack of rule 1 (float32 in a local frame tens of metres across errs by
+#: micrometres): a first hit this close before the sample is always its own surface.
+HIT_TOLERANCE_M = 1e-4
+#: Rays cast per Open3D call.
+_CHUNK = 1 << 20
+
+
+@dataclass
+class Visibility:
+    """Quality (0: unseen, 1..255: cos(incidence) × 255) of every sample from every station.
+
+    Attributes
+    ----------
+    quality : (k, n) uint8
+    rays_cast : (k,) int64
+        Rays each station cast (samples of the trees in its range and window).
+    trees_tested : (k,) int64
+        Trees within each station's range and window.
+    timings_s : dict
+        ``scene_build``, ``cast`` (seconds).
+    """
+
+    quality: np.ndarray
+    rays_cast: np.ndarray
+    trees_tested: np.ndarray
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def seen(self) -> np.ndarray:
+        return self.quality > 0
+
+
+def max_spacing_ok(
+    range_m: np.ndarray,
+    cos_inc: np.ndarray,
+    step_rad: float,
+    tau_m: float,
+    thickness_m: np.ndarray | float = np.inf,
+) -> np.ndarray:
+    """Rule 3: the pulse grid is dense enough there for τ (module notes): the half-diagonal
+    of its cell on the surface, or for a feature thinner than the cell, of the stretch
+    between its hits, is at most τ."""
+    a = np.asarray(range_m, np.float64) * step_rad
+    b = a / np.maximum(np.asarray(cos_inc, np.float64), 1e-12)
+    w = np.broadcast_to(np.asarray(thickness_m, np.float64), a.shape)
+    thick = 0.5 * np.sqrt(a * a + b * b) <= tau_m
+    along = a * a / np.maximum(w, 1e-12)
+    thin = 0.5 * np.sqrt(along * along + w * w) <= tau_m
+    return np.where(w >= a, thick, thin)
+
+
+class VisibilityCaster:
+    """The plot's ray-casting scene, built once, and the rule applied per station."""
+
+    def __init__(self, scene: Scene, samples: SampleSet, *, nthreads: int = 0) -> None:
+        import open3d as o3d
+
+        t0 = time.perf_counter()
+        self.frame = LocalFrame.around(scene.vertices[np.unique(scene.faces)])
+        self.samples = samples
+        self.pts = self.frame.to_local(samples.points)
+        self.bounds = samples.bounds - self.frame.origin_array
+        self.rc = o3d.t.geometry.RaycastingScene(nthreads=int(nthreads))
+        self.rc.add_triangles(
+            o3d.core.Tensor(self.frame.to_local(scene.vertices).astype(np.float32)),
+            o3d.core.Tensor(scene.faces.astype(np.uint32)),
+        )
+        self._o3d = o3d
+        self._cast(np.zeros((1, 6), np.float32))  # the BVH is built on the first query
+        self.build_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.thickness_m = self._thickness()
+        self.thickness_s = time.perf_counter() - t0
+        self.n_triangles = len(scene.faces)
+
+    def _cast(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``t_hit`` and the unit normal of the triangle hit, per ray."""
+        out = self.rc.cast_rays(self._o3d.core.Tensor(rays.astype(np.float32)))
+        return out["t_hit"].numpy().astype(np.float64), out["primitive_normals"].numpy()
+
+    def _thickness(self) -> np.ndarray:
+        """Per sample, the distance along its inward normal (outward normals assumed, as
+        closed tubes have) to the next surface: a branch's diameter; inf for open sheets
+        (leaves, whose extent, not their thickness, matters). The ray starts 1 mm inside,
+        clear of the sample's own triangle whatever float32 makes of it."""
+        eps = 1e-3
+        n = self.samples.normals
+        rays = np.concatenate([self.pts - eps * n, -n], axis=1)
+        out = np.empty(len(rays))
+        for k in range(0, len(rays), _CHUNK):
+            out[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
+        return out + eps
+
+    def trees_in_view(self, o: np.ndarray, spec: ScannerSpec) -> np.ndarray:
+        """Indices of the trees whose sample box lies within range and the vertical field
+        of view of a station at local ``o`` (heading 0)."""
+        out = []
+        v0, v1 = spec.vertical_fov_deg
+        for i, (lo, hi) in enumerate(self.bounds):
+            if not np.isfinite(lo).all():
+                continue
+            w = box_window(lo - o, hi - o)
+            if w.min_distance_m > spec.max_range_m or w.max_distance_m < spec.min_range_m:
+                continue
+            if w.elevation_deg[1] < v0 or w.elevation_deg[0] > v1:
+                continue
+            out.append(i)
+        return np.asarray(out, np.int64)
+
+    def station(
+        self, position: np.ndarray, spec: ScannerSpec, tau_m: float
+    ) -> tuple[np.ndarray, int, int]:
+        """Quality (n,) uint8 of every sample from one station (plot coordinates), rays
+        cast, trees tested."""
+        s = self.samples
+        q = np.zeros(len(s), np.uint8)
+        o = self.frame.to_local(np.asarray(position, np.float64)[None])[0]
+        trees = self.trees_in_view(o, spec)
+        if not len(trees):
+            return q, 0, 0
+        idx = np.flatnonzero(np.isin(s.tree_of, trees))
+        d = self.pts[idx] - o
+        dist = np.linalg.norm(d, axis=1)
+        el = np.degrees(np.arcsin(np.clip(d[:, 2] / np.maximum(dist, 1e-300), -1, 1)))
+        ok = (dist >= spec.min_range_m) & (dist <= spec.max_range_m)
+        ok &= (el >= spec.vertical_fov_deg[0]) & (el <= spec.vertical_fov_deg[1])
+        if not spec.full_turn:
+            az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+            h0, h1 = spec.horizontal_fov_deg
+            ok &= ((az - h0) % 360.0) <= (h1 - h0)
+        cand = np.flatnonzero(ok)
+        # rays: origin o, direction to the sample (unnormalised: the sample is at t = 1)
+        rays = np.empty((len(cand), 6), np.float64)
+        rays[:, :3] = o
+        rays[:, 3:] = d[cand]
+        t_hit = np.empty(len(cand))
+        normal = np.empty((len(cand), 3))
+        for k in range(0, len(cand), _CHUNK):
+            t_hit[k : k + _CHUNK], normal[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])
+        dc = dist[cand]
+        first = t_hit >= 1.0 - max(tau_m, HIT_TOLERANCE_M) / np.maximum(dc, 1e-300)
+        # the surface met: the sample's own when the ray passes everything before it
+        own = t_hit >= 1.0 - HIT_TOLERANCE_M / np.maximum(dc, 1e-300)
+        nrm = np.where(own[:, None], s.normals[idx[cand]], normal)
+        cos_inc = np.abs(np.einsum("ij,ij->i", nrm, d[cand])) / np.maximum(dc, 1e-300)
+        step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+        # the hit's range (the sample's, or the nearer surface's) sets the spacing
+        r_hit = np.minimum(t_hit, 1.0) * dc
+        w = np.where(own, self.thickness_m[idx[cand]], np.inf)
+        first &= max_spacing_ok(r_hit, cos_inc, step, tau_m, w)
+        # band samples (DBH) count only on their own side of the stem: the first hit is
+        # their own surface, not the stem's near side within τ of them
+        first &= own | ~s.band[idx[cand]]
+        seen = np.flatnonzero(first)
+        q[idx[cand[seen]]] = np.clip(np.rint(255.0 * cos_inc[seen]), 1, 255).astype(np.uint8)
+        return q, int(len(cand)), int(len(trees))
+
+
+def visibility(
+    caster: VisibilityCaster,
+    positions: np.ndarray,
+    spec: ScannerSpec,
+    tau_m: float,
+    *,
+    progress: Any = None,
+    label: str = "candidate",
+) -> Visibility:
+    """:class:`Visibility` of every sample from every station in ``positions`` (k, 3)."""
+    positions = np.asarray(positions, np.float64).reshape(-1, 3)
+    k = len(positions)
+    q = np.zeros((k, len(caster.samples)), np.uint8)
+    rays = np.zeros(k, np.int64)
+    trees = np.zeros(k, np.int64)
+    t0 = time.perf_counter()
+    for j, p in enumerate(positions):
+        if progress is not None and (j % 8 == 0):
+            progress(j / max(1, k), f"visibility: {label} {j + 1}/{k}")
+        q[j], rays[j], trees[j] = caster.station(p, spec, tau_m)
+    return Visibility(
+        quality=q,
+        rays_cast=rays,
+        trees_tested=trees,
+        timings_s={"scene_build": caster.build_s, "cast": time.perf_counter() - t0},
+    )

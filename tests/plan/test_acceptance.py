@@ -1,0 +1,144 @@
+"""Acceptance of ``treesim plan`` (issue 14): on a plot of 20 trees the plan is compared
+with the classic layouts and verified by a full scan; on one tree it recovers the
+three-station ring when that is what the goal needs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.params import instrument
+from pipeline.plan import PlanParams, plan_scans
+from pipeline.plan.sources import species_tree_plot
+from pipeline.plot import Plot, PlotTree
+
+VZ400 = instrument("riegl-vz400")
+
+
+def sapling_plot(n: int = 20, radius_m: float = 8.0, seed: int = 1) -> Plot:
+    """``n`` saplings at seeded random positions at least 1.5 m apart in a plot."""
+    rng = np.random.default_rng(seed)
+    pts: list[np.ndarray] = []
+    while len(pts) < n:
+        p = rng.uniform(-radius_m, radius_m, 2)
+        if np.hypot(*p) <= radius_m - 0.5 and all(np.hypot(*(p - q)) >= 1.5 for q in pts):
+            pts.append(p)
+    trees = [
+        PlotTree(
+            tree_id=i + 1,
+            x_m=float(x),
+            y_m=float(y),
+            rotation_deg=float(rng.uniform(0, 360)),
+            species="sapling",
+            seed=i,
+        )
+        for i, (x, y) in enumerate(pts)
+    ]
+    return Plot(trees, radius_m=radius_m, facets=8)
+
+
+@pytest.fixture(scope="module")
+def plot_plan():
+    spec = VZ400.spec(horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2)
+    params = PlanParams(
+        goal_coverage=0.8,
+        tolerance_m=0.03,
+        dbh_arc_deg=270.0,
+        samples_per_tree=600,
+        candidate_spacing_m=1.0,
+    )
+    return plan_scans(sapling_plot(), spec=spec, instrument=VZ400, params=params)
+
+
+def test_plot_plan_against_the_classic_layouts(plot_plan):
+    r = plot_plan
+    d = r.to_dict()
+    assert len(r.targets) >= 20
+    assert d["plan"]["goal_met"] and d["unreachable_trees"] == []
+    cmp_ = d["comparison"]
+    # the comparison is computed from the baselines' own figures, and consistently
+    reaching = [b for b in d["baselines"] if b["goal_met"]]
+    names = {b["name"] for b in d["baselines"]}
+    assert {"ring-3", "centre+3", "cross-5"} <= names and sum(
+        n.startswith("grid-") for n in names
+    ) == 3
+    for b in d["baselines"]:
+        met = [b["per_tree"][t.tree_id]["coverage"] >= 0.8 for t in r.targets]
+        arcs = [b["per_tree"][t.tree_id]["arc_deg"] >= 270 for t in r.targets]
+        assert b["goal_met"] == all(m and a for m, a in zip(met, arcs, strict=True))
+    if reaching:
+        best = min(reaching, key=lambda b: b["n_stations"])
+        assert cmp_["baseline_stations"] == best["n_stations"]
+        assert cmp_["fewer_stations"] == best["n_stations"] - d["plan"]["n_stations"]
+        verdict = {1: "plan better", 0: "as good", -1: "baseline better"}[
+            int(np.sign(cmp_["fewer_stations"]))
+        ]
+        assert cmp_["verdict"] == verdict
+        assert cmp_["less_field_time_min"] == pytest.approx(
+            cmp_["fewer_stations"] * r.station_time_s / 60
+        )
+    else:
+        assert cmp_["verdict"] == "plan only"
+    # the plan's stations: within the budget, each gaining something, field time adds up
+    rows = d["plan"]["stations"]
+    assert 1 <= len(rows) <= r.max_stations
+    assert all(row["predicted_gain"] > 0 for row in rows)
+    assert rows[-1]["cumulative_field_time_min"] == pytest.approx(d["plan"]["field_time_min"])
+    # verified: a full-resolution scan of the plan meets every tree's goal
+    ver = r.verification
+    assert ver is not None and ver["points"] > 0
+    assert ver["trees_meeting_goal"] == len(r.targets), {
+        t: (e["coverage"], e["arc_deg"]) for t, e in ver["trees"].items() if not e["goal_met"]
+    }
+
+
+def test_plan_files(plot_plan, tmp_path):
+    from pipeline.plan.outputs import PLAN_FILES, write_plan
+
+    paths = write_plan(plot_plan, tmp_path)
+    assert set(paths) == set(PLAN_FILES)
+    for p in paths.values():
+        assert p.stat().st_size > 0
+    lines = (tmp_path / "stations.csv").read_text().splitlines()
+    assert lines[0].split(",")[:4] == ["order", "x_m", "y_m", "z_m"]
+    assert len(lines) == 1 + len(plot_plan.selection.chosen)
+
+
+def test_one_tree_recovers_the_three_station_ring():
+    # The goal: the DBH band seen all round (every sector). Candidates stand 1.5-4 m
+    # from the sapling; at 0.15° and τ = 1 cm the spacing rule lets one station see the
+    # band up to ~60-70° of incidence, an arc well under 180°: three stations are needed,
+    # and suffice only when no gap between them exceeds one station's arc.
+    plot = species_tree_plot("sapling", seed=0, facets=12, radius_m=4.0)
+    spec = VZ400.spec(horizontal_resolution_deg=0.15, vertical_resolution_deg=0.15)
+    spacing = 0.25
+    sectors_goal = 350.0
+    r = plan_scans(
+        plot,
+        spec=spec,
+        instrument=VZ400,
+        single_tree=True,
+        params=PlanParams(
+            goal_coverage=0.0,
+            dbh_arc_deg=sectors_goal,
+            tolerance_m=0.01,
+            candidate_spacing_m=spacing,
+            clearance_m=1.5,
+            verify=False,
+        ),
+    )
+    assert r.samples.n_sectors[0] * r.samples.arc_bin_deg >= sectors_goal
+    # two stations cannot do it: the widest single arc is under half the goal
+    one = r.objective.figures(r.visibility.quality)["arc_deg"][:, 0]
+    assert 2 * one.max() < sectors_goal
+    assert r.goal_met and len(r.selection.chosen) == 3
+    axis = r.samples.stem_xy[0]
+    st = r.candidates[r.selection.chosen]
+    ang = np.sort(np.degrees(np.arctan2(st[:, 1] - axis[1], st[:, 0] - axis[0])) % 360)
+    gaps = np.diff(np.append(ang, ang[0] + 360))
+    # the candidate grid's angular resolution at the nearest chosen station
+    d_min = float(np.hypot(st[:, 0] - axis[0], st[:, 1] - axis[1]).min())
+    tol = math.degrees(2 * spacing / d_min)
+    assert np.all(np.abs(gaps - 120) <= tol), (gaps, tol)

@@ -1,0 +1,55 @@
+"""``treesim plan`` on the command line: a run on one tree, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+from pipeline.cli import main
+
+
+def test_plan_one_species_tree(tmp_path, capsys):
+    out = tmp_path / "p"
+    rc = main(
+        [
+            "plan",
+            "--species",
+            "sapling",
+            "--facets",
+            "8",
+            "--resolution-deg",
+            "0.2",
+            "--tolerance-m",
+            "0.03",
+            "--samples-per-tree",
+            "300",
+            "--candidate-spacing-m",
+            "1",
+            "--no-verify",
+            "-o",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    d = json.loads((out / "plan.json").read_text())
+    assert d["goal"]["coverage"] == 0.8 and d["instrument"]["name"] == "riegl-vz400"
+    assert d["plan"]["n_stations"] == len(d["plan"]["stations"]) >= 1
+    assert d["verification"] is None
+    for name in ("stations.csv", "map.png", "curve.png"):
+        assert (out / name).stat().st_size > 0
+    assert "stations" in capsys.readouterr().out
+
+
+def test_plan_errors_are_one_line(tmp_path, capsys):
+    assert main(["plan", "-o", str(tmp_path / "a")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["treesim: error: give one of --plot PLOT.toml, --species NAME or MESH"]
+    (tmp_path / "plot.toml").write_text("")
+    assert main(["plan", "--plot", str(tmp_path / "plot.toml"), "-o", str(tmp_path / "b")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("treesim: error: --plot")
+    rc = main(
+        ["plan", "--species", "sapling", "--max-field-time-min", "1", "-o", str(tmp_path / "c")]
+    )
+    assert rc == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "less than one station" in err[0]
