@@ -19,12 +19,15 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..frame import LocalFrame
 from ..params._fields import finite
 from ..scene import MAX_TREE_ID, MeshPart, Scene, labelled_parts
+from ._sources import local_tree, placed_table, rotation, source_table
 
 __all__ = [
     "TERRAIN_KINDS",
@@ -58,7 +61,19 @@ class Terrain:
     aspect_deg : float
         Direction the slope faces (downhill), compass degrees.
     path : str, optional
-        The DTM raster or ground cloud (``dtm``, ``cloud``).
+        The DTM raster (ESRI ASCII grid ``.asc``) or ground cloud (any cloud format) of
+        ``dtm`` and ``cloud`` terrains, in the plot's coordinates. Relative paths are
+        relative to ``base_dir``.
+    base_dir : str, optional
+        The folder relative paths start from (a plot file's folder; default the current
+        one).
+
+    Notes
+    -----
+    A ``dtm`` is bilinear between its cell centres (NODATA cells take their nearest
+    valid cell's height; beyond the grid, the nearest edge's); a ``cloud`` is linear on
+    the Delaunay triangles of its points in x, y (the nearest point's height beyond
+    their hull). See :mod:`pipeline.plot._surface`.
     """
 
     kind: str = "flat"
@@ -66,6 +81,8 @@ class Terrain:
     slope_deg: float = 0.0
     aspect_deg: float = 0.0
     path: str | None = None
+    base_dir: str | None = field(default=None, compare=False)
+    _surface: Any = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.kind not in TERRAIN_KINDS:
@@ -80,6 +97,14 @@ class Terrain:
             )
         if self.kind in ("dtm", "cloud") and not self.path:
             raise InvalidParameterError(f"a {self.kind} terrain needs a path")
+
+    @property
+    def file(self) -> Path | None:
+        """The terrain's file, resolved against ``base_dir`` (None: flat or slope)."""
+        if not self.path:
+            return None
+        p = Path(self.path)
+        return p if p.is_absolute() or self.base_dir is None else Path(self.base_dir) / p
 
     def gradient(self) -> tuple[float, float]:
         """(dz/dx, dz/dy) of a plane terrain (0, 0 when flat)."""
@@ -97,7 +122,12 @@ class Terrain:
         if self.kind in ("flat", "slope"):
             gx, gy = self.gradient()
             return self.z0_m + gx * x + gy * y
-        raise NotImplementedError(f"{self.kind} terrain heights are not implemented yet")
+        if self._surface is None:
+            from ._surface import surface_from_cloud, surface_from_dtm
+
+            read = surface_from_dtm if self.kind == "dtm" else surface_from_cloud
+            object.__setattr__(self, "_surface", read(self.file))
+        return self._surface(x, y)
 
     def mesh(self, lo_xy: Sequence[float], hi_xy: Sequence[float], cell_m: float) -> MeshPart:
         """The terrain over the rectangle ``lo_xy``–``hi_xy`` as a grid of triangles
@@ -143,6 +173,12 @@ class PlotTree:
         Uniform scale about the stem base (1: as made).
     leaves : bool, optional
         Procedural leaves (default: the species' own).
+    dbh_m, height_m : float, optional
+        Targets of a procedural tree (``source="species"``): the species' trunk length
+        and radius ratio are adjusted so that this seed's tree comes close to them
+        (:func:`pipeline.plot._sources.fit_species`); the tree's exact figures are
+        :meth:`Plot.truth`'s. Other sources ignore them (a stand file may carry the
+        figures it measured).
     """
 
     tree_id: int
@@ -155,6 +191,8 @@ class PlotTree:
     path: str | None = None
     scale: float = 1.0
     leaves: bool | None = None
+    dbh_m: float | None = None
+    height_m: float | None = None
 
     def __post_init__(self) -> None:
         tid = self.tree_id
@@ -178,23 +216,21 @@ class PlotTree:
             raise InvalidParameterError(f"tree {tid}: seed must be an integer >= 0")
         if self.seed < 0:
             raise InvalidParameterError(f"tree {tid}: seed must be an integer >= 0")
+        for name in ("dbh_m", "height_m"):
+            v = getattr(self, name)
+            if v is not None and not (
+                isinstance(v, int | float | np.floating)
+                and not isinstance(v, bool)
+                and math.isfinite(v)
+                and v > 0
+            ):
+                raise InvalidParameterError(f"tree {tid}: {name} must be > 0 (or empty), got {v!r}")
 
     @property
     def name(self) -> str:
         """``tree <id> (<species or file name>)``, for messages."""
         what = self.species if self.source == "species" else Path(str(self.path)).name
         return f"tree {self.tree_id} ({what})"
-
-
-def _local_mesh(tree: PlotTree, facets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The tree as made, stem base at the origin: vertices, faces, label codes."""
-    if tree.source == "species":
-        from ..models import generate_tree
-
-        return generate_tree(str(tree.species), seed=int(tree.seed), leaves=tree.leaves).mesh(
-            facets
-        )
-    raise NotImplementedError(f"{tree.source} plot trees are not implemented yet")
 
 
 @dataclass
@@ -214,6 +250,18 @@ class Plot:
         Vertices per ring of procedural and QSM trees' tubes.
     terrain_cell_m : float
         Side of the terrain mesh's grid cells.
+    base_dir : str, optional
+        The folder the trees' and the terrain's relative paths start from (the plot
+        file's folder; default the current one). Reconstructions of ``cloud`` trees are
+        kept in ``.treesim-cache/`` there.
+    reconstruct : ReconstructParams, optional
+        How ``cloud`` trees are reconstructed (default: the QSM's defaults).
+
+    Notes
+    -----
+    Trees are built when first asked for and kept (:meth:`tree_parts`);
+    :meth:`release` drops them (their bounds and triangle counts stay known), which is
+    how :func:`pipeline.plot.scan.scan_plot` keeps memory bounded.
     """
 
     trees: Sequence[PlotTree]
@@ -222,40 +270,100 @@ class Plot:
     centre_xy: tuple[float, float] = (0.0, 0.0)
     facets: int = 16
     terrain_cell_m: float = 1.0
+    base_dir: str | None = None
+    reconstruct: Any = None
     _parts: dict[int, list[MeshPart]] = field(default_factory=dict, init=False, repr=False)
+    _bounds: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False)
+    _ntri: dict[int, int] = field(default_factory=dict, init=False, repr=False)
+    _truth: dict[int, dict[str, Any]] = field(default_factory=dict, init=False, repr=False)
+    _origin: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.trees = tuple(self.trees)
+        for t in self.trees:
+            if not isinstance(t, PlotTree):
+                raise InvalidParameterError(f"plot trees must be PlotTree objects, got {t!r}")
         ids = [t.tree_id for t in self.trees]
         if len(set(ids)) != len(ids):
             dup = sorted({i for i in ids if ids.count(i) > 1})
             raise InvalidParameterError(f"tree ids must be unique; repeated: {dup[:10]}")
         if not (math.isfinite(self.radius_m) and self.radius_m > 0):
             raise InvalidParameterError(f"plot radius_m must be > 0, got {self.radius_m!r}")
+        if isinstance(self.facets, bool) or not isinstance(self.facets, int | np.integer):
+            raise InvalidParameterError(f"plot facets must be an integer >= 3, got {self.facets!r}")
+        if self.facets < 3:
+            raise InvalidParameterError(f"plot facets must be an integer >= 3, got {self.facets!r}")
+        if not (math.isfinite(self.terrain_cell_m) and self.terrain_cell_m > 0):
+            raise InvalidParameterError(
+                f"plot terrain_cell_m must be > 0, got {self.terrain_cell_m!r}"
+            )
         self.centre_xy = tuple(float(v) for v in self.centre_xy)  # type: ignore[assignment]
+        if len(self.centre_xy) != 2 or not all(math.isfinite(v) for v in self.centre_xy):
+            raise InvalidParameterError(
+                f"plot centre_xy must be two finite numbers, got {self.centre_xy}"
+            )
+        if self.base_dir is not None and self.terrain.base_dir is None:
+            from dataclasses import replace
+
+            self.terrain = replace(self.terrain, base_dir=str(self.base_dir))
+        self._by_id = {t.tree_id: t for t in self.trees}
+
+    @property
+    def tree_ids(self) -> list[int]:
+        """The trees' ids, in the plot's order."""
+        return [t.tree_id for t in self.trees]
 
     def tree(self, tree_id: int) -> PlotTree:
         """The tree with this id."""
-        for t in self.trees:
-            if t.tree_id == tree_id:
-                return t
-        raise InvalidParameterError(f"the plot has no tree {tree_id}")
+        try:
+            return self._by_id[int(tree_id)]
+        except (KeyError, TypeError, ValueError):
+            raise InvalidParameterError(f"the plot has no tree {tree_id}") from None
+
+    @property
+    def _base(self) -> Path | None:
+        return None if self.base_dir is None else Path(self.base_dir)
 
     def tree_parts(self, tree_id: int) -> list[MeshPart]:
         """The tree's mesh parts (wood, leaf, ...) placed in the plot, with its tree id.
-        Built once and kept."""
+        Built once and kept (until :meth:`release`)."""
         if tree_id not in self._parts:
             t = self.tree(tree_id)
-            v, f, lab = _local_mesh(t, self.facets)
-            self._parts[tree_id] = labelled_parts(
-                self._place(t, v), f, lab, name_prefix=f"{t.name}:", tree_id=t.tree_id
-            )
+            v, f, lab, base = local_tree(t, int(self.facets), self._base, self.reconstruct)
+            placed = self._place(t, np.asarray(v, dtype=np.float64) - base)
+            parts = labelled_parts(placed, f, lab, name_prefix=f"{t.name}:", tree_id=t.tree_id)
+            used = placed[np.unique(np.asarray(f))]
+            self._bounds[tree_id] = np.stack([used.min(axis=0), used.max(axis=0)])
+            self._ntri[tree_id] = int(len(f))
+            self._origin[tree_id] = np.asarray(base, dtype=np.float64)
+            self._parts[tree_id] = parts
         return self._parts[tree_id]
 
+    def tree_bounds(self, tree_id: int) -> np.ndarray:
+        """(2, 3) float64 min and max corner of the placed tree (built once if needed;
+        known after :meth:`release`)."""
+        if tree_id not in self._bounds:
+            self.tree_parts(tree_id)
+        return self._bounds[tree_id].copy()
+
+    def tree_triangles(self, tree_id: int) -> int:
+        """Number of triangles of the tree's mesh (built once if needed)."""
+        if tree_id not in self._ntri:
+            self.tree_parts(tree_id)
+        return self._ntri[tree_id]
+
+    @property
+    def loaded(self) -> list[int]:
+        """Ids of the trees whose meshes are held now."""
+        return list(self._parts)
+
+    def release(self, tree_ids: Iterable[int] | None = None) -> None:
+        """Drop the meshes of these trees (default all); they are rebuilt when asked for."""
+        for tid in list(self._parts) if tree_ids is None else list(tree_ids):
+            self._parts.pop(tid, None)
+
     def _place(self, t: PlotTree, v: np.ndarray) -> np.ndarray:
-        a = math.radians(t.rotation_deg)
-        c, s = math.cos(a), math.sin(a)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        rot = rotation(t.rotation_deg)
         out = (np.asarray(v, dtype=np.float64) * t.scale) @ rot.T
         out[:, 0] += t.x_m
         out[:, 1] += t.y_m
@@ -270,17 +378,77 @@ class Plot:
         low = placed[:, 2] <= placed[:, 2].min() + 0.05
         return float(self.terrain.height_at(placed[low, 0], placed[low, 1]).min())
 
+    def truth(self, tree_id: int) -> dict[str, Any]:
+        """The tree's reference figures as placed in the plot: its cylinder table's
+        summary (``dbh_m``, ``height_m``, ``volume_total_m3``, ``volume_stem_m3``,
+        ``volume_branch_m3``, ``n_cylinders``; exact for procedural trees, the table's own
+        for QSM and reconstructed cloud trees), its position, stem base height and bounds,
+        and ``source``. A mesh tree has no table: ``height_m`` is its bounds' height and
+        the rest None."""
+        if tree_id not in self._truth:
+            t = self.tree(tree_id)
+            bounds = self.tree_bounds(tree_id)
+            table = source_table(t, self._base, self.reconstruct)
+            if table is None:
+                fig: dict[str, Any] = {
+                    "dbh_m": None,
+                    "height_m": float(bounds[1, 2] - bounds[0, 2]),
+                    "volume_total_m3": None,
+                    "volume_stem_m3": None,
+                    "volume_branch_m3": None,
+                    "n_cylinders": None,
+                }
+            else:
+                base = self._origin[tree_id]
+                moved = placed_table(table, base, t.scale, rotation(t.rotation_deg), np.zeros(3))
+                s = moved.summary()
+                fig = {
+                    k: s[k]
+                    for k in (
+                        "dbh_m",
+                        "height_m",
+                        "volume_total_m3",
+                        "volume_stem_m3",
+                        "volume_branch_m3",
+                        "n_cylinders",
+                    )
+                }
+            self._truth[tree_id] = {
+                "tree_id": t.tree_id,
+                "source": t.source,
+                "species": t.species,
+                "x_m": t.x_m,
+                "y_m": t.y_m,
+                "base_z_m": float(bounds[0, 2]),
+                **fig,
+                "bounds_m": bounds.tolist(),
+                "triangles": self.tree_triangles(tree_id),
+            }
+        return dict(self._truth[tree_id])
+
+    def frame(self) -> LocalFrame:
+        """The plot's float64 frame: its centre at the terrain's height there (rounded to
+        whole millimetres). Scans of the plot are cast around it, so any subset of its
+        trees scanned from a station shares their float32 geometry with the whole."""
+        cx, cy = self.centre_xy
+        z = float(self.terrain.height_at(cx, cy))
+        return LocalFrame(origin=(round(cx, 3), round(cy, 3), round(z, 3)))
+
+    def terrain_part(self, margin_m: float = 2.0) -> MeshPart:
+        """The terrain over the plot's square plus ``margin_m``, labelled ``ground``."""
+        r = self.radius_m + margin_m
+        cx, cy = self.centre_xy
+        return self.terrain.mesh((cx - r, cy - r), (cx + r, cy + r), self.terrain_cell_m)
+
     def scene(
         self, tree_ids: Iterable[int] | None = None, *, terrain: bool = True, margin_m: float = 2.0
     ) -> Scene:
         """The plot as one :class:`Scene`: the trees (all, or ``tree_ids``) and the terrain
         over the plot's square plus ``margin_m``."""
-        ids = [t.tree_id for t in self.trees] if tree_ids is None else list(tree_ids)
+        ids = self.tree_ids if tree_ids is None else list(tree_ids)
         parts: list[MeshPart] = []
         for tid in ids:
             parts += self.tree_parts(tid)
         if terrain:
-            r = self.radius_m + margin_m
-            cx, cy = self.centre_xy
-            parts.append(self.terrain.mesh((cx - r, cy - r), (cx + r, cy + r), self.terrain_cell_m))
+            parts.append(self.terrain_part(margin_m))
         return Scene(parts)
