@@ -27,7 +27,7 @@ from ..errors import InvalidParameterError
 from ..frame import LocalFrame
 from ..params._fields import finite
 from ..scene import MAX_TREE_ID, MeshPart, Scene, labelled_parts
-from ._sources import local_tree, placed_table, rotation, source_table
+from ._sources import local_tree, placed_table, rotation
 
 __all__ = [
     "TERRAIN_KINDS",
@@ -277,6 +277,7 @@ class Plot:
     _ntri: dict[int, int] = field(default_factory=dict, init=False, repr=False)
     _truth: dict[int, dict[str, Any]] = field(default_factory=dict, init=False, repr=False)
     _origin: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False)
+    _tables: dict[int, Any] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.trees = tuple(self.trees)
@@ -329,7 +330,8 @@ class Plot:
         Built once and kept (until :meth:`release`)."""
         if tree_id not in self._parts:
             t = self.tree(tree_id)
-            v, f, lab, base = local_tree(t, int(self.facets), self._base, self.reconstruct)
+            v, f, lab, base, table = local_tree(t, int(self.facets), self._base, self.reconstruct)
+            self._tables[tree_id] = table
             placed = self._place(t, np.asarray(v, dtype=np.float64) - base)
             parts = labelled_parts(placed, f, lab, name_prefix=f"{t.name}:", tree_id=t.tree_id)
             used = placed[np.unique(np.asarray(f))]
@@ -388,7 +390,7 @@ class Plot:
         if tree_id not in self._truth:
             t = self.tree(tree_id)
             bounds = self.tree_bounds(tree_id)
-            table = source_table(t, self._base, self.reconstruct)
+            table = self._tables.get(tree_id)
             if table is None:
                 fig: dict[str, Any] = {
                     "dbh_m": None,

@@ -146,16 +146,18 @@ def source_table(
 
 def local_tree(
     tree: PlotTree, facets: int, base_dir: Path | None, reconstruct: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The tree as made: vertices, faces, label codes, and its stem base (3,) in the
-    source's coordinates (subtract it to stand the tree at the origin)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CylinderTable | None]:
+    """The tree as made: vertices, faces, label codes, its stem base (3,) in the
+    source's coordinates (subtract it to stand the tree at the origin) and its cylinder
+    table (None for a mesh tree)."""
     from ..models import cylinders_to_mesh, generate_tree
     from ..params.models import ModelParams
 
     if tree.source == "species":
         params = fit_species(str(tree.species), tree.seed, tree.dbh_m, tree.height_m)
-        v, f, lab = generate_tree(params, seed=int(tree.seed), leaves=tree.leaves).mesh(facets)
-        return v, f, lab, np.zeros(3)
+        made = generate_tree(params, seed=int(tree.seed), leaves=tree.leaves)
+        v, f, lab = made.mesh(facets)
+        return v, f, lab, np.zeros(3), made.cylinders
     if tree.source == "mesh":
         from ..io import load_mesh
 
@@ -175,12 +177,12 @@ def local_tree(
         used = v[np.unique(f)]
         if not np.isfinite(used).all():
             raise InputFormatError(f"{tree.name}: {src} has NaN or infinite vertices")
-        return v, f, lab, stem_base(used)
+        return v, f, lab, stem_base(used), None
     table = source_table(tree, base_dir, reconstruct)
     assert table is not None
     v, f = cylinders_to_mesh(table, facets=facets, joints=ModelParams().joints)
     lab = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
-    return v, f, lab, stem_base(v)
+    return v, f, lab, stem_base(v), table
 
 
 def placed_table(

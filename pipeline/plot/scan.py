@@ -21,6 +21,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,10 +37,15 @@ from . import Plot
 __all__ = [
     "PlotScanResult",
     "box_reachable",
+    "PLOT_SCAN_FILES",
     "plot_fields",
+    "plot_scan_files",
+    "plot_stations",
+    "read_stations_csv",
     "scan_plot",
     "station_trees",
     "tree_figures",
+    "write_figures_csv",
 ]
 
 Progress = Callable[[float, str], None]
@@ -501,3 +507,229 @@ def tree_figures(
         rows.append(row)
     say(1.0, "done")
     return rows
+
+
+#: What :func:`plot_scan_files` writes into its folder (the cloud's suffix may vary).
+PLOT_SCAN_FILES = {"cloud": "plot_scan.laz", "json": "plot_scan.json", "trees": "tree_figures.csv"}
+#: The per-point fields the per-tree figures keep from a plot's scan.
+_FIGURE_FIELDS = ("tree_id", "station", "label")
+#: Columns of ``tree_figures.csv``.
+FIGURE_COLUMNS = (
+    "tree_id",
+    "species",
+    "source",
+    "x_m",
+    "y_m",
+    "dbh_m",
+    "height_m",
+    "triangles",
+    "points",
+    "coverage",
+    "tolerance_m",
+    "accuracy_mean_m",
+    "accuracy_p95_m",
+    "completeness_mean_m",
+    "completeness_p95_m",
+    "note",
+)
+
+
+def plot_stations(
+    plot: Plot,
+    *,
+    positions: Sequence[Sequence[float]] | None = None,
+    n: int = 3,
+    distance_m: float | None = None,
+    height_m: float = 1.5,
+    start_angle_deg: float = 90.0,
+) -> list[Station]:
+    """Stations for a plot: ``positions`` as given (x, y, z in metres; (x, y) stands
+    ``height_m`` above the terrain), or ``n`` on a ring around the plot centre at
+    ``distance_m`` (default half the plot's radius), ``height_m`` above the terrain."""
+    out = []
+    if positions:
+        for p in positions:
+            q = [float(c) for c in p]
+            if len(q) == 2:
+                q.append(float(plot.terrain.height_at(q[0], q[1])) + height_m)
+            out.append(_as_station(q))
+        return out
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise InvalidParameterError(f"the number of stations must be >= 1, got {n!r}")
+    d = 0.5 * plot.radius_m if distance_m is None else float(distance_m)
+    if not (math.isfinite(d) and d >= 0):
+        raise InvalidParameterError(f"distance_m must be >= 0, got {distance_m!r}")
+    cx, cy = plot.centre_xy
+    for k in range(int(n)):
+        a = math.radians(start_angle_deg + 360.0 * k / n)
+        x, y = cx + d * math.cos(a), cy + d * math.sin(a)
+        out.append(Station(position_m=(x, y, float(plot.terrain.height_at(x, y)) + height_m)))
+    return out
+
+
+def read_stations_csv(path: str | Path, plot: Plot, height_m: float = 1.5) -> list[Station]:
+    """Stations from a CSV with ``x_m``, ``y_m`` and either ``z_m`` (absolute) or
+    ``height_m`` (above the terrain; default ``height_m``) columns, in file order (as
+    ``treesim plan`` writes ``stations.csv``)."""
+    import csv
+
+    from ..errors import InputFormatError
+
+    p = Path(path)
+    try:
+        rows = list(csv.DictReader(p.read_text(encoding="utf-8-sig").splitlines()))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFormatError(f"{p}: cannot read the stations CSV ({exc})") from exc
+    if not rows or not {"x_m", "y_m"} <= set(rows[0]):
+        raise InputFormatError(
+            f"{p}: a stations CSV needs x_m and y_m columns (and z_m, or height_m above "
+            "the terrain) and at least one row"
+        )
+    out = []
+    for i, r in enumerate(rows, start=2):
+        try:
+            x, y = float(r["x_m"]), float(r["y_m"])
+            if r.get("z_m") not in (None, ""):
+                out.append(_as_station((x, y, float(r["z_m"]))))
+            else:
+                h = float(r["height_m"]) if r.get("height_m") not in (None, "") else height_m
+                out.append(_as_station((x, y, float(plot.terrain.height_at(x, y)) + h)))
+        except (TypeError, ValueError) as exc:
+            raise InputFormatError(f"{p}, line {i}: not a number ({exc})") from exc
+    return out
+
+
+def write_figures_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
+    """Per-tree figures as a CSV (atomically)."""
+    import csv
+    import io
+
+    from ..atomic import write_text
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(FIGURE_COLUMNS)
+    for r in rows:
+        w.writerow(
+            [
+                "" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c])
+                for c in FIGURE_COLUMNS
+            ]
+        )
+    return write_text(Path(path), buf.getvalue())
+
+
+def plot_scan_files(
+    plot: Plot,
+    outdir: str | Path,
+    params: ScanParams | None = None,
+    *,
+    stations: Sequence[Any],
+    compare: CompareParams | None = None,
+    cloud_name: str = PLOT_SCAN_FILES["cloud"],
+    figures: bool = True,
+    threads: int = 0,
+    progress: Progress | None = None,
+    cache_triangles: int = CACHE_TRIANGLES,
+) -> Any:
+    """Scan a plot into ``outdir``: the cloud (``plot_scan.laz``, written while it is
+    cast), ``plot_scan.json`` (the scan, each station's loading, each tree's truth and
+    figures) and ``tree_figures.csv`` (one row per tree). Interrupted or failed, it
+    leaves nothing behind (no cloud, no JSON, no CSV, no folder it made).
+
+    Returns a :class:`pipeline.steps.StepResult` (``result``: the
+    :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
+    """
+    import open3d  # noqa: F401  (imported before any file exists; see steps.scan_files)
+
+    from ..io import open_cloud_writer
+    from ..jsonio import json_ready, write_json
+    from ..steps import SCAN_OUTPUT_SUFFIXES, StepResult, _make_folders, _remove_folders
+    from ..steps import scale_progress as scaled
+
+    params = params or ScanParams()
+    out = Path(outdir)
+    cloud_path = out / cloud_name
+    if cloud_path.suffix.lower() not in SCAN_OUTPUT_SUFFIXES:
+        raise InvalidParameterError(
+            f"{cloud_name}: write the cloud as {', '.join(SCAN_OUTPUT_SUFFIXES)} (by suffix)"
+        )
+    placed = [_as_station(s) for s in stations]
+    say = progress or (lambda f, m: None)
+    made = _make_folders(out)
+    written: list[Path] = []
+    try:
+        t0 = time.perf_counter()
+        with open_cloud_writer(
+            cloud_path,
+            fields=plot_fields(),
+            metadata=_metadata(placed),
+            origin_hint_m=plot.frame().origin_array,
+            threads=int(threads),
+        ) as writer:
+            kept: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+
+            def tee(p: np.ndarray, f: dict[str, np.ndarray]) -> None:
+                writer.write(p, f)
+                if figures:  # the figures use the float64 points, not the file's
+                    kept.append((p, {k: f[k] for k in _FIGURE_FIELDS}))
+
+            res = scan_plot(
+                plot,
+                placed,
+                params,
+                sink=tee,
+                threads=threads,
+                progress=scaled(say, 0.0, 0.7 if figures else 0.95),
+                cache_triangles=cache_triangles,
+            )
+        written.append(cloud_path)
+        t_scan = time.perf_counter() - t0
+        rows: list[dict[str, Any]] = []
+        t_fig = 0.0
+        if figures:
+            t1 = time.perf_counter()
+            cloud = Cloud(
+                np.concatenate([p for p, _ in kept]) if kept else np.empty((0, 3)),
+                {
+                    k: np.concatenate([f[k] for _, f in kept])
+                    if kept
+                    else np.empty(0, dtype=plot_fields()[k])
+                    for k in _FIGURE_FIELDS
+                },
+                _metadata(placed),
+            )
+            kept.clear()
+            rows = tree_figures(plot, cloud, params=compare, progress=scaled(say, 0.7, 0.97))
+            del cloud
+            t_fig = time.perf_counter() - t1
+        truth = [plot.truth(t) for t in plot.tree_ids]
+        summary = json_ready(
+            {
+                "plot": {
+                    "trees": len(plot.trees),
+                    "radius_m": plot.radius_m,
+                    "centre_xy": list(plot.centre_xy),
+                    "terrain": plot.terrain.kind,
+                    "facets": plot.facets,
+                },
+                "output": str(cloud_path),
+                **res.summary(),
+                "trees": rows,
+                "truth": truth,
+                "timings_s": {"scan": t_scan, "figures": t_fig},
+            }
+        )
+        outputs = {"cloud": cloud_path}
+        if figures:
+            outputs["trees"] = write_figures_csv(out / PLOT_SCAN_FILES["trees"], rows)
+            written.append(outputs["trees"])
+        outputs["json"] = write_json(out / PLOT_SCAN_FILES["json"], summary)
+        written.append(outputs["json"])
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        _remove_folders(made)
+        raise
+    say(1.0, "done")
+    return StepResult(summary, outputs, res, {"trees": rows})
