@@ -6,7 +6,8 @@ The rules (sources in the README's Plots section; research notes B2):
   default), or a Poisson draw with that mean (``count="poisson"``).
 * **Species**: by the given shares, as exact counts (largest remainders), in random order.
 * **DBH**: a three-parameter Weibull (shape ``weibull_shape``, default 3: even-aged;
-  location ``dbh_min_m`` 5 cm) whose scale gives the species' mean DBH exactly: the
+  location ``dbh_min_m`` 5 cm, or half the mean for species smaller than twice that)
+  whose scale gives the species' mean DBH exactly: the
   preset tree's own DBH (seed 0) unless ``mean_dbh_m`` is given. Draws beyond 2.5 × the
   mean are drawn again.
 * **Height**: Näslund, h = 1.3 + d² / (a + b·d)² (d in cm, h in m), b = ``naslund_b``
@@ -155,10 +156,8 @@ def generate_stand(
         raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     if count not in COUNT_RULES:
         raise InvalidParameterError(f"count must be one of {', '.join(COUNT_RULES)}, got {count!r}")
-    if mean_dbh_m is not None and not (mean_dbh_m > dbh_min_m):
-        raise InvalidParameterError(
-            f"mean_dbh_m must exceed dbh_min_m ({dbh_min_m} m), got {mean_dbh_m!r}"
-        )
+    if mean_dbh_m is not None and not (math.isfinite(mean_dbh_m) and mean_dbh_m > 0):
+        raise InvalidParameterError(f"mean_dbh_m must be > 0, got {mean_dbh_m!r}")
     area_ha = math.pi * radius_m**2 / 1e4
     expected = stems_per_ha * area_ha
     rng = np.random.default_rng(seed)
@@ -178,14 +177,15 @@ def generate_stand(
     for name in shares:
         d0, h0 = _preset_size(name)
         mean = float(mean_dbh_m) if mean_dbh_m is not None else d0
-        if mean <= dbh_min_m:
-            raise InvalidParameterError(f"{name}: mean DBH {mean} m must exceed dbh_min_m")
-        scale = (mean - dbh_min_m) / g
+        # a species smaller than the location (a sapling) starts at half its mean
+        loc = min(float(dbh_min_m), 0.5 * mean)
+        scale = (mean - loc) / g
         a = _naslund_a(d0, h0, naslund_b)
         rules[name] = {
             "share": shares[name],
             "trees": counts[name],
             "mean_dbh_m": mean,
+            "weibull_location_m": loc,
             "weibull_scale_m": scale,
             "naslund_a": a,
             "naslund_b": naslund_b,
@@ -195,7 +195,7 @@ def generate_stand(
     for i, name in enumerate(names):
         r = rules[name]
         while True:
-            d = dbh_min_m + r["weibull_scale_m"] * rng.weibull(weibull_shape)
+            d = r["weibull_location_m"] + r["weibull_scale_m"] * rng.weibull(weibull_shape)
             if d <= 2.5 * r["mean_dbh_m"]:
                 break
         dbh[i] = d
