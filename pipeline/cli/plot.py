@@ -16,8 +16,9 @@ import math
 from pathlib import Path
 
 from ..errors import InvalidParameterError
-from ..params import RunParams, ScannerSpec, ScanParams
-from ._options import floats_type, number_type, param_option, param_options, whole_number
+from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
+from ..params.models import ModelParams
+from ._options import collect, floats_type, number_type, param_option, param_options, whole_number
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
@@ -40,31 +41,36 @@ def _positive(what: str):
 def _terrain(args: argparse.Namespace):
     from ..plot import Terrain
 
-    kind = args.terrain or ("slope" if args.slope_deg else "flat")
+    slope = args.slope_deg or 0.0
+    kind = args.terrain or ("slope" if slope else "flat")
     path = None
     if args.terrain_path:
         path = str(Path(args.terrain_path).resolve())
-    return Terrain(
-        kind=kind, slope_deg=args.slope_deg or 0.0, aspect_deg=args.aspect_deg, path=path
-    )
+    return Terrain(kind=kind, slope_deg=slope, aspect_deg=args.aspect_deg or 0.0, path=path)
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from ..plot.generate import generate_stand, write_map
+    from ..params import merge
+    from ..params.models import ModelParams
+    from ..plot.generate import DEFAULT_RADIUS_M, generate_stand, write_map
     from ..plot.io import PLOT_FILE, write_plot
+
+    mp = merge(ModelParams(), collect(args))
+    radius = DEFAULT_RADIUS_M if args.radius_m is None else args.radius_m
+    extra = {k: getattr(args, k) for k in ("weibull_shape",) if getattr(args, k) is not None}
 
     out = output_folder(args.output, files=[PLOT_FILE, "trees.csv", "map.png"])
     plot, stand = generate_stand(
         args.species,
         args.stems_per_ha,
-        args.radius_m,
-        args.seed,
+        radius,
+        mp.seed,
         terrain=_terrain(args),
-        facets=args.facets,
+        facets=mp.facets,
         count=args.count,
         mean_dbh_m=args.mean_dbh_m,
-        weibull_shape=args.weibull_shape,
-        leaves=args.leaves,
+        leaves=mp.leaves,
+        **extra,
     )
     out.mkdir(parents=True, exist_ok=True)
     path = write_plot(out / PLOT_FILE, plot, stand=stand)
@@ -75,7 +81,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     dbh = [t.dbh_m for t in plot.trees]
     hts = [t.height_m for t in plot.trees]
     print(
-        f"{len(plot.trees)} trees ({per}) in a {args.radius_m:g} m plot "
+        f"{len(plot.trees)} trees ({per}) in a {radius:g} m plot "
         f"({stand['count_rule']} count of {stand['expected_trees']:.1f} expected)"
     )
     if dbh:
@@ -90,7 +96,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
-    from ..params import CompareParams
+    from ..params import merge
     from ..plot.io import read_plot
     from ..plot.scan import PLOT_SCAN_FILES, plot_scan_files, plot_stations, read_stations_csv
     from .scan import params_from_args
@@ -102,22 +108,26 @@ def cmd_scan(args: argparse.Namespace) -> int:
     out = output_folder(
         args.output, files=[cloud_name, PLOT_SCAN_FILES["json"], PLOT_SCAN_FILES["trees"]]
     )
+    # τ is the comparison's, not the scan's: taken out before the scan's flags are read
+    tol = vars(args).pop("param:tolerance_m", None)
+    compare = merge(CompareParams(), {} if tol is None else {"tolerance_m": tol})
     params, threads = params_from_args(args)
+    if params.distance_m is not None and params.distance_m < 0:
+        raise InvalidParameterError("--distance-m must be >= 0")
     if args.full_fov:
         raise InvalidParameterError("--full-fov is not offered for plots; drop it")
     if args.station and args.stations_csv:
         raise InvalidParameterError("give either --station or --stations-csv, not both")
     if args.stations_csv:
-        stations = read_stations_csv(args.stations_csv, plot, height_m=args.height_m)
+        stations = read_stations_csv(args.stations_csv, plot, height_m=params.height_m)
     else:
         stations = plot_stations(
             plot,
             positions=args.station or None,
-            n=args.stations,
-            distance_m=args.distance_m,
-            height_m=args.height_m,
+            n=params.n_stations,
+            distance_m=params.distance_m,
+            height_m=params.height_m,
         )
-    compare = CompareParams(tolerance_m=args.tolerance_m)
     step = plot_scan_files(
         plot,
         out,
@@ -188,11 +198,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument(
         "--radius-m",
         type=_positive("--radius-m"),
-        default=15.0,
         metavar="M",
         help="plot radius (m; default 15)",
     )
-    g.add_argument("--seed", type=whole_number(0), default=0, help="random seed (default 0)")
     g.add_argument(
         "--count",
         choices=COUNT_RULES,
@@ -208,34 +216,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument(
         "--weibull-shape",
         type=_positive("--weibull-shape"),
-        default=3.0,
         metavar="K",
         help="Weibull shape of the DBHs (default 3, even-aged)",
     )
-    g.add_argument(
-        "--facets",
-        type=whole_number(3),
-        default=16,
-        help="vertices per ring of the trees' tubes (default 16)",
-    )
-    g.add_argument(
-        "--leaves",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="procedural leaves (default: each species' own)",
-    )
+    param_options(g, ModelParams, ["seed", "facets", "leaves"])
     g.add_argument("--terrain", choices=TERRAIN_KINDS, help="terrain kind (default flat)")
     g.add_argument(
         "--slope-deg",
         type=float,
-        default=0.0,
         metavar="DEG",
         help="slope of a slope terrain (deg)",
     )
     g.add_argument(
         "--aspect-deg",
         type=float,
-        default=0.0,
         metavar="DEG",
         help="direction the slope faces, compass degrees (0 north, 90 east)",
     )
@@ -279,26 +273,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="stations from a CSV with x_m, y_m and z_m or height_m columns "
         "(as treesim plan writes stations.csv)",
     )
-    st.add_argument(
-        "--stations",
-        type=whole_number(1),
-        default=3,
-        metavar="N",
-        help="without --station: N stations on a ring around the plot centre (default 3)",
-    )
-    st.add_argument(
-        "--distance-m",
-        type=_positive("--distance-m"),
-        metavar="M",
-        help="the ring's radius (default half the plot's radius)",
-    )
-    st.add_argument(
-        "--height-m",
-        type=float,
-        default=1.5,
-        metavar="M",
-        help="instrument height above the terrain (default 1.5)",
-    )
+    # without --station: a ring around the plot centre at --distance-m (unset: half the
+    # plot's radius), --height-m above the terrain
+    param_options(st, ScanParams, ["n_stations", "distance_m", "height_m"])
     sc = s.add_argument_group("scanner")
     from ..params import INSTRUMENTS, SETTINGS
 
@@ -329,11 +306,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="override the plot file's facets per ring",
     )
-    x.add_argument(
-        "--tolerance-m",
-        type=_positive("--tolerance-m"),
-        metavar="M",
-        help="coverage tolerance τ for every tree (default 3 x each tree's spacing)",
-    )
+    param_option(x, CompareParams, "tolerance_m")
     x.add_argument("--no-figures", action="store_true", help="scan only: no per-tree comparison")
     s.set_defaults(func=cmd_scan)

@@ -38,10 +38,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from . import Plot, PlotTree, Terrain
+from .core import Plot, PlotTree, Terrain
 
 __all__ = ["COUNT_RULES", "generate_stand", "parse_shares", "write_map"]
 
+#: The plot radius ``treesim plot generate`` uses when none is given (m).
+DEFAULT_RADIUS_M = 15.0
 #: How the number of trees is chosen.
 COUNT_RULES = ("exact", "poisson")
 #: Tries before the inhibition distance is relaxed by 10 %.

@@ -42,7 +42,7 @@ import tomllib
 
 from ..atomic import write_text
 from ..errors import InputFormatError, InvalidParameterError, TreesimError
-from . import TERRAIN_KINDS, Plot, PlotTree, Terrain
+from .core import TERRAIN_KINDS, Plot, PlotTree, Terrain
 
 __all__ = [
     "PLOT_FILE",

@@ -32,7 +32,7 @@ from ..params import CompareParams, ScanParams
 from ..scan import Station
 from ..scan.occupancy import TriangleBounds, reachable, triangle_bounds
 from ..scene import MeshPart, Scene
-from . import Plot
+from .core import Plot
 
 __all__ = [
     "PlotScanResult",
