@@ -92,6 +92,7 @@ FIGURE_COLUMNS: dict[str, tuple[str, ...]] = {
 TIME_COLUMNS = tuple(f"time_{s}_s" for s in (*STAGES, "total"))
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "id",
+    "tree_id",
     "status",
     "reused",
     "input",
@@ -105,6 +106,8 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 )
 
 _TEXT_SUFFIXES = (".xyz", ".txt", ".csv", ".asc", ".pts")
+#: A folder holding this file is a plot (see :mod:`pipeline.plot.io`).
+_PLOT_FILE = "plot.toml"
 _LOCK_NAME = ".treesim-batch.lock"
 
 
@@ -120,11 +123,15 @@ class TreeInput:
     path : Path
     settings : tuple of (str, str)
         Per-tree settings from a manifest (see :data:`pipeline.params.SETTINGS`).
+    kind : {"tree", "plot"}
     """
 
     id: str
     path: Path
     settings: tuple[tuple[str, str], ...] = ()
+    #: ``tree`` (a field cloud: the whole loop) or ``plot`` (a ``plot.toml``: the plot
+    #: scan, one summary row per tree of it)
+    kind: str = "tree"
 
 
 def _sniff_not_a_cloud(p: Path) -> str | None:
@@ -234,12 +241,21 @@ def discover_inputs(
             continue
         p = Path(item)
         if p.is_dir():
+            # a folder holding a plot.toml is a plot: its files are the plot's, not trees
+            plots = sorted(
+                f.parent
+                for f in p.rglob(_PLOT_FILE)
+                if not any(part.startswith(".") for part in f.relative_to(p).parts)
+            )
+            for d in plots:
+                found.append((d / _PLOT_FILE, d.name, ()))
             files = sorted(
                 f
                 for f in p.rglob("*")
                 if f.is_file()
                 and f.suffix.lower() in suffixes
                 and not any(part.startswith(".") for part in f.relative_to(p).parts)
+                and not any(d == f.parent or d in f.parents for d in plots)
             )
             for f in files:
                 why = _sniff_not_a_cloud(f)
@@ -248,7 +264,9 @@ def discover_inputs(
                 else:
                     found.append((f, None, ()))
         elif p.is_file():
-            if _is_manifest(p):
+            if p.suffix.lower() == ".toml":
+                found.append((p, p.parent.name if p.name == _PLOT_FILE else None, ()))
+            elif _is_manifest(p):
                 found.extend(_read_manifest(p))
             elif p.suffix.lower() in suffixes:
                 found.append((p, None, ()))
@@ -273,7 +291,8 @@ def discover_inputs(
             tid = f"{base}-{k}"
             k += 1
         used.add(tid)
-        trees.append(TreeInput(id=tid, path=f, settings=settings))
+        kind = "plot" if f.suffix.lower() == ".toml" else "tree"
+        trees.append(TreeInput(id=tid, path=f, settings=settings, kind=kind))
     return trees, skipped
 
 
@@ -286,6 +305,7 @@ class _Task:
     hash: str
     outdir: str
     threads: int
+    kind: str = "tree"
 
 
 def _dig(d: Any, path: tuple[str, ...]) -> Any:
@@ -332,14 +352,17 @@ def _run_task(task: _Task) -> dict[str, Any]:
     base = {"id": task.id, "input": task.path, "hash": task.hash}
     t0 = time.perf_counter()
     try:
-        res = run_tree(task.path, task.params.with_threads(threads), tmp, name=task.id)
-        row = {
-            **base,
-            "status": "ok",
-            **_row_from_summary(res.summary),
-            "report": f"trees/{task.id}/report.html",
-            "folder": f"trees/{task.id}",
-        }
+        if task.kind == "plot":
+            row = {**base, **_run_plot(task, tmp, threads)}
+        else:
+            res = run_tree(task.path, task.params.with_threads(threads), tmp, name=task.id)
+            row = {
+                **base,
+                "status": "ok",
+                **_row_from_summary(res.summary),
+                "report": f"trees/{task.id}/report.html",
+                "folder": f"trees/{task.id}",
+            }
         _write_json(
             tmp / "result.json",
             {
@@ -591,6 +614,8 @@ def _run_locked(
             if not t.path.is_file():
                 raise InputFormatError(f"{t.path} not found; check the path")
             h = file_sha256(t.path)
+            if t.kind == "plot":  # the plot file and its trees CSV
+                h = _plot_hash(t.path, h)
         except (TreesimError, OSError) as exc:
             rows[t.id] = {
                 **base,
@@ -612,6 +637,7 @@ def _run_locked(
                 hash=tree_hash,
                 outdir=str(out.resolve()),
                 threads=plan.threads,
+                kind=t.kind,
             )
         )
 
@@ -628,8 +654,11 @@ def _run_locked(
     finally:
         shutil.rmtree(out / ".tmp", ignore_errors=True)
         ordered = [
-            _normalise(rows.get(t.id, {"id": t.id, "input": str(t.path), "status": "not run"}))
+            _normalise(r)
             for t in trees
+            for r in _expand(
+                rows.get(t.id, {"id": t.id, "input": str(t.path), "status": "not run"})
+            )
         ]
         result = BatchResult(
             outdir=out,
@@ -751,6 +780,83 @@ def _drive(
                     say(_state(rows, total, len(inflight), t_start, ran, t_first, row))
                 if broken and not inflight:
                     break
+
+
+# -- plots --------------------------------------------------------------------------------
+def _plot_hash(path: Path, h: str) -> str:
+    """The plot file's hash with its trees CSV's (the files a plot file names)."""
+    import hashlib
+
+    import tomllib
+
+    try:
+        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return h  # the run says what is wrong with it
+    extra = doc.get("trees") if isinstance(doc.get("trees"), str) else None
+    if extra and (Path(path).parent / extra).is_file():
+        return hashlib.sha256((h + file_sha256(Path(path).parent / extra)).encode()).hexdigest()
+    return h
+
+
+#: Per-tree figures of a plot scan (``tree_figures``) as summary columns.
+_PLOT_COLUMNS = {
+    "dbh_m": "dbh_m",
+    "height_m": "height_m",
+    "n_triangles": "triangles",
+    "scan_points": "points",
+    "vs_mesh_coverage": "coverage",
+    "vs_mesh_accuracy_p95_m": "accuracy_p95_m",
+    "vs_mesh_completeness_p95_m": "completeness_p95_m",
+}
+
+
+def _run_plot(task: _Task, out: Path, threads: int) -> dict[str, Any]:
+    """Scan a plot (:func:`pipeline.plot.scan.plot_scan_files`) with the batch's scan and
+    compare settings: ``n_stations`` on a ring around the plot centre at ``distance_m``
+    (default half the plot's radius), ``height_m`` above the terrain. Returns the plot's
+    row, its trees' rows under ``trees``."""
+    from .plot.io import read_plot
+    from .plot.scan import plot_scan_files, plot_stations
+
+    p = task.params
+    t0 = time.perf_counter()
+    plot = read_plot(task.path)
+    stations = plot_stations(
+        plot, n=int(p.scan.n_stations), distance_m=p.scan.distance_m, height_m=p.scan.height_m
+    )
+    step = plot_scan_files(plot, out, p.scan, stations=stations, compare=p.compare, threads=threads)
+    total = time.perf_counter() - t0
+    trees = []
+    for i, r in enumerate(step.details["trees"]):
+        trees.append(
+            {
+                "tree_id": r["tree_id"],
+                **{col: r.get(key) for col, key in _PLOT_COLUMNS.items()},
+                # the plot's times once, on its first tree's row (a sum stays right)
+                **(
+                    {"time_scan_s": step.summary["timings_s"]["scan"], "time_total_s": total}
+                    if i == 0
+                    else {}
+                ),
+            }
+        )
+    return {
+        "status": "ok",
+        "kind": "plot",
+        "trees": trees,
+        "report": f"trees/{task.id}/plot_scan.json",
+        "folder": f"trees/{task.id}",
+    }
+
+
+def _expand(row: dict[str, Any]) -> list[dict[str, Any]]:
+    """A plot's row as one row per tree (its ``trees``); any other row as it is."""
+    trees = row.get("trees")
+    if not isinstance(trees, list):
+        return [row]
+    base = {k: v for k, v in row.items() if k != "trees"}
+    return [{**base, **t} for t in trees] or [base]
 
 
 # -- summaries ----------------------------------------------------------------------------

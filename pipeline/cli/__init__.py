@@ -30,6 +30,7 @@ from ._options import Parser
 #: The command modules, in the order ``treesim --help`` lists them.
 COMMANDS = (
     "scan",
+    "plot",
     "model",
     "reconstruct",
     "compare",

@@ -92,21 +92,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_plot(path: str | Path) -> Any:
-    """A plot from a plot file (``plot.toml`` and its trees).
+    """A plot from a plot file (``plot.toml`` and its trees, :func:`pipeline.plot.io.read_plot`)."""
+    from ..plot.io import read_plot
 
-    Plot files are read by :mod:`pipeline.plot.io`, which lands with ``treesim plot
-    generate``; until then this says so (one line, exit 1)."""
     p = Path(path)
     if not p.exists():
         raise InvalidParameterError(f"--plot {p}: no such file")
-    try:
-        from ..plot import io as plot_io  # type: ignore[attr-defined]
-    except ImportError:
-        raise InvalidParameterError(
-            "--plot: reading plot files is not available yet (pipeline.plot.io comes with "
-            "'treesim plot generate'); plan one tree with --species NAME or MESH"
-        ) from None
-    return plot_io.read_plot(p)
+    return read_plot(p)
 
 
 def _target(args: argparse.Namespace, tree: dict[str, Any]) -> tuple[Any, bool, dict[str, Any]]:

@@ -48,8 +48,8 @@ def species_tree_plot(
 
 
 class _MeshPlot(Plot):
-    """A plot whose one tree is read from a mesh file (until plot trees from files land
-    in :mod:`pipeline.plot`)."""
+    """A plot whose one tree is the mesh file's parts as read (``source="mesh"``), kept
+    where the file has them: the file is read once, here, to find the stem base."""
 
     def __init__(
         self,

@@ -13,9 +13,9 @@ measures per tree:
 * ``arc_deg``: the planner's band samples with a point within τ on their own side of the
   stem axis, by the goal's sector rule.
 
-The scan is the one place this module touches the plot's geometry
-(:func:`_scan_plot`): at merge it is meant to become :func:`pipeline.plot.scan.scan_plot`,
-which loads per station only the trees that matter.
+The scan is the one place this module touches the plot's geometry (:func:`_scan_plot`,
+through :func:`pipeline.plot.scan.scan_plot`, which loads per station only the trees the
+station can record).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from ..compare import compare
 from ..errors import EmptyInputError
 from ..geometry import kdtree
 from ..params import MIN_CLOUD_POINTS, CompareParams, ScannerSpec
-from ..scan import Station, scan
+from ..scan import Station
 from .cover import Objective
 from .samples import SampleSet, TreeTarget
 
@@ -41,9 +41,13 @@ __all__ = ["verify_plan"]
 def _scan_plot(
     plot: Any, stations: Sequence[Station], spec: ScannerSpec, *, nthreads: int, progress: Any
 ) -> Cloud:
-    """The plot scanned from ``stations`` (every tree and the terrain)."""
-    result = scan(plot.scene(), list(stations), spec, nthreads=nthreads, progress=progress)
-    return result.cloud
+    """The plot scanned from ``stations`` (the trees each station can record, and the
+    terrain: :func:`pipeline.plot.scan.scan_plot`)."""
+    from ..params import ScanParams
+    from ..plot.scan import scan_plot
+
+    params = ScanParams(scanner=spec)
+    return scan_plot(plot, list(stations), params, threads=nthreads, progress=progress).cloud
 
 
 def verify_plan(

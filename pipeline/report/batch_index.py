@@ -45,7 +45,7 @@ def batch_index_page(
     )
     body = []
     for r in rows:
-        tid = esc(str(r["id"]))
+        tid = esc(str(r["id"]) + (f" #{r['tree_id']}" if r.get("tree_id") is not None else ""))
         if r["status"] == "ok":
             name = f'<a href="{esc(str(r["report"]))}">{tid}</a>'
             status = "ok (unchanged)" if r["reused"] else "ok"

@@ -853,17 +853,20 @@ def _plan_scan(
     nthreads: int,
     max_rays: int | None,
     check_inside: bool,
+    frame: LocalFrame | None = None,
+    station_offset: int = 0,
 ) -> _Plan:
     """Each station's window and the pulses of it to cast, the triangles to load and the
     ray-casting scene: everything :func:`scan` and :func:`estimate_scan` do before they
     cast (``spec`` None: ``ScannerSpec()``). ``max_rays`` None: no limit (an estimate
-    reports it instead)."""
+    reports it instead). ``frame`` None: one around the scene's vertices;
+    ``station_offset`` is added to the station indices in messages."""
     spec = spec or ScannerSpec()
     stations = list(stations)
     if not stations:
         raise InvalidParameterError("give at least one station")
     t_all = time.perf_counter()
-    frame = LocalFrame.around(scene.used_vertices)
+    frame = frame or LocalFrame.around(scene.used_vertices)
     verts_used = frame.to_local(scene.used_vertices)
     s = spec.rays_per_pulse
     if lod not in LODS:
@@ -902,7 +905,7 @@ def _plan_scan(
         plans.append(_StationPlan(st, o, grid, win, window_grid.n_pulses, thin, t0))
     warnings = _precision_warnings(scene, caster, radius)
     if caster is not None:
-        for k, sp in enumerate(plans):
+        for k, sp in enumerate(plans, start=int(station_offset)):
             if check_inside:
                 _check_inside(caster, sp.o, k, sp.station)
             warnings += _station_warnings(caster, sp.o, k, sp.station)
@@ -1043,6 +1046,8 @@ def scan(
     sink: Sink | None = None,
     lod: str = "auto",
     estimate: Callable[[ScanEstimate], None] | None = None,
+    frame: LocalFrame | None = None,
+    station_offset: int = 0,
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -1085,6 +1090,17 @@ def scan(
         Called once, after planning and before casting, with the scan's estimated rays,
         points, file size (as LAZ) and time, from a sample cast on this machine
         (:mod:`pipeline.scan.estimate`); :func:`estimate_scan` gives it alone.
+    frame : LocalFrame, optional
+        The float64 origin the scene is cast around (default: the centre of its
+        vertices' bounds). Scans of parts of one scene that share a frame share their
+        float32 geometry: a plot scanned station by station, with only the trees each
+        station can record (:func:`pipeline.plot.scan.scan_plot`), gives the points of
+        the whole plot's scan.
+    station_offset : int
+        Index of ``stations[0]`` in a longer list (a plot scanned station by station):
+        the ``station`` field, the station figures and the per-station random draws
+        (range noise, jitter, beam) use ``station_offset + k``, so one station scanned
+        alone gives what it gives among the others.
 
     Returns
     -------
@@ -1104,6 +1120,8 @@ def scan(
         nthreads=nthreads,
         max_rays=max_rays,
         check_inside=check_inside,
+        frame=frame,
+        station_offset=station_offset,
     )
     spec, stations, frame, caster = plan.spec, plan.stations, plan.frame, plan.caster
     geometry, adaptive = plan.geometry, plan.adaptive
@@ -1124,7 +1142,9 @@ def scan(
     total_pulses = max(1, plan.pulses_cast)
     done_pulses = 0
     n_written = 0
-    for k, sp in enumerate(plan.plans):
+    if isinstance(station_offset, bool) or int(station_offset) < 0:
+        raise InvalidParameterError(f"station_offset must be >= 0, got {station_offset!r}")
+    for k, sp in enumerate(plan.plans, start=int(station_offset)):
         t_st = time.perf_counter()
         n_points = 0
         rays_cast = 0
@@ -1207,7 +1227,8 @@ def scan(
             rays_cast += n_rays
             done_pulses += n_pulses
             if progress is not None:
-                progress(done_pulses / total_pulses, f"station {k + 1}/{len(stations)}")
+                of = f"/{len(stations)}" if not station_offset else ""
+                progress(done_pulses / total_pulses, f"station {k + 1}{of}")
         full = spec.n_azimuth * spec.n_elevation
         stats.append(
             StationStats(

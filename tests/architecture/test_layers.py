@@ -8,8 +8,8 @@ is imported. The layers, bottom to top (README, "Layout"):
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
   another, except ``reconstruct → models`` (cylinders to mesh);
 * ``report``, above ``compare``;
-* ``steps``, ``run``, ``batch``, ``sweep``, ``executors``: one stage on files, one tree,
-  many trees, a grid of settings on trees, where they run;
+* ``steps``, ``run``, ``plot``, ``batch``, ``sweep``, ``executors``: one stage on files,
+  one tree, a plot of trees, many trees, a grid of settings on trees, where they run;
 * ``cli``, on top. The facade (``pipeline/__init__.py``) is imported by nobody inside.
 """
 
@@ -55,8 +55,10 @@ LAYER = {
 #: The one allowed arrow between stages.
 STAGE_ARROWS = {("reconstruct", "models")}
 #: Order inside the top library layer: a batch runs trees on executors; a sweep runs its
-#: points through the batch's engine; steps are the single stages on files, beside run.
-TOP_ORDER = ["executors", "steps", "plot", "run", "batch", "sweep", "plan"]
+#: points through the batch's engine; steps are the single stages on files, beside run; a
+#: plot scans its trees station by station through steps, and the batch runs plots;
+#: a plan scans plots to verify itself.
+TOP_ORDER = ["executors", "steps", "run", "plot", "batch", "sweep", "plan"]
 WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
 
 

@@ -1,0 +1,311 @@
+"""``treesim plot``: forest plots.
+
+* ``treesim plot generate --species aspen:0.6,balsam-fir:0.4 --stems-per-ha 600
+  --radius-m 15 --seed 1 -o plot/``: a synthetic stand (``plot.toml``, ``trees.csv``,
+  ``map.png``);
+* ``treesim plot scan plot.toml -o out/ [scanner options]``: scan it station by station
+  (only the trees each station can record are loaded) and measure every tree in the
+  plot's context (``plot_scan.laz`` with ``tree_id``, ``plot_scan.json``,
+  ``tree_figures.csv``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from ..errors import InvalidParameterError
+from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
+from ..params.models import ModelParams
+from ._options import collect, floats_type, number_type, param_option, param_options, whole_number
+from ._outputs import output_folder
+from .progress import print_warnings, progress_printer
+
+
+def _positive(what: str):
+    def read(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{what}: expected a number > 0, got {text!r}"
+            ) from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"{what}: expected a number > 0, got {text!r}")
+        return v
+
+    return read
+
+
+def _terrain(args: argparse.Namespace):
+    from ..plot import Terrain
+
+    slope = args.slope_deg or 0.0
+    kind = args.terrain or ("slope" if slope else "flat")
+    path = None
+    if args.terrain_path:
+        path = str(Path(args.terrain_path).resolve())
+    return Terrain(kind=kind, slope_deg=slope, aspect_deg=args.aspect_deg or 0.0, path=path)
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from ..params import merge
+    from ..params.models import ModelParams
+    from ..plot.generate import DEFAULT_RADIUS_M, generate_stand, write_map
+    from ..plot.io import PLOT_FILE, write_plot
+
+    mp = merge(ModelParams(), collect(args))
+    radius = DEFAULT_RADIUS_M if args.radius_m is None else args.radius_m
+    extra = {k: getattr(args, k) for k in ("weibull_shape",) if getattr(args, k) is not None}
+
+    out = output_folder(args.output, files=[PLOT_FILE, "trees.csv", "map.png"])
+    plot, stand = generate_stand(
+        args.species,
+        args.stems_per_ha,
+        radius,
+        mp.seed,
+        terrain=_terrain(args),
+        facets=mp.facets,
+        count=args.count,
+        mean_dbh_m=args.mean_dbh_m,
+        leaves=mp.leaves,
+        **extra,
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    path = write_plot(out / PLOT_FILE, plot, stand=stand)
+    files = [path, out / "trees.csv"]
+    if not args.no_map:
+        files.append(write_map(out / "map.png", plot))
+    per = ", ".join(f"{k} {v['trees']}" for k, v in stand["species"].items())
+    dbh = [t.dbh_m for t in plot.trees]
+    hts = [t.height_m for t in plot.trees]
+    print(
+        f"{len(plot.trees)} trees ({per}) in a {radius:g} m plot "
+        f"({stand['count_rule']} count of {stand['expected_trees']:.1f} expected)"
+    )
+    if dbh:
+        print(
+            f"DBH {min(dbh) * 100:.1f}-{max(dbh) * 100:.1f} cm (mean "
+            f"{sum(dbh) / len(dbh) * 100:.1f}), height {min(hts):.1f}-{max(hts):.1f} m; "
+            f"min distance {stand['min_distance_rule']}"
+            + (f", relaxed {stand['relaxations']}x" if stand["relaxations"] else "")
+        )
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from ..params import merge
+    from ..plot.io import read_plot
+    from ..plot.scan import PLOT_SCAN_FILES, plot_scan_files, plot_stations, read_stations_csv
+    from .scan import params_from_args
+
+    plot = read_plot(args.plot)
+    if args.facets:
+        plot.facets = int(args.facets)
+    cloud_name = f"plot_scan{args.format}"
+    out = output_folder(
+        args.output, files=[cloud_name, PLOT_SCAN_FILES["json"], PLOT_SCAN_FILES["trees"]]
+    )
+    # τ is the comparison's, not the scan's: taken out before the scan's flags are read
+    tol = vars(args).pop("param:tolerance_m", None)
+    compare = merge(CompareParams(), {} if tol is None else {"tolerance_m": tol})
+    params, threads = params_from_args(args)
+    if params.distance_m is not None and params.distance_m < 0:
+        raise InvalidParameterError("--distance-m must be >= 0")
+    if args.full_fov:
+        raise InvalidParameterError("--full-fov is not offered for plots; drop it")
+    if args.station and args.stations_csv:
+        raise InvalidParameterError("give either --station or --stations-csv, not both")
+    if args.stations_csv:
+        stations = read_stations_csv(args.stations_csv, plot, height_m=params.height_m)
+    else:
+        stations = plot_stations(
+            plot,
+            positions=args.station or None,
+            n=params.n_stations,
+            distance_m=params.distance_m,
+            height_m=params.height_m,
+        )
+    step = plot_scan_files(
+        plot,
+        out,
+        params,
+        stations=stations,
+        compare=compare,
+        cloud_name=cloud_name,
+        figures=not args.no_figures,
+        threads=threads,
+        progress=progress_printer(label="plot scan"),
+    )
+    res = step.result
+    print(
+        f"{'station':>7}  {'position (m)':>28}  {'trees':>5}  {'triangles loaded':>16}"
+        f"  {'points':>10}  {'time (s)':>8}"
+    )
+    for s, ld in zip(res.station_stats, res.loading, strict=True):
+        pos = ", ".join(f"{c:.2f}" for c in s.position_m)
+        share = ld["triangles_loaded"] / max(1, ld["triangles_total"])
+        print(
+            f"{s.index:>7}  {pos:>28}  {len(ld['trees_loaded']):>5}  "
+            f"{ld['triangles_loaded']:>9,} ({share:4.0%})  {s.points:>10,}  {s.time_s:>8.2f}"
+        )
+    rows = step.details["trees"]
+    if rows:
+        cov = [r["coverage"] for r in rows]
+        low = sorted(rows, key=lambda r: r["coverage"])[:3]
+        print(
+            f"{len(rows)} trees: coverage {min(cov):.2f}-{max(cov):.2f} (mean "
+            f"{sum(cov) / len(cov):.2f}); lowest: "
+            + ", ".join(f"tree {r['tree_id']} {r['coverage']:.2f}" for r in low)
+        )
+    print(f"total: {res.n_points:,} points in {res.total_s:.1f} s")
+    print_warnings(res.warnings)
+    print("wrote " + ", ".join(str(p) for p in step.outputs.values()))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``plot`` and its subcommands to ``treesim``'s parser."""
+    from ..plot import TERRAIN_KINDS
+    from ..plot.generate import COUNT_RULES
+
+    p = sub.add_parser("plot", help="forest plots: generate a stand, scan a plot")
+    psub = p.add_subparsers(dest="plot_command", metavar="SUBCOMMAND", required=True)
+
+    g = psub.add_parser(
+        "generate",
+        help="a synthetic stand of procedural trees",
+        description="Make a plausible stand: an exact (or Poisson) number of trees from the "
+        "stems per hectare, Weibull DBHs, Näslund heights with lognormal noise, positions by "
+        "sequential inhibition (see the README's Plots section). Writes plot.toml, trees.csv "
+        "and map.png into -o.",
+    )
+    g.add_argument(
+        "--species",
+        required=True,
+        metavar="NAME:SHARE,...",
+        help="species and their shares, e.g. aspen:0.6,balsam-fir:0.4",
+    )
+    g.add_argument(
+        "--stems-per-ha",
+        type=_positive("--stems-per-ha"),
+        required=True,
+        metavar="N",
+        help="stand density (stems per hectare)",
+    )
+    g.add_argument(
+        "--radius-m",
+        type=_positive("--radius-m"),
+        metavar="M",
+        help="plot radius (m; default 15)",
+    )
+    g.add_argument(
+        "--count",
+        choices=COUNT_RULES,
+        default="exact",
+        help="number of trees: exact (rounded stems/ha x area; default) or Poisson",
+    )
+    g.add_argument(
+        "--mean-dbh-m",
+        type=_positive("--mean-dbh-m"),
+        metavar="M",
+        help="mean DBH of every species (default: each preset tree's own)",
+    )
+    g.add_argument(
+        "--weibull-shape",
+        type=_positive("--weibull-shape"),
+        metavar="K",
+        help="Weibull shape of the DBHs (default 3, even-aged)",
+    )
+    param_options(g, ModelParams, ["seed", "facets", "leaves"])
+    g.add_argument("--terrain", choices=TERRAIN_KINDS, help="terrain kind (default flat)")
+    g.add_argument(
+        "--slope-deg",
+        type=float,
+        metavar="DEG",
+        help="slope of a slope terrain (deg)",
+    )
+    g.add_argument(
+        "--aspect-deg",
+        type=float,
+        metavar="DEG",
+        help="direction the slope faces, compass degrees (0 north, 90 east)",
+    )
+    g.add_argument(
+        "--terrain-path",
+        metavar="FILE",
+        help="the DTM (.asc) or ground cloud of a dtm/cloud terrain",
+    )
+    g.add_argument("--no-map", action="store_true", help="do not draw map.png")
+    g.add_argument("-o", "--output", required=True, metavar="DIR")
+    g.set_defaults(func=cmd_generate)
+
+    s = psub.add_parser(
+        "scan",
+        help="scan a plot and measure every tree in it",
+        description="Scan a plot (plot.toml, or a folder holding one) from stations, one at "
+        "a time, loading only the trees each station can record; label every point with "
+        "its tree_id; measure each tree's points against its own mesh (coverage, AVOHD). "
+        "Writes plot_scan.laz, plot_scan.json and tree_figures.csv into -o.",
+    )
+    s.add_argument("plot", metavar="PLOT", help="plot.toml or its folder")
+    s.add_argument("-o", "--output", required=True, metavar="DIR")
+    s.add_argument(
+        "--format",
+        choices=[".laz", ".las", ".ply"],
+        default=".laz",
+        help="the cloud's format (default .laz)",
+    )
+    st = s.add_argument_group("stations")
+    st.add_argument(
+        "--station",
+        action="append",
+        default=[],
+        metavar="X,Y,Z",
+        type=floats_type(3, "--station"),
+        help="a station position in plot coordinates (repeatable)",
+    )
+    st.add_argument(
+        "--stations-csv",
+        metavar="CSV",
+        help="stations from a CSV with x_m, y_m and z_m or height_m columns "
+        "(as treesim plan writes stations.csv)",
+    )
+    # without --station: a ring around the plot centre at --distance-m (unset: half the
+    # plot's radius), --height-m above the terrain
+    param_options(st, ScanParams, ["n_stations", "distance_m", "height_m"])
+    sc = s.add_argument_group("scanner")
+    from ..params import INSTRUMENTS, SETTINGS
+
+    sc.add_argument(
+        "--instrument",
+        choices=list(INSTRUMENTS),
+        help="start from a real instrument's figures (see treesim scan)",
+    )
+    sc.add_argument("--beam", action="store_true", help="beam divergence model (see treesim scan)")
+    sc.add_argument(
+        "--noise", action="store_true", help="range noise and jitter (see treesim scan)"
+    )
+    sc.add_argument(
+        "--resolution-deg",
+        type=number_type(SETTINGS["resolution_deg"].info),
+        metavar="DEG",
+        help=f"{SETTINGS['resolution_deg'].help} (deg)",
+    )
+    param_options(sc, ScannerSpec, path=("scanner",), exclude=("reflectance",))
+    param_option(sc, ScanParams, "lod")
+    x = s.add_argument_group("execution and figures")
+    x.add_argument("--full-fov", action="store_true", help=argparse.SUPPRESS)
+    param_options(x, ScanParams, ["max_rays", "chunk_rays"])
+    param_option(x, RunParams, "threads")
+    x.add_argument(
+        "--facets",
+        type=whole_number(3),
+        metavar="N",
+        help="override the plot file's facets per ring",
+    )
+    param_option(x, CompareParams, "tolerance_m")
+    x.add_argument("--no-figures", action="store_true", help="scan only: no per-tree comparison")
+    s.set_defaults(func=cmd_scan)

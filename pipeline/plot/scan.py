@@ -1,0 +1,735 @@
+"""Scanning a plot station by station, loading only the trees each station can record,
+and each tree's figures in the plot context.
+
+:func:`scan_plot` casts each station alone (:func:`pipeline.steps.scan_scene` with the
+plot's :meth:`~pipeline.plot.Plot.frame` and ``station_offset``), into a scene of only
+the trees whose bounding box it can record and the terrain triangles within its range.
+A tree whose box lies wholly beyond ``max_range_m`` or outside the field of view can
+neither return nor occlude a return (any ray into the tree enters its box first), so it
+is never built or loaded for that station: the points are those of the whole plot's
+scan (same frame, same per-station random draws; tested bit for bit). Trees are built
+lazily, kept while a later station needs them and within ``cache_triangles``, and
+dropped otherwise, so memory follows the largest station's scene, not the plot.
+
+:func:`tree_figures` measures each tree's points (by ``tree_id``) against its own mesh:
+points, coverage at τ, AVOHD accuracy and completeness (:func:`pipeline.compare.compare`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cloud import Cloud
+from ..errors import InvalidParameterError
+from ..params import CompareParams, ScanParams
+from ..scan import Station
+from ..scan.occupancy import TriangleBounds, reachable, triangle_bounds
+from ..scene import MeshPart, Scene
+from .core import Plot
+
+__all__ = [
+    "PlotScanResult",
+    "box_reachable",
+    "PLOT_SCAN_FILES",
+    "plot_fields",
+    "plot_scan_files",
+    "plot_stations",
+    "read_stations_csv",
+    "scan_plot",
+    "station_trees",
+    "tree_figures",
+    "write_figures_csv",
+]
+
+Progress = Callable[[float, str], None]
+#: Default bound on the triangles of built trees kept between stations.
+CACHE_TRIANGLES = 20_000_000
+
+_BOX_FACES = np.array(
+    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+)  # fmt: skip
+_TOP = [2, 3]  # rows of _BOX_FACES on z = max (corners 1, 3, 5, 7 have z = max)
+
+
+def _box_corners(bounds: np.ndarray) -> np.ndarray:
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    return np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+
+
+def box_reachable(bounds: np.ndarray, station: Station, spec: Any, origin: np.ndarray) -> bool:
+    """Whether ``station`` scanning with ``spec`` can record anything inside the box
+    ``bounds`` (2, 3), or have a ray stopped by it. False only when the whole box lies
+    beyond ``max_range_m`` or outside the field of view (with the scanner's own pointing
+    margins, widened): then no triangle in it is loaded by a scan either.
+
+    ``origin`` is the local frame's origin (the scan's float32 error grows with the
+    distance from it; the margin used here is five times the scan's)."""
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    pos = station.position
+    if np.all(pos >= lo - 1e-3) and np.all(pos <= hi + 1e-3):
+        return True
+    corners = _box_corners(bounds) - pos
+    rel = corners @ station.rotation
+    b = triangle_bounds(rel[_BOX_FACES])
+    # one box-wide bound: the top face's halves carry the azimuths of the whole box's
+    # footprint; elevations and the distance are the extremes over all faces
+    top = np.asarray(_TOP)
+    union = TriangleBounds(
+        az_lo=b.az_lo[top],
+        az_hi=b.az_hi[top],
+        full_az=b.full_az[top] | bool(b.full_az.any()),
+        el_lo=np.full(2, b.el_lo.min()),
+        el_hi=np.full(2, b.el_hi.max()),
+        d_min=np.full(2, b.d_min.min()),
+    )
+    o = pos - origin
+    radius = float(np.abs(np.asarray(bounds) - origin).max()) * math.sqrt(3.0)
+    err = 1e-4 * (radius + float(np.linalg.norm(o))) + 1e-6
+    return bool(reachable(union, spec, abs_error_m=err).any())
+
+
+def station_trees(
+    plot: Plot, station: Station, spec: Any, origin: np.ndarray | None = None
+) -> dict[str, list[int]]:
+    """The plot's trees a station can record (``loaded``) and those it cannot, and why
+    (``beyond_range``: the whole box farther than ``max_range_m``; ``outside_fov``).
+    Builds each tree once to know its bounds (see :meth:`Plot.tree_bounds`)."""
+    origin = plot.frame().origin_array if origin is None else origin
+    out: dict[str, list[int]] = {"loaded": [], "beyond_range": [], "outside_fov": []}
+    for tid in plot.tree_ids:
+        bounds = plot.tree_bounds(tid)
+        if box_reachable(bounds, station, spec, origin):
+            out["loaded"].append(tid)
+        elif _box_distance(bounds, station.position) > spec.max_range_m:
+            out["beyond_range"].append(tid)
+        else:
+            out["outside_fov"].append(tid)
+    return out
+
+
+def _box_distance(bounds: np.ndarray, p: np.ndarray) -> float:
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    return float(np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0)))
+
+
+def _terrain_within(part: MeshPart, p: np.ndarray, range_m: float) -> MeshPart | None:
+    """The terrain's triangles whose bounding box comes within ``range_m`` of ``p``
+    (the rest can neither return nor occlude)."""
+    tri = np.asarray(part.vertices)[part.faces]
+    gap = np.maximum(np.maximum(tri.min(axis=1) - p, p - tri.max(axis=1)), 0.0)
+    keep = np.einsum("ij,ij->i", gap, gap) <= range_m * range_m
+    if not keep.any():
+        return None
+    return MeshPart(part.vertices, part.faces[keep], part.label, part.name, part.tree_id)
+
+
+@dataclass
+class PlotScanResult:
+    """A plot's scan.
+
+    Attributes
+    ----------
+    cloud : Cloud
+        The points (empty with a ``sink``) with the scan's fields, ``tree_id`` among
+        them, and ``station`` numbered over all stations.
+    stations : list of Station
+    station_stats : list of StationStats
+        As :class:`pipeline.scan.ScanResult`'s, one per station.
+    loading : list of dict
+        Per station: ``trees_loaded`` (ids), ``trees_beyond_range``,
+        ``trees_outside_fov``, ``triangles_loaded`` (trees and terrain patch),
+        ``triangles_total`` (the whole plot's), ``trees_built`` (built for it: not
+        held from an earlier station), ``time_s``.
+    lod : list of dict
+        Each station's scan ``lod`` account.
+    warnings : list of str
+    points_written : int
+        Points handed to the sink.
+    total_s : float
+    """
+
+    cloud: Cloud
+    stations: list[Station]
+    station_stats: list[Any]
+    loading: list[dict[str, Any]]
+    lod: list[dict[str, Any]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    points_written: int = 0
+    total_s: float = 0.0
+    spec: Any = None
+    models: list[str] = field(default_factory=list)
+
+    @property
+    def n_points(self) -> int:
+        return sum(s.points for s in self.station_stats)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready figures (what ``plot_scan.json`` holds about the scan)."""
+        return {
+            "points": self.n_points,
+            "rays_cast": sum(s.rays_cast for s in self.station_stats),
+            "scanner": self.spec.to_dict() if self.spec is not None else None,
+            "models_active": list(self.models),
+            "stations": [
+                {**s.to_dict(), **{k: v for k, v in ld.items()}}
+                for s, ld in zip(self.station_stats, self.loading, strict=True)
+            ],
+            "lod": self.lod,
+            "warnings": list(self.warnings),
+            "total_s": self.total_s,
+        }
+
+
+def _as_station(s: Any) -> Station:
+    if isinstance(s, Station):
+        return s
+    try:
+        xyz = tuple(float(c) for c in s)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"a station is a Station or (x, y, z), got {s!r}") from None
+    if len(xyz) != 3:
+        raise InvalidParameterError(f"a station is (x, y, z) in metres, got {s!r}")
+    return Station(position_m=xyz)
+
+
+def scan_plot(
+    plot: Plot,
+    stations: Sequence[Any],
+    params: ScanParams | None = None,
+    *,
+    sink: Callable[[np.ndarray, dict[str, np.ndarray]], None] | None = None,
+    progress: Progress | None = None,
+    threads: int = 0,
+    window: bool = True,
+    terrain: bool = True,
+    margin_m: float = 2.0,
+    cache_triangles: int = CACHE_TRIANGLES,
+    check_inside: bool = True,
+) -> PlotScanResult:
+    """Scan a plot from ``stations``, one station at a time, loading only what it can
+    record (see the module notes).
+
+    Parameters
+    ----------
+    plot : Plot
+    stations : sequence of Station or (x, y, z)
+        The ``station`` field numbers them in this order.
+    params : ScanParams
+        The scanner, ray budget (per station), chunking and level of detail.
+    sink : callable(points, fields), optional
+        Receives each chunk (e.g. a cloud writer's ``write``); the result's cloud is
+        then empty.
+    progress : callable(fraction, message), optional
+    threads : int
+        Open3D threads (0: all cores).
+    window : bool
+        Cast only towards the scene (False: the full field of view).
+    terrain : bool
+        Include the terrain (over the plot's square plus ``margin_m``).
+    cache_triangles : int
+        Built trees kept between stations, in triangles (the current station's trees
+        are held whatever their size); a tree dropped and needed again is rebuilt.
+    check_inside : bool
+        Refuse stations inside geometry (see :func:`pipeline.scan.scan`).
+
+    Returns
+    -------
+    PlotScanResult
+    """
+    from ..steps import scale_progress, scan_scene
+
+    params = params or ScanParams()
+    spec = params.scanner
+    placed = [_as_station(s) for s in stations]
+    if not placed:
+        raise InvalidParameterError("give at least one station")
+    if isinstance(cache_triangles, bool) or int(cache_triangles) < 0:
+        raise InvalidParameterError(f"cache_triangles must be >= 0, got {cache_triangles!r}")
+    t_all = time.perf_counter()
+    say = progress or (lambda f, m: None)
+    frame = plot.frame()
+    origin = frame.origin_array
+    n = len(placed)
+    say(0.0, "placing the trees")
+    # which station needs which tree: every tree is built once for its bounds (kept
+    # within the budget, oldest dropped first)
+    needs: dict[int, list[int]] = {}
+    why: list[dict[str, list[int]]] = [{"beyond_range": [], "outside_fov": []} for _ in placed]
+    for tid in plot.tree_ids:
+        was = tid in plot.loaded
+        bounds = plot.tree_bounds(tid)
+        for k, st in enumerate(placed):
+            if box_reachable(bounds, st, spec, origin):
+                needs.setdefault(k, []).append(tid)
+            elif _box_distance(bounds, st.position) > spec.max_range_m:
+                why[k]["beyond_range"].append(tid)
+            else:
+                why[k]["outside_fov"].append(tid)
+        if not was:
+            _trim(plot, set(needs.get(0, [])), int(cache_triangles), keep_last=tid)
+    ground = plot.terrain_part(margin_m) if terrain else None
+    total_tri = sum(plot.tree_triangles(t) for t in plot.tree_ids) + (
+        len(ground.faces) if ground is not None else 0
+    )
+    last_use = {
+        tid: max(k for k in range(n) if tid in needs.get(k, []))
+        for tid in {t for ids in needs.values() for t in ids}
+    }
+    pts: list[np.ndarray] = []
+    flds: list[dict[str, np.ndarray]] = []
+    stats, loading, lods, warnings = [], [], [], []
+    written = 0
+    models: list[str] = []
+
+    def with_tree_id(fields: dict[str, np.ndarray], n_pts: int) -> dict[str, np.ndarray]:
+        # a station that sees only the terrain scans a scene without tree ids
+        if "tree_id" in fields:
+            return fields
+        return {**fields, "tree_id": np.zeros(n_pts, dtype=np.uint32)}
+
+    out_sink = None if sink is None else (lambda p, f: sink(p, with_tree_id(f, len(p))))
+    for k, st in enumerate(placed):
+        t_st = time.perf_counter()
+        ids = needs.get(k, [])
+        built = [t for t in ids if t not in plot.loaded]
+        parts: list[MeshPart] = []
+        for tid in ids:
+            parts += plot.tree_parts(tid)
+        patch = _terrain_within(ground, st.position, spec.max_range_m) if ground else None
+        if patch is not None:
+            parts.append(patch)
+        loaded_tri = sum(plot.tree_triangles(t) for t in ids) + (
+            len(patch.faces) if patch is not None else 0
+        )
+        say(k / n, f"station {k + 1}/{n}: {len(ids)} trees")
+        if parts:
+            scene = Scene(parts)
+            res = scan_scene(
+                scene,
+                [st],
+                params,
+                threads=threads,
+                window=window,
+                sink=out_sink,
+                progress=scale_progress(
+                    (lambda f, m, k=k: say(f, f"station {k + 1}/{n}")), k / n, (k + 1) / n
+                ),
+                frame=frame,
+                station_offset=k,
+                check_inside=check_inside,
+            )
+            del scene
+            stats.append(res.station_stats[0])
+            lods.append(res.lod)
+            warnings += res.warnings
+            models = res.models
+            written += res.points_written
+            if sink is None and len(res.cloud):
+                pts.append(res.cloud.points)
+                flds.append(with_tree_id(res.cloud.fields, len(res.cloud)))
+            del res
+        else:
+            stats.append(_empty_stats(k, st, spec))
+            lods.append({"mode": params.lod, "note": "nothing within range or view"})
+        loading.append(
+            {
+                "trees_loaded": list(ids),
+                "trees_beyond_range": why[k]["beyond_range"],
+                "trees_outside_fov": why[k]["outside_fov"],
+                "trees_built": built,
+                "triangles_loaded": int(loaded_tri),
+                "triangles_total": int(total_tri),
+                "time_s": time.perf_counter() - t_st,
+            }
+        )
+        # drop what no later station needs, then keep the rest within the budget
+        plot.release([t for t in plot.loaded if last_use.get(t, -1) <= k])
+        _trim(plot, set(needs.get(k + 1, [])), int(cache_triangles))
+    plot.release()
+    if pts:
+        cloud = Cloud(
+            np.concatenate(pts),
+            {name: np.concatenate([f[name] for f in flds]) for name in flds[0]},
+            _metadata(placed),
+        )
+    else:
+        cloud = Cloud(
+            np.empty((0, 3)),
+            {k: np.empty(0, dtype=v) for k, v in plot_fields().items()},
+            _metadata(placed),
+        )
+    say(1.0, "done")
+    return PlotScanResult(
+        cloud=cloud,
+        stations=placed,
+        station_stats=stats,
+        loading=loading,
+        lod=lods,
+        warnings=warnings,
+        points_written=written,
+        total_s=time.perf_counter() - t_all,
+        spec=spec,
+        models=models,
+    )
+
+
+def _trim(plot: Plot, wanted: set[int], budget: int, keep_last: int | None = None) -> None:
+    """Drop built trees, oldest first, until those held fit ``budget`` triangles; the
+    ``wanted`` (and ``keep_last``) are dropped last."""
+    held = plot.loaded
+    total = sum(plot.tree_triangles(t) for t in held)
+    order = [t for t in held if t not in wanted and t != keep_last] + [
+        t for t in held if t in wanted and t != keep_last
+    ]
+    for tid in order:
+        if total <= budget:
+            break
+        plot.release([tid])
+        total -= plot.tree_triangles(tid)
+
+
+def _metadata(stations: list[Station]) -> dict[str, Any]:
+    from ..scan import scan_metadata
+
+    meta = scan_metadata(stations)
+    meta["source"] = "treesim plot scan"
+    return meta
+
+
+def _empty_stats(k: int, st: Station, spec: Any) -> Any:
+    from ..scan.trace import StationStats
+
+    return StationStats(
+        index=k,
+        position_m=st.position_m,
+        pulses_full_fov=spec.n_azimuth * spec.n_elevation,
+        pulses_window=0,
+        pulses_cast=0,
+        rays_cast=0,
+        points=0,
+        azimuth_window_deg=None,
+        elevation_window_deg=(0.0, 0.0),
+        time_s=0.0,
+    )
+
+
+def plot_fields() -> dict[str, np.dtype]:
+    """The per-point fields of a plot's scan (what a streaming writer declares): a
+    scan's, with ``tree_id``."""
+    from ..scan.trace import SCAN_FIELDS
+
+    return {**SCAN_FIELDS, "tree_id": np.dtype(np.uint32)}
+
+
+def tree_figures(
+    plot: Plot,
+    cloud: Cloud,
+    *,
+    params: CompareParams | None = None,
+    progress: Progress | None = None,
+) -> list[dict[str, Any]]:
+    """Each tree's figures in the plot's scan: its points (``tree_id``) against its own
+    mesh, both ways (:func:`pipeline.compare.compare`).
+
+    Returns one dict per tree (the plot's order): ``tree_id``, ``species``, ``x_m``,
+    ``y_m``, ``points``, ``coverage`` (share of its visible surface within τ of a
+    point), ``tolerance_m`` (τ: ``params.tolerance_m``, or 3 × the tree's own point
+    spacing), ``accuracy_mean_m``/``accuracy_p95_m`` (points to mesh),
+    ``completeness_mean_m``/``completeness_p95_m`` (mesh samples to points), the truth's
+    ``dbh_m`` and ``height_m``, and ``note`` when it has too few points to measure
+    (coverage 0 then). Each tree is built for it and dropped after, unless held before.
+    """
+    from ..compare import compare
+    from ..params import MIN_CLOUD_POINTS
+
+    params = params or CompareParams()
+    say = progress or (lambda f, m: None)
+    tid_field = cloud.fields.get("tree_id")
+    if tid_field is None:
+        raise InvalidParameterError("the cloud has no tree_id field; scan the plot first")
+    order = np.argsort(tid_field, kind="stable")
+    sorted_ids = tid_field[order]
+    rows = []
+    ids = plot.tree_ids
+    for i, tid in enumerate(ids):
+        say(i / max(1, len(ids)), f"tree {tid}")
+        a, b = np.searchsorted(sorted_ids, [tid, tid + 1])
+        sel = order[a:b]
+        truth = plot.truth(tid)
+        row: dict[str, Any] = {
+            "tree_id": tid,
+            "species": plot.tree(tid).species,
+            "source": plot.tree(tid).source,
+            "x_m": float(plot.tree(tid).x_m),
+            "y_m": float(plot.tree(tid).y_m),
+            "dbh_m": truth["dbh_m"],
+            "height_m": truth["height_m"],
+            "triangles": truth["triangles"],
+            "points": int(len(sel)),
+            "coverage": 0.0,
+            "tolerance_m": params.tolerance_m,
+            "accuracy_mean_m": None,
+            "accuracy_p95_m": None,
+            "completeness_mean_m": None,
+            "completeness_p95_m": None,
+            "note": "",
+        }
+        if len(sel) < MIN_CLOUD_POINTS:
+            row["note"] = f"{len(sel)} points: too few to measure (< {MIN_CLOUD_POINTS})"
+        else:
+            was = tid in plot.loaded
+            sub = Cloud(
+                cloud.points[sel],
+                {k: v[sel] for k, v in cloud.fields.items()},
+                dict(cloud.metadata),
+            )
+            cmp = compare(sub, Scene(plot.tree_parts(tid)), params=params)
+            row.update(
+                coverage=cmp.coverage,
+                tolerance_m=cmp.tolerance_m,
+                accuracy_mean_m=cmp.accuracy.mean_m,
+                accuracy_p95_m=cmp.accuracy.p95_m,
+                completeness_mean_m=cmp.completeness.mean_m,
+                completeness_p95_m=cmp.completeness.p95_m,
+            )
+            if not was:
+                plot.release([tid])
+        rows.append(row)
+    say(1.0, "done")
+    return rows
+
+
+#: What :func:`plot_scan_files` writes into its folder (the cloud's suffix may vary).
+PLOT_SCAN_FILES = {"cloud": "plot_scan.laz", "json": "plot_scan.json", "trees": "tree_figures.csv"}
+#: The per-point fields the per-tree figures keep from a plot's scan.
+_FIGURE_FIELDS = ("tree_id", "station", "label")
+#: Columns of ``tree_figures.csv``.
+FIGURE_COLUMNS = (
+    "tree_id",
+    "species",
+    "source",
+    "x_m",
+    "y_m",
+    "dbh_m",
+    "height_m",
+    "triangles",
+    "points",
+    "coverage",
+    "tolerance_m",
+    "accuracy_mean_m",
+    "accuracy_p95_m",
+    "completeness_mean_m",
+    "completeness_p95_m",
+    "note",
+)
+
+
+def plot_stations(
+    plot: Plot,
+    *,
+    positions: Sequence[Sequence[float]] | None = None,
+    n: int = 3,
+    distance_m: float | None = None,
+    height_m: float = 1.5,
+    start_angle_deg: float = 90.0,
+) -> list[Station]:
+    """Stations for a plot: ``positions`` as given (x, y, z in metres; (x, y) stands
+    ``height_m`` above the terrain), or ``n`` on a ring around the plot centre at
+    ``distance_m`` (default half the plot's radius), ``height_m`` above the terrain."""
+    out = []
+    if positions:
+        for p in positions:
+            q = [float(c) for c in p]
+            if len(q) == 2:
+                q.append(float(plot.terrain.height_at(q[0], q[1])) + height_m)
+            out.append(_as_station(q))
+        return out
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise InvalidParameterError(f"the number of stations must be >= 1, got {n!r}")
+    d = 0.5 * plot.radius_m if distance_m is None else float(distance_m)
+    if not (math.isfinite(d) and d >= 0):
+        raise InvalidParameterError(f"distance_m must be >= 0, got {distance_m!r}")
+    cx, cy = plot.centre_xy
+    for k in range(int(n)):
+        a = math.radians(start_angle_deg + 360.0 * k / n)
+        x, y = cx + d * math.cos(a), cy + d * math.sin(a)
+        out.append(Station(position_m=(x, y, float(plot.terrain.height_at(x, y)) + height_m)))
+    return out
+
+
+def read_stations_csv(path: str | Path, plot: Plot, height_m: float = 1.5) -> list[Station]:
+    """Stations from a CSV with ``x_m``, ``y_m`` and either ``z_m`` (absolute) or
+    ``height_m`` (above the terrain; default ``height_m``) columns, in file order (as
+    ``treesim plan`` writes ``stations.csv``)."""
+    import csv
+
+    from ..errors import InputFormatError
+
+    p = Path(path)
+    try:
+        rows = list(csv.DictReader(p.read_text(encoding="utf-8-sig").splitlines()))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFormatError(f"{p}: cannot read the stations CSV ({exc})") from exc
+    if not rows or not {"x_m", "y_m"} <= set(rows[0]):
+        raise InputFormatError(
+            f"{p}: a stations CSV needs x_m and y_m columns (and z_m, or height_m above "
+            "the terrain) and at least one row"
+        )
+    out = []
+    for i, r in enumerate(rows, start=2):
+        try:
+            x, y = float(r["x_m"]), float(r["y_m"])
+            if r.get("z_m") not in (None, ""):
+                out.append(_as_station((x, y, float(r["z_m"]))))
+            else:
+                h = float(r["height_m"]) if r.get("height_m") not in (None, "") else height_m
+                out.append(_as_station((x, y, float(plot.terrain.height_at(x, y)) + h)))
+        except (TypeError, ValueError) as exc:
+            raise InputFormatError(f"{p}, line {i}: not a number ({exc})") from exc
+    return out
+
+
+def write_figures_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
+    """Per-tree figures as a CSV (atomically)."""
+    import csv
+    import io
+
+    from ..atomic import write_text
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(FIGURE_COLUMNS)
+    for r in rows:
+        w.writerow(
+            [
+                "" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c])
+                for c in FIGURE_COLUMNS
+            ]
+        )
+    return write_text(Path(path), buf.getvalue())
+
+
+def plot_scan_files(
+    plot: Plot,
+    outdir: str | Path,
+    params: ScanParams | None = None,
+    *,
+    stations: Sequence[Any],
+    compare: CompareParams | None = None,
+    cloud_name: str = PLOT_SCAN_FILES["cloud"],
+    figures: bool = True,
+    threads: int = 0,
+    progress: Progress | None = None,
+    cache_triangles: int = CACHE_TRIANGLES,
+) -> Any:
+    """Scan a plot into ``outdir``: the cloud (``plot_scan.laz``, written while it is
+    cast), ``plot_scan.json`` (the scan, each station's loading, each tree's truth and
+    figures) and ``tree_figures.csv`` (one row per tree). Interrupted or failed, it
+    leaves nothing behind (no cloud, no JSON, no CSV, no folder it made).
+
+    Returns a :class:`pipeline.steps.StepResult` (``result``: the
+    :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
+    """
+    import open3d  # noqa: F401  (imported before any file exists; see steps.scan_files)
+
+    from ..io import open_cloud_writer
+    from ..jsonio import json_ready, write_json
+    from ..steps import SCAN_OUTPUT_SUFFIXES, StepResult, _make_folders, _remove_folders
+    from ..steps import scale_progress as scaled
+
+    params = params or ScanParams()
+    out = Path(outdir)
+    cloud_path = out / cloud_name
+    if cloud_path.suffix.lower() not in SCAN_OUTPUT_SUFFIXES:
+        raise InvalidParameterError(
+            f"{cloud_name}: write the cloud as {', '.join(SCAN_OUTPUT_SUFFIXES)} (by suffix)"
+        )
+    placed = [_as_station(s) for s in stations]
+    say = progress or (lambda f, m: None)
+    made = _make_folders(out)
+    written: list[Path] = []
+    try:
+        t0 = time.perf_counter()
+        with open_cloud_writer(
+            cloud_path,
+            fields=plot_fields(),
+            metadata=_metadata(placed),
+            origin_hint_m=plot.frame().origin_array,
+            threads=int(threads),
+        ) as writer:
+            kept: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+
+            def tee(p: np.ndarray, f: dict[str, np.ndarray]) -> None:
+                writer.write(p, f)
+                if figures:  # the figures use the float64 points, not the file's
+                    kept.append((p, {k: f[k] for k in _FIGURE_FIELDS}))
+
+            res = scan_plot(
+                plot,
+                placed,
+                params,
+                sink=tee,
+                threads=threads,
+                progress=scaled(say, 0.0, 0.7 if figures else 0.95),
+                cache_triangles=cache_triangles,
+            )
+        written.append(cloud_path)
+        t_scan = time.perf_counter() - t0
+        rows: list[dict[str, Any]] = []
+        t_fig = 0.0
+        if figures:
+            t1 = time.perf_counter()
+            cloud = Cloud(
+                np.concatenate([p for p, _ in kept]) if kept else np.empty((0, 3)),
+                {
+                    k: np.concatenate([f[k] for _, f in kept])
+                    if kept
+                    else np.empty(0, dtype=plot_fields()[k])
+                    for k in _FIGURE_FIELDS
+                },
+                _metadata(placed),
+            )
+            kept.clear()
+            rows = tree_figures(plot, cloud, params=compare, progress=scaled(say, 0.7, 0.97))
+            del cloud
+            t_fig = time.perf_counter() - t1
+        truth = [plot.truth(t) for t in plot.tree_ids]
+        summary = json_ready(
+            {
+                "plot": {
+                    "trees": len(plot.trees),
+                    "radius_m": plot.radius_m,
+                    "centre_xy": list(plot.centre_xy),
+                    "terrain": plot.terrain.kind,
+                    "facets": plot.facets,
+                },
+                "output": str(cloud_path),
+                **res.summary(),
+                "trees": rows,
+                "truth": truth,
+                "timings_s": {"scan": t_scan, "figures": t_fig},
+            }
+        )
+        outputs = {"cloud": cloud_path}
+        if figures:
+            outputs["trees"] = write_figures_csv(out / PLOT_SCAN_FILES["trees"], rows)
+            written.append(outputs["trees"])
+        outputs["json"] = write_json(out / PLOT_SCAN_FILES["json"], summary)
+        written.append(outputs["json"])
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        _remove_folders(made)
+        raise
+    say(1.0, "done")
+    return StepResult(summary, outputs, res, {"trees": rows})
