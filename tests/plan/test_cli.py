@@ -46,6 +46,11 @@ def test_plan_errors_are_one_line(tmp_path, capsys):
     (tmp_path / "plot.toml").write_text("")
     assert main(["plan", "--plot", str(tmp_path / "plot.toml"), "-o", str(tmp_path / "b")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
+    # an empty plot file: one line naming it and what it lacks
+    assert len(err) == 1 and err[0].startswith("treesim: error: ")
+    assert "plot.toml: no trees" in err[0]
+    assert main(["plan", "--plot", str(tmp_path / "absent.toml"), "-o", str(tmp_path / "c")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("treesim: error: --plot")
     rc = main(
         ["plan", "--species", "sapling", "--max-field-time-min", "1", "-o", str(tmp_path / "c")]
@@ -53,3 +58,41 @@ def test_plan_errors_are_one_line(tmp_path, capsys):
     assert rc == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "less than one station" in err[0]
+
+
+def test_plan_a_generated_plot_file(tmp_path, capsys):
+    """``plot generate`` writes the files ``plan --plot`` reads: every tree is planned."""
+    plot_dir = tmp_path / "plot"
+    assert (
+        main(
+            [
+                "plot",
+                "generate",
+                "--species",
+                "sapling",
+                "--stems-per-ha",
+                "400",
+                "--radius-m",
+                "5",
+                "--seed",
+                "2",
+                "--facets",
+                "8",
+                "-o",
+                str(plot_dir),
+            ]
+        )  # fmt: skip
+        == 0
+    )
+    out = tmp_path / "plan"
+    rc = main(
+        ["plan", "--plot", str(plot_dir / "plot.toml"), "--resolution-deg", "0.3",
+         "--samples-per-tree", "200", "--candidate-spacing-m", "2", "--no-verify",
+         "-o", str(out)]
+    )  # fmt: skip
+    assert rc == 0
+    d = json.loads((out / "plan.json").read_text())
+    ids = [t["tree_id"] for t in d["trees"]]
+    n_trees = len((plot_dir / "trees.csv").read_text().strip().splitlines()) - 1
+    assert n_trees >= 2 and ids == list(range(1, n_trees + 1))
+    assert d["plan"]["n_stations"] >= 1
