@@ -19,6 +19,7 @@ treesim's message.
 
 from __future__ import annotations
 
+import math
 import shutil
 import stat
 import tempfile
@@ -54,6 +55,8 @@ __all__ = [
 MAX_ENTRIES = 10_000
 #: A plot archive may unpack to this many times the upload limit.
 UNPACK_FACTOR = 4
+#: Most trees in a generated stand (as pipeline.plot.generate.generate_stand refuses more).
+MAX_TREES = 5000
 #: The plot file an archive must hold.
 PLOT_FILE = "plot.toml"
 
@@ -288,6 +291,12 @@ class StandParams:
         from pipeline.plot.generate import parse_shares
 
         parse_shares(self.species)  # names a species that does not exist
+        expected = self.stems_per_ha * math.pi * self.radius_m**2 / 1e4
+        if expected > MAX_TREES:
+            raise InvalidParameterError(
+                f"stems_per_ha {self.stems_per_ha:g} on a {self.radius_m:g} m plot is "
+                f"{expected:,.0f} trees; a generated stand has at most {MAX_TREES:,}"
+            )
 
     def generate(self) -> tuple[Any, dict[str, Any]]:
         """(plot, stand): :func:`pipeline.plot.generate.generate_stand`."""

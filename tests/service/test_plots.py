@@ -205,6 +205,7 @@ def test_plan_and_plot_scan_are_described_with_ranges(client):
         ("plan", None, {"stand": {"stems_per_ha": 0}}, "parameters.stand", "stems_per_ha"),
         ("plan", None, {"stand": {"species": "oak:1"}}, "parameters.stand", "unknown species"),
         ("plan", None, {"stand": {"radius_m": 500}}, "parameters.stand", "radius_m"),
+        ("plan", None, {"stand": {"stems_per_ha": 20000, "radius_m": 30}}, None, "5,000"),
         ("plot-scan", "plot", {"n_stations": 0}, "parameters", "n_stations"),
         ("plot-scan", "plot", {"stations": [[1.0]]}, "parameters.stations.0", None),
         ("plot-scan", "plot", {"tolerance_m": -1}, "parameters", "tolerance_m"),
