@@ -1,7 +1,8 @@
 """Opening and checking uploaded files away from the API's process.
 
-An upload is opened with treesim's own readers (:func:`pipeline.io.inspect_file`) before it
-is accepted. That runs in a small pool of ``spawn``-ed processes: a huge cloud's memory, a
+An upload is opened with treesim's own readers (:func:`pipeline.io.inspect_file`; a zip
+archive is a plot, :func:`service.plots.inspect_plot_archive`) before it is accepted. That
+runs in a small pool of ``spawn``-ed processes: a huge cloud's memory, a
 slow parse or a native reader that crashes stay out of the server, and a crash fails only
 that upload (the pool is rebuilt).
 """
@@ -21,9 +22,13 @@ from pipeline.errors import InputFormatError
 __all__ = ["Inspector"]
 
 
-def _inspect(path: str, filename: str | None) -> dict[str, Any]:
+def _inspect(path: str, filename: str | None, max_unpacked: int | None = None) -> dict[str, Any]:
     from pipeline.io import inspect_file
 
+    from .plots import inspect_plot_archive, is_zip
+
+    if is_zip(path):  # a plot: plot.toml, its trees CSV and the trees' files, zipped
+        return inspect_plot_archive(path, filename, max_bytes=max_unpacked)
     return inspect_file(path, filename=filename).to_dict()
 
 
@@ -54,11 +59,15 @@ class Inspector:
         """Start the pool's processes now rather than at the first upload."""
         self._get().submit(_warm)
 
-    async def inspect(self, path: Path, filename: str | None) -> dict[str, Any]:
+    async def inspect(
+        self, path: Path, filename: str | None, max_unpacked: int | None = None
+    ) -> dict[str, Any]:
+        """The file's facts; a zip archive is a plot (``max_unpacked``: the most bytes it
+        may unpack to)."""
         pool = self._get()
         loop = asyncio.get_running_loop()
         try:
-            return await loop.run_in_executor(pool, _inspect, str(path), filename)
+            return await loop.run_in_executor(pool, _inspect, str(path), filename, max_unpacked)
         except BrokenProcessPool:
             with self._lock:
                 if self._pool is pool:

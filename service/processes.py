@@ -1,4 +1,5 @@
-"""The processes the service runs as jobs: ``run``, ``reconstruct``, ``scan``, ``compare``.
+"""The processes the service runs as jobs: ``run``, ``reconstruct``, ``scan``, ``compare``,
+``plan`` and ``plot-scan``.
 
 Each is a thin adapter over one :mod:`pipeline` function: its inputs (files, by kind), the
 JSON Schema of its parameters (generated from the parameter model,
@@ -47,11 +48,15 @@ class Input:
     name: str
     kinds: tuple[str, ...]
     description: str
+    required: bool = True
 
     def schema(self) -> dict[str, Any]:
         return {
             "description": f"{self.description} ({' or '.join(self.kinds)}): an upload's id, "
-            'or {"job": JOB_ID, "result": NAME} for a result of an earlier successful job',
+            'or {"job": JOB_ID, "result": NAME} for a result of an earlier successful job'
+            + ("" if self.required else "; optional"),
+            "minOccurs": 1 if self.required else 0,
+            "maxOccurs": 1,
             "oneOf": [
                 {"type": "string", "description": "upload id"},
                 {
@@ -77,6 +82,10 @@ class Process:
     base_schema: Callable[[], dict[str, Any]]
     parse: Callable[[Mapping[str, Any]], Any]
     execute: Callable[[Mapping[str, Path], Any, Path, int, Progress, str], dict[str, Any]]
+    #: checks the inputs given (their names) against the parsed parameters, where one
+    #: may stand for another (a plot archive or a stand to generate): raises
+    #: :class:`InvalidParameterError` with ``field``
+    check_inputs: Callable[[frozenset[str], Any], None] | None = None
 
     def parameters_schema(self) -> dict[str, Any]:
         """JSON Schema (2020-12) of the ``parameters`` object of a job of this process."""
@@ -334,6 +343,330 @@ def _execute_compare(
     return result.summary
 
 
+# -- plots: where a plan or a plot scan gets its plot ------------------------------------------
+def _source_schema() -> dict[str, Any]:
+    """``stand``, ``tree`` and ``radius_m``: a plot made by the job instead of one uploaded."""
+    from pipeline.models import SPECIES
+    from pipeline.params.models import ModelParams
+
+    from .plots import StandParams
+
+    stand = json_schema(StandParams)
+    stand["description"] = (
+        "generate a stand instead of giving inputs.plot (as treesim plot generate); its "
+        "plot.toml and trees.csv come back under stand/"
+    )
+    tree = json_schema(ModelParams)
+    tree["properties"] = {
+        k: v for k, v in tree["properties"].items() if k in ("species", "seed", "leaves", "facets")
+    }
+    tree["properties"]["species"] = {
+        "type": "string",
+        "enum": list(SPECIES),
+        "description": tree["properties"]["species"]["description"],
+    }
+    tree["required"] = ["species"]
+    tree["description"] = "one procedural tree instead of a plot (as treesim plan --species)"
+    return {
+        "stand": stand,
+        "tree": tree,
+        "radius_m": {
+            "type": "number",
+            "exclusiveMinimum": 0,
+            "maximum": 1000,
+            "x-unit": "m",
+            "description": "one tree (inputs.mesh or tree): radius of the area around it "
+            "(default 1.5 x the station rule's distance)",
+        },
+    }
+
+
+def _pop_source(data: dict[str, Any]) -> Any:
+    """The plot source of a plan or plot scan, its fields taken out of ``data``."""
+    from pipeline.params.models import ModelParams
+
+    from .plots import PlotSource, StandParams
+
+    stand = data.pop("stand", None)
+    tree = data.pop("tree", None)
+    radius = data.pop("radius_m", None)
+    if radius is not None and not (
+        isinstance(radius, int | float) and not isinstance(radius, bool) and 0 < radius <= 1000
+    ):
+        raise _field_error("radius_m", f"radius_m must be in (0, 1000] m, got {radius!r}")
+    st = None if stand is None else merge(StandParams(), stand, prefix="stand.")
+    mp = None
+    if tree is not None:
+        mp = merge(ModelParams(), tree, prefix="tree.")
+        if not mp.species:
+            raise _field_error("tree.species", "tree.species: give a species")
+    return PlotSource(stand=st, tree=mp, radius_m=None if radius is None else float(radius))
+
+
+def _check_source(inputs: frozenset[str], job: Any) -> None:
+    job.source.check(inputs)
+
+
+_PLOT_INPUTS = (
+    Input(
+        "plot",
+        ("plot",),
+        "the plot: a zip archive of plot.toml, its trees CSV and the trees' files "
+        "(or give parameters.stand, parameters.tree or inputs.mesh)",
+        required=False,
+    ),
+    Input("mesh", ("mesh",), "one tree as a mesh, instead of a plot", required=False),
+)
+
+
+# -- plan -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlanJob:
+    plan: Any  # PlanParams
+    instrument: str
+    spec: ScannerSpec
+    source: Any  # PlotSource
+
+
+def _plan_extra() -> dict[str, Any]:
+    from pipeline.cli.plan import DEFAULT_INSTRUMENT
+
+    res = _resolution_schema()
+    res["description"] += (
+        " (default the instrument's): sets the visibility rule's point spacing, the field "
+        "time and the verification scans"
+    )
+    return {
+        "instrument": {
+            "type": "string",
+            "enum": list(INSTRUMENTS),
+            "default": DEFAULT_INSTRUMENT,
+            "description": "the instrument: field of view, ranges, measurement rate and "
+            "set-up time (as treesim plan --instrument)",
+        },
+        "resolution_deg": res,
+        **_source_schema(),
+    }
+
+
+def _plan_schema() -> dict[str, Any]:
+    from pipeline.plan.params import PlanParams
+
+    return _job_schema(PlanParams)
+
+
+def _with_resolution(spec: ScannerSpec, resolution_deg: Any) -> ScannerSpec:
+    if resolution_deg is None:
+        return spec
+    try:
+        return spec.with_(
+            horizontal_resolution_deg=resolution_deg, vertical_resolution_deg=resolution_deg
+        )
+    except InvalidParameterError as exc:
+        raise _field_error("resolution_deg", f"resolution_deg: {exc}") from None
+
+
+def _parse_plan(parameters: Mapping[str, Any]) -> PlanJob:
+    from pipeline.cli.plan import DEFAULT_INSTRUMENT
+    from pipeline.params import instrument
+    from pipeline.plan.params import PlanParams
+
+    data = dict(parameters)
+    source = _pop_source(data)
+    name = str(data.pop("instrument", DEFAULT_INSTRUMENT))
+    spec = _with_resolution(instrument(name).spec(), data.pop("resolution_deg", None))
+    return PlanJob(merge(PlanParams(), data), name, spec, source)
+
+
+def _execute_plan(
+    inputs: Mapping[str, Path],
+    job: PlanJob,
+    out: Path,
+    threads: int,
+    progress: Progress,
+    name: str,
+) -> dict[str, Any]:
+    from pipeline.params import instrument
+    from pipeline.plan import plan_scans
+    from pipeline.plan.outputs import write_plan
+    from pipeline.steps import scale_progress
+
+    from .plots import open_plot
+
+    inst = instrument(job.instrument)
+    with open_plot(job.source, inputs, out) as (plot, single, what):
+        progress(0.0, "planning")
+        result = plan_scans(
+            plot,
+            spec=job.spec,
+            instrument=inst,
+            params=job.plan.with_(threads=threads),
+            progress=scale_progress(progress, 0.0, 0.95),
+            single_tree=single,
+        )
+        progress(0.95, "writing the plan")
+        given = {**what, "instrument": inst.name}
+        given["resolution_deg"] = job.spec.horizontal_resolution_deg
+        write_plan(result, out, inputs=given)
+    d = result.to_dict()
+    plan = d["plan"]
+    ver = d["comparison"].get("verified")
+    return {
+        "inputs": given,
+        "n_stations": plan["n_stations"],
+        "field_time_min": plan["field_time_min"],
+        "goal_met": plan["goal_met"],
+        "trees_meeting_goal": plan["trees_meeting_goal"],
+        "trees": plan["trees"],
+        "stop_reason": plan["stop_reason"],
+        "stations": plan["stations"],
+        "unreachable_trees": d["unreachable_trees"],
+        "statement": d["comparison"]["statement"],
+        "verified": ver,
+        "timings_s": d["timings_s"],
+        "files": ["plan.json", "stations.csv", "map.png", "curve.png"],
+    }
+
+
+# -- plot-scan --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlotScanJob:
+    scan: ScanParams
+    stations: tuple[tuple[float, ...], ...] | None
+    compare: CompareParams
+    figures: bool
+    source: Any  # PlotSource
+
+
+#: ScanParams fields a plot scan does not use (the station rule is one tree's).
+_NOT_FOR_PLOTS = ("min_distance_m",)
+
+
+def _plot_scan_schema() -> dict[str, Any]:
+    schema = _job_schema(ScanParams)
+    for key in _NOT_FOR_PLOTS:
+        schema["properties"].pop(key, None)
+    props = schema["properties"]
+    props["distance_m"]["description"] = (
+        "distance of the ring's stations from the plot centre (null: half the plot's radius)"
+    )
+    props["height_m"]["description"] = "instrument height above the terrain"
+    return schema
+
+
+def _plot_scan_extra() -> dict[str, Any]:
+    tol = json_schema(CompareParams)["properties"]["tolerance_m"]
+    tol["description"] = "the per-tree comparison's " + tol["description"]
+    return {
+        **_scan_extra(),
+        "stations": {
+            "type": "array",
+            "minItems": 1,
+            "maxItems": 1000,
+            "items": {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 3},
+            "description": "station positions in the plot's frame (m): [x, y] stands "
+            "height_m above the terrain, [x, y, z] where given (default a ring of n_stations "
+            "at distance_m; or inputs.stations, a plan job's stations.csv)",
+        },
+        "tolerance_m": tol,
+        "figures": {
+            "type": "boolean",
+            "default": True,
+            "description": "measure every tree against its own mesh (tree_figures.csv); "
+            "false: scan only",
+        },
+        **_source_schema(),
+    }
+
+
+def _parse_plot_scan(parameters: Mapping[str, Any]) -> PlotScanJob:
+    import math
+
+    data = dict(parameters)
+    source = _pop_source(data)
+    stations = data.pop("stations", None)
+    if stations is not None:
+        try:
+            stations = tuple(tuple(float(c) for c in s) for s in stations)
+        except (TypeError, ValueError, OverflowError):
+            stations = ((math.nan,),)
+        if not all(math.isfinite(c) for s in stations for c in s):
+            raise _field_error("stations", "stations: every coordinate must be a finite number")
+    tol = data.pop("tolerance_m", None)
+    compare = merge(CompareParams(), {} if tol is None else {"tolerance_m": tol})
+    figures = bool(data.pop("figures", True))
+    return PlotScanJob(_parse_scan(data), stations, compare, figures, source)
+
+
+def _check_plot_scan(inputs: frozenset[str], job: PlotScanJob) -> None:
+    job.source.check(inputs - {"stations"})
+    if "stations" in inputs and job.stations is not None:
+        raise _field_error(
+            "inputs.stations", "give the stations once: inputs.stations or parameters.stations"
+        )
+
+
+def _execute_plot_scan(
+    inputs: Mapping[str, Path],
+    job: PlotScanJob,
+    out: Path,
+    threads: int,
+    progress: Progress,
+    name: str,
+) -> dict[str, Any]:
+    from pipeline.plot.scan import plot_scan_files, plot_stations, read_stations_csv
+
+    from .plots import open_plot
+
+    plot_inputs = {k: v for k, v in inputs.items() if k != "stations"}
+    sp = job.scan
+    with open_plot(job.source, plot_inputs, out) as (plot, _single, what):
+        if "stations" in inputs:
+            stations = read_stations_csv(inputs["stations"], plot, height_m=sp.height_m)
+        else:
+            stations = plot_stations(
+                plot,
+                positions=job.stations,
+                n=sp.n_stations,
+                distance_m=sp.distance_m,
+                height_m=sp.height_m,
+                start_angle_deg=sp.start_angle_deg,
+            )
+        step = plot_scan_files(
+            plot,
+            out,
+            sp,
+            stations=stations,
+            compare=job.compare,
+            figures=job.figures,
+            threads=threads,
+            progress=progress,
+        )
+    s = step.summary
+    rows = step.details["trees"]
+    cov = [r["coverage"] for r in rows]
+    return {
+        "inputs": what,
+        "plot": s["plot"],
+        "points": s["points"],
+        "rays_cast": s["rays_cast"],
+        "stations": [
+            {
+                "position_m": st["position_m"],
+                "points": st["points"],
+                "trees_loaded": len(st["trees_loaded"]),
+            }
+            for st in s["stations"]
+        ],
+        "trees_measured": len(rows),
+        "coverage": (
+            {"min": min(cov), "mean": sum(cov) / len(cov), "max": max(cov)} if cov else None
+        ),
+        "warnings": s["warnings"],
+        "timings_s": s["timings_s"],
+    }
+
+
 _CLOUD = Input("cloud", ("cloud",), "a point cloud of one tree")
 
 #: The processes by id.
@@ -408,6 +741,58 @@ PROCESSES: dict[str, Process] = {
             base_schema=lambda: _job_schema(CompareParams),
             parse=_parse_compare,
             execute=_execute_compare,
+        ),
+        Process(
+            id="plan",
+            title="Plan scan stations for a plot or a tree",
+            description="Choose scanner stations from a grid of candidates over a plot (or "
+            "around one tree) so that every tree meets a goal (coverage at a tolerance, the "
+            "DBH band seen over an arc) within a budget (stations, field time); compare with "
+            "the classic layouts and, unless verify is off, verify with a full-resolution "
+            "scan (as treesim plan).",
+            inputs=_PLOT_INPUTS,
+            outputs=(
+                ("plan.json", "goal, budget, chosen stations, per-tree figures, baselines"),
+                ("stations.csv", "the chosen stations: order, x, y, z, field time"),
+                ("map.png", "the plot with the stations and per-tree coverage"),
+                ("curve.png", "coverage and field time against the number of stations"),
+                ("stand/plot.toml", "a generated stand's plot file (stand only)"),
+                ("stand/trees.csv", "a generated stand's trees (stand only)"),
+            ),
+            extra_schema=_plan_extra,
+            base_schema=_plan_schema,
+            parse=_parse_plan,
+            execute=_execute_plan,
+            check_inputs=_check_source,
+        ),
+        Process(
+            id="plot-scan",
+            title="Scan a plot and measure every tree in it",
+            description="Scan a plot from stations, one at a time, loading only the trees "
+            "each station can record; label every point with its tree_id; measure each "
+            "tree's points against its own mesh (as treesim plot scan).",
+            inputs=(
+                *_PLOT_INPUTS,
+                Input(
+                    "stations",
+                    ("table",),
+                    "station positions: a plan job's stations.csv (x_m, y_m and z_m or "
+                    "height_m), instead of parameters.stations or the ring",
+                    required=False,
+                ),
+            ),
+            outputs=(
+                ("plot_scan.laz", "the simulated cloud with tree_id and station per point"),
+                ("plot_scan.json", "scanner, stations, trees loaded, truth and figures"),
+                ("tree_figures.csv", "one row per tree: points, coverage, AVOHD, DBH, height"),
+                ("stand/plot.toml", "a generated stand's plot file (stand only)"),
+                ("stand/trees.csv", "a generated stand's trees (stand only)"),
+            ),
+            extra_schema=_plot_scan_extra,
+            base_schema=_plot_scan_schema,
+            parse=_parse_plot_scan,
+            execute=_execute_plot_scan,
+            check_inputs=_check_plot_scan,
         ),
     )
 }

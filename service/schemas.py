@@ -52,14 +52,19 @@ class UploadOut(BaseModel):
     id: str
     filename: str
     format: str = Field(
-        description="las, laz, ply, e57, xyz, obj, stl, off or glb: from the content"
+        description="las, laz, ply, e57, xyz, obj, stl, off or glb: from the content; zip "
+        "for a plot archive"
     )
-    kind: Literal["cloud", "mesh"]
+    kind: Literal["cloud", "mesh", "plot"]
     size_bytes: int
     sha256: str
     n_points: int | None = None
     n_triangles: int | None = None
-    bounds: Bounds
+    n_trees: int | None = Field(None, description="a plot's trees")
+    bounds: Bounds = Field(
+        description="the points' or vertices' box; a plot's square around its centre, at "
+        "its terrain's height there"
+    )
     fields: list[str] = []
     created: str | None
     links: list[Link] = []
@@ -100,7 +105,7 @@ class ExecuteRequest(BaseModel):
 class JobRequest(ExecuteRequest):
     """``POST /v1/jobs``: the process, its inputs and parameters."""
 
-    process: str = Field(description="run, reconstruct, scan or compare")
+    process: str = Field(description="run, reconstruct, scan, compare, plan or plot-scan")
 
 
 class StatusInfo(BaseModel):

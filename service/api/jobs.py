@@ -96,6 +96,8 @@ def _kind_of_result(path: Path) -> str:
     from pipeline.io.ply import ply_has_faces
 
     suffix = path.suffix.lower()
+    if suffix == ".csv":  # a table (stations.csv of a plan), never a cloud
+        return "table"
     if suffix in MESH_SUFFIXES and (suffix != ".ply" or ply_has_faces(path)):
         return "mesh"
     return "cloud"
@@ -118,6 +120,8 @@ def _resolve_inputs(
         ref = given.get(name)
         field = f"inputs.{name}"
         if ref is None:
+            if not spec.required:
+                continue
             raise ServiceProblem(
                 "invalid-parameter",
                 f"input {name!r} is required: {spec.description} (an upload id)",
@@ -177,12 +181,19 @@ def submit(
     response: Response,
 ) -> StatusInfo:
     try:
-        check_parameters(process, parameters)
+        parsed = check_parameters(process, parameters)
     except InvalidParameterError as exc:
         raise ServiceProblem(
             "invalid-parameter", str(exc), field=getattr(exc, "field", "parameters")
         ) from None
     resolved, links = _resolve_inputs(process, inputs, store, settings)
+    if process.check_inputs is not None:
+        try:
+            process.check_inputs(frozenset(resolved), parsed)
+        except InvalidParameterError as exc:
+            raise ServiceProblem(
+                "invalid-parameter", str(exc), field=getattr(exc, "field", "inputs")
+            ) from None
 
     def still_there(conn: Any) -> None:
         from sqlalchemy import select

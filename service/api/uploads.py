@@ -1,4 +1,5 @@
-"""``/v1/uploads``: clouds and meshes, streamed to disk, checked, stored once by content."""
+"""``/v1/uploads``: clouds, meshes and plots (zip archives), streamed to disk, checked,
+stored once by content."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from pipeline.errors import EmptyInputError
 
+from ..plots import UNPACK_FACTOR
 from ..problems import ServiceProblem
 from ..schemas import Link, UploadList, UploadOut, iso
 from .deps import SettingsDep, StoreDep
@@ -59,6 +61,7 @@ def upload_out(rec: dict[str, Any]) -> UploadOut:
         sha256=rec["sha256"],
         n_points=rec["n_points"],
         n_triangles=rec["n_triangles"],
+        n_trees=info.get("n_trees"),
         bounds={"min": list(lo), "max": list(hi)},
         fields=list(info.get("fields", [])),
         created=iso(rec["created"]),
@@ -76,7 +79,7 @@ def _tmp_dir(data_dir: Path) -> Path:
     "/uploads",
     status_code=201,
     response_model=UploadOut,
-    summary="Upload a point cloud or mesh (the raw file as the body)",
+    summary="Upload a point cloud, a mesh or a plot archive (the raw file as the body)",
     responses={
         200: {"model": UploadOut, "description": "the same content was uploaded before"},
         **PROBLEM_RESPONSES(411, 413, 415, 422),
@@ -100,9 +103,11 @@ async def create_upload(
     ] = None,
 ) -> UploadOut:
     """Stream the body to disk (never held in memory), with its SHA-256; sniff its format
-    from the bytes (LAS, LAZ, PLY, OBJ, XYZ, E57), open and check it; store it once per
-    content. 413 past ``TREESIM_MAX_UPLOAD_BYTES``, 415 for a format treesim does not read,
-    422 for a broken file; nothing is kept on error."""
+    from the bytes (LAS, LAZ, PLY, OBJ, XYZ, E57; a zip archive is a plot: ``plot.toml`` at
+    its root or in its top folder, with its trees CSV and the trees' files), open and check
+    it; store it once per content. 413 past ``TREESIM_MAX_UPLOAD_BYTES``, 415 for a format
+    treesim does not read, 422 for a broken file or plot (a plot archive may unpack to 4 x
+    the limit); nothing is kept on error."""
     name = check_filename(filename)
     limit = settings.max_upload_bytes
     length = request.headers.get("content-length")
@@ -136,7 +141,9 @@ async def create_upload(
                 fh.write(chunk)
         if size == 0:
             raise EmptyInputError(f"{name}: the body is empty; send the file's bytes")
-        info = await request.app.state.inspector.inspect(tmp, name if filename else None)
+        info = await request.app.state.inspector.inspect(
+            tmp, name if filename else None, max_unpacked=UNPACK_FACTOR * limit
+        )
         sha = digest.hexdigest()
         rel = Path("uploads") / sha[:2] / f"{sha}{info['suffix']}"
         final = settings.data_dir / rel
@@ -153,7 +160,11 @@ async def create_upload(
             "size_bytes": size,
             "n_points": info.get("n_points"),
             "n_triangles": info.get("n_triangles"),
-            "info": {"bounds": info["bounds"], "fields": list(info.get("fields", []))},
+            "info": {
+                "bounds": info["bounds"],
+                "fields": list(info.get("fields", [])),
+                **({"n_trees": info["n_trees"]} if "n_trees" in info else {}),
+            },
             "path": rel.as_posix(),
         }
         rec, created = await run_in_threadpool(store.add_upload, record, place)
