@@ -429,7 +429,7 @@ class PlanJob:
 
 
 def _plan_extra() -> dict[str, Any]:
-    from pipeline.cli.plan import DEFAULT_INSTRUMENT
+    from pipeline.plan.params import DEFAULT_INSTRUMENT
 
     res = _resolution_schema()
     res["description"] += (
@@ -467,9 +467,8 @@ def _with_resolution(spec: ScannerSpec, resolution_deg: Any) -> ScannerSpec:
 
 
 def _parse_plan(parameters: Mapping[str, Any]) -> PlanJob:
-    from pipeline.cli.plan import DEFAULT_INSTRUMENT
     from pipeline.params import instrument
-    from pipeline.plan.params import PlanParams
+    from pipeline.plan.params import DEFAULT_INSTRUMENT, PlanParams
 
     data = dict(parameters)
     source = _pop_source(data)

@@ -10,12 +10,12 @@ from typing import Any
 from ..errors import InvalidParameterError
 from ..params import INSTRUMENTS, SETTINGS, ScannerSpec, merge
 from ..params.models import ModelParams
+from ..plan.params import DEFAULT_INSTRUMENT
 from ._options import collect, number_type, param_option, param_options
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
 #: The instrument a plan uses unless told.
-DEFAULT_INSTRUMENT = "riegl-vz400"
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -7,7 +7,10 @@ from dataclasses import dataclass, replace
 from ..errors import InvalidParameterError
 from ..params._fields import check_bounds, finite, param
 
-__all__ = ["PlanParams"]
+__all__ = ["DEFAULT_INSTRUMENT", "PlanParams"]
+
+#: The instrument a plan is made for unless one is named (CLI and service alike).
+DEFAULT_INSTRUMENT = "riegl-vz400"
 
 
 @dataclass(frozen=True, kw_only=True)
