@@ -91,6 +91,18 @@ HIT_TOLERANCE_M = 1e-4
 P_MAX = 1.0 - 1e-6
 #: Rays cast per Open3D call.
 _CHUNK = 1 << 20
+#: Rays per surface sample that measure the share of its τ disc a station sees.
+DISC_RAYS = 6
+#: Their points in the unit disc (area-uniform radii, golden-angle turns).
+_DISC = np.array(
+    [
+        (
+            math.sqrt((k + 0.5) / DISC_RAYS) * math.cos(k * 2.399963229728653),
+            math.sqrt((k + 0.5) / DISC_RAYS) * math.sin(k * 2.399963229728653),
+        )
+        for k in range(DISC_RAYS)
+    ]
+)
 
 
 @dataclass
@@ -136,13 +148,16 @@ def hit_probability(
     step_rad: float,
     tau_m: float,
     thickness_m: np.ndarray | float = np.inf,
+    disc_fraction: np.ndarray | float = 1.0,
 ) -> np.ndarray:
     """One station's chance of a return within τ of a sample (module notes).
 
     A surface (``w >= a``): the share of the plane within τ of a lattice of cell
     ``a × b`` (``a = range × step``, ``b = a / cos i``), ``π·τ² / (a·b)`` when the cell is
-    at least ``2τ`` each way, 1 when ``½·√(a² + b²) <= τ``. A thinner feature:
-    ``min(1, 2·τ·w / a²)``.
+    at least ``2τ`` each way, 1 when ``½·√(a² + b²) <= τ``; at most
+    ``disc_fraction · π·τ² / (a·b)`` when only that share of the disc of radius τ round the
+    sample is surface the station sees (a leaf smaller than the disc, an edge, a twig in
+    front). A thinner feature: ``min(1, 2·τ·w / a²)``.
     """
     tau = float(tau_m)
     a = np.asarray(range_m, np.float64) * step_rad
@@ -159,6 +174,8 @@ def hit_probability(
         half, 1e-300
     )
     surface = np.clip(2.0 * (full + part) / a_safe, 0.0, 1.0)
+    f = np.broadcast_to(np.asarray(disc_fraction, np.float64), a.shape)
+    surface = np.minimum(surface, f * math.pi * tau * tau / np.maximum(a * b, 1e-300))
     thin = np.minimum(1.0, 2.0 * tau * w / (a_safe * a_safe))
     return np.where(w >= a, surface, thin)
 
@@ -223,6 +240,30 @@ class VisibilityCaster:
             out[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
         return out + eps
 
+    def _disc_fraction(self, o: np.ndarray, which: np.ndarray, tau_m: float) -> np.ndarray:
+        """Per sample ``which``, the share of :data:`DISC_RAYS` rays from ``o`` to points of
+        the disc of radius τ round it in its tangent plane whose first hit lies within τ
+        of it: how much of the disc is surface the station sees."""
+        pts = self.pts[which]
+        n = self.samples.normals[which]
+        e = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0, 0]], [[0, 1.0, 0]])
+        u = np.cross(n, e)
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+        v = np.cross(n, u)
+        off = tau_m * (_DISC[:, 0, None, None] * u[None] + _DISC[:, 1, None, None] * v[None])
+        tgt = (pts[None] + off).reshape(-1, 3)  # (m·s, 3), ray by ray: disc point, sample
+        rays = np.empty((len(tgt), 6))
+        rays[:, :3] = o
+        rays[:, 3:] = tgt - o
+        t_hit = np.empty(len(tgt))
+        for k in range(0, len(tgt), _CHUNK):
+            t_hit[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
+        hit = o + np.where(np.isfinite(t_hit), t_hit, 0.0)[:, None] * rays[:, 3:]
+        near = np.isfinite(t_hit) & (
+            np.linalg.norm(hit - np.tile(pts, (len(_DISC), 1)), axis=1) <= tau_m
+        )
+        return near.reshape(len(_DISC), -1).mean(axis=0)
+
     def trees_in_view(self, o: np.ndarray, spec: ScannerSpec) -> np.ndarray:
         """Indices of the trees whose sample box lies within range and the vertical field
         of view of a station at local ``o`` (heading 0)."""
@@ -283,7 +324,12 @@ class VisibilityCaster:
         # band samples (DBH) count only on their own side of the stem: the first hit is
         # their own surface, not the stem's near side within τ of them
         first &= own | ~s.band[idx[cand]]
-        pc = np.where(first, hit_probability(r_hit, cos_inc, step, tau_m, w), 0.0)
+        # the share of the τ disc round a surface sample that the station sees
+        frac = np.ones(len(cand))
+        surf = np.flatnonzero(first & (w >= r_hit * step))
+        if len(surf):
+            frac[surf] = self._disc_fraction(o, idx[cand[surf]], tau_m)
+        pc = np.where(first, hit_probability(r_hit, cos_inc, step, tau_m, w, frac), 0.0)
         seen = np.flatnonzero(pc > 0)
         prob[idx[cand[seen]]] = pc[seen]
         q[idx[cand[seen]]] = np.clip(np.rint(255.0 * cos_inc[seen]), 1, 255).astype(np.uint8)
