@@ -136,11 +136,7 @@ def map_png(result: PlanResult, path: Path) -> Path:
         f"{len(st)} stations, {len(result.targets)} trees; goal "
         + ("met" if result.goal_met else "not met")
         + " (predicted)"
-        + (
-            f"; verified {ver['trees_meeting_goal']}/{len(result.targets)} trees"
-            if ver
-            else ""
-        )
+        + (f"; verified {ver['trees_meeting_goal']}/{len(result.targets)} trees" if ver else "")
     )
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     return _save(fig, path)

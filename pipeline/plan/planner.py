@@ -430,11 +430,7 @@ def plan_scans(
     greedy = lazy_greedy(obj, lam, max_st, quality=qual, reachable=reachable)
     timings["greedy"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sel = (
-        improve(obj, lam, greedy, quality=qual, reachable=reachable)
-        if p.local_search
-        else greedy
-    )
+    sel = improve(obj, lam, greedy, quality=qual, reachable=reachable) if p.local_search else greedy
     timings["swap_search"] = time.perf_counter() - t0
 
     figs = obj.figures(*state(lam, qual, sel.chosen))
@@ -558,9 +554,7 @@ def plan_scans(
             comparison,
             plan_summary,
             verification["trees_meeting_goal"],
-            None
-            if baseline_verification is None
-            else baseline_verification["trees_meeting_goal"],
+            None if baseline_verification is None else baseline_verification["trees_meeting_goal"],
             int(reachable.sum()) if reachable.any() else len(targets),
             len(targets),
         )
