@@ -173,18 +173,28 @@ def cmd_plan(args: argparse.Namespace) -> int:
             f"{r['order']:>3}  {r['x_m']:9.2f}  {r['y_m']:9.2f}  {r['z_m']:8.2f}  "
             f"{r['predicted_gain']:8.3f}  {r['cumulative_field_time_min']:10.1f}"
         )
-    print(d["comparison"]["statement"])
-    ver = d["comparison"].get("verified")
+    cmp_ = d["comparison"]
+    print(f"predicted: {cmp_['predicted']['verdict']}: {cmp_['predicted']['statement']}")
+    ver = cmp_.get("verified")
     if ver:
+        sec = ver["seconds"]
         print(
-            f"verified at {spec.horizontal_resolution_deg:g}°: {ver['plan_trees_meeting_goal']}"
-            f"/{ver['trees']} trees meet the goal"
+            f"verified at {spec.horizontal_resolution_deg:g}° (full scans, "
+            f"{sec['plan']:.0f} s for the plan"
             + (
-                f" (best classic layout: {ver['baseline_trees_meeting_goal']}/{ver['trees']})"
+                f", {sec['baseline']:.0f} s for {ver['baseline']}"
+                if sec["baseline"] is not None
+                else ""
+            )
+            + f"): {ver['plan_trees_meeting_goal']}/{ver['trees']} trees meet the goal with "
+            "the plan"
+            + (
+                f", {ver['baseline_trees_meeting_goal']}/{ver['trees']} with {ver['baseline']}"
                 if ver["baseline_trees_meeting_goal"] is not None
                 else ""
             )
         )
+        print(f"verdict: {cmp_['verdict']}: {cmp_['statement']}")
     warnings = []
     if d["unreachable_trees"]:
         ids = d["unreachable_trees"]

@@ -135,6 +135,8 @@ def map_png(result: PlanResult, path: Path) -> Path:
     ax.set_title(
         f"{len(st)} stations, {len(result.targets)} trees; goal "
         + ("met" if result.goal_met else "not met")
+        + " (predicted)"
+        + (f"; verified {ver['trees_meeting_goal']}/{len(result.targets)} trees" if ver else "")
     )
     ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
     return _save(fig, path)

@@ -118,7 +118,8 @@ def verify_plan(
             entry["coverage"] = 0.0
             entry["why"] = f"{len(sel)} points: too few to compare"
         out[t.tree_id] = entry
-    figs = objective.figures(seen[None] * 255)
+    # a measured sample is covered or not: Λ = inf or 0
+    figs = objective.figures(np.where(seen > 0, np.inf, 0.0)[None])
     met = objective.met(figs)[0]
     for i, t in enumerate(targets):
         e = out[t.tree_id]

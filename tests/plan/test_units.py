@@ -23,7 +23,8 @@ from pipeline.plan import (
     sample_trees,
     visibility,
 )
-from pipeline.plan.cover import reachable_trees
+from pipeline.plan.cover import default_quality, reachable_trees, state
+from pipeline.plan.visibility import hit_probability, intensity_of
 from pipeline.scene import MeshPart, Scene
 
 
@@ -108,18 +109,33 @@ def test_visibility_of_an_analytic_scene():
     assert caster.thickness_m[4] == pytest.approx(1.0, abs=1e-3)
 
 
-def test_visibility_spacing_rule_and_range():
+def test_visibility_hit_probability_and_range():
     samples = _samples()
     caster = VisibilityCaster(_scene(), samples, nthreads=1)
-    # step 0.003 rad, τ = 1 cm: half-diagonal a/√2 at normal incidence passes at 3 m
-    # (a = 9 mm: 6.4 mm) and fails at 7.3 m (a = 21.9 mm: 15.5 mm)
-    step_deg = math.degrees(0.003)
-    coarse = ScannerSpec(horizontal_resolution_deg=step_deg, vertical_resolution_deg=step_deg)
-    q = visibility(caster, STATION, coarse, 0.01).quality[0]
-    assert q[4] > 0 and q[1] == 0
-    # the same rule by hand
-    r = np.linalg.norm(samples.points[[1, 4]] - STATION[0], axis=1)
-    assert max_spacing_ok(r, np.ones(2), 0.003, 0.01).tolist() == [False, True]
+    # step 0.003 rad, τ = 1 cm: at 3 m (the box, a = 9 mm, b = a / cos i) the half-diagonal
+    # is 6.4 mm: sure to hit; at 7.3 m (C2's front, normal incidence, a = 21.9 mm > 2τ)
+    # one station hits within τ with the share of the cell a disc of radius τ covers
+    step = 0.003
+    coarse = ScannerSpec(
+        horizontal_resolution_deg=math.degrees(step), vertical_resolution_deg=math.degrees(step)
+    )
+    vis = visibility(caster, STATION, coarse, 0.01)
+    p = vis.probability[0]
+    assert p[4] == pytest.approx(1.0, abs=2e-6)
+    r = np.linalg.norm(samples.points[1] - STATION[0])
+    a = r * step
+    assert 2 * 0.01 < a
+    assert p[1] == pytest.approx(math.pi * 0.01**2 / (a * a), rel=1e-5)
+    # C2 turned 60°: b = a / cos i, the same formula
+    d = samples.points[3] - STATION[0]
+    cos_i = abs(samples.normals[3] @ d) / np.linalg.norm(d)
+    a3 = np.linalg.norm(d) * step
+    assert p[3] == pytest.approx(math.pi * 0.01**2 * cos_i / (a3 * a3), rel=1e-4)
+    # hidden: 0; intensity is −ln(1 − p), float32; quality where p > 0
+    assert p[0] == 0 and p[2] == 0
+    assert vis.intensity.dtype == np.float32
+    assert vis.intensity[0, 1] == pytest.approx(-math.log(1 - p[1]), rel=1e-6)
+    assert ((vis.quality[0] > 0) == (p > 0)).all()
     # max range 5 m: the box only; min range 5 m: the cylinders only
     fine = ScannerSpec(horizontal_resolution_deg=0.01, vertical_resolution_deg=0.01)
     q = visibility(caster, STATION, fine.with_(max_range_m=5.0), 0.01).quality[0]
@@ -128,20 +144,57 @@ def test_visibility_spacing_rule_and_range():
     assert (q > 0).tolist() == [False, True, False, True, False]
 
 
+def test_hit_probability_formula():
+    tau, step = 0.01, 0.001
+    # coarse grid: π τ² / (a b); a = 30 mm at 30 m, b = a / cos 60° = 60 mm
+    p = hit_probability(np.array([30.0]), np.array([0.5]), step, tau)[0]
+    assert p == pytest.approx(math.pi * tau**2 / (0.03 * 0.06))
+    # p == 1 exactly where the half-diagonal rule holds (a = 10 mm: b <= 17.3 mm)
+    cos = np.array([0.58, 0.57])
+    assert (hit_probability(np.full(2, 10.0), cos, step, tau) == 1.0).tolist() == [True, False]
+    assert max_spacing_ok(np.full(2, 10.0), cos, step, tau).tolist() == [True, False]
+    # in between (a < 2τ < b) the discs overlap: a Monte Carlo of the lattice agrees, and
+    # π τ² / (a b) would overstate it
+    rng = np.random.default_rng(0)
+    a, b = 0.005, 0.05
+    xy = rng.uniform(0, 1, (200_000, 2)) * (a, b)
+    near = np.stack(np.meshgrid([-1, 0, 1, 2], [-1, 0, 1, 2]), -1).reshape(-1, 2) * (a, b)
+    dmin = np.min(np.linalg.norm(xy[:, None] - near[None], axis=2), axis=1)
+    p = hit_probability(np.array([5.0]), np.array([a / b]), step, tau)[0]
+    assert p == pytest.approx((dmin <= tau).mean(), abs=0.005)
+    assert p < 0.5 * math.pi * tau**2 / (a * b)
+
+
 def test_thin_feature_rule():
-    # a twig 5 mm wide at a = 10 mm: hits every a²/w = 20 mm along it; half-diagonal of
-    # (20 mm, 5 mm) = 10.3 mm: fails τ = 1 cm, passes τ = 1.1 cm
-    a, w = 0.01, 0.005
-    assert not max_spacing_ok(np.array([1.0]), np.ones(1), a, 0.010, np.array([w]))[0]
-    assert max_spacing_ok(np.array([1.0]), np.ones(1), a, 0.011, np.array([w]))[0]
+    # a twig 5 mm wide at a = 25 mm: hit once per a²/w = 125 mm of its length; covered
+    # within ±τ along it: p = 2 τ w / a² = 0.16; at a = 10 mm hits are 20 mm apart <= 2τ
+    tau, w = 0.01, 0.005
+    p = hit_probability(np.array([25.0]), np.ones(1), 0.001, tau, np.array([w]))[0]
+    assert p == pytest.approx(2 * tau * w / 0.025**2)
+    p = hit_probability(np.array([10.0]), np.ones(1), 0.001, tau, np.array([w]))[0]
+    assert p == 1.0
+    # seen from k stations at the same geometry: expected coverage 1 − (1 − p)^k, by the
+    # sum of intensities, for a tree of such samples
+    p = 0.16
+    obj = Objective(_sample_set(np.zeros((5, 3)), np.zeros((5, 3))), 0.9, 0.0)
+    lam = np.tile(intensity_of(np.full(5, p)), (4, 1))
+    for k in range(1, 5):
+        cov = obj.figures(lam[:k].sum(axis=0))["coverage"][0, 0]
+        assert cov == pytest.approx(1 - (1 - p) ** k, rel=1e-6)
+    # adding and removing a station: sums; certain and never (a measured cloud)
+    lam_all = lam.sum(axis=0, dtype=np.float64)
+    assert obj.figures(lam_all - lam[0])["coverage"][0, 0] == pytest.approx(1 - (1 - p) ** 3)
+    seen = np.array([np.inf, np.inf, 0, np.inf, 0])
+    assert obj.figures(seen)["coverage"][0, 0] == pytest.approx(0.6)
 
 
 # -- set cover on hand-made matrices ------------------------------------------------------
-def _matrix(rows: list[set[int]], n: int) -> np.ndarray:
-    q = np.zeros((len(rows), n), np.uint8)
+def _matrix(rows: list[set[int]], n: int, p: float = 1.0) -> np.ndarray:
+    """Intensities: each row hits its samples with probability ``p`` (1: surely)."""
+    lam = np.zeros((len(rows), n), np.float32)
     for i, r in enumerate(rows):
-        q[i, sorted(r)] = 200
-    return q
+        lam[i, sorted(r)] = intensity_of(p)
+    return lam
 
 
 def test_greedy_then_swaps_on_the_classic_trap():
@@ -173,6 +226,27 @@ def test_swap_needed_to_drop_a_station():
     assert better.swaps >= 1
 
 
+def test_greedy_on_hit_probabilities():
+    # 4 samples, goal 0.7. A and B hit every sample with p = ½ (each alone: 0.5); C hits
+    # samples 0, 1 surely and 2 with p = 0.2 (0.55). No station alone reaches the goal;
+    # C then A (or B) gives (1 + 1 + (1 − 0.8·0.5) + 0.5) / 4 = 0.775, A and B together
+    # 1 − ¼ = 0.75. A 0/1 rule ("seen when p = 1") would call the goal unreachable.
+    obj = Objective(_sample_set(np.zeros((4, 3)), np.zeros((4, 3))), 0.7, 0.0)
+    p = np.array([[0.5] * 4, [0.5] * 4, [1.0, 1.0, 0.2, 0.0]])
+    lam = intensity_of(p)
+    assert reachable_trees(obj, lam).tolist() == [True]
+    assert reachable_trees(obj, intensity_of(np.where(p >= 1, 1.0, 0.0))).tolist() == [False]
+    q = default_quality(lam, None)
+    assert obj.figures(*state(lam, q, [0, 1]))["coverage"][0, 0] == pytest.approx(0.75)
+    g = lazy_greedy(obj, lam, 10)
+    assert g.chosen[0] == 2 and g.chosen[1] in (0, 1) and g.stop_reason == "goal met"
+    assert g.gains[0] == pytest.approx(0.55 / 0.7, rel=1e-5)
+    assert g.values[-1] == pytest.approx(1.0 + 1e-6 * 0.75, rel=1e-5)  # capped; tie-break
+    assert obj.figures(*state(lam, q, g.chosen))["coverage"][0, 0] == pytest.approx(0.775)
+    better = improve(obj, lam, g, reachable=np.array([True]))
+    assert len(better.chosen) == 2
+
+
 def test_budget_and_unreachable_goal():
     obj = Objective(_sample_set(np.zeros((4, 3)), np.zeros((4, 3))), 1.0, 0.0)
     q = _matrix([{0}, {1}, {2}], 4)  # sample 3: no candidate sees it
@@ -201,9 +275,10 @@ def test_band_samples_of_a_stem():
     assert s.stem_radius_m[0] == pytest.approx(0.2, abs=0.002)
     # sectors are contiguous blocks, band first then coverage
     assert s.block_sector.tolist() == list(range(36)) + [-1]
-    # from one side at 6 m the arc seen is the one the rule gives on the circle (a point
-    # at angle φ from the station's direction meets the beam at cos i = (d cos φ - r)/|PS|),
-    # to a sector (half a sector at each end); three stations 120° apart see all 360°
+    # from one side at 6 m the arc seen is the one the model gives on the circle (a point
+    # at angle φ from the station's direction meets the beam at cos i = (d cos φ - r)/|PS|;
+    # a sector counts when its expected share hit is >= ½, i.e. p >= ½ there), to a sector
+    # (half a sector at each end); three stations 120° apart see all 360°
     spec = ScannerSpec(horizontal_resolution_deg=0.05, vertical_resolution_deg=0.05)
     caster = VisibilityCaster(Scene([_part(stem, "stem", 5)]), s, nthreads=1)
     obj = Objective(s, 0.0, 360.0)
@@ -211,15 +286,16 @@ def test_band_samples_of_a_stem():
     phi = np.radians(np.arange(0, 180, 0.01))
     ps = np.hypot(d - r * np.cos(phi), r * np.sin(phi))
     cos_i = (d * np.cos(phi) - r) / ps
-    ok = (cos_i > 0) & max_spacing_ok(ps, cos_i, math.radians(0.05), tau)
+    p = hit_probability(ps, np.maximum(cos_i, 0), math.radians(0.05), tau)
+    ok = (cos_i > 0) & (p >= 0.5)
     arc_rule = 2 * np.degrees(phi[ok].max())
     assert 120 < arc_rule < 170  # the incidence limit bites
     a = np.radians([0, 120, 240])
     pos = np.column_stack([2 + d * np.cos(a), -1 + d * np.sin(a), np.full(3, 1.3)])
-    q = visibility(caster, pos, spec, tau).quality
-    one = obj.figures(q[0])["arc_deg"][0, 0]
+    lam = visibility(caster, pos, spec, tau).intensity
+    one = obj.figures(lam[0])["arc_deg"][0, 0]
     assert abs(one - arc_rule) <= 10.0
-    assert obj.figures(q.max(axis=0))["arc_deg"][0, 0] == pytest.approx(360.0)
+    assert obj.figures(lam.sum(axis=0))["arc_deg"][0, 0] == pytest.approx(360.0)
 
 
 # -- field time --------------------------------------------------------------------------
