@@ -74,17 +74,20 @@ class Objective:
     Parameters
     ----------
     samples : SampleSet
-    goal_coverage : float
-        0: no coverage goal.
+    goal_coverage : float or (t,) float
+        One goal for every tree, or one per tree (``samples.tree_ids`` order); 0: no
+        coverage goal (for that tree).
     goal_arc_deg : float
         0: no arc goal.
     """
 
-    def __init__(self, samples: SampleSet, goal_coverage: float, goal_arc_deg: float) -> None:
+    def __init__(
+        self, samples: SampleSet, goal_coverage: float | np.ndarray, goal_arc_deg: float
+    ) -> None:
         self.s = samples
-        self.g_cov = float(goal_coverage)
-        self.g_arc = float(goal_arc_deg)
         self.n_trees = len(samples.tree_ids)
+        self.g_cov = np.broadcast_to(np.asarray(goal_coverage, np.float64), (self.n_trees,)).copy()
+        self.g_arc = float(goal_arc_deg)
         st = samples.block_starts
         self.starts = st
         self.sizes = np.diff(np.append(st, len(samples))).astype(np.float64)
@@ -130,8 +133,9 @@ class Objective:
     def progress(self, figs: dict[str, np.ndarray]) -> np.ndarray:
         """(m, t) progress towards each tree's goal, 0 .. number of goals."""
         p = np.zeros_like(figs["coverage"])
-        if self.g_cov > 0:
-            p += np.minimum(1.0, figs["coverage"] / self.g_cov)
+        on = self.g_cov > 0
+        if on.any():
+            p[:, on] += np.minimum(1.0, figs["coverage"][:, on] / self.g_cov[on])
         if self.g_arc > 0:
             p += np.minimum(1.0, figs["arc_deg"] / self.g_arc)
         return p
@@ -140,8 +144,9 @@ class Objective:
         """(m, t) whether each tree meets its goal (coverage to within :data:`COVERAGE_SLACK`:
         a station sure to hit a sample covers it with probability ``1 − 1e-6``)."""
         ok = np.ones_like(figs["coverage"], dtype=bool)
-        if self.g_cov > 0:
-            ok &= figs["coverage"] >= self.g_cov - COVERAGE_SLACK
+        on = self.g_cov > 0
+        if on.any():
+            ok[:, on] &= figs["coverage"][:, on] >= self.g_cov[on] - COVERAGE_SLACK
         if self.g_arc > 0:
             ok &= figs["arc_deg"] >= self.g_arc - 1e-9
         return ok

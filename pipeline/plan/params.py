@@ -38,6 +38,14 @@ class PlanParams:
         ge=0,
         le=1,
     )
+    goal_margin: float = param(
+        0.05,
+        help="the stations are chosen to reach goal_coverage plus this margin where a "
+        "tree can (the visibility model's coverage errs by up to ~0.05 per tree on "
+        "average, tests/plan; verification and the verdict judge the goal itself)",
+        ge=0,
+        le=0.5,
+    )
     tolerance_m: float = param(
         0.02,
         help="coverage tolerance τ: a sample is seen with a return this close",
@@ -133,6 +141,7 @@ class PlanParams:
         """The goal, for ``plan.json``."""
         return {
             "coverage": self.goal_coverage,
+            "margin": self.goal_margin,
             "tolerance_m": self.tolerance_m,
             "dbh_arc_deg": self.dbh_arc_deg,
             "dbh_band_m": list(self.dbh_band_m),

@@ -23,7 +23,15 @@ from ..errors import InvalidParameterError
 from ..params import InstrumentPreset, ScannerSpec
 from ..scan import Station
 from ..scan.stations import station_distance_m
-from .cover import Objective, Selection, improve, lazy_greedy, reachable_trees, state
+from .cover import (
+    COVERAGE_SLACK,
+    Objective,
+    Selection,
+    improve,
+    lazy_greedy,
+    reachable_trees,
+    state,
+)
 from .layouts import Layout, TreeClearance, candidate_grid, classic_layouts
 from .params import PlanParams
 from .samples import SampleSet, TreeTarget, sample_trees
@@ -427,10 +435,20 @@ def plan_scans(
     lam, qual = vis.intensity, vis.quality
     reachable = reachable_trees(obj, lam, qual)
     ach = obj.figures(*state(lam, qual, range(len(lam))))
-    greedy = lazy_greedy(obj, lam, max_st, quality=qual, reachable=reachable)
+    # the stations aim above the goal by the margin, as far as each tree can reach
+    aim_cov = np.where(
+        p.goal_coverage > 0,
+        np.maximum(
+            p.goal_coverage,
+            np.minimum(p.goal_coverage + p.goal_margin, ach["coverage"][0] - COVERAGE_SLACK),
+        ),
+        0.0,
+    )
+    aim = Objective(samples, aim_cov, p.dbh_arc_deg)
+    greedy = lazy_greedy(aim, lam, max_st, quality=qual, reachable=reachable)
     timings["greedy"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sel = improve(obj, lam, greedy, quality=qual, reachable=reachable) if p.local_search else greedy
+    sel = improve(aim, lam, greedy, quality=qual, reachable=reachable) if p.local_search else greedy
     timings["swap_search"] = time.perf_counter() - t0
 
     figs = obj.figures(*state(lam, qual, sel.chosen))

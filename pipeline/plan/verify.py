@@ -125,7 +125,8 @@ def verify_plan(
         e = out[t.tree_id]
         e["coverage_samples"] = float(figs["coverage"][0, i])
         e["arc_deg"] = float(figs["arc_deg"][0, i])
-        cov_ok = objective.g_cov == 0 or e["coverage"] >= objective.g_cov - 1e-12
+        g = float(objective.g_cov[i])
+        cov_ok = g == 0 or e["coverage"] >= g - 1e-12
         arc_ok = objective.g_arc == 0 or e["arc_deg"] >= objective.g_arc - 1e-9
         e["goal_met"] = bool(cov_ok and arc_ok)
         e["goal_met_samples"] = bool(met[i])

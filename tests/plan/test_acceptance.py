@@ -91,14 +91,18 @@ def test_plot_plan_against_the_classic_layouts(plot_plan):
     assert 1 <= len(rows) <= r.max_stations
     assert all(row["predicted_gain"] > 0 for row in rows)
     assert rows[-1]["cumulative_field_time_min"] == pytest.approx(d["plan"]["field_time_min"])
-    # verified: a full-resolution scan of the plan meets the goal on all trees but at most
-    # one (the plan stops where the expected coverage reaches the goal; a tree's verified
-    # coverage lies within a few points of it, either side), and the prediction is close
+    # verified: a full-resolution scan of the plan meets the goal on every tree (the
+    # stations aim at the goal plus goal_margin, 0.05: a tree's verified coverage lies
+    # within a few points of the prediction, either side; without the margin one tree
+    # here verified at 0.799 for a goal of 0.8), and the prediction is close
     ver = r.verification
     assert ver is not None and ver["points"] > 0
-    assert ver["trees_meeting_goal"] >= len(r.targets) - 1, {
+    assert ver["trees_meeting_goal"] == len(r.targets), {
         t: (e["coverage"], e["arc_deg"]) for t, e in ver["trees"].items() if not e["goal_met"]
     }
+    # the acceptance, judged on the scans: fewer stations than the best classic
+    # layout that reaches the goal, or honestly as good
+    assert cmp_["verdict"] in ("plan better (verified)", "as good (verified)"), cmp_
     err = [
         r.predicted["coverage"][i] - ver["trees"][t.tree_id]["coverage"]
         for i, t in enumerate(r.targets)
