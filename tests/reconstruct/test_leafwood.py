@@ -34,9 +34,9 @@ def test_separation_finds_the_wood_of_the_leaf_on_aspen(leafon_scan):
     result = separate_leaves(pts)
     precision, recall = wood_scores(result.wood, truth)
     print(f"\naspen-leafon at {STEP_DEG} deg: wood precision {precision:.3f}, recall {recall:.3f}")
+    # issue 13 §4: at least 95 % of each (measured 0.974 and 0.981 at this step)
     assert precision >= 0.95
-    # 0.947 measured at this step: 95 % is not reached yet (see the README)
-    assert recall >= 0.94
+    assert recall >= 0.95
 
 
 def test_separation_refuses_a_tiny_cloud():
