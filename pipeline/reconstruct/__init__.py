@@ -219,7 +219,7 @@ def reconstruct(
     prepared = prepare(cloud, params.prepare, normals=params.method != "qsm")
     t_prep = time.perf_counter() - t0
     separated = _separate(prepared, params, say)
-    if separated is not None:
+    if separated is not None and separated.used:
         prepared = separated.wood
     say(0.3, f"reconstructing ({params.method})")
     t1 = time.perf_counter()
@@ -243,9 +243,9 @@ def reconstruct(
 def _separate(prepared: PreparedCloud, params: ReconstructParams, say: Any) -> Any:
     """Wood/leaf separation when ``params.separate_leaves`` asks for it (else None)."""
     mode = params.separate_leaves
-    if mode == "off" or (mode == "auto" and not prepared.leaves_present):
+    if mode == "off":
         return None
-    say(0.2, "separating wood from leaves")
+    say(0.2, "separating wood from leaves" if mode == "on" else "looking for leaves")
     from ._leaves import separate
 
     return separate(prepared, mode)
