@@ -36,7 +36,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.cloud import LABEL_CODES, Cloud  # noqa: E402
 from pipeline.reconstruct import ReconstructParams, reconstruct  # noqa: E402
 from pipeline.reconstruct.leafwood import separate_leaves  # noqa: E402
-from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores  # noqa: E402
+from tests.reconstruct.leafon import (  # noqa: E402
+    labelled_voxels,
+    scan_preset,
+    slab_circle_diameter_m,
+    wood_scores,
+)
 
 TREES = Path(__file__).resolve().parents[2] / "shared" / "data" / "trees"
 LILLE = TREES / "adtree" / "Lille_2.xyz"
@@ -111,6 +116,7 @@ def main() -> None:
     ap.add_argument(
         "--auto", action="store_true", help="only the table of what auto reads on each cloud"
     )
+    ap.add_argument("--lille-only", action="store_true", help="only the real Lille tree")
     args = ap.parse_args()
     print(
         f"bench_leaves ({date.today()}, {platform.processor() or platform.machine()}, "
@@ -120,8 +126,14 @@ def main() -> None:
     if args.auto:
         auto_table()
         return
-    tree_on, on = scan_preset("aspen-leafon", args.step)
-    tree_off, off = scan_preset("aspen", args.step)
+    if not args.lille_only:
+        procedural(args.step)
+    lille()
+
+
+def procedural(step: float) -> None:
+    tree_on, on = scan_preset("aspen-leafon", step)
+    tree_off, off = scan_preset("aspen", step)
     truth = tree_off.truth(32)
     pts, wood = labelled_voxels(on.points, on.fields["label"] == LABEL_CODES["wood"], 0.005)
     t0 = time.perf_counter()
@@ -136,14 +148,27 @@ def main() -> None:
     qsm_row("aspen (leaf-off)", off.points, truth, "off")
     qsm_row("aspen-leafon, not separated", on.points, truth, "off")
     qsm_row("aspen-leafon, separated", on.points, truth, "on")
+
+
+def lille() -> None:
+    """Lille_2: its stem slab's own circles, then the QSM with separation off and auto."""
     if not LILLE.is_file():
         print(f"Lille: skipped ({LILLE} is absent)")
         return
     from pipeline.io import read_cloud
 
     cloud = read_cloud(LILLE)
+    heights = (0.5, 0.8, 1.0, 1.3, 1.6, 2.0, 2.4)
+    circles = [slab_circle_diameter_m(cloud.points, h) * 100 for h in heights]
+    print(
+        "Lille_2 stem slabs (20 cm), circle diameter: "
+        + ", ".join(f"{d:.1f} cm at {h} m" for h, d in zip(heights, circles, strict=True))
+    )
     for mode in ("off", "auto"):
-        fig = reconstruct(cloud, ReconstructParams(separate_leaves=mode)).figures
+        model = reconstruct(cloud, ReconstructParams(separate_leaves=mode))
+        fig, cyl = model.figures, model.cylinders
+        thin = cyl.radius_m < 0.01
+        twigs = float(np.sum(np.pi * cyl.radius_m[thin] ** 2 * cyl.length_m[thin]))
         labels = (
             f", {fig['points_wood']:,} wood / {fig['points_leaf']:,} leaf points"
             if "points_wood" in fig
@@ -152,7 +177,8 @@ def main() -> None:
         share = f", leaf share {fig['leaf_share']:.3f}" if "leaf_share" in fig else ""
         print(
             f"Lille_2, separation {mode}: DBH {fig['dbh_m'] * 100:.1f} cm, total "
-            f"{fig['volume_total_m3']:.2f} m³ (stem {fig['volume_stem_m3']:.2f} m³){labels}{share}"
+            f"{fig['volume_total_m3']:.2f} m³ (stem {fig['volume_stem_m3']:.2f} m³, "
+            f"under 1 cm radius {twigs:.2f} m³){labels}{share}"
         )
 
 

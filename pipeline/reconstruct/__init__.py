@@ -75,7 +75,10 @@ class TreeModel:
     figures : dict
         ``dbh_m``, ``height_m``, ``volume_total_m3``, ``volume_stem_m3``,
         ``volume_branch_m3``, ``n_cylinders``, ``watertight``, ``n_triangles``,
-        ``branches_per_order``, crown extent, ``leaves_present``... For qsm the volumes
+        ``branches_per_order``, crown extent, ``leaves_present`` (with ``separate_leaves``
+        auto or on: the wood/leaf classifier's ``leaf_share`` reached
+        ``_leaves.LEAF_SHARE_CUT``; with off: preparation's ``leaf_fraction``, a cheaper
+        and less reliable measure, reached its cut)... For qsm the volumes
         are the cylinder table's; ``mesh_volume_m3`` is the mesh's (its closed tubes'
         volumes summed: the table's inscribed prisms plus ``junction_volume_m3``, the
         branch starts sunk into their parents), ``n_tubes`` its closed pieces.

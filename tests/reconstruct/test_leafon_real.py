@@ -9,25 +9,14 @@ at 0.5-1.3 m give 51-52 cm. The QSM's DBH must agree with that arc, not with the
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from pipeline.io import read_cloud
 from pipeline.reconstruct import ReconstructParams, reconstruct
 from tests.conftest import shared_path
+from tests.reconstruct.leafon import slab_circle_diameter_m
 
 pytestmark = pytest.mark.shared_data
-
-
-def slab_circle_diameter_m(points: np.ndarray, height_m: float = 1.3, band_m: float = 0.2):
-    """Diameter of the algebraic (Kåsa) circle through the slab's points at ``height_m``
-    above the lowest point: an estimate independent of the QSM."""
-    z0 = points[:, 2].min()
-    q = points[np.abs(points[:, 2] - z0 - height_m) <= band_m / 2, :2]
-    q = q - q.mean(axis=0)
-    a = np.column_stack([2 * q, np.ones(len(q))])
-    c, *_ = np.linalg.lstsq(a, (q**2).sum(axis=1), rcond=None)
-    return 2.0 * float(np.sqrt(c[2] + c[0] ** 2 + c[1] ** 2))
 
 
 # leaf share the classifier reads (benchmarks/bench_leaves.py --auto): Lille 0.34,
