@@ -12,11 +12,14 @@ standard and costs about four times as much):
    (``--separate-leaves off``: leaves taken for twigs), the leaf-on scan separated
    (``on``); with the number of modelled leaves and their area beside the truth's.
 3. On the real leaf-on Lille tree (``../shared/data/trees/adtree/Lille_2.xyz``, skipped
-   when absent): DBH, volumes and points per label with separation off and auto.
+   when absent): circles fitted to its own stem slabs (the DBH the cloud shows), then
+   DBH, volumes (and the volume in cylinders under 1 cm radius, where leaves taken for
+   twigs go) and points per label with separation off and auto.
 
-Usage: ``python benchmarks/bench_leaves.py [--step-deg 0.08] [--auto]`` (``--auto``: only
-the table of what ``--separate-leaves auto`` reads on every preset and real cloud).
-Prints measured figures only; about 5 minutes at 0.08° on 2 cores.
+Usage: ``python benchmarks/bench_leaves.py [--step-deg 0.08] [--auto] [--lille-only]``
+(``--auto``: only the table of what ``--separate-leaves auto`` reads on every preset and
+real cloud, about 5 minutes; ``--lille-only``: only step 3, seconds). Prints measured
+figures only; about 5 minutes at 0.08° and 10 at 0.04° on 2 cores.
 """
 
 from __future__ import annotations
