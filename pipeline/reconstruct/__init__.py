@@ -75,7 +75,10 @@ class TreeModel:
     figures : dict
         ``dbh_m``, ``height_m``, ``volume_total_m3``, ``volume_stem_m3``,
         ``volume_branch_m3``, ``n_cylinders``, ``watertight``, ``n_triangles``,
-        ``branches_per_order``, crown extent, ``leaves_present``... For qsm the volumes
+        ``branches_per_order``, crown extent, ``leaves_present`` (with ``separate_leaves``
+        auto or on: the wood/leaf classifier's ``leaf_share`` reached
+        ``_leaves.LEAF_SHARE_CUT``; with off: preparation's ``leaf_fraction``, a cheaper
+        and less reliable measure, reached its cut)... For qsm the volumes
         are the cylinder table's; ``mesh_volume_m3`` is the mesh's (its closed tubes'
         volumes summed: the table's inscribed prisms plus ``junction_volume_m3``, the
         branch starts sunk into their parents), ``n_tubes`` its closed pieces.
@@ -219,7 +222,7 @@ def reconstruct(
     prepared = prepare(cloud, params.prepare, normals=params.method != "qsm")
     t_prep = time.perf_counter() - t0
     separated = _separate(prepared, params, say)
-    if separated is not None:
+    if separated is not None and separated.used:
         prepared = separated.wood
     say(0.3, f"reconstructing ({params.method})")
     t1 = time.perf_counter()
@@ -243,9 +246,9 @@ def reconstruct(
 def _separate(prepared: PreparedCloud, params: ReconstructParams, say: Any) -> Any:
     """Wood/leaf separation when ``params.separate_leaves`` asks for it (else None)."""
     mode = params.separate_leaves
-    if mode == "off" or (mode == "auto" and not prepared.leaves_present):
+    if mode == "off":
         return None
-    say(0.2, "separating wood from leaves")
+    say(0.2, "separating wood from leaves" if mode == "on" else "looking for leaves")
     from ._leaves import separate
 
     return separate(prepared, mode)

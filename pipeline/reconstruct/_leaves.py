@@ -15,7 +15,7 @@ import numpy as np
 
 from ..cloud import LABEL_CODES, LABEL_NAMES, Cloud
 from ..errors import ReconstructionError
-from .leafwood import separate_leaves
+from .leafwood import MIN_POINTS, separate_leaves
 
 if TYPE_CHECKING:
     from ..params import ReconstructParams
@@ -23,6 +23,14 @@ if TYPE_CHECKING:
 
 #: Fewest wood points the model is built from after separation.
 MIN_WOOD_POINTS = 100
+#: Share of the points (weighted by the input points they stand for) that the classifier
+#: calls leaf from which ``auto`` separates. Measured (2026-11-25, classifier of
+#: leafwood_model.json, benchmarks/bench_leaves.py --auto): leaf-off procedural presets
+#: (aspen, sapling, old-tupelo scanned at 0.04-0.12 deg) 0.000-0.135, leaf-on ones
+#: (aspen-leafon, balsam-fir) 0.56-0.63; real clouds: coffee tree 0.015, aRchi tree 0.056
+#: (leaf-off), AdTree tree7 0.195 (leaf clumps in its top), needle-on pine 0.255, leaf-on
+#: Lille 0.338. The cut sits between the highest leaf-off and the lowest leaf-on reading.
+LEAF_SHARE_CUT = 0.165
 
 
 @dataclass
@@ -33,6 +41,9 @@ class Separated:
     wood_mask: np.ndarray
     figures: dict[str, Any]
     seconds: float
+    #: False where ``auto`` found too few leaves: the model is built from every point and
+    #: only the figures (``leaf_share``, ``leaves_present``) are added.
+    used: bool = True
 
     @property
     def wood(self) -> PreparedCloud:
@@ -60,6 +71,10 @@ class Separated:
         """Add to a ``TreeModel`` the labels, the figures and the leaf quads (if asked)."""
         from ..models.leaves import leaf_layer
 
+        model.timings_s["separate_leaves"] = self.seconds
+        if not self.used:
+            model.figures.update(self.figures)
+            return
         model.labels = self.labels()
         figures = dict(self.figures)
         t0 = time.perf_counter()
@@ -82,18 +97,31 @@ class Separated:
                 n_triangles_leaf=int(len(layer.faces)),
             )
         model.figures.update(figures)
-        model.timings_s["separate_leaves"] = self.seconds
         model.timings_s["leaf_layer"] = time.perf_counter() - t0
 
 
-def separate(prepared: PreparedCloud, mode: str) -> Separated:
-    """Label the prepared points wood or leaf (``mode``: how it was asked for)."""
+def separate(prepared: PreparedCloud, mode: str) -> Separated | None:
+    """Label the prepared points wood or leaf (``mode``: ``on`` or ``auto``).
+
+    ``auto`` keeps the labels only where the classifier calls at least
+    :data:`LEAF_SHARE_CUT` of the points leaf (else the result has ``used`` False), and
+    returns None for a cloud too small to classify.
+    """
     t0 = time.perf_counter()
+    if mode == "auto" and len(prepared.points) < MIN_POINTS:
+        return None
     result = separate_leaves(prepared.points)
+    w = prepared.weights
+    share = float(w[~result.wood].sum() / w.sum()) if w.sum() > 0 else 0.0
+    leafy = share >= LEAF_SHARE_CUT
+    figures: dict[str, Any] = {"leaf_share": share, "leaves_present": leafy}
+    if mode == "auto" and not leafy:
+        figures["leaf_separation"] = "off (auto: no leaves found)"
+        return Separated(prepared, result.wood, figures, time.perf_counter() - t0, used=False)
     if int(result.wood.sum()) < MIN_WOOD_POINTS:
         raise ReconstructionError(
             f"wood/leaf separation found only {int(result.wood.sum())} wood points of "
             f"{len(result.wood)}; reconstruct with --separate-leaves off"
         )
-    figures = {"leaf_separation": mode, **result.summary(prepared.weights)}
+    figures.update(leaf_separation=mode, **result.summary(prepared.weights))
     return Separated(prepared, result.wood, figures, time.perf_counter() - t0)

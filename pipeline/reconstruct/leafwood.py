@@ -5,7 +5,8 @@ A leaf-on cloud handed to the QSM as it is gives nonsense: leaves are taken for 
 every point ``wood`` or ``leaf`` so that the QSM sees the wood only.
 
 The classifier is CANUPO's kind (Brodu & Lague 2012, ISPRS J. 68:121): multiscale
-eigen features, then a linear decision, here with two rounds of context (auto-context):
+eigen features, then a learned decision (CANUPO's is linear; here a small network), with
+two rounds of context (auto-context):
 
 1. **Eigen features** of each point's neighbourhood at several scales, computed with
    pgeof (C++; MIT): linearity, planarity, scattering, verticality, normal, length,
@@ -15,14 +16,18 @@ eigen features, then a linear decision, here with two rounds of context (auto-co
    stays linear). A stem is planar at a small scale and linear at a large one; a twig is
    linear at every scale; a leaf blade (3-15 cm) is planar at its own scale and scattered
    at a larger one.
-2. A logistic score of those features gives a first wood probability.
+2. A small neural network (one hidden layer of 32 tanh units, a logistic output) scores
+   those features: a first wood probability. A linear (logistic) score, CANUPO's own
+   decision, left wood recall at 0.947 on the aspen-leafon test scan: which features
+   mark wood depends on the scale of the branch (a stem is planar where a twig is
+   linear), a conjunction a linear score cannot express.
 3. **Context**, twice: the mean wood probability of the 4 ... 32 nearest neighbours, and
    the shape of the *candidate wood skeleton* around each point: the linearity,
    planarity and verticality of the 8 and 16 nearest candidate wood points (probability
    above ½), and the distance to the nearest of them. A twig hidden among leaves is a
    clean line once the leaves are set aside; a blade seen edge-on is a short line with
-   no candidate wood continuing it. A new logistic score uses these with the features
-   of step 1.
+   no candidate wood continuing it. A new network scores these with the features of
+   step 1.
 4. A point is wood where the last score exceeds the model's threshold (the score at
    which precision equals recall on the training scans).
 
@@ -85,7 +90,7 @@ class LeafWoodResult:
     wood : (n,) bool
         True where the point is wood.
     score : (n,) float64
-        The last stage's logistic score (log-odds of wood); ``wood = score > threshold``.
+        The last stage's score (log-odds of wood); ``wood = score > threshold``.
     threshold : float
     """
 
@@ -194,14 +199,18 @@ def _model() -> dict[str, Any]:
             "run scripts/fit_leafwood.py"
         ) from exc
     for stage in model["stages"]:
-        for key in ("mean", "scale", "weights"):
-            stage[key] = np.asarray(stage[key], dtype=np.float64)
+        for key in ("mean", "scale", "weights", "W1", "b1", "w2", "b2"):
+            if key in stage:
+                stage[key] = np.asarray(stage[key], dtype=np.float64)
     return model
 
 
 def stage_score(stage: dict[str, Any], x: np.ndarray) -> np.ndarray:
-    """One stage's logistic score (log-odds of wood) of the feature rows ``x``."""
+    """One stage's score (log-odds of wood) of the feature rows ``x``: a one-hidden-layer
+    network (``W1``, ``b1``, ``w2``, ``b2``) or a linear score (``weights``, bias last)."""
     z = (x - stage["mean"]) / stage["scale"]
+    if "W1" in stage:
+        return np.tanh(z @ stage["W1"] + stage["b1"]) @ stage["w2"] + float(stage["b2"][0])
     return z @ stage["weights"][:-1] + stage["weights"][-1]
 
 

@@ -55,3 +55,14 @@ def wood_scores(wood: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """Wood precision and recall of the labels ``wood`` against ``truth`` (both bool)."""
     tp = float((wood & truth).sum())
     return tp / max(int(wood.sum()), 1), tp / max(int(truth.sum()), 1)
+
+
+def slab_circle_diameter_m(points: np.ndarray, height_m: float = 1.3, band_m: float = 0.2):
+    """Diameter of the algebraic (Kåsa) circle through the slab's points at ``height_m``
+    above the lowest point: an estimate independent of the QSM."""
+    z0 = points[:, 2].min()
+    q = points[np.abs(points[:, 2] - z0 - height_m) <= band_m / 2, :2]
+    q = q - q.mean(axis=0)
+    a = np.column_stack([2 * q, np.ones(len(q))])
+    c, *_ = np.linalg.lstsq(a, (q**2).sum(axis=1), rcond=None)
+    return 2.0 * float(np.sqrt(c[2] + c[0] ** 2 + c[1] ** 2))

@@ -34,9 +34,9 @@ def test_separation_finds_the_wood_of_the_leaf_on_aspen(leafon_scan):
     result = separate_leaves(pts)
     precision, recall = wood_scores(result.wood, truth)
     print(f"\naspen-leafon at {STEP_DEG} deg: wood precision {precision:.3f}, recall {recall:.3f}")
+    # issue 13 §4: at least 95 % of each (measured 0.974 and 0.981 at this step)
     assert precision >= 0.95
-    # 0.947 measured at this step: 95 % is not reached yet (see the README)
-    assert recall >= 0.94
+    assert recall >= 0.95
 
 
 def test_separation_refuses_a_tiny_cloud():
@@ -83,3 +83,29 @@ def test_reconstruct_off_by_default_on_leaf_off_clouds():
     pts = np.column_stack([0.1 * np.cos(t.ravel()), 0.1 * np.sin(t.ravel()), z.ravel()])
     model = reconstruct(Cloud(pts))
     assert model.labels is None and "points_wood" not in model.figures
+
+
+# auto: the classifier's leaf share decides. Cases where preparation's normal-spread
+# measure (the former statistic) read on the wrong side of its 0.25 cut: a sparse
+# leaf-on scan (aspen-leafon at 0.12 deg: 0.04; balsam-fir: 0.19) and a dense leaf-off
+# one (sapling at 0.04 deg: 0.19).
+@pytest.mark.parametrize(
+    ("preset", "step_deg", "leafy"),
+    [
+        ("aspen-leafon", 0.12, True),
+        ("balsam-fir", 0.12, True),
+        ("aspen", 0.12, False),
+        ("sapling", 0.04, False),
+    ],
+)
+def test_auto_tells_leaf_on_from_leaf_off(preset, step_deg, leafy):
+    from pipeline.reconstruct._leaves import LEAF_SHARE_CUT, separate
+    from pipeline.reconstruct.preprocess import prepare
+
+    _, cloud = scan_preset(preset, step_deg)
+    sep = separate(prepare(cloud.points, normals=False), "auto")
+    share = sep.figures["leaf_share"]
+    print(f"\n{preset} at {step_deg} deg: leaf share {share:.3f}")
+    assert sep.used is leafy and sep.figures["leaves_present"] is leafy
+    # with a margin: leaf-on presets read 0.56-0.63, leaf-off ones at most 0.135
+    assert (share > LEAF_SHARE_CUT + 0.1) if leafy else (share < LEAF_SHARE_CUT - 0.05)
