@@ -221,6 +221,7 @@ class VisibilityCaster:
         self.thickness_m = self._thickness()
         self.thickness_s = time.perf_counter() - t0
         self.n_triangles = len(scene.faces)
+        self._disc: dict[float, np.ndarray] = {}
 
     def _cast(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``t_hit`` and the unit normal of the triangle hit, per ray."""
@@ -240,29 +241,35 @@ class VisibilityCaster:
             out[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
         return out + eps
 
-    def _disc_fraction(self, o: np.ndarray, which: np.ndarray, tau_m: float) -> np.ndarray:
-        """Per sample ``which``, the share of :data:`DISC_RAYS` rays from ``o`` to points of
-        the disc of radius τ round it in its tangent plane whose first hit lies within τ
-        of it: how much of the disc is surface the station sees."""
-        pts = self.pts[which]
-        n = self.samples.normals[which]
-        e = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0, 0]], [[0, 1.0, 0]])
-        u = np.cross(n, e)
-        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-        v = np.cross(n, u)
-        off = tau_m * (_DISC[:, 0, None, None] * u[None] + _DISC[:, 1, None, None] * v[None])
-        tgt = (pts[None] + off).reshape(-1, 3)  # (m·s, 3), ray by ray: disc point, sample
-        rays = np.empty((len(tgt), 6))
-        rays[:, :3] = o
-        rays[:, 3:] = tgt - o
-        t_hit = np.empty(len(tgt))
-        for k in range(0, len(tgt), _CHUNK):
-            t_hit[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
-        hit = o + np.where(np.isfinite(t_hit), t_hit, 0.0)[:, None] * rays[:, 3:]
-        near = np.isfinite(t_hit) & (
-            np.linalg.norm(hit - np.tile(pts, (len(_DISC), 1)), axis=1) <= tau_m
-        )
-        return near.reshape(len(_DISC), -1).mean(axis=0)
+    def _disc_fraction(self, which: np.ndarray, tau_m: float) -> np.ndarray:
+        """Per sample ``which``, the share of :data:`DISC_RAYS` points of the disc of radius
+        τ round it in its tangent plane that are surface of it: a ray down the sample's
+        normal from ``2τ`` above each disc point must first meet a surface within τ of the
+        sample (a leaf smaller than the disc, an edge, or a twig just in front, leave
+        part of it bare). Measured once per sample and τ, not per station: the planner's
+        cost then follows the candidates, not the triangles near the surface (the disc
+        rays run among them); the station's own view of the sample is its central ray."""
+        key = float(tau_m)
+        if key not in self._disc:
+            pts = self.pts
+            n = self.samples.normals
+            e = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0, 0]], [[0, 1.0, 0]])
+            u = np.cross(n, e)
+            u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+            v = np.cross(n, u)
+            off = tau_m * (_DISC[:, 0, None, None] * u[None] + _DISC[:, 1, None, None] * v[None])
+            tgt = (pts[None] + off).reshape(-1, 3)  # (s·m, 3), disc point by disc point
+            down = np.tile(n, (len(_DISC), 1))
+            rays = np.concatenate([tgt + 2.0 * tau_m * down, -down], axis=1)
+            t_hit = np.empty(len(tgt))
+            for k in range(0, len(tgt), _CHUNK):
+                t_hit[k : k + _CHUNK] = self._cast(rays[k : k + _CHUNK])[0]
+            hit = rays[:, :3] + np.where(np.isfinite(t_hit), t_hit, 0.0)[:, None] * rays[:, 3:]
+            near = np.isfinite(t_hit) & (
+                np.linalg.norm(hit - np.tile(pts, (len(_DISC), 1)), axis=1) <= tau_m
+            )
+            self._disc[key] = near.reshape(len(_DISC), -1).mean(axis=0)
+        return self._disc[key][which]
 
     def trees_in_view(self, o: np.ndarray, spec: ScannerSpec) -> np.ndarray:
         """Indices of the trees whose sample box lies within range and the vertical field
@@ -328,7 +335,7 @@ class VisibilityCaster:
         frac = np.ones(len(cand))
         surf = np.flatnonzero(first & (w >= r_hit * step))
         if len(surf):
-            frac[surf] = self._disc_fraction(o, idx[cand[surf]], tau_m)
+            frac[surf] = self._disc_fraction(idx[cand[surf]], tau_m)
         pc = np.where(first, hit_probability(r_hit, cos_inc, step, tau_m, w, frac), 0.0)
         seen = np.flatnonzero(pc > 0)
         prob[idx[cand[seen]]] = pc[seen]

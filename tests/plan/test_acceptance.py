@@ -159,4 +159,5 @@ def test_one_tree_recovers_the_three_station_ring():
     # the candidate grid's angular resolution at the nearest chosen station
     d_min = float(np.hypot(st[:, 0] - axis[0], st[:, 1] - axis[1]).min())
     tol = math.degrees(2 * spacing / d_min)
+    print("\nring gaps (deg):", np.round(gaps, 1), "tolerance", round(float(tol), 1))
     assert np.all(np.abs(gaps - 120) <= tol), (gaps, tol)
