@@ -164,7 +164,9 @@ class PlanResult:
                 "(thickness w >= a) the share of the plane within τ of a pulse lattice of "
                 "cell a × a/cos i, a = range × angular step (π·τ²·cos i/a² when the cell is "
                 "at least 2τ each way, 1 when ½·√(a² + (a/cos i)²) <= τ); on a thinner "
-                "feature min(1, 2·τ·w/a²). Stations hit independently: a set covers a sample "
+                "feature min(1, 2·τ·w/a²); on a surface at most f·π·τ²·cos i/a², f the share "
+                "of the τ disc round the sample that is its own surface. Stations hit "
+                "independently: a set covers a sample "
                 "with probability 1 − Π(1 − p); coverage is its expected share of samples"
             ),
             "plot": self.plot_info,

@@ -39,6 +39,10 @@ some point of the grid falls within τ of it.
   length, the ``w/a`` share of one cell's pulse: it is hit once per ``a²/w`` of its length
   on average. The sample is covered when a hit falls within ``±τ`` along the feature:
   ``p = min(1, 2·τ·w / a²)`` (1 when the hits are at most ``2τ`` apart).
+* On a surface, ``p`` is capped at ``f·π·τ² / (a·b)``, ``f`` the share of the τ disc
+  round the sample that is surface of it (a leaf smaller than the disc, an edge):
+  :data:`DISC_RAYS` rays down the sample's normal, measured once per sample
+  (:meth:`VisibilityCaster._disc_fraction`), not per station.
 
 **Stations together.** Each station's grid phase is independent of the others', so a set
 ``S`` of stations covers a sample with ``P = 1 − Π_S (1 − p_s) = 1 − exp(−Σ_S λ_s)`` with
@@ -54,9 +58,9 @@ equally (better incidence, even spacing around stems).
 **Cost.** One Open3D ``RaycastingScene`` holds the whole plot (trees and terrain, float32 in a
 float64 local frame around the plot). A candidate casts one ray per sample of only the
 trees whose bounding box lies within its range and field of view (the scanner's angular
-window of a box, :func:`pipeline.scan.rays.box_window`). The cost is rays × log(triangles):
-it grows with the candidates and samples, and only logarithmically with the scene's
-triangles (built once).
+window of a box, :func:`pipeline.scan.rays.box_window`). The cost is rays × the BVH's
+traversal: it grows with the candidates and samples, and slowly with the scene's
+triangles (``benchmarks/bench_plan.py``), whose BVH is built once.
 """
 
 from __future__ import annotations
