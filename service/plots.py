@@ -19,7 +19,6 @@ treesim's message.
 
 from __future__ import annotations
 
-import math
 import shutil
 import stat
 import tempfile
@@ -37,8 +36,7 @@ from pipeline.errors import (
     ResourceLimitError,
     TreesimError,
 )
-from pipeline.params import param
-from pipeline.params._fields import check_bounds
+from pipeline.plot.generate import StandParams as _Stand
 
 __all__ = [
     "MAX_ENTRIES",
@@ -255,67 +253,17 @@ def inspect_plot_archive(
 
 # -- a stand the job generates ------------------------------------------------------------------
 @dataclass(frozen=True, kw_only=True)
-class StandParams:
-    """A synthetic stand a job generates itself (as treesim plot generate)."""
-
-    species: str = param(
-        "aspen",
-        help="species and their shares, NAME:SHARE,... (e.g. aspen:0.6,balsam-fir:0.4)",
-    )
-    stems_per_ha: float = param(600.0, help="stand density (stems per hectare)", gt=0, le=20_000)
-    radius_m: float = param(15.0, help="plot radius", unit="m", gt=0, le=100)
-    seed: int = param(0, help="seed of the stand and its trees", ge=0, le=2**31 - 1)
-    count: str = param(
-        "exact",
-        help="number of trees: exact (rounded stems/ha x area) or Poisson",
-        choices=("exact", "poisson"),
-    )
-    mean_dbh_m: float | None = param(
-        None,
-        help="mean DBH of every species",
-        unit="m",
-        none_means="each preset tree's own",
-        gt=0,
-        le=3,
-    )
-    weibull_shape: float = param(3.0, help="Weibull shape of the DBHs", gt=0, le=50)
-    slope_deg: float = param(0.0, help="terrain slope (0: flat)", unit="deg", ge=0, lt=60)
-    aspect_deg: float = param(
-        0.0, help="direction the slope faces, compass degrees", unit="deg", ge=0, lt=360
-    )
-    leaves: bool | None = param(None, help="procedural leaves", none_means="the species' own")
-    facets: int = param(16, help="vertices per ring of the trees' tubes", ge=3, le=64)
+class StandParams(_Stand):
+    """A synthetic stand a job generates itself (as treesim plot generate), of at most
+    :data:`MAX_TREES` trees."""
 
     def __post_init__(self) -> None:
-        check_bounds(self)
-        from pipeline.plot.generate import parse_shares
-
-        parse_shares(self.species)  # names a species that does not exist
-        expected = self.stems_per_ha * math.pi * self.radius_m**2 / 1e4
-        if expected > MAX_TREES:
+        super().__post_init__()
+        if self.expected_trees > MAX_TREES:
             raise InvalidParameterError(
                 f"stems_per_ha {self.stems_per_ha:g} on a {self.radius_m:g} m plot is "
-                f"{expected:,.0f} trees; a generated stand has at most {MAX_TREES:,}"
+                f"{self.expected_trees:,.0f} trees; a generated stand has at most {MAX_TREES:,}"
             )
-
-    def generate(self) -> tuple[Any, dict[str, Any]]:
-        """(plot, stand): :func:`pipeline.plot.generate.generate_stand`."""
-        from pipeline.plot import Terrain
-        from pipeline.plot.generate import generate_stand
-
-        kind = "slope" if self.slope_deg else "flat"
-        return generate_stand(
-            self.species,
-            self.stems_per_ha,
-            self.radius_m,
-            self.seed,
-            terrain=Terrain(kind=kind, slope_deg=self.slope_deg, aspect_deg=self.aspect_deg),
-            facets=self.facets,
-            count=self.count,
-            mean_dbh_m=self.mean_dbh_m,
-            weibull_shape=self.weibull_shape,
-            leaves=self.leaves,
-        )
 
 
 # -- where a job's plot comes from ---------------------------------------------------------------

@@ -12,66 +12,35 @@
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from ..errors import InvalidParameterError
 from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
-from ..params.models import ModelParams
+from ..plot.generate import StandParams
 from ._options import collect, floats_type, number_type, param_option, param_options, whole_number
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
 
-def _positive(what: str):
-    def read(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{what}: expected a number > 0, got {text!r}"
-            ) from None
-        if not (math.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"{what}: expected a number > 0, got {text!r}")
-        return v
-
-    return read
-
-
-def _terrain(args: argparse.Namespace):
+def _terrain(args: argparse.Namespace, sp: StandParams):
     from ..plot import Terrain
 
-    slope = args.slope_deg or 0.0
-    kind = args.terrain or ("slope" if slope else "flat")
+    kind = args.terrain or ("slope" if sp.slope_deg else "flat")
     path = None
     if args.terrain_path:
         path = str(Path(args.terrain_path).resolve())
-    return Terrain(kind=kind, slope_deg=slope, aspect_deg=args.aspect_deg or 0.0, path=path)
+    return Terrain(kind=kind, slope_deg=sp.slope_deg, aspect_deg=sp.aspect_deg, path=path)
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
     from ..params import merge
-    from ..params.models import ModelParams
-    from ..plot.generate import DEFAULT_RADIUS_M, generate_stand, write_map
+    from ..plot.generate import write_map
     from ..plot.io import PLOT_FILE, write_plot
 
-    mp = merge(ModelParams(), collect(args))
-    radius = DEFAULT_RADIUS_M if args.radius_m is None else args.radius_m
-    extra = {k: getattr(args, k) for k in ("weibull_shape",) if getattr(args, k) is not None}
-
+    sp = merge(StandParams(), collect(args))
+    radius = sp.radius_m
     out = output_folder(args.output, files=[PLOT_FILE, "trees.csv", "map.png"])
-    plot, stand = generate_stand(
-        args.species,
-        args.stems_per_ha,
-        radius,
-        mp.seed,
-        terrain=_terrain(args),
-        facets=mp.facets,
-        count=args.count,
-        mean_dbh_m=args.mean_dbh_m,
-        leaves=mp.leaves,
-        **extra,
-    )
+    plot, stand = sp.generate(_terrain(args, sp))
     out.mkdir(parents=True, exist_ok=True)
     path = write_plot(out / PLOT_FILE, plot, stand=stand)
     files = [path, out / "trees.csv"]
@@ -169,7 +138,6 @@ def cmd_scan(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plot`` and its subcommands to ``treesim``'s parser."""
     from ..plot import TERRAIN_KINDS
-    from ..plot.generate import COUNT_RULES
 
     p = sub.add_parser("plot", help="forest plots: generate a stand, scan a plot")
     psub = p.add_subparsers(dest="plot_command", metavar="SUBCOMMAND", required=True)
@@ -182,57 +150,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "sequential inhibition (see the README's Plots section). Writes plot.toml, trees.csv "
         "and map.png into -o.",
     )
-    g.add_argument(
-        "--species",
-        required=True,
-        metavar="NAME:SHARE,...",
-        help="species and their shares, e.g. aspen:0.6,balsam-fir:0.4",
-    )
-    g.add_argument(
-        "--stems-per-ha",
-        type=_positive("--stems-per-ha"),
-        required=True,
-        metavar="N",
-        help="stand density (stems per hectare)",
-    )
-    g.add_argument(
-        "--radius-m",
-        type=_positive("--radius-m"),
-        metavar="M",
-        help="plot radius (m; default 15)",
-    )
-    g.add_argument(
-        "--count",
-        choices=COUNT_RULES,
-        default="exact",
-        help="number of trees: exact (rounded stems/ha x area; default) or Poisson",
-    )
-    g.add_argument(
-        "--mean-dbh-m",
-        type=_positive("--mean-dbh-m"),
-        metavar="M",
-        help="mean DBH of every species (default: each preset tree's own)",
-    )
-    g.add_argument(
-        "--weibull-shape",
-        type=_positive("--weibull-shape"),
-        metavar="K",
-        help="Weibull shape of the DBHs (default 3, even-aged)",
-    )
-    param_options(g, ModelParams, ["seed", "facets", "leaves"])
+    param_option(g, StandParams, "species", metavar="NAME:SHARE,...", required=True)
+    param_options(
+        g,
+        StandParams,
+        ["stems_per_ha", "radius_m", "count", "mean_dbh_m", "weibull_shape", "seed", "facets",
+         "leaves", "slope_deg", "aspect_deg"],
+    )  # fmt: skip
     g.add_argument("--terrain", choices=TERRAIN_KINDS, help="terrain kind (default flat)")
-    g.add_argument(
-        "--slope-deg",
-        type=float,
-        metavar="DEG",
-        help="slope of a slope terrain (deg)",
-    )
-    g.add_argument(
-        "--aspect-deg",
-        type=float,
-        metavar="DEG",
-        help="direction the slope faces, compass degrees (0 north, 90 east)",
-    )
     g.add_argument(
         "--terrain-path",
         metavar="FILE",

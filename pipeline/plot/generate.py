@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -38,9 +39,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..params._fields import check_bounds, param
 from .core import Plot, PlotTree, Terrain
 
-__all__ = ["COUNT_RULES", "generate_stand", "parse_shares", "write_map"]
+__all__ = ["COUNT_RULES", "StandParams", "generate_stand", "parse_shares", "write_map"]
 
 #: The plot radius ``treesim plot generate`` uses when none is given (m).
 DEFAULT_RADIUS_M = 15.0
@@ -48,6 +50,74 @@ DEFAULT_RADIUS_M = 15.0
 COUNT_RULES = ("exact", "poisson")
 #: Tries before the inhibition distance is relaxed by 10 %.
 TRIES = 2000
+
+
+@dataclass(frozen=True, kw_only=True)
+class StandParams:
+    """A synthetic stand (``treesim plot generate``, the service's ``stand`` parameter):
+    the arguments of :func:`generate_stand`, with their ranges."""
+
+    species: str = param(
+        "aspen",
+        help="species and their shares, NAME:SHARE,... (e.g. aspen:0.6,balsam-fir:0.4)",
+    )
+    stems_per_ha: float = param(600.0, help="stand density (stems per hectare)", gt=0, le=20_000)
+    radius_m: float = param(DEFAULT_RADIUS_M, help="plot radius", unit="m", gt=0, le=100)
+    seed: int = param(0, help="seed of the stand and its trees", ge=0, le=2**31 - 1)
+    count: str = param(
+        "exact",
+        help="number of trees: exact (rounded stems/ha x area) or Poisson",
+        choices=COUNT_RULES,
+    )
+    mean_dbh_m: float | None = param(
+        None,
+        help="mean DBH of every species",
+        unit="m",
+        none_means="each preset tree's own",
+        gt=0,
+        le=3,
+    )
+    weibull_shape: float = param(
+        3.0, help="Weibull shape of the DBHs (2-4: even-aged)", gt=0, le=50
+    )
+    slope_deg: float = param(0.0, help="terrain slope (0: flat)", unit="deg", ge=0, lt=60)
+    aspect_deg: float = param(
+        0.0,
+        help="direction the slope faces, compass degrees (0 north, 90 east)",
+        unit="deg",
+        ge=0,
+        lt=360,
+    )
+    leaves: bool | None = param(None, help="procedural leaves", none_means="the species' own")
+    facets: int = param(16, help="vertices per ring of the trees' tubes", ge=3, le=256)
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
+        parse_shares(self.species)  # names a species that does not exist
+
+    @property
+    def expected_trees(self) -> float:
+        """stems/ha × the plot's area."""
+        return self.stems_per_ha * math.pi * self.radius_m**2 / 1e4
+
+    def generate(self, terrain: Terrain | None = None) -> tuple[Plot, dict[str, Any]]:
+        """(plot, stand): :func:`generate_stand` with these settings, on ``terrain``
+        (default: flat, or the plane of ``slope_deg`` and ``aspect_deg``)."""
+        if terrain is None:
+            kind = "slope" if self.slope_deg else "flat"
+            terrain = Terrain(kind=kind, slope_deg=self.slope_deg, aspect_deg=self.aspect_deg)
+        return generate_stand(
+            self.species,
+            self.stems_per_ha,
+            self.radius_m,
+            self.seed,
+            terrain=terrain,
+            facets=self.facets,
+            count=self.count,
+            mean_dbh_m=self.mean_dbh_m,
+            weibull_shape=self.weibull_shape,
+            leaves=self.leaves,
+        )
 
 
 def parse_shares(text: str | Mapping[str, float]) -> dict[str, float]:

@@ -22,7 +22,6 @@ NOT_PARAMETERS = {
     ("plan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("plot scan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("plot scan", "--facets"): "overrides the plot file's facets (Plot.facets) for its trees",
-    ("plot generate", "--species"): "species and their shares (NAME:SHARE,...), not one species",
     ("run", "--preset"): "picks the run preset to start from (RunParams.preset records it)",
     ("batch", "--preset"): "picks the run preset to start from (RunParams.preset records it)",
 }
