@@ -34,6 +34,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import csv
 import datetime as _dt
+import hashlib
 import json
 import os
 import re
@@ -88,6 +89,10 @@ FIGURE_COLUMNS: dict[str, tuple[str, ...]] = {
     "vs_field_coverage": ("vs_field", "coverage"),
     "vs_field_chamfer_m": ("vs_field", "chamfer_m"),
     "vs_field_hausdorff_m": ("vs_field", "hausdorff_m"),
+    # a reference QSM (manifest column ``reference_qsm``): its figures
+    "reference_dbh_m": ("reference_qsm", "figures", "dbh_m"),
+    "reference_height_m": ("reference_qsm", "figures", "height_m"),
+    "reference_volume_total_m3": ("reference_qsm", "figures", "volume_total_m3"),
 }
 TIME_COLUMNS = tuple(f"time_{s}_s" for s in (*STAGES, "total"))
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -122,7 +127,8 @@ class TreeInput:
         Its output folder's name (``trees/<id>``).
     path : Path
     settings : tuple of (str, str)
-        Per-tree settings from a manifest (see :data:`pipeline.params.SETTINGS`).
+        Per-tree settings from a manifest (see :data:`pipeline.params.SETTINGS`), and its
+        ``reference_qsm`` (a QSM table's path, set beside the reconstruction).
     kind : {"tree", "plot"}
     """
 
@@ -179,6 +185,10 @@ def _is_manifest(p: Path) -> bool:
     return "path" in names and not {"x", "y", "z"} <= names
 
 
+#: Manifest columns that are not settings (:data:`pipeline.params.SETTINGS`).
+_MANIFEST_COLUMNS = ("path", "id", "reference_qsm")
+
+
 def _read_manifest(p: Path) -> list[tuple[Path, str | None, tuple[tuple[str, str], ...]]]:
     from .params import SETTINGS
 
@@ -186,11 +196,12 @@ def _read_manifest(p: Path) -> list[tuple[Path, str | None, tuple[tuple[str, str
     with open(p, encoding="utf-8-sig", newline="") as fh:
         reader = csv.DictReader(fh)
         cols = [c.strip().lower() for c in (reader.fieldnames or [])]
-        unknown = [c for c in cols if c not in ("path", "id") and c not in SETTINGS]
+        unknown = [c for c in cols if c not in _MANIFEST_COLUMNS and c not in SETTINGS]
         if unknown:
             raise InvalidParameterError(
                 f"{p.name}: unknown column(s) {', '.join(unknown)}; a manifest has 'path', "
-                f"optionally 'id', and settings: {', '.join(SETTINGS)}"
+                f"optionally 'id' and 'reference_qsm' (a QSM table to set beside the "
+                f"reconstruction), and settings: {', '.join(SETTINGS)}"
             )
         for i, raw in enumerate(reader, start=2):
             row = {(k or "").strip().lower(): (v or "").strip() for k, v in raw.items()}
@@ -199,6 +210,9 @@ def _read_manifest(p: Path) -> list[tuple[Path, str | None, tuple[tuple[str, str
             path = Path(row["path"])
             if not path.is_absolute():
                 path = p.parent / path
+            if row.get("reference_qsm"):
+                ref = Path(row["reference_qsm"])
+                row["reference_qsm"] = str(ref if ref.is_absolute() else p.parent / ref)
             settings = tuple((k, v) for k, v in row.items() if k not in ("path", "id") and v != "")
             rows.append((path, row.get("id") or None, settings))
     return rows
@@ -306,6 +320,7 @@ class _Task:
     outdir: str
     threads: int
     kind: str = "tree"
+    reference_qsm: str | None = None
 
 
 def _dig(d: Any, path: tuple[str, ...]) -> Any:
@@ -355,7 +370,13 @@ def _run_task(task: _Task) -> dict[str, Any]:
         if task.kind == "plot":
             row = {**base, **_run_plot(task, tmp, threads)}
         else:
-            res = run_tree(task.path, task.params.with_threads(threads), tmp, name=task.id)
+            res = run_tree(
+                task.path,
+                task.params.with_threads(threads),
+                tmp,
+                name=task.id,
+                reference_qsm=task.reference_qsm,
+            )
             row = {
                 **base,
                 "status": "ok",
@@ -610,10 +631,20 @@ def _run_locked(
     for t in trees:
         base = {"id": t.id, "input": str(t.path)}
         try:
-            p = apply_settings(params, dict(t.settings), where=f"{t.id}: ")
+            given = dict(t.settings)
+            ref = given.pop("reference_qsm", None)
+            p = apply_settings(params, given, where=f"{t.id}: ")
             if not t.path.is_file():
                 raise InputFormatError(f"{t.path} not found; check the path")
             h = file_sha256(t.path)
+            if ref is not None:  # its figures are in the result: a new table runs again
+                if t.kind == "plot":
+                    raise InvalidParameterError(
+                        f"{t.id}: reference_qsm is for one tree's cloud, not a plot"
+                    )
+                if not Path(ref).is_file():
+                    raise InputFormatError(f"reference QSM {ref} not found; check the path")
+                h = hashlib.sha256((h + file_sha256(Path(ref))).encode()).hexdigest()
             if t.kind == "plot":  # the plot file and its trees CSV
                 h = _plot_hash(t.path, h)
         except (TreesimError, OSError) as exc:
@@ -638,6 +669,7 @@ def _run_locked(
                 outdir=str(out.resolve()),
                 threads=plan.threads,
                 kind=t.kind,
+                reference_qsm=ref,
             )
         )
 

@@ -444,3 +444,28 @@ def test_a_dying_worker_fails_only_its_tree_after_two_attempts(four_trees, tmp_p
     assert set(result_files(out)) == {"a", "b"}
     assert_no_corrupt_output(out)
     assert not (out / ".tmp").exists()
+
+
+def test_a_manifest_sets_a_reference_qsm_beside_each_tree(saplings, sapling0_qsm, quick, tmp_path):
+    from pipeline.models import read_cylinders
+
+    shutil.copy(saplings["sapling0"], tmp_path / "s0.ply")
+    ref = shutil.copy(sapling0_qsm, tmp_path / "truth.csv")
+    manifest = tmp_path / "trees.csv"
+    manifest.write_text("path,id,reference_qsm\ns0.ply,s0,truth.csv\ns0.ply,gone,absent.csv\n")
+    out = tmp_path / "out"
+    result = run_batch([manifest], quick, out, executor="inline")
+    by_id = {r["id"]: r for r in result.rows}
+    truth = read_cylinders(ref).summary()
+    row = by_id["s0"]
+    assert row["status"] == "ok"
+    assert row["reference_dbh_m"] == truth["dbh_m"]
+    assert row["reference_volume_total_m3"] == truth["volume_total_m3"]
+    run = json.loads((out / "trees" / "s0" / "run.json").read_text())
+    assert run["reference_qsm"]["figures"]["dbh_m"] == truth["dbh_m"]
+    # a missing table fails its tree alone, naming the file
+    assert by_id["gone"]["status"] == "failed" and "absent.csv" in by_id["gone"]["error"]
+    # the table is part of the tree's hash: changed, the tree runs again
+    assert run_batch([manifest], quick, out, executor="inline").rows[0]["reused"]
+    Path(ref).write_text(Path(ref).read_text() + "\n")
+    assert not run_batch([manifest], quick, out, executor="inline").rows[0].get("reused")
