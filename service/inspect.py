@@ -29,7 +29,38 @@ def _inspect(path: str, filename: str | None, max_unpacked: int | None = None) -
 
     if is_zip(path):  # a plot: plot.toml, its trees CSV and the trees' files, zipped
         return inspect_plot_archive(path, filename, max_bytes=max_unpacked)
-    return inspect_file(path, filename=filename).to_dict()
+    try:
+        return inspect_file(path, filename=filename).to_dict()
+    except InputFormatError:
+        # text that is no cloud: a QSM cylinder table (TreeQSM, SimpleForest, treesim)?
+        cylinders = _inspect_cylinders(path)
+        if cylinders is None:
+            raise
+        return cylinders
+
+
+def _inspect_cylinders(path: str) -> dict[str, Any] | None:
+    """A QSM cylinder table's facts (kind ``cylinders``), or None when it is not one."""
+    import numpy as np
+
+    from pipeline.errors import TreesimError
+    from pipeline.models import read_cylinders
+
+    try:
+        table = read_cylinders(path)
+        table.validate()
+    except TreesimError:
+        return None
+    ends = np.concatenate([table.start, table.start + table.axis * table.length_m[:, None]])
+    return {
+        "format": "cylinders",
+        "kind": "cylinders",
+        "suffix": ".csv",
+        "n_points": int(table.n_cylinders),
+        "n_triangles": None,
+        "bounds": [ends.min(axis=0).tolist(), ends.max(axis=0).tolist()],
+        "fields": [],
+    }
 
 
 def _warm() -> bool:

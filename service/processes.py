@@ -207,7 +207,12 @@ def _execute_run(
     from pipeline.run import run_tree
 
     result = run_tree(
-        inputs["cloud"], params.with_threads(threads), out, name=name or None, progress=progress
+        inputs["cloud"],
+        params.with_threads(threads),
+        out,
+        name=name or None,
+        progress=progress,
+        reference_qsm=inputs.get("reference_qsm"),
     )
     s = result.summary
     return {
@@ -678,7 +683,16 @@ PROCESSES: dict[str, Process] = {
             description="Reconstruct a tree mesh from a field cloud, scan it with the virtual "
             "scanner, compare the simulated cloud with the mesh and with the field cloud, and "
             "report (as treesim run).",
-            inputs=(_CLOUD,),
+            inputs=(
+                _CLOUD,
+                Input(
+                    "reference_qsm",
+                    ("cylinders",),
+                    "a QSM cylinder table of the same tree (TreeQSM, SimpleForest or treesim "
+                    "CSV), set beside the reconstruction as treesim run --reference-qsm",
+                    required=False,
+                ),
+            ),
             outputs=(
                 ("report.html", "the run page"),
                 ("run.json", "parameters, figures and timings"),

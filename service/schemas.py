@@ -55,7 +55,7 @@ class UploadOut(BaseModel):
         description="las, laz, ply, e57, xyz, obj, stl, off or glb: from the content; zip "
         "for a plot archive"
     )
-    kind: Literal["cloud", "mesh", "plot"]
+    kind: Literal["cloud", "mesh", "plot", "cylinders"]
     size_bytes: int
     sha256: str
     n_points: int | None = None

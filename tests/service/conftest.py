@@ -21,6 +21,7 @@ from service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 BUNDLED_CLOUD = REPO / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
+BUNDLED_QSM = REPO / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 
 
 def postgres_or_skip() -> str:

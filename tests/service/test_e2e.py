@@ -21,7 +21,7 @@ import httpx
 import numpy as np
 import pytest
 
-from .conftest import BUNDLED_CLOUD, Server, service_env, store_url, wait_job
+from .conftest import BUNDLED_CLOUD, BUNDLED_QSM, Server, service_env, store_url, wait_job
 
 pytestmark = pytest.mark.slow
 
@@ -52,7 +52,19 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
     base, _ = serve(tmp_path / "data", workers=1)
     with httpx.Client(base_url=base, timeout=30) as c:
         up = _upload(c, BUNDLED_CLOUD)
-        job_id = _start_run(c, up["id"], preset="draft")
+        # the bundled tree's TreeQSM table, set beside the reconstruction
+        qsm = _upload(c, BUNDLED_QSM)
+        assert qsm["kind"] == "cylinders" and qsm["n_points"] > 1000
+        r = c.post(
+            "/v1/jobs",
+            json={
+                "process": "run",
+                "inputs": {"cloud": up["id"], "reference_qsm": qsm["id"]},
+                "parameters": {"preset": "draft"},
+            },
+        )
+        assert r.status_code == 201, r.text
+        job_id = r.json()["jobID"]
         seen_running = wait_job(c, job_id, until=lambda j: j["status"] != "accepted")
         job = wait_job(c, job_id)
         assert job["status"] == "successful", job
@@ -90,6 +102,8 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
             str(BUNDLED_CLOUD),
             "--preset",
             "draft",
+            "--reference-qsm",
+            str(BUNDLED_QSM),
             "--threads",
             "1",
             "-o",
@@ -104,6 +118,8 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
         assert run_json[key] == expected[key], key
         assert job["summary"][key] == expected[key], key
     assert run_json["scan"]["points"] == expected["scan"]["points"]
+    for key in ("figures", "difference", "sha256"):
+        assert run_json["reference_qsm"][key] == expected["reference_qsm"][key], key
     np.testing.assert_array_equal(_read_xyz(tmp_path / "http.laz"), _read_xyz(cli / "scan.laz"))
 
 
