@@ -595,6 +595,10 @@ def _float32_error_m(radius_m: float, o: np.ndarray) -> float:
     return 2e-5 * (radius_m + float(np.linalg.norm(o))) + 1e-7
 
 
+#: Triangles bounded at once when choosing those to load (bounds the temporaries).
+_BOUNDS_CHUNK = 1 << 18
+
+
 def _reachable_triangles(
     scene: Scene,
     frame: LocalFrame,
@@ -614,9 +618,15 @@ def _reachable_triangles(
     near = np.zeros(n, dtype=bool)
     for st in stations:
         o = frame.to_local(st.position)
-        bounds = triangle_bounds(((v - o) @ st.rotation)[f])
-        keep |= reachable(bounds, spec, abs_error_m=_float32_error_m(radius_m, o))
-        near |= bounds.d_min <= spec.max_range_m
+        rel = (v - o) @ st.rotation
+        err = _float32_error_m(radius_m, o)
+        # a chunk of triangles at a time: the bounds' temporaries are ~400 B a triangle
+        for a in range(0, n, _BOUNDS_CHUNK):
+            bounds = triangle_bounds(rel[f[a : a + _BOUNDS_CHUNK]])
+            keep[a : a + _BOUNDS_CHUNK] |= reachable(bounds, spec, abs_error_m=err)
+            near[a : a + _BOUNDS_CHUNK] |= bounds.d_min <= spec.max_range_m
+            del bounds
+        del rel
     info.update(
         loaded=int(keep.sum()),
         beyond_range=int((~near).sum()),
