@@ -223,6 +223,7 @@ def occupancy_grid(
     a_ref_deg: float,
     *,
     abs_error_m: float,
+    faces: np.ndarray | None = None,
 ) -> SparseGrid:
     """The window's pulses that some triangle can reach.
 
@@ -238,8 +239,12 @@ def occupancy_grid(
         which column angles are measured without wrapping inside the window.
     abs_error_m : float
         Bound of the absolute position error of float32 vertices and ray origins.
+    faces : (n, 3) int, optional
+        Given, ``tri`` holds the vertices (v, 3) and the triangles are ``tri[faces]``,
+        gathered a chunk at a time (never all at once: 72 bytes a triangle).
     """
-    if window.n_pulses == 0 or len(tri) == 0:
+    n_tri = len(tri) if faces is None else len(faces)
+    if window.n_pulses == 0 or n_tri == 0:
         return SparseGrid.empty()
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
@@ -258,13 +263,16 @@ def occupancy_grid(
             for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
                 diff[:] += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
 
-    pieces = tri
+    if faces is None:
+        piece, n_pieces = tri.__getitem__, len(tri)
+    else:
+        piece, n_pieces = (lambda sel: tri[faces[sel]]), len(faces)
     for halvings in range(41):
         # the pieces' boxes a chunk at a time (the bounds' temporaries are ~400 B a
         # piece); a piece's figures do not depend on the others
         kept, bigs = [], []
-        for a in range(0, len(pieces), _PIECE_CHUNK):
-            b = triangle_bounds(pieces[a : a + _PIECE_CHUNK])
+        for a in range(0, n_pieces, _PIECE_CHUNK):
+            b = triangle_bounds(piece(slice(a, a + _PIECE_CHUNK)))
             margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
             r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
             area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
@@ -275,7 +283,7 @@ def occupancy_grid(
         big = np.concatenate(bigs) if bigs else np.zeros(0, dtype=bool)
         del bigs
         split = bool(big.any())
-        if len(pieces) + int(big.sum()) > MAX_PIECES or halvings == 40:
+        if n_pieces + int(big.sum()) > MAX_PIECES or halvings == 40:
             split = False  # a piece's box is conservative however large: keep it
         for r0, r1, c0, c1, w, kb in kept:
             done = ~kb if split else slice(None)
@@ -283,7 +291,8 @@ def occupancy_grid(
         del kept
         if not split:
             break
-        pieces = _bisect_longest(pieces[big])
+        pieces = _bisect_longest(piece(big))
+        piece, n_pieces = pieces.__getitem__, len(pieces)
     occ = diff.reshape(n_rows + 1, n_cols + 1).cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
     return SparseGrid.from_raster(window, ras, occ)
 
