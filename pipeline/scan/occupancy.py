@@ -285,10 +285,15 @@ def occupancy_grid(
         split = bool(big.any())
         if n_pieces + int(big.sum()) > MAX_PIECES or halvings == 40:
             split = False  # a piece's box is conservative however large: keep it
-        for r0, r1, c0, c1, w, kb in kept:
-            done = ~kb if split else slice(None)
-            add_boxes(r0[done], r1[done], c0[done], c1[done], w[done])
+        # the level's finished pieces, summed into the raster at once (one bincount
+        # of the raster per corner and level, not per chunk)
+        done = [
+            [x[~kb] if split else x for x in (r0, r1, c0, c1, w)] for r0, r1, c0, c1, w, kb in kept
+        ]
         del kept
+        if done:
+            add_boxes(*(np.concatenate([d[i] for d in done]) for i in range(5)))
+        del done
         if not split:
             break
         pieces = _bisect_longest(piece(big))
