@@ -128,21 +128,24 @@ class Scene:
                 raise InvalidGeometryError(
                     f"{where}: faces must be triangles (m, 3), got {f.shape}"
                 )
-            f = f.astype(np.int64)
+            f = np.asarray(f, dtype=np.int64)  # read only: no copy when int64
             if f.min() < 0 or f.max() >= len(v):
                 raise InvalidGeometryError(f"{where}: faces index vertices that do not exist")
-            used = np.unique(f)
+            # the vertices some triangle uses (a mask: no sort of every corner)
+            used = np.zeros(len(v), dtype=bool)
+            used[f.ravel()] = True
             bad = ~np.isfinite(v[used]).all(axis=1)
             if bad.any():
                 raise InvalidGeometryError(
                     f"{where}: {int(bad.sum())} vertices have NaN or infinite coordinates"
                 )
-            tri = v[f]
-            area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-            edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-            keep = area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2
-            dropped += int((~keep).sum())
-            f = f[keep]
+            del used, bad
+            keep = _non_degenerate(v, f)
+            n_drop = int((~keep).sum())
+            dropped += n_drop
+            if n_drop:
+                f = f[keep]
+            del keep
             verts.append(v)
             faces.append(f + offset)
             labels.append(np.full(len(f), LABEL_CODES[part.label], dtype=np.uint8))
@@ -225,6 +228,22 @@ class Scene:
         codes = np.unique(self.face_label)
         inv = {v: k for k, v in LABEL_CODES.items()}
         return [inv[int(c)] for c in codes]
+
+
+#: Triangles tested at once by the scene's validation (bounds its temporaries: ~1 KB each).
+_CHECK_CHUNK = 1 << 18
+
+
+def _non_degenerate(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(f,) bool: the triangles ``v[f]`` with an area (twice the area over the longest
+    edge squared above 1e-12), tested a chunk at a time (row by row the same figures)."""
+    keep = np.empty(len(f), dtype=bool)
+    for a in range(0, len(f), _CHECK_CHUNK):
+        tri = v[f[a : a + _CHECK_CHUNK]]
+        area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+        keep[a : a + len(tri)] = area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2
+    return keep
 
 
 def labelled_parts(

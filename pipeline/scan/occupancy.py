@@ -54,6 +54,8 @@ MAX_CELLS = 1 << 22
 MAX_PIECE_CELLS = 512
 #: Cap on pieces after bisection (memory: ~200 B each).
 MAX_PIECES = 1 << 21
+#: Pieces bounded at once (bounds the temporaries of :func:`occupancy_grid`).
+_PIECE_CHUNK = 1 << 18
 #: Relative float32 error budget for vertices and ray origins (~80 float32 ulps).
 _REL_F32 = 1e-5
 #: Direction error of float32 unit vectors and their products (rad), with room to spare.
@@ -221,6 +223,7 @@ def occupancy_grid(
     a_ref_deg: float,
     *,
     abs_error_m: float,
+    faces: np.ndarray | None = None,
 ) -> SparseGrid:
     """The window's pulses that some triangle can reach.
 
@@ -236,43 +239,65 @@ def occupancy_grid(
         which column angles are measured without wrapping inside the window.
     abs_error_m : float
         Bound of the absolute position error of float32 vertices and ray origins.
+    faces : (n, 3) int, optional
+        Given, ``tri`` holds the vertices (v, 3) and the triangles are ``tri[faces]``,
+        gathered a chunk at a time (never all at once: 72 bytes a triangle).
     """
-    if window.n_pulses == 0 or len(tri) == 0:
+    n_tri = len(tri) if faces is None else len(faces)
+    if window.n_pulses == 0 or n_tri == 0:
         return SparseGrid.empty()
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
     m_ray = pointing_margin_rad(spec)
-    rows0, rows1, cols0, cols1, wraps = [], [], [], [], []
-    pieces = tri
-    for halvings in range(41):
-        b = triangle_bounds(pieces)
-        margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
-        r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
-        area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
-        big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
-        if len(pieces) + int(big.sum()) > MAX_PIECES or halvings == 40:
-            big[:] = False  # a piece's box is conservative however large: keep it
-        done = keep & ~big
-        rows0.append(r0[done])
-        rows1.append(r1[done])
-        cols0.append(c0[done])
-        cols1.append(c1[done])
-        wraps.append(w[done])
-        if not big.any():
-            break
-        pieces = _bisect_longest(pieces[big])
-    r0, r1 = np.concatenate(rows0), np.concatenate(rows1)
-    c0, c1, w = np.concatenate(cols0), np.concatenate(cols1), np.concatenate(wraps)
-    k = ras.cell
-    wc = np.where(w >= 0, w // k, -1)
-    # boxes: [r0..r1] × [c0..c1] (if c1 >= c0), plus [r0..r1] × [0..wc] where it wraps
-    boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
     diff = np.zeros((n_rows + 1) * (n_cols + 1), dtype=np.int64)
     stride = n_cols + 1
-    for a0, a1, b0, b1, ok in boxes:
-        a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
-        for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
-            diff += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
+    k = ras.cell
+
+    def add_boxes(r0: np.ndarray, r1: np.ndarray, c0: np.ndarray, c1: np.ndarray, w: np.ndarray):
+        # boxes: [r0..r1] × [c0..c1] (if c1 >= c0), plus [r0..r1] × [0..wc] where it wraps
+        # (summed into the difference raster: the order of the boxes does not matter)
+        wc = np.where(w >= 0, w // k, -1)
+        boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
+        for a0, a1, b0, b1, ok in boxes:
+            a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
+            for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
+                diff[:] += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
+
+    if faces is None:
+        piece, n_pieces = tri.__getitem__, len(tri)
+    else:
+        piece, n_pieces = (lambda sel: tri[faces[sel]]), len(faces)
+    for halvings in range(41):
+        # the pieces' boxes a chunk at a time (the bounds' temporaries are ~400 B a
+        # piece); a piece's figures do not depend on the others
+        kept, bigs = [], []
+        for a in range(0, n_pieces, _PIECE_CHUNK):
+            b = triangle_bounds(piece(slice(a, a + _PIECE_CHUNK)))
+            margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
+            r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
+            area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
+            big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
+            kept.append((r0[keep], r1[keep], c0[keep], c1[keep], w[keep], big[keep]))
+            bigs.append(big)
+            del b, margin, r0, r1, c0, c1, w, keep, area
+        big = np.concatenate(bigs) if bigs else np.zeros(0, dtype=bool)
+        del bigs
+        split = bool(big.any())
+        if n_pieces + int(big.sum()) > MAX_PIECES or halvings == 40:
+            split = False  # a piece's box is conservative however large: keep it
+        # the level's finished pieces, summed into the raster at once (one bincount
+        # of the raster per corner and level, not per chunk)
+        done = [
+            [x[~kb] if split else x for x in (r0, r1, c0, c1, w)] for r0, r1, c0, c1, w, kb in kept
+        ]
+        del kept
+        if done:
+            add_boxes(*(np.concatenate([d[i] for d in done]) for i in range(5)))
+        del done
+        if not split:
+            break
+        pieces = _bisect_longest(piece(big))
+        piece, n_pieces = pieces.__getitem__, len(pieces)
     occ = diff.reshape(n_rows + 1, n_cols + 1).cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
     return SparseGrid.from_raster(window, ras, occ)
 

@@ -210,25 +210,33 @@ class _Caster:
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
         self.v0 = v[f[:, 0]]
-        v1, v2 = v[f[:, 1]], v[f[:, 2]]
-        n = np.cross(v1 - self.v0, v2 - self.v0)
-        twice_area = np.linalg.norm(n, axis=1)
-        self.normal = n / twice_area[:, None]
+        self.normal = np.empty((len(f), 3))
+        # each triangle's smallest height (twice its area over its longest edge: how far
+        # its interior reaches from an edge) and its shortest edge squared (the
+        # distortion check's), a chunk at a time (the same figures, row by row)
+        self.h_min32 = np.empty(len(f), dtype=np.float32)
+        short2 = np.empty(len(f))
+        for a in range(0, len(f), _BOUNDS_CHUNK):
+            b = min(len(f), a + _BOUNDS_CHUNK)
+            p0 = self.v0[a:b]
+            v1, v2 = v[f[a:b, 1]], v[f[a:b, 2]]
+            n = np.cross(v1 - p0, v2 - p0)
+            twice_area = np.linalg.norm(n, axis=1)
+            self.normal[a:b] = n / twice_area[:, None]
+            sq_edge = np.stack([_sq_len(v1 - p0), _sq_len(v2 - v1), _sq_len(v2 - p0)])
+            self.h_min32[a:b] = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
+            short2[a:b] = sq_edge.min(axis=0)
+            del p0, v1, v2, n, twice_area, sq_edge
         self.label = scene.face_label if keep is None else scene.face_label[keep]
         ft = scene.face_tree
         self.tree = None if ft is None else (ft if keep is None else ft[keep])
         self.lo, self.hi = frame.to_local(scene.bounds)
         self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
-        # squared edge lengths, once: the longest gives each triangle's smallest height
-        # (how far its interior reaches from an edge), the shortest the distortion check's
-        sq_edge = np.stack([_sq_len(v1 - self.v0), _sq_len(v2 - v1), _sq_len(v2 - self.v0)])
-        del v1, v2
-        self.h_min32 = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
         self._fan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         v32 = v.astype(np.float32)
-        self.distorted, self.moved_m = _distorted(v, v32, f, sq_edge.min(axis=0))
-        del sq_edge
+        self.distorted, self.moved_m = _distorted(v, v32, f, short2)
+        del short2
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
         self.rc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f.astype(np.uint32)))
         t0 = time.perf_counter()
@@ -595,6 +603,10 @@ def _float32_error_m(radius_m: float, o: np.ndarray) -> float:
     return 2e-5 * (radius_m + float(np.linalg.norm(o))) + 1e-7
 
 
+#: Triangles bounded at once when choosing those to load (bounds the temporaries).
+_BOUNDS_CHUNK = 1 << 18
+
+
 def _reachable_triangles(
     scene: Scene,
     frame: LocalFrame,
@@ -614,9 +626,15 @@ def _reachable_triangles(
     near = np.zeros(n, dtype=bool)
     for st in stations:
         o = frame.to_local(st.position)
-        bounds = triangle_bounds(((v - o) @ st.rotation)[f])
-        keep |= reachable(bounds, spec, abs_error_m=_float32_error_m(radius_m, o))
-        near |= bounds.d_min <= spec.max_range_m
+        rel = (v - o) @ st.rotation
+        err = _float32_error_m(radius_m, o)
+        # a chunk of triangles at a time: the bounds' temporaries are ~400 B a triangle
+        for a in range(0, n, _BOUNDS_CHUNK):
+            bounds = triangle_bounds(rel[f[a : a + _BOUNDS_CHUNK]])
+            keep[a : a + _BOUNDS_CHUNK] |= reachable(bounds, spec, abs_error_m=err)
+            near[a : a + _BOUNDS_CHUNK] |= bounds.d_min <= spec.max_range_m
+            del bounds
+        del rel
     info.update(
         loaded=int(keep.sum()),
         beyond_range=int((~near).sum()),
@@ -714,7 +732,10 @@ def _grid_plan(
     them and, with ``adaptive`` beam sampling, the thin-geometry mask (else None)."""
     if grid.n_pulses == 0 or not (culled or adaptive):
         return grid, None
-    tri = ((caster.v - o) @ rot)[caster.faces]
+    rel = (caster.v - o) @ rot
+    # the triangles in the scanner frame (72 bytes each) only where the thin-geometry
+    # mask needs them all at once; the occupancy grid gathers them a chunk at a time
+    tri = rel[caster.faces] if adaptive else None
     abs_err = _float32_error_m(radius_m, o)
     cast = grid
     if culled:
@@ -722,7 +743,9 @@ def _grid_plan(
         ang = np.sort((h0 + grid.columns * hres) % 360.0)
         gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
         g = int(np.argmax(gaps))
-        cast = occupancy_grid(tri, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err)
+        cast = occupancy_grid(
+            rel, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err, faces=caster.faces
+        )
     thin = None
     if adaptive:
         thin = thin_mask(

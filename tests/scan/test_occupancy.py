@@ -202,3 +202,52 @@ def test_nothing_in_range_is_an_empty_scan():
     assert len(r.cloud) == 0 and r.rays_cast == 0
     assert r.lod["geometry"]["loaded"] == 0
     assert set(r.cloud.fields) >= {"range_m", "scan_line", "station"}
+
+
+def test_chunked_planning_and_validation_change_nothing(monkeypatch):
+    """Scene validation, the triangles to load, the caster's per-triangle data and the
+    occupancy grid work a chunk of triangles at a time: tiny chunks (and gathering the
+    triangles from vertices and faces) give the same scene, plan and points, bit for bit."""
+    import importlib
+
+    import pipeline.scene as scene_module
+
+    occupancy = importlib.import_module("pipeline.scan.occupancy")
+    trace = importlib.import_module("pipeline.scan.trace")
+    from pipeline.scan.rays import windowed_grid
+
+    tree = generate_tree("sapling", seed=3)
+    v, f, _ = tree.mesh(facets=8)
+    ground = box_arrays((-8.0, -8.0, v[:, 2].min() - 0.2), (8.0, 8.0, v[:, 2].min()))
+    parts = [part(v, f, name="sapling"), part(*ground, label="ground", name="ground")]
+    c = (v.min(axis=0) + v.max(axis=0)) / 2
+    stations = [Station(position_m=(c[0] + 5.0, c[1], v[:, 2].min() + 1.5))]
+    spec = SPEC.with_(vertical_fov_deg=(-40.0, 90.0), max_range_m=7.0)
+    scene = Scene(parts)
+    ref = scan(scene, stations, spec)
+    # the occupancy grid of gathered triangles is that of the triangles given
+    o = stations[0].position
+    rel = (scene.vertices - o) @ stations[0].rotation
+    box = rel[scene.faces].reshape(-1, 3)
+    from pipeline.scan.rays import box_window
+
+    win = windowed_grid(spec, box_window(box.min(axis=0), box.max(axis=0)))
+    given = occupancy.occupancy_grid(rel[scene.faces], spec, win, 0.0, abs_error_m=1e-6)
+    for name, size in (("_PIECE_CHUNK", 997),):
+        monkeypatch.setattr(occupancy, name, size)
+    gathered = occupancy.occupancy_grid(rel, spec, win, 0.0, abs_error_m=1e-6, faces=scene.faces)
+    assert given.n_pulses == gathered.n_pulses > 0
+    np.testing.assert_array_equal(
+        given.indices(0, given.n_pulses), gathered.indices(0, given.n_pulses)
+    )
+    monkeypatch.setattr(trace, "_BOUNDS_CHUNK", 1009)
+    monkeypatch.setattr(scene_module, "_CHECK_CHUNK", 101)
+    small = Scene(parts)
+    np.testing.assert_array_equal(small.faces, scene.faces)
+    assert small.dropped_degenerate == scene.dropped_degenerate
+    again = scan(small, stations, spec)
+    identical(again, ref)
+    assert again.lod == ref.lod
+    assert [s.pulses_cast for s in again.station_stats] == [
+        s.pulses_cast for s in ref.station_stats
+    ]
