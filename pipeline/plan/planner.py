@@ -230,6 +230,8 @@ def _compare(plan: dict[str, Any], baselines: list[dict[str, Any]]) -> dict[str,
     if not reaching:
         best = max(baselines, key=lambda b: b["objective"]) if baselines else None
         out.update(best_baseline=None if best is None else best["name"], baseline_goal_met=False)
+        if best is not None:  # the one a verification scans and names
+            out["baseline_stations"] = best["n_stations"]
         out["verdict"] = "plan only" if plan["goal_met"] else "neither"
         out["statement"] = (
             f"no classic layout reaches the goal; the plan does with {plan['n_stations']} "

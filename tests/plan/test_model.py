@@ -6,7 +6,7 @@ import numpy as np
 
 from pipeline.params import instrument
 from pipeline.plan import PlanParams, plan_scans, verify_plan
-from pipeline.plan.planner import _judge_verified
+from pipeline.plan.planner import _compare, _judge_verified
 from pipeline.plot.generate import generate_stand
 
 VZ400 = instrument("riegl-vz400")
@@ -67,6 +67,13 @@ def test_verdict_is_judged_on_the_verified_figures():
     assert v["verdict"] == "plan better (verified)" and v["required"] == 10
     v = _judge_verified(_cmp(5, 25), plan, 7, 9, 10, 12)
     assert v["verdict"] == "neither (verified)"
+    # no classic layout reaches the goal by the model: the best of them is verified
+    # all the same, and named with its stations
+    ring = {"name": "ring-3", "goal_met": False, "objective": 0.9, "n_stations": 3}
+    cmp_ = _compare(plan, [ring, {**ring, "name": "cross-5", "objective": 0.5}])
+    assert cmp_["verdict"] == "plan only" and cmp_["best_baseline"] == "ring-3"
+    v = _judge_verified(cmp_, plan, 12, 11, 12, 12)
+    assert v["verdict"] == "plan better (verified)" and "ring-3 does not with 3" in v["statement"]
     # no baseline verified
     v = _judge_verified({"best_baseline": None}, plan, 12, None, 12, 12)
     assert v["verdict"] == "plan only (verified)"
