@@ -49,7 +49,10 @@ def species_tree_plot(
 
 class _MeshPlot(Plot):
     """A plot whose one tree is the mesh file's parts as read (``source="mesh"``), kept
-    where the file has them: the file is read once, here, to find the stem base."""
+    where the file has them: the file is read once, in :func:`mesh_tree_plot`, to find
+    the stem base. The parts are held for good (one tree): :meth:`Plot.release` (a plot
+    scan releases every tree it is done with) must not send :meth:`tree_parts` back to
+    the file, which would place the tree again and keep the ground parts left out here."""
 
     def __init__(
         self,
@@ -60,7 +63,16 @@ class _MeshPlot(Plot):
         centre_xy: tuple[float, float],
     ) -> None:
         super().__init__([tree], terrain=terrain, radius_m=radius_m, centre_xy=centre_xy)
-        self._parts[1] = parts
+        self._held = parts
+        # what Plot.tree_parts records as it builds a tree: bounds and triangles
+        used = np.concatenate([np.asarray(p.vertices)[np.unique(p.faces)] for p in parts])
+        self._bounds[tree.tree_id] = np.stack([used.min(axis=0), used.max(axis=0)])
+        self._ntri[tree.tree_id] = int(sum(len(p.faces) for p in parts))
+
+    def tree_parts(self, tree_id: int) -> list[MeshPart]:
+        if tree_id == self.trees[0].tree_id:
+            self._parts[tree_id] = self._held
+        return super().tree_parts(tree_id)
 
 
 def mesh_tree_plot(path: str | Path, *, radius_m: float | None = None) -> Plot:

@@ -96,3 +96,34 @@ def test_plan_a_generated_plot_file(tmp_path, capsys):
     n_trees = len((plot_dir / "trees.csv").read_text().strip().splitlines()) - 1
     assert n_trees >= 2 and ids == list(range(1, n_trees + 1))
     assert d["plan"]["n_stations"] >= 1
+
+
+def test_plan_one_mesh_tree_with_verification(tmp_path, capsys):
+    """A tree from a mesh file, away from the origin, planned and verified (the
+    verification scan asks the plot for the tree's bounds, and loads it again after
+    releasing it)."""
+    import numpy as np
+    import trimesh
+
+    from pipeline.plan.sources import mesh_tree_plot, species_tree_plot
+
+    parts = species_tree_plot("sapling", facets=8).tree_parts(1)
+    v = np.concatenate([p.vertices for p in parts])
+    off = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
+    f = np.concatenate([p.faces + o for p, o in zip(parts, off, strict=True)])
+    path = tmp_path / "tree.ply"
+    trimesh.Trimesh(v + (500.0, 300.0, 12.0), f, process=False).export(path)
+    plot = mesh_tree_plot(path)
+    held = plot.tree_parts(1)
+    assert np.allclose(plot.tree_bounds(1)[0], v.min(axis=0) + (500.0, 300.0, 12.0))
+    plot.release()
+    assert plot.tree_parts(1) == held  # the parts as read, not the file read again
+    out = tmp_path / "p"
+    rc = main(
+        ["plan", str(path), "--resolution-deg", "0.5", "--tolerance-m", "0.05",
+         "--samples-per-tree", "200", "--band-samples", "60", "--candidate-spacing-m", "2",
+         "--grid-spacing-m", "5", "-o", str(out)]
+    )  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    d = json.loads((out / "plan.json").read_text())
+    assert d["verification"]["points"] > 0 and d["trees"][0]["verified"]["points"] > 0
