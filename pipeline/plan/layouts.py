@@ -30,9 +30,17 @@ import numpy as np
 
 from ..errors import EmptyInputError
 from ..frame import LocalFrame
+from ..scan.stations import station_distance_m
 from ..scene import MeshPart
 
-__all__ = ["Layout", "TreeClearance", "candidate_grid", "classic_layouts", "square_grid_xy"]
+__all__ = [
+    "Layout",
+    "TreeClearance",
+    "candidate_grid",
+    "classic_layouts",
+    "rule_distance_m",
+    "square_grid_xy",
+]
 
 
 class TreeClearance:
@@ -60,6 +68,14 @@ class TreeClearance:
             return np.zeros(0)
         d = self.rc.compute_distance(self._o3d.core.Tensor(pts.astype(np.float32)))
         return d.numpy().astype(np.float64)
+
+
+def rule_distance_m(vertices: np.ndarray) -> float:
+    """The station rule's distance (:func:`pipeline.scan.stations.station_distance_m`) for
+    a tree of these vertices (n, 3): crown diameter the mean of its x and y extents,
+    height its z extent."""
+    ext = vertices.max(axis=0) - vertices.min(axis=0)
+    return station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
 
 
 def square_grid_xy(centre_xy: Sequence[float], radius_m: float, spacing_m: float) -> np.ndarray:

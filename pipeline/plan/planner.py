@@ -22,7 +22,6 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..params import InstrumentPreset, ScannerSpec
 from ..scan import Station
-from ..scan.stations import station_distance_m
 from .cover import (
     COVERAGE_SLACK,
     Objective,
@@ -32,7 +31,7 @@ from .cover import (
     reachable_trees,
     state,
 )
-from .layouts import Layout, TreeClearance, candidate_grid, classic_layouts
+from .layouts import Layout, TreeClearance, candidate_grid, classic_layouts, rule_distance_m
 from .params import PlanParams
 from .samples import SampleSet, TreeTarget, sample_trees
 from .verify import verify_plan
@@ -473,8 +472,7 @@ def plan_scans(
     if ring_d is None:
         if single_tree:
             v = np.concatenate([np.asarray(q.vertices) for t in targets for q in t.parts])
-            ext = v.max(axis=0) - v.min(axis=0)
-            ring_d = station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
+            ring_d = rule_distance_m(v)
         else:
             ring_d = 0.5 * plot.radius_m
     spacings = p.grid_spacings_m or tuple(

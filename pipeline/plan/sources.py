@@ -15,19 +15,13 @@ import numpy as np
 from ..errors import EmptyInputError
 from ..io.mesh import load_mesh
 from ..plot import Plot, PlotTree, Terrain
-from ..scan.stations import station_distance_m
 from ..scene import MeshPart
+from .layouts import rule_distance_m
 
 __all__ = ["mesh_tree_plot", "species_tree_plot"]
 
 #: The default candidate area of a single tree, in station-rule distances.
 RADIUS_FACTOR = 1.5
-
-
-def _radius(vertices: np.ndarray, base_xy: np.ndarray) -> float:
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    ext = hi - lo
-    return RADIUS_FACTOR * station_distance_m(0.5 * (ext[0] + ext[1]), ext[2])
 
 
 def species_tree_plot(
@@ -43,7 +37,7 @@ def species_tree_plot(
     plot = Plot([tree], radius_m=radius_m or 1.0, facets=facets)
     if radius_m is None:
         v = np.concatenate([p.vertices for p in plot.tree_parts(1)])
-        plot.radius_m = _radius(v, np.zeros(2))
+        plot.radius_m = RADIUS_FACTOR * rule_distance_m(v)
     return plot
 
 
@@ -88,5 +82,5 @@ def mesh_tree_plot(path: str | Path, *, radius_m: float | None = None) -> Plot:
     z0 = float(v[:, 2].min())
     parts = [MeshPart(p.vertices, p.faces, p.label, p.name, 1) for p in parts]
     tree = PlotTree(tree_id=1, x_m=bx, y_m=by, source="mesh", path=str(path))
-    r = radius_m or _radius(v, np.array([bx, by]))
+    r = radius_m or RADIUS_FACTOR * rule_distance_m(v)
     return _MeshPlot(parts, tree, Terrain(z0_m=z0), r, (bx, by))
