@@ -15,8 +15,6 @@ from ._options import collect, number_type, param_option, param_options
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
-#: The instrument a plan uses unless told.
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan`` to ``treesim``'s parser."""

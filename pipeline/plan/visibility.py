@@ -221,10 +221,7 @@ class VisibilityCaster:
         self._o3d = o3d
         self._cast(np.zeros((1, 6), np.float32))  # the BVH is built on the first query
         self.build_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
         self.thickness_m = self._thickness()
-        self.thickness_s = time.perf_counter() - t0
-        self.n_triangles = len(scene.faces)
         self._disc: dict[float, np.ndarray] = {}
 
     def _cast(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -354,7 +351,6 @@ def visibility(
     tau_m: float,
     *,
     progress: Any = None,
-    label: str = "candidate",
 ) -> Visibility:
     """:class:`Visibility` of every sample from every station in ``positions`` (k, 3)."""
     positions = np.asarray(positions, np.float64).reshape(-1, 3)
@@ -366,7 +362,7 @@ def visibility(
     t0 = time.perf_counter()
     for j, p in enumerate(positions):
         if progress is not None and (j % 8 == 0):
-            progress(j / max(1, k), f"visibility: {label} {j + 1}/{k}")
+            progress(j / max(1, k), f"visibility: candidate {j + 1}/{k}")
         prob, q[j], rays[j], trees[j] = caster.station(p, spec, tau_m)
         lam[j] = intensity_of(prob)
     return Visibility(
