@@ -7,13 +7,16 @@ no verification scan, which is a scan's cost, measured by ``bench_scan.py``):
    25 to 400 candidates. Expected: the visibility step (rays to the samples of the trees
    in each candidate's range) and the choice grow linearly with the candidates.
 2. **Scene size.** Candidates fixed; tubes at 8, 16, 32 and 64 facets per ring (the
-   triangles grow ~8×). Expected: the visibility step stays nearly flat (rays ×
-   log(triangles)); what grows with the triangles is paid once per plan: building the
-   ray-casting scene and the per-tree sampling (its hidden-surface test casts lines
-   through the tree).
+   triangles grow ~8×). Expected: the visibility step grows far slower than the triangles
+   (rays × the BVH's traversal); what grows with them is mostly paid once per plan:
+   building the ray-casting scene and the per-tree sampling (its hidden-surface test
+   casts lines through the tree).
+3. ``--acceptance``: issue 14's cases (``tests/plan/setups.py``, which the acceptance
+   tests assert on): the 20-sapling plot against the classic layouts, verified; the
+   single tree's ring; the model's error against a scan on saplings and firs.
 
 Each row prints the planner's own ``timings_s`` (``plan.json``). Usage:
-``python benchmarks/bench_plan.py [--quick]`` (``--quick``: 4 trees, fewer points).
+``python benchmarks/bench_plan.py [--quick] [--acceptance]`` (``--quick``: 4 trees, fewer points).
 """
 
 from __future__ import annotations
@@ -32,29 +35,67 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.params import instrument  # noqa: E402
 from pipeline.plan import PlanParams, plan_scans  # noqa: E402
-from pipeline.plot import Plot, PlotTree  # noqa: E402
+from pipeline.plot import Plot  # noqa: E402
+from tests.plan.setups import (  # noqa: E402
+    acceptance_plan,
+    model_check,
+    ring_gaps_deg,
+    ring_plan,
+    spaced_plot,
+)
 
 
 def stand(n: int, radius_m: float, facets: int, seed: int = 3) -> Plot:
-    rng = np.random.default_rng(seed)
-    pts: list[np.ndarray] = []
-    while len(pts) < n:
-        p = rng.uniform(-radius_m, radius_m, 2)
-        if np.hypot(*p) <= radius_m - 1 and all(np.hypot(*(p - q)) >= 4.0 for q in pts):
-            pts.append(p)
-    trees = [
-        PlotTree(
-            tree_id=i + 1,
-            x_m=float(x),
-            y_m=float(y),
-            species="aspen",
-            seed=i,
-            leaves=False,
-            rotation_deg=float(rng.uniform(0, 360)),
+    """``n`` leaf-off aspens at least 4 m apart."""
+    return spaced_plot(
+        n, radius_m, species="aspen", min_gap_m=4.0, margin_m=1.0, facets=facets, seed=seed,
+        leaves=False,
+    )  # fmt: skip
+
+
+def acceptance() -> None:
+    """Issue 14's acceptance cases (``tests/plan/setups.py``), with the figures the
+    README quotes."""
+    t0 = time.perf_counter()
+    r = acceptance_plan()
+    d = r.to_dict()
+    c = d["comparison"]
+    print(
+        f"\n3. acceptance: 20 saplings, goal 0.8 at 3 cm + 270° DBH arc, VZ-400 at 0.2° "
+        f"({d['candidates']['count']} candidates; {time.perf_counter() - t0:.1f} s)"
+    )
+    print(f"   plan: {d['plan']['n_stations']} stations, {d['plan']['field_time_min']:.1f} min")
+    for b in d["baselines"]:
+        print(
+            f"   {b['name']:<12} {b['n_stations']:>3} stations {b['field_time_min']:>6.1f} min"
+            f"  goal met by the model: {b['trees_meeting_goal']}/{len(r.targets)}"
         )
-        for i, (x, y) in enumerate(pts)
-    ]
-    return Plot(trees, radius_m=radius_m, facets=facets)
+    v = c.get("verified", {})
+    print(f"   predicted: {c['predicted']['verdict']}: {c['predicted']['statement']}")
+    print(
+        f"   verified: plan {v.get('plan_trees_meeting_goal')}/{v.get('trees')}, "
+        f"{v.get('baseline')} {v.get('baseline_trees_meeting_goal')}/{v.get('trees')}: "
+        f"{c['verdict']}: {c['statement']}"
+    )
+    ver = r.verification["trees"]
+    err = np.array(
+        [r.predicted["coverage"][i] - ver[t.tree_id]["coverage"] for i, t in enumerate(r.targets)]
+    )
+    print(
+        f"   predicted - verified coverage per tree: {err.min():+.3f} .. {err.max():+.3f} "
+        f"(mean {err.mean():+.3f})"
+    )
+    rr = ring_plan()
+    gaps, tol = ring_gaps_deg(rr)
+    print(
+        f"\n4. one sapling, DBH band all round: {len(rr.selection.chosen)} stations, gaps "
+        f"{', '.join(f'{g:.1f}' for g in gaps)}° (grid resolution {tol:.1f}°)"
+    )
+    m, _, e = model_check()
+    print(
+        f"\n5. 5 saplings and firs at 0.3°, {len(m.stations)} stations: predicted - scanned "
+        f"coverage per tree, mean |error| {np.mean(np.abs(e)):.3f}, max {np.max(np.abs(e)):.3f}"
+    )
 
 
 def run(plot: Plot, spacing: float, samples: int) -> dict:
@@ -105,6 +146,9 @@ def line(r: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument(
+        "--acceptance", action="store_true", help="also run issue 14's acceptance cases"
+    )
     args = ap.parse_args()
     n, radius, samples = (4, 10.0, 500) if args.quick else (8, 12.0, 1000)
     print(
@@ -121,6 +165,8 @@ def main() -> None:
     print(HEAD)
     for facets in (8, 16, 32) if args.quick else (8, 16, 32, 64):
         print(line(run(stand(n, radius, facets), 2.0, samples)), flush=True)
+    if args.acceptance:
+        acceptance()
 
 
 if __name__ == "__main__":

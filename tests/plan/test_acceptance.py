@@ -4,52 +4,15 @@ three-station ring when that is what the goal needs."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
-from pipeline.params import instrument
-from pipeline.plan import PlanParams, plan_scans
-from pipeline.plan.sources import species_tree_plot
-from pipeline.plot import Plot, PlotTree
-
-VZ400 = instrument("riegl-vz400")
-
-
-def sapling_plot(n: int = 20, radius_m: float = 8.0, seed: int = 1) -> Plot:
-    """``n`` saplings at seeded random positions at least 1.5 m apart in a plot."""
-    rng = np.random.default_rng(seed)
-    pts: list[np.ndarray] = []
-    while len(pts) < n:
-        p = rng.uniform(-radius_m, radius_m, 2)
-        if np.hypot(*p) <= radius_m - 0.5 and all(np.hypot(*(p - q)) >= 1.5 for q in pts):
-            pts.append(p)
-    trees = [
-        PlotTree(
-            tree_id=i + 1,
-            x_m=float(x),
-            y_m=float(y),
-            rotation_deg=float(rng.uniform(0, 360)),
-            species="sapling",
-            seed=i,
-        )
-        for i, (x, y) in enumerate(pts)
-    ]
-    return Plot(trees, radius_m=radius_m, facets=8)
+from .setups import RING_ARC_DEG, acceptance_plan, ring_gaps_deg, ring_plan
 
 
 @pytest.fixture(scope="module")
 def plot_plan():
-    spec = VZ400.spec(horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2)
-    params = PlanParams(
-        goal_coverage=0.8,
-        tolerance_m=0.03,
-        dbh_arc_deg=270.0,
-        samples_per_tree=600,
-        candidate_spacing_m=1.0,
-    )
-    return plan_scans(sapling_plot(), spec=spec, instrument=VZ400, params=params)
+    return acceptance_plan()
 
 
 def test_plot_plan_against_the_classic_layouts(plot_plan):
@@ -129,35 +92,13 @@ def test_one_tree_recovers_the_three_station_ring():
     # under half the goal: three stations are needed, and suffice only when no gap
     # between them exceeds one station's arc. (At 0.15° one station's arc reaches 180°
     # and two opposite stations do.)
-    plot = species_tree_plot("sapling", seed=0, facets=12, radius_m=4.0)
-    spec = VZ400.spec(horizontal_resolution_deg=0.25, vertical_resolution_deg=0.25)
-    spacing = 0.25
-    sectors_goal = 350.0
-    r = plan_scans(
-        plot,
-        spec=spec,
-        instrument=VZ400,
-        single_tree=True,
-        params=PlanParams(
-            goal_coverage=0.0,
-            dbh_arc_deg=sectors_goal,
-            tolerance_m=0.01,
-            candidate_spacing_m=spacing,
-            clearance_m=1.5,
-            verify=False,
-        ),
-    )
+    r = ring_plan()
+    sectors_goal = RING_ARC_DEG
     assert r.samples.n_sectors[0] * r.samples.arc_bin_deg >= sectors_goal
     # two stations cannot do it: the widest single arc is under half the goal
     one = r.objective.figures(r.visibility.intensity)["arc_deg"][:, 0]
     assert 2 * one.max() < sectors_goal
     assert r.goal_met and len(r.selection.chosen) == 3
-    axis = r.samples.stem_xy[0]
-    st = r.candidates[r.selection.chosen]
-    ang = np.sort(np.degrees(np.arctan2(st[:, 1] - axis[1], st[:, 0] - axis[0])) % 360)
-    gaps = np.diff(np.append(ang, ang[0] + 360))
-    # the candidate grid's angular resolution at the nearest chosen station
-    d_min = float(np.hypot(st[:, 0] - axis[0], st[:, 1] - axis[1]).min())
-    tol = math.degrees(2 * spacing / d_min)
+    gaps, tol = ring_gaps_deg(r)
     print("\nring gaps (deg):", np.round(gaps, 1), "tolerance", round(float(tol), 1))
     assert np.all(np.abs(gaps - 120) <= tol), (gaps, tol)

@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.params import instrument
-from pipeline.plan import PlanParams, plan_scans, verify_plan
 from pipeline.plan.planner import _compare, _judge_verified
-from pipeline.plot.generate import generate_stand
 
-VZ400 = instrument("riegl-vz400")
+from .setups import model_check
 
 
 def test_predicted_coverage_matches_a_full_scan_on_saplings_and_firs():
@@ -17,26 +14,9 @@ def test_predicted_coverage_matches_a_full_scan_on_saplings_and_firs():
     # the old 0/1 rule ("seen when the pulse grid is dense enough for τ") called most of
     # a fir unseen from every station (predicted ~0.4 below the scan); the expected
     # coverage over independent stations is within a few points of the scan per tree.
-    plot, _ = generate_stand("sapling:0.5,balsam-fir:0.5", 600, 5.0, seed=1, facets=8)
-    spec = VZ400.spec(horizontal_resolution_deg=0.3, vertical_resolution_deg=0.3)
-    r = plan_scans(
-        plot,
-        spec=spec,
-        instrument=VZ400,
-        params=PlanParams(
-            goal_coverage=0.7,
-            samples_per_tree=300,
-            band_samples=60,
-            candidate_spacing_m=2.0,
-            verify=False,
-        ),
-    )
+    r, plot, err = model_check()
     species = {plot.tree(t.tree_id).species for t in r.targets}
     assert species == {"sapling", "balsam-fir"}
-    ver = verify_plan(plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02)
-    pred = r.predicted["coverage"]
-    got = np.array([ver["trees"][t.tree_id]["coverage_samples"] for t in r.targets])
-    err = pred - got
     assert np.mean(np.abs(err)) < 0.08, err  # the old rule: 0.20
     assert np.max(np.abs(err)) < 0.15, err  # the old rule: 0.25
 
