@@ -928,7 +928,7 @@ def _plan_scan(
         plans.append(_StationPlan(st, o, grid, win, window_grid.n_pulses, thin, t0))
     warnings = _precision_warnings(scene, caster, radius)
     if caster is not None:
-        for k, sp in enumerate(plans, start=int(station_offset)):
+        for k, sp in enumerate(plans, start=station_offset):
             if check_inside:
                 _check_inside(caster, sp.o, k, sp.station)
             warnings += _station_warnings(caster, sp.o, k, sp.station)
@@ -1132,6 +1132,10 @@ def scan(
     """
     if int(chunk_rays) < 1:
         raise InvalidParameterError(f"chunk_rays must be >= 1, got {chunk_rays}")
+    # checked before planning (which names stations by it and builds the BVH)
+    if isinstance(station_offset, bool) or int(station_offset) < 0:
+        raise InvalidParameterError(f"station_offset must be >= 0, got {station_offset!r}")
+    station_offset = int(station_offset)
     t_all = time.perf_counter()
     plan = _plan_scan(
         scene,
@@ -1165,9 +1169,7 @@ def scan(
     total_pulses = max(1, plan.pulses_cast)
     done_pulses = 0
     n_written = 0
-    if isinstance(station_offset, bool) or int(station_offset) < 0:
-        raise InvalidParameterError(f"station_offset must be >= 0, got {station_offset!r}")
-    for k, sp in enumerate(plan.plans, start=int(station_offset)):
+    for k, sp in enumerate(plan.plans, start=station_offset):
         t_st = time.perf_counter()
         n_points = 0
         rays_cast = 0
