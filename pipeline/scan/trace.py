@@ -732,10 +732,7 @@ def _grid_plan(
     them and, with ``adaptive`` beam sampling, the thin-geometry mask (else None)."""
     if grid.n_pulses == 0 or not (culled or adaptive):
         return grid, None
-    rel = (caster.v - o) @ rot
-    # the triangles in the scanner frame (72 bytes each) only where the thin-geometry
-    # mask needs them all at once; the occupancy grid gathers them a chunk at a time
-    tri = rel[caster.faces] if adaptive else None
+    rel = (caster.v - o) @ rot  # the vertices in the scanner frame
     abs_err = _float32_error_m(radius_m, o)
     cast = grid
     if culled:
@@ -744,12 +741,14 @@ def _grid_plan(
         gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
         g = int(np.argmax(gaps))
         cast = occupancy_grid(
-            rel, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err, faces=caster.faces
+            rel, caster.faces, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err
         )
     thin = None
     if adaptive:
+        # the thin-geometry mask takes the triangles all at once (72 bytes each), made
+        # after the occupancy grid, which gathers them a chunk at a time
         thin = thin_mask(
-            tri,
+            rel[caster.faces],
             spec,
             cast,
             abs_error_m=abs_err,
