@@ -65,18 +65,20 @@ def auto_table() -> None:
     real clouds."""
     from pipeline.io import read_cloud
     from pipeline.models import SPECIES
-    from pipeline.reconstruct._leaves import LEAF_SHARE_CUT
+    from pipeline.reconstruct._leaves import LEAF_SHARE_CUT, separate
     from pipeline.reconstruct.preprocess import prepare
 
     def row(name: str, points: np.ndarray) -> None:
         p = prepare(points, normals=False)
-        t0 = time.perf_counter()
-        wood = separate_leaves(p.points).wood
-        dt = time.perf_counter() - t0
-        share = float(p.weights[~wood].sum() / p.weights.sum())
-        verdict = "separates" if share >= LEAF_SHARE_CUT else "off"
+        # what reconstruct's auto runs: the classifier, its weighted leaf share, the cut
+        sep = separate(p, "auto")
+        if sep is None:
+            print(f"  {name:<44} too few points to classify ({len(p.points):,})")
+            return
+        share = sep.figures["leaf_share"]
+        verdict = "separates" if sep.used else "off"
         print(
-            f"  {name:<44} leaf share {share:.3f} ({verdict}, {dt:.1f} s)"
+            f"  {name:<44} leaf share {share:.3f} ({verdict}, {sep.seconds:.1f} s)"
             f"  normal-spread leaf_fraction {p.leaf_fraction:.3f}",
             flush=True,
         )

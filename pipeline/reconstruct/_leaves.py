@@ -26,7 +26,7 @@ MIN_WOOD_POINTS = 100
 #: Share of the points (weighted by the input points they stand for) that the classifier
 #: calls leaf from which ``auto`` separates. Measured (2026-11-25, classifier of
 #: leafwood_model.json, benchmarks/bench_leaves.py --auto): leaf-off procedural presets
-#: (aspen, sapling, old-tupelo scanned at 0.04-0.12 deg) 0.000-0.135, leaf-on ones
+#: (aspen, sapling, old-tupelo scanned at 0.04-0.12 deg) 0.000-0.137, leaf-on ones
 #: (aspen-leafon, balsam-fir) 0.56-0.63; real clouds: coffee tree 0.015, aRchi tree 0.056
 #: (leaf-off), AdTree tree7 0.195 (leaf clumps in its top), needle-on pine 0.255, leaf-on
 #: Lille 0.338. The cut sits between the highest leaf-off and the lowest leaf-on reading.

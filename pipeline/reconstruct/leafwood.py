@@ -193,25 +193,22 @@ def context_features(
 def _model() -> dict[str, Any]:
     try:
         model = json.loads(MODEL_PATH.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        for stage in model["stages"]:
+            for key in ("mean", "scale", "W1", "b1", "w2", "b2"):
+                stage[key] = np.asarray(stage[key], dtype=np.float64)
+    except (OSError, ValueError, KeyError) as exc:
         raise ReconstructionError(
             f"cannot read the wood/leaf model {MODEL_PATH}: {exc}; reinstall treesim or "
             "run scripts/fit_leafwood.py"
         ) from exc
-    for stage in model["stages"]:
-        for key in ("mean", "scale", "weights", "W1", "b1", "w2", "b2"):
-            if key in stage:
-                stage[key] = np.asarray(stage[key], dtype=np.float64)
     return model
 
 
 def stage_score(stage: dict[str, Any], x: np.ndarray) -> np.ndarray:
     """One stage's score (log-odds of wood) of the feature rows ``x``: a one-hidden-layer
-    network (``W1``, ``b1``, ``w2``, ``b2``) or a linear score (``weights``, bias last)."""
+    network (``W1``, ``b1``, ``w2``, ``b2``) on the standardised features."""
     z = (x - stage["mean"]) / stage["scale"]
-    if "W1" in stage:
-        return np.tanh(z @ stage["W1"] + stage["b1"]) @ stage["w2"] + float(stage["b2"][0])
-    return z @ stage["weights"][:-1] + stage["weights"][-1]
+    return np.tanh(z @ stage["W1"] + stage["b1"]) @ stage["w2"] + float(stage["b2"][0])
 
 
 def separate_leaves(points: np.ndarray, model: dict[str, Any] | None = None) -> LeafWoodResult:

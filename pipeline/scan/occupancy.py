@@ -217,20 +217,23 @@ def _cell_boxes(
 
 
 def occupancy_grid(
-    tri: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
     spec: ScannerSpec,
     window: PulseGrid,
     a_ref_deg: float,
     *,
     abs_error_m: float,
-    faces: np.ndarray | None = None,
 ) -> SparseGrid:
     """The window's pulses that some triangle can reach.
 
     Parameters
     ----------
-    tri : (n, 3, 3) float64
-        Triangles in the scanner frame (station at the origin).
+    vertices : (v, 3) float64
+        Vertices in the scanner frame (station at the origin).
+    faces : (n, 3) int
+        The triangles, ``vertices[faces]``: gathered a chunk at a time (never all at
+        once: 72 bytes a triangle).
     spec : ScannerSpec
     window : PulseGrid
         The station's window (contiguous lines; columns sorted).
@@ -239,12 +242,8 @@ def occupancy_grid(
         which column angles are measured without wrapping inside the window.
     abs_error_m : float
         Bound of the absolute position error of float32 vertices and ray origins.
-    faces : (n, 3) int, optional
-        Given, ``tri`` holds the vertices (v, 3) and the triangles are ``tri[faces]``,
-        gathered a chunk at a time (never all at once: 72 bytes a triangle).
     """
-    n_tri = len(tri) if faces is None else len(faces)
-    if window.n_pulses == 0 or n_tri == 0:
+    if window.n_pulses == 0 or len(faces) == 0:
         return SparseGrid.empty()
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
@@ -263,10 +262,8 @@ def occupancy_grid(
             for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
                 diff[:] += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
 
-    if faces is None:
-        piece, n_pieces = tri.__getitem__, len(tri)
-    else:
-        piece, n_pieces = (lambda sel: tri[faces[sel]]), len(faces)
+    # the pieces: the triangles at first, gathered when bounded; then bisected halves
+    piece, n_pieces = (lambda sel: vertices[faces[sel]]), len(faces)
     for halvings in range(41):
         # the pieces' boxes a chunk at a time (the bounds' temporaries are ~400 B a
         # piece); a piece's figures do not depend on the others

@@ -732,10 +732,7 @@ def _grid_plan(
     them and, with ``adaptive`` beam sampling, the thin-geometry mask (else None)."""
     if grid.n_pulses == 0 or not (culled or adaptive):
         return grid, None
-    rel = (caster.v - o) @ rot
-    # the triangles in the scanner frame (72 bytes each) only where the thin-geometry
-    # mask needs them all at once; the occupancy grid gathers them a chunk at a time
-    tri = rel[caster.faces] if adaptive else None
+    rel = (caster.v - o) @ rot  # the vertices in the scanner frame
     abs_err = _float32_error_m(radius_m, o)
     cast = grid
     if culled:
@@ -744,12 +741,14 @@ def _grid_plan(
         gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
         g = int(np.argmax(gaps))
         cast = occupancy_grid(
-            rel, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err, faces=caster.faces
+            rel, caster.faces, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err
         )
     thin = None
     if adaptive:
+        # the thin-geometry mask takes the triangles all at once (72 bytes each), made
+        # after the occupancy grid, which gathers them a chunk at a time
         thin = thin_mask(
-            tri,
+            rel[caster.faces],
             spec,
             cast,
             abs_error_m=abs_err,
@@ -928,7 +927,7 @@ def _plan_scan(
         plans.append(_StationPlan(st, o, grid, win, window_grid.n_pulses, thin, t0))
     warnings = _precision_warnings(scene, caster, radius)
     if caster is not None:
-        for k, sp in enumerate(plans, start=int(station_offset)):
+        for k, sp in enumerate(plans, start=station_offset):
             if check_inside:
                 _check_inside(caster, sp.o, k, sp.station)
             warnings += _station_warnings(caster, sp.o, k, sp.station)
@@ -1132,6 +1131,10 @@ def scan(
     """
     if int(chunk_rays) < 1:
         raise InvalidParameterError(f"chunk_rays must be >= 1, got {chunk_rays}")
+    # checked before planning (which names stations by it and builds the BVH)
+    if isinstance(station_offset, bool) or int(station_offset) < 0:
+        raise InvalidParameterError(f"station_offset must be >= 0, got {station_offset!r}")
+    station_offset = int(station_offset)
     t_all = time.perf_counter()
     plan = _plan_scan(
         scene,
@@ -1165,9 +1168,7 @@ def scan(
     total_pulses = max(1, plan.pulses_cast)
     done_pulses = 0
     n_written = 0
-    if isinstance(station_offset, bool) or int(station_offset) < 0:
-        raise InvalidParameterError(f"station_offset must be >= 0, got {station_offset!r}")
-    for k, sp in enumerate(plan.plans, start=int(station_offset)):
+    for k, sp in enumerate(plan.plans, start=station_offset):
         t_st = time.perf_counter()
         n_points = 0
         rays_cast = 0

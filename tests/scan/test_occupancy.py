@@ -207,7 +207,8 @@ def test_nothing_in_range_is_an_empty_scan():
 def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     """Scene validation, the triangles to load, the caster's per-triangle data and the
     occupancy grid work a chunk of triangles at a time: tiny chunks (and gathering the
-    triangles from vertices and faces) give the same scene, plan and points, bit for bit."""
+    triangles from vertices and faces a chunk at a time) give the same scene, plan and
+    points, bit for bit."""
     import importlib
 
     import pipeline.scene as scene_module
@@ -225,17 +226,18 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     spec = SPEC.with_(vertical_fov_deg=(-40.0, 90.0), max_range_m=7.0)
     scene = Scene(parts)
     ref = scan(scene, stations, spec)
-    # the occupancy grid of gathered triangles is that of the triangles given
+    # the occupancy grid a chunk of triangles (and of bisected pieces) at a time is that
+    # of all of them at once
     o = stations[0].position
     rel = (scene.vertices - o) @ stations[0].rotation
     box = rel[scene.faces].reshape(-1, 3)
     from pipeline.scan.rays import box_window
 
     win = windowed_grid(spec, box_window(box.min(axis=0), box.max(axis=0)))
-    given = occupancy.occupancy_grid(rel[scene.faces], spec, win, 0.0, abs_error_m=1e-6)
-    for name, size in (("_PIECE_CHUNK", 997),):
-        monkeypatch.setattr(occupancy, name, size)
-    gathered = occupancy.occupancy_grid(rel, spec, win, 0.0, abs_error_m=1e-6, faces=scene.faces)
+    given = occupancy.occupancy_grid(rel, scene.faces, spec, win, 0.0, abs_error_m=1e-6)
+    assert len(scene.faces) < occupancy._PIECE_CHUNK  # one chunk, against many
+    monkeypatch.setattr(occupancy, "_PIECE_CHUNK", 997)
+    gathered = occupancy.occupancy_grid(rel, scene.faces, spec, win, 0.0, abs_error_m=1e-6)
     assert given.n_pulses == gathered.n_pulses > 0
     np.testing.assert_array_equal(
         given.indices(0, given.n_pulses), gathered.indices(0, given.n_pulses)
