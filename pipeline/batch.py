@@ -817,8 +817,6 @@ def _drive(
 # -- plots --------------------------------------------------------------------------------
 def _plot_hash(path: Path, h: str) -> str:
     """The plot file's hash with its trees CSV's (the files a plot file names)."""
-    import hashlib
-
     import tomllib
 
     try:
