@@ -155,9 +155,22 @@ def main() -> None:
         f"python {sys.version.split()[0]}"
     )
     print(machine)
+    by = {r["label"]: r for r in rows}
+    short, nocache = by["short range"], by["short range, no cache"]
+    whole = by["whole scene at once, short range"]
+    ratios = (
+        f"Short range against the whole scene at once: peak RSS "
+        f"{short['peak_rss_gib'] / whole['peak_rss_gib']:.2f}x "
+        f"({nocache['peak_rss_gib'] / whole['peak_rss_gib']:.2f}x without the cache), time "
+        f"{short['time_s'] / whole['time_s']:.2f}x ({nocache['time_s'] / whole['time_s']:.2f}x "
+        f"without the cache: rebuilding the trees a later station needs again cost "
+        f"{nocache['time_s'] - short['time_s']:+.1f} s)."
+    )
+    print(ratios)
     if a.readme:
+        command = " ".join(["python benchmarks/bench_plot.py", *sys.argv[1:]])
         lines = [
-            f"`python benchmarks/bench_plot.py --readme` measured these in one run: {machine} "
+            f"`{command}` measured these in one run: {machine} "
             f"(a shared host: expect ±15 %). {len(plot.trees)} generated trees "
             f"(aspen:0.6,balsam-fir:0.4, 300 stems/ha, {radius} m, seed 1, {facets} facets, "
             f"{rows[0]['triangles'] / 1e6:.1f} M triangles with the terrain), 3 stations, "
@@ -174,6 +187,7 @@ def main() -> None:
                 f"{r['points'] / 1e6:.2f} M | {' / '.join(map(str, r['trees']))} | "
                 f"{loaded} of {r['triangles'] / 1e6:.1f} M |"
             )
+        lines += ["", ratios]
         readme_part.write_part(README_PART, "\n".join(lines))
         print("wrote the README's table")
 

@@ -443,6 +443,9 @@ class BatchProgress:
         Time left, from the rate at which trees finish (None until one has).
     last : dict or None
         The row of the tree that just finished, if any.
+    plots : int
+        How many of the ``total`` inputs are plots (each gives one row per tree of it),
+        on the first call.
     """
 
     total: int
@@ -453,6 +456,7 @@ class BatchProgress:
     elapsed_s: float
     eta_s: float | None
     last: dict[str, Any] | None = None
+    plots: int = 0
 
     @property
     def finished(self) -> int:
@@ -678,7 +682,8 @@ def _run_locked(
     interrupted = False
     try:
         if progress is not None:  # where the batch starts from (reused trees counted)
-            progress(_state(rows, len(trees), 0, t_start, 0, None, None))
+            plots = sum(1 for t in trees if t.kind == "plot")
+            progress(_state(rows, len(trees), 0, t_start, 0, None, None, plots=plots))
         if tasks:
             _drive(tasks, plan, rows, len(trees), progress, t_start)
     except KeyboardInterrupt:
@@ -721,6 +726,8 @@ def _state(
     ran: int,
     t_first: float | None,
     last: dict[str, Any] | None,
+    *,
+    plots: int = 0,
 ) -> BatchProgress:
     vals = list(rows.values())
     failed = sum(1 for r in vals if r.get("status") == "failed")
@@ -740,6 +747,7 @@ def _state(
         elapsed_s=elapsed,
         eta_s=eta,
         last=last,
+        plots=plots,
     )
 
 
@@ -817,8 +825,6 @@ def _drive(
 # -- plots --------------------------------------------------------------------------------
 def _plot_hash(path: Path, h: str) -> str:
     """The plot file's hash with its trees CSV's (the files a plot file names)."""
-    import hashlib
-
     import tomllib
 
     try:

@@ -117,19 +117,24 @@ class BatchProgressBar:
         self._last_draw = 0.0
         self._drawn = False
         self._started = False
+        self._unit = noun
 
     def __call__(self, p: BatchProgress) -> None:
-        if not self.tty and not self._started:  # a log says at once what the batch will do
+        if not self._started:
             self._started = True
-            noun = self.noun if p.total != 1 else self.noun.removesuffix("s")
-            self.stream.write(
-                f"{self.name}: {p.total} {noun}, {p.reused} unchanged "
-                f"(not run again), {p.total - p.reused} to run\n"
-            )
+            # a plot input gives a row per tree: count the inputs, not the trees
+            self._unit = "inputs" if p.plots else self.noun
+            if not self.tty:  # a log says at once what the batch will do
+                noun = self._unit if p.total != 1 else self._unit.removesuffix("s")
+                plots = f" ({p.plots} plot{'s' if p.plots != 1 else ''})" if p.plots else ""
+                self.stream.write(
+                    f"{self.name}: {p.total} {noun}{plots}, {p.reused} unchanged "
+                    f"(not run again), {p.total - p.reused} to run\n"
+                )
         left = "estimating" if p.eta_s is None else f"~{_clock(p.eta_s)} left"
         if p.finished == p.total and p.running == 0:
             left = "done"
-        counts = f"{p.finished}/{p.total} {self.noun} · {p.failed} failed"
+        counts = f"{p.finished}/{p.total} {self._unit} · {p.failed} failed"
         if p.reused:
             counts += f" · {p.reused} unchanged"
         if self.tty:

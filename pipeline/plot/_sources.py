@@ -85,14 +85,6 @@ def _file(tree: PlotTree, base_dir: Path | None) -> Path:
     return p
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while block := fh.read(1 << 22):
-            h.update(block)
-    return h.hexdigest()
-
-
 def cloud_table(tree: PlotTree, base_dir: Path | None, reconstruct: Any = None) -> CylinderTable:
     """The QSM of a field cloud, reconstructed once: kept in ``.treesim-cache/`` beside the
     plot file under the cloud's content hash and the reconstruction's parameters."""
@@ -101,13 +93,14 @@ def cloud_table(tree: PlotTree, base_dir: Path | None, reconstruct: Any = None) 
     from ..models import read_cylinders, write_cylinders
     from ..params import ReconstructParams
     from ..reconstruct import reconstruct as run_reconstruct
+    from ..run import file_sha256
 
     src = _file(tree, base_dir)
     params = reconstruct or ReconstructParams(method="qsm")
     if params.method != "qsm":
         params = replace(params, method="qsm")
     key = hashlib.sha256(
-        (_sha256(src) + json.dumps(params.to_dict(), sort_keys=True, default=str)).encode()
+        (file_sha256(src) + json.dumps(params.to_dict(), sort_keys=True, default=str)).encode()
     ).hexdigest()[:16]
     folder = (base_dir or src.parent) / CACHE_FOLDER / f"{src.stem}-{key}"
     table_path = folder / "cylinders.csv"

@@ -343,8 +343,8 @@ def generate_stand(
 
 
 def write_map(path: str | Path, plot: Plot, *, title: str = "") -> Path:
-    """A small PNG map of the plot: stems drawn at 5 × their DBH (target, or truth
-    where no target), coloured by species, the plot's circle."""
+    """A small PNG map of the plot: stems drawn at 5 × their target DBH (0.2 m where a
+    tree has none), coloured by species, the plot's circle."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -107,14 +107,17 @@ def station_trees(
     origin = plot.frame().origin_array if origin is None else origin
     out: dict[str, list[int]] = {"loaded": [], "beyond_range": [], "outside_fov": []}
     for tid in plot.tree_ids:
-        bounds = plot.tree_bounds(tid)
-        if box_reachable(bounds, station, spec, origin):
-            out["loaded"].append(tid)
-        elif _box_distance(bounds, station.position) > spec.max_range_m:
-            out["beyond_range"].append(tid)
-        else:
-            out["outside_fov"].append(tid)
+        out[_box_verdict(plot.tree_bounds(tid), station, spec, origin)].append(tid)
     return out
+
+
+def _box_verdict(bounds: np.ndarray, station: Station, spec: Any, origin: np.ndarray) -> str:
+    """``loaded`` (:func:`box_reachable`), else ``beyond_range`` or ``outside_fov``."""
+    if box_reachable(bounds, station, spec, origin):
+        return "loaded"
+    if _box_distance(bounds, station.position) > spec.max_range_m:
+        return "beyond_range"
+    return "outside_fov"
 
 
 def _box_distance(bounds: np.ndarray, p: np.ndarray) -> float:
@@ -181,7 +184,7 @@ class PlotScanResult:
             "scanner": self.spec.to_dict() if self.spec is not None else None,
             "models_active": list(self.models),
             "stations": [
-                {**s.to_dict(), **{k: v for k, v in ld.items()}}
+                {**s.to_dict(), **ld}
                 for s, ld in zip(self.station_stats, self.loading, strict=True)
             ],
             "lod": self.lod,
@@ -269,12 +272,11 @@ def scan_plot(
         was = tid in plot.loaded
         bounds = plot.tree_bounds(tid)
         for k, st in enumerate(placed):
-            if box_reachable(bounds, st, spec, origin):
+            verdict = _box_verdict(bounds, st, spec, origin)
+            if verdict == "loaded":
                 needs.setdefault(k, []).append(tid)
-            elif _box_distance(bounds, st.position) > spec.max_range_m:
-                why[k]["beyond_range"].append(tid)
             else:
-                why[k]["outside_fov"].append(tid)
+                why[k][verdict].append(tid)
         if not was:
             _trim(plot, set(needs.get(0, [])), int(cache_triangles), keep_last=tid)
     ground = plot.terrain_part(margin_m) if terrain else None

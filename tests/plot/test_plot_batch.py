@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import replace
 
 from pipeline.batch import discover_inputs, run_batch
 from pipeline.cli import main
+from pipeline.cli.progress import BatchProgressBar
 from pipeline.params import run_preset
 
 
@@ -20,7 +22,14 @@ def test_a_plot_in_a_batch_gives_a_row_per_tree_and_is_reused(tmp_path, capsys):
     assert [(t.id, t.kind) for t in trees] == [("p1", "plot")] and skipped == []
     p = run_preset("draft")
     p = replace(p, scan=replace(p.scan, n_stations=2, distance_m=1.0))
-    r = run_batch([tmp_path / "in"], p, tmp_path / "out")
+    log = io.StringIO()
+    bar = BatchProgressBar(log, tty=False)
+    r = run_batch([tmp_path / "in"], p, tmp_path / "out", progress=bar)
+    # the log counts the inputs (one plot), the summary its trees
+    assert log.getvalue().startswith(
+        "batch: 1 input (1 plot), 0 unchanged (not run again), 1 to run\n"
+    )
+    assert "batch: 1/1 inputs" in log.getvalue() and r.tally("trees").startswith("2 trees: 2 run")
     assert [(row["id"], row["tree_id"], row["status"]) for row in r.rows] == [
         ("p1", 1, "ok"),
         ("p1", 2, "ok"),
