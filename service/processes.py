@@ -353,8 +353,7 @@ def _source_schema() -> dict[str, Any]:
     """``stand``, ``tree`` and ``radius_m``: a plot made by the job instead of one uploaded."""
     from pipeline.models import SPECIES
     from pipeline.params.models import ModelParams
-
-    from .plots import StandParams
+    from pipeline.plot.generate import StandParams
 
     stand = json_schema(StandParams)
     stand["description"] = (
@@ -389,8 +388,9 @@ def _source_schema() -> dict[str, Any]:
 def _pop_source(data: dict[str, Any]) -> Any:
     """The plot source of a plan or plot scan, its fields taken out of ``data``."""
     from pipeline.params.models import ModelParams
+    from pipeline.plot.generate import StandParams
 
-    from .plots import PlotSource, StandParams
+    from .plots import PlotSource
 
     stand = data.pop("stand", None)
     tree = data.pop("tree", None)
