@@ -310,7 +310,7 @@ def open_plot(
     (for the job's JSON). A plot archive is unpacked into a hidden folder of the job's
     output folder, removed when the block ends (a killed job's attempt folder goes
     whole); a generated stand's files are written to ``stand/`` among the results."""
-    from pipeline.plan.sources import mesh_tree_plot, species_tree_plot
+    from pipeline.plan.sources import mesh_tree_plot, model_tree_plot
 
     source.check(set(inputs))
     if "plot" in inputs:
@@ -333,12 +333,5 @@ def open_plot(
         write_plot(out / "stand" / PLOT_FILE, plot, stand=stand)
         yield plot, False, {"stand": {**asdict(source.stand), "trees": len(plot.trees)}}
         return
-    mp = source.tree
-    plot = species_tree_plot(
-        str(mp.species), seed=mp.seed, leaves=mp.leaves, facets=mp.facets, radius_m=source.radius_m
-    )
-    yield (
-        plot,
-        True,
-        {"species": mp.species, "seed": mp.seed, "leaves": mp.leaves, "facets": mp.facets},
-    )
+    plot, what = model_tree_plot(source.tree, radius_m=source.radius_m)
+    yield plot, True, what
