@@ -47,11 +47,10 @@ def _inspect_cylinders(path: str) -> dict[str, Any] | None:
     from pipeline.models import read_cylinders
 
     try:
-        table = read_cylinders(path)
-        table.validate()
+        table = read_cylinders(path)  # validated
     except TreesimError:
         return None
-    ends = np.concatenate([table.start, table.start + table.axis * table.length_m[:, None]])
+    ends = np.concatenate([table.start, table.end])
     return {
         "format": "cylinders",
         "kind": "cylinders",

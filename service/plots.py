@@ -1,6 +1,7 @@
 """Plots for the service: the ``plot`` upload (a zip archive of a plot file and its trees),
-the parameters of a stand a job generates itself (:class:`StandParams`), and how a job of
-``plan`` or ``plot-scan`` gets its plot (:func:`open_plot`).
+and how a job of ``plan`` or ``plot-scan`` gets its plot (:class:`PlotSource`: an archive,
+a mesh, a stand the job generates itself, of at most :data:`MAX_TREES` trees, or one
+procedural tree; :func:`open_plot`).
 
 A plot archive holds ``plot.toml`` at its root or in its one top folder, the trees CSV it
 names and every mesh, cylinder table, field cloud or terrain file its trees and terrain
@@ -25,7 +26,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -36,13 +37,11 @@ from pipeline.errors import (
     ResourceLimitError,
     TreesimError,
 )
-from pipeline.plot.generate import StandParams as _Stand
 
 __all__ = [
     "MAX_ENTRIES",
     "UNPACK_FACTOR",
     "PlotSource",
-    "StandParams",
     "inspect_plot_archive",
     "is_zip",
     "open_plot",
@@ -55,7 +54,8 @@ MAX_ENTRIES = 10_000
 UNPACK_FACTOR = 4
 #: Most trees in a generated stand (as pipeline.plot.generate.generate_stand refuses more).
 MAX_TREES = 5000
-#: The plot file an archive must hold.
+#: The plot file an archive must hold (:data:`pipeline.plot.io.PLOT_FILE`, named here so
+#: that the API starts without importing :mod:`pipeline.plot`).
 PLOT_FILE = "plot.toml"
 
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
@@ -251,30 +251,27 @@ def inspect_plot_archive(
         }
 
 
-# -- a stand the job generates ------------------------------------------------------------------
-@dataclass(frozen=True, kw_only=True)
-class StandParams(_Stand):
-    """A synthetic stand a job generates itself (as treesim plot generate), of at most
-    :data:`MAX_TREES` trees."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.expected_trees > MAX_TREES:
-            raise InvalidParameterError(
-                f"stems_per_ha {self.stems_per_ha:g} on a {self.radius_m:g} m plot is "
-                f"{self.expected_trees:,.0f} trees; a generated stand has at most {MAX_TREES:,}"
-            )
-
-
 # -- where a job's plot comes from ---------------------------------------------------------------
 @dataclass(frozen=True)
 class PlotSource:
     """One of: a plot archive (input ``plot``), a tree mesh (input ``mesh``), a generated
-    stand (``stand``), one procedural tree (``tree``; ``radius_m`` the candidate area)."""
+    stand (``stand``, a :class:`pipeline.plot.generate.StandParams` of at most
+    :data:`MAX_TREES` trees), one procedural tree (``tree``; ``radius_m`` the candidate
+    area)."""
 
-    stand: StandParams | None = None
+    stand: Any = None  # StandParams
     tree: Any = None  # ModelParams
     radius_m: float | None = None
+
+    def __post_init__(self) -> None:
+        st = self.stand
+        if st is not None and st.expected_trees > MAX_TREES:
+            exc = InvalidParameterError(
+                f"stems_per_ha {st.stems_per_ha:g} on a {st.radius_m:g} m plot is "
+                f"{st.expected_trees:,.0f} trees; a generated stand has at most {MAX_TREES:,}"
+            )
+            exc.field = "stand"  # type: ignore[attr-defined]
+            raise exc
 
     def given(self, inputs: set[str] | frozenset[str]) -> list[str]:
         out = [f"inputs.{n}" for n in ("plot", "mesh") if n in inputs]
@@ -313,7 +310,7 @@ def open_plot(
     (for the job's JSON). A plot archive is unpacked into a hidden folder of the job's
     output folder, removed when the block ends (a killed job's attempt folder goes
     whole); a generated stand's files are written to ``stand/`` among the results."""
-    from pipeline.plan.sources import mesh_tree_plot, species_tree_plot
+    from pipeline.plan.sources import mesh_tree_plot, model_tree_plot
 
     source.check(set(inputs))
     if "plot" in inputs:
@@ -329,26 +326,12 @@ def open_plot(
         yield mesh_tree_plot(inputs["mesh"], radius_m=source.radius_m), True, {"mesh": "input"}
         return
     if source.stand is not None:
-        from pipeline.plot.io import PLOT_FILE as _FILE
         from pipeline.plot.io import write_plot
 
         plot, stand = source.stand.generate()
         (out / "stand").mkdir(parents=True, exist_ok=True)
-        write_plot(out / "stand" / _FILE, plot, stand=stand)
-        yield plot, False, {"stand": {**_dict(source.stand), "trees": len(plot.trees)}}
+        write_plot(out / "stand" / PLOT_FILE, plot, stand=stand)
+        yield plot, False, {"stand": {**asdict(source.stand), "trees": len(plot.trees)}}
         return
-    mp = source.tree
-    plot = species_tree_plot(
-        str(mp.species), seed=mp.seed, leaves=mp.leaves, facets=mp.facets, radius_m=source.radius_m
-    )
-    yield (
-        plot,
-        True,
-        {"species": mp.species, "seed": mp.seed, "leaves": mp.leaves, "facets": mp.facets},
-    )
-
-
-def _dict(obj: Any) -> dict[str, Any]:
-    from dataclasses import asdict
-
-    return asdict(obj)
+    plot, what = model_tree_plot(source.tree, radius_m=source.radius_m)
+    yield plot, True, what

@@ -353,8 +353,7 @@ def _source_schema() -> dict[str, Any]:
     """``stand``, ``tree`` and ``radius_m``: a plot made by the job instead of one uploaded."""
     from pipeline.models import SPECIES
     from pipeline.params.models import ModelParams
-
-    from .plots import StandParams
+    from pipeline.plot.generate import StandParams
 
     stand = json_schema(StandParams)
     stand["description"] = (
@@ -389,8 +388,9 @@ def _source_schema() -> dict[str, Any]:
 def _pop_source(data: dict[str, Any]) -> Any:
     """The plot source of a plan or plot scan, its fields taken out of ``data``."""
     from pipeline.params.models import ModelParams
+    from pipeline.plot.generate import StandParams
 
-    from .plots import PlotSource, StandParams
+    from .plots import PlotSource
 
     stand = data.pop("stand", None)
     tree = data.pop("tree", None)
@@ -421,6 +421,11 @@ _PLOT_INPUTS = (
         required=False,
     ),
     Input("mesh", ("mesh",), "one tree as a mesh, instead of a plot", required=False),
+)
+#: What a generated stand (parameters.stand) leaves among a plan's or plot scan's results.
+_STAND_OUTPUTS = (
+    ("stand/plot.toml", "a generated stand's plot file (stand only)"),
+    ("stand/trees.csv", "a generated stand's trees (stand only)"),
 )
 
 
@@ -511,7 +516,7 @@ def _execute_plan(
         progress(0.95, "writing the plan")
         given = {**what, "instrument": inst.name}
         given["resolution_deg"] = job.spec.horizontal_resolution_deg
-        write_plan(result, out, inputs=given)
+        written = write_plan(result, out, inputs=given)
     d = result.to_dict()
     plan = d["plan"]
     ver = d["comparison"].get("verified")
@@ -528,7 +533,7 @@ def _execute_plan(
         "statement": d["comparison"]["statement"],
         "verified": ver,
         "timings_s": d["timings_s"],
-        "files": ["plan.json", "stations.csv", "map.png", "curve.png"],
+        "files": list(written),
     }
 
 
@@ -769,8 +774,7 @@ PROCESSES: dict[str, Process] = {
                 ("stations.csv", "the chosen stations: order, x, y, z, field time"),
                 ("map.png", "the plot with the stations and per-tree coverage"),
                 ("curve.png", "coverage and field time against the number of stations"),
-                ("stand/plot.toml", "a generated stand's plot file (stand only)"),
-                ("stand/trees.csv", "a generated stand's trees (stand only)"),
+                *_STAND_OUTPUTS,
             ),
             extra_schema=_plan_extra,
             base_schema=_plan_schema,
@@ -798,8 +802,7 @@ PROCESSES: dict[str, Process] = {
                 ("plot_scan.laz", "the simulated cloud with tree_id and station per point"),
                 ("plot_scan.json", "scanner, stations, trees loaded, truth and figures"),
                 ("tree_figures.csv", "one row per tree: points, coverage, AVOHD, DBH, height"),
-                ("stand/plot.toml", "a generated stand's plot file (stand only)"),
-                ("stand/trees.csv", "a generated stand's trees (stand only)"),
+                *_STAND_OUTPUTS,
             ),
             extra_schema=_plot_scan_extra,
             base_schema=_plot_scan_schema,

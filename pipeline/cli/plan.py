@@ -100,7 +100,7 @@ def load_plot(path: str | Path) -> Any:
 
 
 def _target(args: argparse.Namespace, tree: dict[str, Any]) -> tuple[Any, bool, dict[str, Any]]:
-    from ..plan.sources import mesh_tree_plot, species_tree_plot
+    from ..plan.sources import mesh_tree_plot, model_tree_plot
 
     given = [
         n
@@ -120,15 +120,8 @@ def _target(args: argparse.Namespace, tree: dict[str, Any]) -> tuple[Any, bool, 
         return load_plot(args.plot), False, {"plot": str(args.plot)}
     if args.mesh:
         return mesh_tree_plot(args.mesh, radius_m=args.radius_m), True, {"mesh": str(args.mesh)}
-    mp = merge(ModelParams(), tree)
-    plot = species_tree_plot(
-        str(mp.species), seed=mp.seed, leaves=mp.leaves, facets=mp.facets, radius_m=args.radius_m
-    )
-    return (
-        plot,
-        True,
-        {"species": mp.species, "seed": mp.seed, "leaves": mp.leaves, "facets": mp.facets},
-    )
+    plot, what = model_tree_plot(merge(ModelParams(), tree), radius_m=args.radius_m)
+    return plot, True, what
 
 
 def cmd_plan(args: argparse.Namespace) -> int:

@@ -9,6 +9,7 @@ inside the candidate area.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -18,7 +19,7 @@ from ..plot import Plot, PlotTree, Terrain
 from ..scene import MeshPart
 from .layouts import rule_distance_m
 
-__all__ = ["mesh_tree_plot", "species_tree_plot"]
+__all__ = ["mesh_tree_plot", "model_tree_plot", "species_tree_plot"]
 
 #: The default candidate area of a single tree, in station-rule distances.
 RADIUS_FACTOR = 1.5
@@ -39,6 +40,16 @@ def species_tree_plot(
         v = np.concatenate([p.vertices for p in plot.tree_parts(1)])
         plot.radius_m = RADIUS_FACTOR * rule_distance_m(v)
     return plot
+
+
+def model_tree_plot(mp: Any, *, radius_m: float | None = None) -> tuple[Plot, dict[str, Any]]:
+    """(plot, what): :func:`species_tree_plot` of the tree a
+    :class:`pipeline.params.models.ModelParams` names (``treesim plan --species``, the
+    service's ``tree``), and its species, seed, leaves and facets (a plan's inputs)."""
+    plot = species_tree_plot(
+        str(mp.species), seed=mp.seed, leaves=mp.leaves, facets=mp.facets, radius_m=radius_m
+    )
+    return plot, {"species": mp.species, "seed": mp.seed, "leaves": mp.leaves, "facets": mp.facets}
 
 
 class _MeshPlot(Plot):

@@ -10,6 +10,8 @@ import csv
 import io
 import json
 import stat
+import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -165,6 +167,20 @@ def test_a_plot_archive_that_unpacks_too_big_is_refused(client):
     big = _zip({"plot.toml": _TOML, "trees.csv": _CSV, "zeros.bin": b"\0" * (4 * LIMIT + 1)})
     assert len(big) < LIMIT
     _problem(client.post("/v1/uploads?filename=z.zip", content=big), 422, contains="unpacks to")
+
+
+def test_the_service_starts_without_the_plot_and_plan_modules():
+    """Plots are read in the upload's inspector and in jobs, never in the API's start-up."""
+    root = Path(__file__).resolve().parents[2]
+    heavy = ("pipeline.plot", "pipeline.plan", "open3d")
+    code = (
+        "import sys\nimport service.app\n"
+        f"print(','.join(m for m in {heavy!r} if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == "", f"imported at start-up: {out.stdout.strip()}"
 
 
 # -- the processes and their parameters -------------------------------------------------------
