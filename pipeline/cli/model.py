@@ -107,7 +107,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_from_qsm(args: argparse.Namespace) -> int:
     from ..io.mesh import write_mesh
-    from ..models import branch_tubes, cylinders_to_mesh, mesh_volume, read_cylinders
+    from ..models import mesh_volume, qsm_mesh, read_cylinders
 
     mp = merge(ModelParams(), collect(args))
     out = Path(args.output)
@@ -115,20 +115,15 @@ def cmd_from_qsm(args: argparse.Namespace) -> int:
     output_file(out, inputs=[args.table])
     facets = mp.facets
     table = read_cylinders(args.table, format=args.format)
+    v, f, sunk = qsm_mesh(table, facets=facets, joints=mp.joints)
     plugs = ""
     plug_volume = 0.0
-    if mp.joints == "miter":
-        # as reconstruct meshes its own tables: each branch's tube starts inside its
-        # parent (closed junctions, no notch or flat base disc a scanner could see)
-        tubes, sunk = branch_tubes(table, facets=facets)
-        v, f = tubes.vertices, tubes.faces
+    if sunk is not None:
         plug_volume = sunk.plug_volume_m3(facets)
         plugs = (
             f"; {sunk.n_plugs:,} of {sunk.branch_starts:,} branch starts sunk into their "
             f"parents ({plug_volume * 1000:.2f} L inside them)"
         )
-    else:
-        v, f = cylinders_to_mesh(table, facets=facets, joints=mp.joints)
     write_mesh(out, v, f)
     s = table.summary()
     dbh = f"{s['dbh_m'] * 100:.2f} cm" if s["dbh_m"] is not None else "n/a (no stem)"

@@ -24,7 +24,7 @@ from .cylinders import (
     read_cylinders,
     write_cylinders,
 )
-from .junctions import SunkTable, branch_tubes, sink_branches
+from .junctions import SunkTable, branch_tubes, qsm_mesh, sink_branches
 from .lod import LOD_MIN_FACETS, LOD_TOLERANCE, LodPlan, lod_facets, plan_lod
 from .mesh import (
     JOINTS,
@@ -79,6 +79,7 @@ __all__ = [
     "lod_facets",
     "mesh_triangle_count",
     "mesh_volume",
+    "qsm_mesh",
     "meshed_facets",
     "plan_lod",
     "species_preset",

@@ -33,9 +33,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .cylinders import CylinderTable
-from .mesh import TubeMesh, tubes_to_mesh
+from .mesh import TubeMesh, cylinders_to_mesh, tubes_to_mesh
 
-__all__ = ["SunkTable", "branch_tubes", "sink_branches"]
+__all__ = ["SunkTable", "branch_tubes", "qsm_mesh", "sink_branches"]
 
 #: A plug reaches back at most this many parent radii (the larger of its two ends).
 MAX_PLUG_PARENT_RADII = 2.0
@@ -184,3 +184,26 @@ def branch_tubes(
     if np.ndim(facets) != 0:
         per_row = np.asarray(facets)[sunk.source_row]
     return tubes_to_mesh(sunk.table, facets=per_row), sunk
+
+
+def qsm_mesh(
+    table: CylinderTable, *, facets: int = 32, joints: str = "miter"
+) -> tuple[np.ndarray, np.ndarray, SunkTable | None]:
+    """A QSM table as a mesh, the one rule for every table treesim meshes (``treesim
+    model from-qsm``, plot trees from tables or clouds): ``joints="miter"`` gives
+    :func:`branch_tubes` (closed tubes, each branch's start sunk into its parent),
+    ``"separate"`` a closed prism per cylinder
+    (:func:`~pipeline.models.mesh.cylinders_to_mesh`).
+
+    Returns
+    -------
+    vertices : (v, 3) float64
+    faces : (f, 3) int64
+    sunk : SunkTable or None
+        The plugs (``miter``), for their count and volume; None for ``separate``.
+    """
+    if joints == "miter":
+        tubes, sunk = branch_tubes(table, facets=facets)
+        return tubes.vertices, tubes.faces, sunk
+    v, f = cylinders_to_mesh(table, facets=facets, joints=joints)
+    return v, f, None

@@ -144,7 +144,7 @@ def local_tree(
     """The tree as made: vertices, faces, label codes, its stem base (3,) in the
     source's coordinates (subtract it to stand the tree at the origin) and its cylinder
     table (None for a mesh tree)."""
-    from ..models import cylinders_to_mesh, generate_tree
+    from ..models import generate_tree, qsm_mesh
     from ..params.models import ModelParams
 
     if tree.source == "species":
@@ -174,7 +174,7 @@ def local_tree(
         return v, f, lab, stem_base(used), None
     table = source_table(tree, base_dir, reconstruct)
     assert table is not None
-    v, f = cylinders_to_mesh(table, facets=facets, joints=ModelParams().joints)
+    v, f, _ = qsm_mesh(table, facets=facets, joints=ModelParams().joints)
     lab = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
     return v, f, lab, stem_base(v), table
 

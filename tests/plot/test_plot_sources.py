@@ -56,6 +56,14 @@ def test_qsm_tree_is_meshed_and_its_truth_is_its_table():
     assert truth["dbh_m"] == pytest.approx(s["dbh_m"], rel=1e-12)
     assert truth["height_m"] == pytest.approx(s["height_m"], rel=1e-9)
     assert truth["volume_total_m3"] == pytest.approx(s["volume_total_m3"], rel=1e-12)
+    # meshed as treesim model from-qsm meshes it: closed tubes, branch starts sunk
+    from pipeline.models import cylinders_to_mesh, qsm_mesh
+
+    _, faces, sunk = qsm_mesh(table, facets=plot.facets)
+    assert sunk is not None and sunk.n_plugs > 0
+    n_tri = sum(len(p.faces) for p in plot.tree_parts(1))
+    assert n_tri == len(faces)
+    assert n_tri > len(cylinders_to_mesh(table, facets=plot.facets, joints="miter")[1])
     b = plot.tree_bounds(1)
     assert b[0, 2] == pytest.approx(0.0, abs=1e-9)  # stands on the flat terrain
     assert b[0, 0] < 5.0 < b[1, 0] and b[0, 1] < 5.0 < b[1, 1]
