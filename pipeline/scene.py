@@ -88,7 +88,7 @@ class Scene:
         Label code (see ``pipeline.cloud.LABEL_CODES``) of every triangle.
     face_tree : (f,) uint32 or None
         The tree id of every triangle (its part's ``tree_id``; 0: no tree), or None
-        when no part belongs to a tree.
+        when no part belongs to a tree and ``keep_tree_ids`` is off.
     parts : list of MeshPart
     dropped_degenerate : int
         Zero-area triangles removed during validation (they give NaN normals).
@@ -104,6 +104,9 @@ class Scene:
     """
 
     parts: list[MeshPart]
+    #: keep ``face_tree`` even when every part's id is 0 (a plot station that sees only
+    #: the terrain: its points still carry ``tree_id``)
+    keep_tree_ids: bool = False
     vertices: np.ndarray = field(init=False)
     faces: np.ndarray = field(init=False)
     face_label: np.ndarray = field(init=False)
@@ -157,7 +160,7 @@ class Scene:
         self.vertices = np.concatenate(verts)
         self.faces = np.concatenate(faces)
         self.face_label = np.concatenate(labels)
-        if any(int(p.tree_id) for p in self.parts):
+        if self.keep_tree_ids or any(int(p.tree_id) for p in self.parts):
             self.face_tree = np.concatenate(trees)
         self.dropped_degenerate = dropped
         mask = np.zeros(len(self.vertices), dtype=bool)

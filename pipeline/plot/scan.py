@@ -293,13 +293,6 @@ def scan_plot(
     written = 0
     models: list[str] = []
 
-    def with_tree_id(fields: dict[str, np.ndarray], n_pts: int) -> dict[str, np.ndarray]:
-        # a station that sees only the terrain scans a scene without tree ids
-        if "tree_id" in fields:
-            return fields
-        return {**fields, "tree_id": np.zeros(n_pts, dtype=np.uint32)}
-
-    out_sink = None if sink is None else (lambda p, f: sink(p, with_tree_id(f, len(p))))
     for k, st in enumerate(placed):
         t_st = time.perf_counter()
         ids = needs.get(k, [])
@@ -315,14 +308,15 @@ def scan_plot(
         )
         say(k / n, f"station {k + 1}/{n}: {len(ids)} trees")
         if parts:
-            scene = Scene(parts)
+            # a station that sees only the terrain still labels its points (tree_id 0)
+            scene = Scene(parts, keep_tree_ids=True)
             res = scan_scene(
                 scene,
                 [st],
                 params,
                 threads=threads,
                 window=window,
-                sink=out_sink,
+                sink=sink,
                 progress=scale_progress(
                     (lambda f, m, k=k: say(f, f"station {k + 1}/{n}")), k / n, (k + 1) / n
                 ),
@@ -338,7 +332,7 @@ def scan_plot(
             written += res.points_written
             if sink is None and len(res.cloud):
                 pts.append(res.cloud.points)
-                flds.append(with_tree_id(res.cloud.fields, len(res.cloud)))
+                flds.append(res.cloud.fields)
             del res
         else:
             stats.append(_empty_stats(k, st, spec))
@@ -428,9 +422,9 @@ def _empty_stats(k: int, st: Station, spec: Any) -> Any:
 def plot_fields() -> dict[str, np.dtype]:
     """The per-point fields of a plot's scan (what a streaming writer declares): a
     scan's, with ``tree_id``."""
-    from ..scan.trace import SCAN_FIELDS
+    from ..scan.trace import SCAN_FIELDS, TREE_ID_FIELD
 
-    return {**SCAN_FIELDS, "tree_id": np.dtype(np.uint32)}
+    return {**SCAN_FIELDS, **TREE_ID_FIELD}
 
 
 def tree_figures(

@@ -1327,13 +1327,17 @@ _FIELDS: dict[str, Any] = {
 SCAN_FIELDS: dict[str, np.dtype] = {k: np.dtype(v) for k, v in _FIELDS.items()}
 
 
+#: The field a scan of a plot adds (see :func:`scan_fields`).
+TREE_ID_FIELD: dict[str, np.dtype] = {"tree_id": np.dtype(np.uint32)}
+
+
 def scan_fields(scene: Scene) -> dict[str, np.dtype]:
     """The per-point fields a scan of ``scene`` makes: :data:`SCAN_FIELDS`, plus
     ``tree_id`` (uint32; 0 where the hit part belongs to no tree) when any part of the
     scene carries a tree id (a plot)."""
     if scene.face_tree is None:
         return dict(SCAN_FIELDS)
-    return {**SCAN_FIELDS, "tree_id": np.dtype(np.uint32)}
+    return {**SCAN_FIELDS, **TREE_ID_FIELD}
 
 
 #: A neighbour's hit farther than this from the plane of a pulse's hit triangle means a

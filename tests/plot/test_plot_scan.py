@@ -164,3 +164,21 @@ def test_an_interrupted_plot_scan_leaves_nothing(tmp_path, when):
             plot, out, _params(1.0), stations=[(0, 1.0, 1.5), (0, -1.0, 1.5)], progress=progress
         )
     assert not (tmp_path / "a").exists()
+
+
+def test_a_station_that_sees_only_the_terrain_labels_its_points_tree_0(tmp_path):
+    # the sapling stands 9 m away, beyond the 5 m range: the station's scene is the
+    # terrain alone, and its points still carry tree_id (0), in memory and in the file
+    from pipeline.io import open_cloud_writer, read_cloud
+    from pipeline.plot.scan import plot_fields
+
+    plot = _saplings([(9.0, 0.0)], radius_m=10)
+    params = _params(0.5, max_range_m=5.0)
+    r = scan_plot(plot, [(0.0, 0.0, 1.5)], params)
+    assert len(r.cloud) > 1000 and r.loading[0]["trees_loaded"] == []
+    assert r.cloud.fields["tree_id"].dtype == np.uint32
+    assert not r.cloud.fields["tree_id"].any()
+    with open_cloud_writer(tmp_path / "s.laz", fields=plot_fields()) as w:
+        scan_plot(plot, [(0.0, 0.0, 1.5)], params, sink=w.write)
+    back = read_cloud(tmp_path / "s.laz")
+    assert len(back) == len(r.cloud) and not back.fields["tree_id"].any()
