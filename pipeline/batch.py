@@ -648,8 +648,8 @@ def _run_locked(
                     )
                 if not Path(ref).is_file():
                     raise InputFormatError(f"reference QSM {ref} not found; check the path")
-                h = hashlib.sha256((h + file_sha256(Path(ref))).encode()).hexdigest()
-            if t.kind == "plot":  # the plot file and its trees CSV
+                h = _chain_hash(h, Path(ref))
+            if t.kind == "plot":  # the plot file and the files it names
                 h = _plot_hash(t.path, h)
         except (TreesimError, OSError) as exc:
             rows[t.id] = {
@@ -823,17 +823,35 @@ def _drive(
 
 
 # -- plots --------------------------------------------------------------------------------
+def _chain_hash(h: str, path: Path) -> str:
+    """``h`` extended by the content of the file at ``path``."""
+    return hashlib.sha256((h + file_sha256(path)).encode()).hexdigest()
+
+
 def _plot_hash(path: Path, h: str) -> str:
-    """The plot file's hash with its trees CSV's (the files a plot file names)."""
+    """The plot file's hash ``h`` with every file it names: its trees CSV, its terrain's
+    DTM or ground cloud, and each tree's mesh, QSM table or cloud (a changed one runs the
+    plot again)."""
     import tomllib
+
+    from .plot.io import read_plot
 
     try:
         doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        plot = read_plot(path)
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, TreesimError):
         return h  # the run says what is wrong with it
-    extra = doc.get("trees") if isinstance(doc.get("trees"), str) else None
-    if extra and (Path(path).parent / extra).is_file():
-        return hashlib.sha256((h + file_sha256(Path(path).parent / extra)).encode()).hexdigest()
+    base = Path(path).parent
+    files = [base / doc["trees"]] if isinstance(doc.get("trees"), str) else []
+    if plot.terrain.file is not None:
+        files.append(plot.terrain.file)
+    for t in plot.trees:
+        if t.path:
+            p = Path(str(t.path))
+            files.append(p if p.is_absolute() else base / p)
+    for f in files:
+        if f.is_file():  # a missing one fails the run, which names it
+            h = _chain_hash(h, f)
     return h
 
 

@@ -42,3 +42,27 @@ def test_a_plot_in_a_batch_gives_a_row_per_tree_and_is_reused(tmp_path, capsys):
     assert [row["reused"] for row in again.rows] == [True, True]
     summary = list(csv.DictReader(open(tmp_path / "out" / "summary.csv")))
     assert [s["tree_id"] for s in summary] == ["1", "2"]
+
+
+def test_a_changed_tree_file_runs_the_plot_again(tmp_path):
+    # the plot's hash covers the files its trees are made from, not only plot.toml
+    from pipeline.io.mesh import write_mesh
+    from pipeline.plot import Plot, PlotTree
+    from pipeline.plot.io import write_plot
+    from tests.conftest import box_arrays
+
+    d = tmp_path / "p"
+    d.mkdir()
+    write_mesh(d / "stem.ply", *box_arrays((-0.1, -0.1, 0.0), (0.1, 0.1, 2.0)))
+    tree = PlotTree(tree_id=1, x_m=1.0, y_m=0.0, source="mesh", path="stem.ply")
+    write_plot(d / "plot.toml", Plot([tree], radius_m=3.0, base_dir=str(d)))
+    p = run_preset("draft")
+    p = replace(p, scan=replace(p.scan, n_stations=2, distance_m=2.0))
+    first = run_batch([d / "plot.toml"], p, tmp_path / "out", executor="inline")
+    assert [row["status"] for row in first.rows] == ["ok"]
+    again = run_batch([d / "plot.toml"], p, tmp_path / "out", executor="inline")
+    assert [row["reused"] for row in again.rows] == [True]
+    write_mesh(d / "stem.ply", *box_arrays((-0.1, -0.1, 0.0), (0.1, 0.1, 2.5)))
+    third = run_batch([d / "plot.toml"], p, tmp_path / "out", executor="inline")
+    assert [row.get("reused", False) for row in third.rows] == [False]
+    assert third.rows[0]["height_m"] != first.rows[0]["height_m"]
