@@ -1,6 +1,7 @@
 """Plots for the service: the ``plot`` upload (a zip archive of a plot file and its trees),
 and how a job of ``plan`` or ``plot-scan`` gets its plot (:class:`PlotSource`: an archive,
-a mesh, a stand the job generates itself, of at most :data:`MAX_TREES` trees, or one
+a mesh, a stand the job generates itself, of at most
+:data:`pipeline.plot.generate.MAX_TREES` trees, or one
 procedural tree; :func:`open_plot`).
 
 A plot archive holds ``plot.toml`` at its root or in its one top folder, the trees CSV it
@@ -52,8 +53,6 @@ __all__ = [
 MAX_ENTRIES = 10_000
 #: A plot archive may unpack to this many times the upload limit.
 UNPACK_FACTOR = 4
-#: Most trees in a generated stand (as pipeline.plot.generate.generate_stand refuses more).
-MAX_TREES = 5000
 #: The plot file an archive must hold (:data:`pipeline.plot.io.PLOT_FILE`, named here so
 #: that the API starts without importing :mod:`pipeline.plot`).
 PLOT_FILE = "plot.toml"
@@ -256,8 +255,8 @@ def inspect_plot_archive(
 class PlotSource:
     """One of: a plot archive (input ``plot``), a tree mesh (input ``mesh``), a generated
     stand (``stand``, a :class:`pipeline.plot.generate.StandParams` of at most
-    :data:`MAX_TREES` trees), one procedural tree (``tree``; ``radius_m`` the candidate
-    area)."""
+    :data:`pipeline.plot.generate.MAX_TREES` trees), one procedural tree (``tree``;
+    ``radius_m`` the candidate area)."""
 
     stand: Any = None  # StandParams
     tree: Any = None  # ModelParams
@@ -265,7 +264,13 @@ class PlotSource:
 
     def __post_init__(self) -> None:
         st = self.stand
-        if st is not None and st.expected_trees > MAX_TREES:
+        if st is None:
+            return
+        # refused when the job is submitted, not when it runs (imported here: the stand's
+        # StandParams already loaded the module; the API's start-up does not)
+        from pipeline.plot.generate import MAX_TREES
+
+        if st.expected_trees > MAX_TREES:
             exc = InvalidParameterError(
                 f"stems_per_ha {st.stems_per_ha:g} on a {st.radius_m:g} m plot is "
                 f"{st.expected_trees:,.0f} trees; a generated stand has at most {MAX_TREES:,}"

@@ -42,7 +42,7 @@ from ..errors import InvalidParameterError
 from ..params._fields import check_bounds, param
 from .core import Plot, PlotTree, Terrain
 
-__all__ = ["COUNT_RULES", "StandParams", "generate_stand", "parse_shares", "write_map"]
+__all__ = ["COUNT_RULES", "MAX_TREES", "StandParams", "generate_stand", "parse_shares", "write_map"]
 
 #: The plot radius ``treesim plot generate`` uses when none is given (m).
 DEFAULT_RADIUS_M = 15.0
@@ -50,6 +50,8 @@ DEFAULT_RADIUS_M = 15.0
 COUNT_RULES = ("exact", "poisson")
 #: Tries before the inhibition distance is relaxed by 10 %.
 TRIES = 2000
+#: Most trees in one generated stand.
+MAX_TREES = 5000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -234,9 +236,9 @@ def generate_stand(
     expected = stems_per_ha * area_ha
     rng = np.random.default_rng(seed)
     n = int(round(expected)) if count == "exact" else int(rng.poisson(expected))
-    if n > 5000:
+    if n > MAX_TREES:
         raise InvalidParameterError(
-            f"{n} trees: more than 5000 in one plot; lower --stems-per-ha or --radius-m"
+            f"{n} trees: more than {MAX_TREES} in one plot; lower --stems-per-ha or --radius-m"
         )
     counts = _counts(shares, n)
     names = [k for k in shares for _ in range(counts[k])]
