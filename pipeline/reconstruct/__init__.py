@@ -233,6 +233,9 @@ def reconstruct(
     t_rec = time.perf_counter() - t1
     if separated is not None:
         separated.apply(model, params)
+    from .plausibility import add_plausibility
+
+    add_plausibility(model, prepared)  # figures["plausibility"] and figures["warnings"]
     model.timings_s = {
         "prepare": t_prep,
         "reconstruct": t_rec,
