@@ -103,6 +103,7 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
     "input",
     "error_class",
     "error",
+    "warnings",
     *FIGURE_COLUMNS,
     *TIME_COLUMNS,
     "report",
@@ -333,6 +334,9 @@ def _dig(d: Any, path: tuple[str, ...]) -> Any:
 
 def _row_from_summary(summary: dict[str, Any]) -> dict[str, Any]:
     row = {k: _dig(summary, p) for k, p in FIGURE_COLUMNS.items()}
+    # the reconstruction's plausibility warnings, by code (messages in the tree's run.json)
+    found = _dig(summary, ("reconstruction", "warnings")) or []
+    row["warnings"] = ";".join(w["code"] for w in found) or None
     t = summary.get("timings_s", {})
     row.update({f"time_{s}_s": t.get(s) for s in (*STAGES, "total")})
     return row

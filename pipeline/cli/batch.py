@@ -10,6 +10,7 @@ from ..params import SETTINGS
 from ._options import whole_number
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
+from .progress import print_warnings
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
@@ -44,6 +45,13 @@ def cmd_batch(args: argparse.Namespace) -> int:
         bar.close()
     for p, why in result.skipped_files:
         print(f"skipped {p}: {why}")
+    print_warnings(
+        [
+            f"tree {r['id']}: implausible reconstruction ({r['warnings']}); see its run.json"
+            for r in result.rows
+            if r.get("warnings")
+        ]
+    )
     for r in result.rows:
         if r["status"] == "failed":
             print(f"failed {r['id']} ({r['input']}): {r.get('error_class')}: {r.get('error')}")

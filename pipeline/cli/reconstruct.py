@@ -9,7 +9,7 @@ from ..errors import InvalidParameterError
 from ..params import PrepareParams, QSMParams, ReconstructParams, merge
 from ._options import collect, param_option, param_options
 from ._outputs import output_folder
-from .progress import progress_printer
+from .progress import print_warnings, progress_printer
 
 
 def _fmt(v: float | None, scale: float, unit: str, digits: int = 2) -> str:
@@ -105,4 +105,5 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         f"{model.timings_s['total']:.1f} s"
     )
     print("wrote " + ", ".join(str(p) for p in paths.values()))
+    print_warnings([w["message"] for w in fig.get("warnings", [])])  # implausible figures
     return 0

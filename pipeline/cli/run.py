@@ -63,6 +63,7 @@ def print_run_summary(result: Any) -> None:
         for k in ("reconstruct", "scan", "compare_mesh", "compare_field", "report")
     )
     print(f"time: {t['total']:.1f} s ({parts})")
+    print_warnings([w["message"] for w in rec.get("warnings", [])])  # implausible tree
     print_warnings(sc.get("warnings", []))
     print(f"report: {result.report_html.resolve()}")
 

@@ -166,6 +166,21 @@ def clouds_section(s: dict[str, Any]) -> str:
     )
 
 
+def plausibility_note(rec: dict[str, Any]) -> str:
+    """The reconstruction's plausibility warnings (``tree.json``'s ``warnings``), one item
+    each, in a note; a muted line when there are none, nothing for older runs."""
+    if "warnings" not in rec:
+        return ""
+    warns = rec.get("warnings") or []
+    if not warns:
+        return '<p class="muted">plausibility checks: no warning</p>'
+    items = "".join(f"<li>{html.escape(str(w.get('message', w)))}</li>" for w in warns)
+    return (
+        f'<div class="note" id="plausibility"><b>Implausible for a real tree '
+        f"({len(warns)} warning{'s' if len(warns) > 1 else ''})</b><ul>{items}</ul></div>"
+    )
+
+
 def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:
     """A small self-contained page: the tree, the scan, both comparisons, links.
 
@@ -192,6 +207,7 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
             f"{cell(rec.get('volume_stem_m3'), ' L', 1000)} / "
             f"{cell(rec.get('volume_branch_m3'), ' L', 1000)}",
         ),
+        ("stem form factor", cell((rec.get("plausibility") or {}).get("stem_form_factor"))),
         ("cylinders", cell(rec.get("n_cylinders"))),
         ("triangles", cell(rec.get("n_triangles"))),
         ("watertight", cell(rec.get("watertight"))),
@@ -302,7 +318,8 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
 <h1>treesim run: {esc(s["name"])}</h1><div id="page-errors" hidden></div>
 <p class="muted">field cloud {esc(str(s["inputs"].get("cloud") or "in memory"))} ·
 preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
-<div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}</div>
+<div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}
+{plausibility_note(rec)}</div>
 <div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
 {reference_qsm_section(s)}
 {clouds_section(s)}

@@ -596,7 +596,12 @@ class Store:
             )
 
     def succeed(
-        self, claim: Claim, *, results: list[dict[str, Any]], summary: dict[str, Any]
+        self,
+        claim: Claim,
+        *,
+        results: list[dict[str, Any]],
+        summary: dict[str, Any],
+        message: str = "done",
     ) -> bool:
         with self.write() as conn:
             n = conn.execute(
@@ -606,7 +611,7 @@ class Store:
                     status="successful",
                     progress=100.0,
                     stage="done",
-                    message="done",
+                    message=message,
                     results=results,
                     summary=summary,
                     error=None,

@@ -47,6 +47,17 @@ log = logging.getLogger("treesim.worker")
 _SIGNALS = {int(s): s.name for s in signal.Signals}
 
 
+def done_message(summary: dict[str, Any]) -> str:
+    """A successful job's message: ``done``, or ``done, N warnings: ...`` with each of the
+    result's warnings (a reconstruction's plausibility warnings, a plot scan's notes),
+    which the summary keeps in full."""
+    warns = summary.get("warnings") or (summary.get("reconstruction") or {}).get("warnings")
+    texts = [str(w.get("message", w)) if isinstance(w, dict) else str(w) for w in warns or []]
+    if not texts:
+        return "done"
+    return f"done, {len(texts)} warning{'s' if len(texts) > 1 else ''}: " + " | ".join(texts)
+
+
 @dataclass(frozen=True)
 class Outcome:
     ok: bool
@@ -386,7 +397,10 @@ class Worker:
             _rmtree(old)
         os.replace(work, results)
         summary = outcome.summary or {}
-        if self.store.succeed(claim, results=list_results(results), summary=summary):
+        done = self.store.succeed(
+            claim, results=list_results(results), summary=summary, message=done_message(summary)
+        )
+        if done:
             for stage, seconds in (summary.get("timings_s") or {}).items():
                 if isinstance(seconds, (int, float)):
                     self.store.bump("stage_seconds", f"{claim.process}:{stage}", float(seconds))

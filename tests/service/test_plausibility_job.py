@@ -1,0 +1,49 @@
+"""A reconstruct job carries the plausibility warnings: in its summary and its message."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.reconstruct.shapes import tube
+
+
+@pytest.fixture(scope="module")
+def tube_xyz(tmp_path_factory) -> Path:
+    """A 5 m tube of constant radius: a cylinder (form factor 1.0), never a real stem."""
+    pts, _ = tube(radius=0.12, height=5.0, n=20000, noise_m=0.001, seed=0)
+    path = tmp_path_factory.mktemp("tube") / "tube.xyz"
+    np.savetxt(path, pts, fmt="%.6f")
+    return path
+
+
+def test_service_reconstruct_job_carries_the_warnings(tube_xyz, tmp_path, store):
+    from service.api.jobs import status_info
+    from service.jobs.worker import done_message
+    from service.processes import PROCESSES
+
+    proc = PROCESSES["reconstruct"]
+    summary = proc.execute(
+        {"cloud": tube_xyz}, proc.parse({}), tmp_path, 1, lambda f, m: None, "tube"
+    )
+    codes = [w["code"] for w in summary["warnings"]]
+    assert "form_factor_high" in codes
+    message = done_message(summary)
+    assert message.startswith(f"done, {len(codes)} warnings: stem form factor")
+    job = store.create_job(
+        process="reconstruct",
+        inputs={},
+        parameters={},
+        max_attempts=1,
+        time_limit_s=60.0,
+        links=[],
+    )
+    claim = store.claim("w1", 60.0)
+    assert claim is not None and claim.id == job["id"]
+    assert store.succeed(claim, results=[], summary=summary, message=message)
+    info = status_info(store.job(job["id"]))
+    assert info.message == message
+    assert [w["code"] for w in info.summary["warnings"]] == codes
+    assert done_message({"warnings": []}) == "done"
