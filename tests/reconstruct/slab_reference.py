@@ -16,8 +16,8 @@ The method, in four steps:
    bin holding a fifth of the median bin's count, so isolated points below the ground are
    skipped). Where the annulus around the stem has ground (at least eight 10 cm cells with
    points within 0.5 m of that level), a plane is fitted robustly to the cells' lowest
-   points and evaluated at the axis (a slope is handled); else the base is the stem's
-   lowest dense level. The top is the highest point with three neighbours within 0.3 m.
+   points and evaluated at the axis (a slope is handled); else the base is that lowest
+   dense level (the stem's foot). The top is the highest point with three neighbours within 0.3 m.
 3. **Slabs.** At 1.3 m above the base and every ``step_m`` (0.5 m) up the stem, the
    points of a ``thickness_m`` (10 cm; 20 cm where that holds too few) horizontal slab
    within a window around the stem's predicted centre (the last clean slab's) are fitted
@@ -360,8 +360,7 @@ def base_height(
             p0, *_ = np.linalg.lstsq(a, zmin, rcond=None)
             sol = least_squares(lambda p: a @ p - zmin, p0, loss="soft_l1", f_scale=0.02)
             return float(sol.x[2]), "ground plane"
-    foot = disk[(disk[:, 2] >= z_low) & (disk[:, 2] <= z_low + 0.1)]
-    return float(np.median(foot[:, 2])), "stem foot"
+    return z_low, "stem foot"
 
 
 def top_height(points: np.ndarray, radius_m: float = 0.3, neighbours: int = 3) -> float:
@@ -658,6 +657,50 @@ def _shift(s: Slab, origin: np.ndarray) -> Slab:
         else (s.centre_xy_m[0] + origin[0], s.centre_xy_m[1] + origin[1])
     )
     return replace(s, z_m=s.z_m + origin[2], centre_xy_m=c, points_xy=s.points_xy + origin[:2])
+
+
+# ---------------------------------------------------------------------- models
+
+
+def stem_radius_at(
+    start: np.ndarray,
+    end: np.ndarray,
+    radius0_m: np.ndarray,
+    radius1_m: np.ndarray,
+    z_m: float,
+    xy: tuple[float, float],
+) -> float | None:
+    """A model's stem radius at height ``z_m`` (m), to hold against a slab.
+
+    Parameters
+    ----------
+    start, end : (n, 3) float
+        The stem cylinders' base and top centres, m.
+    radius0_m, radius1_m : (n,) float
+        Their base and top radii, m.
+    z_m : float
+    xy : (2,) float
+        The slab's centre: where several cylinders cross ``z_m``, the one passing
+        nearest is used.
+
+    Returns
+    -------
+    float or None
+        The radius interpolated along that cylinder, or None where no stem cylinder
+        crosses ``z_m``.
+    """
+    s, e = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
+    if len(s) == 0:
+        return None
+    r0, r1 = np.asarray(radius0_m, dtype=np.float64), np.asarray(radius1_m, dtype=np.float64)
+    lo, hi = np.minimum(s[:, 2], e[:, 2]), np.maximum(s[:, 2], e[:, 2])
+    hit = np.flatnonzero((lo <= z_m) & (hi >= z_m) & (hi > lo))
+    if len(hit) == 0:
+        return None
+    t = (z_m - s[hit, 2]) / (e[hit, 2] - s[hit, 2])
+    p = s[hit] + t[:, None] * (e[hit] - s[hit])
+    k = int(np.argmin(np.hypot(p[:, 0] - xy[0], p[:, 1] - xy[1])))
+    return float(r0[hit[k]] + t[k] * (r1[hit[k]] - r0[hit[k]]))
 
 
 # ---------------------------------------------------------------------- pictures
