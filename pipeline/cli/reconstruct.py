@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="turn statistical outlier removal off (as --sor-std-ratio none)",
     )
-    param_options(g, PrepareParams, ["remove_ground"], path=prep)
+    param_options(g, PrepareParams, ["remove_ground", "remove_understory"], path=prep)
     lv = p.add_argument_group("leaves")
     param_options(lv, ReconstructParams, ["separate_leaves", "leaf_layer", "leaf_side_m"])
     q = p.add_argument_group("qsm")

@@ -43,7 +43,13 @@ class PrepareParams:
         Outlier threshold in standard deviations of the mean neighbour distance;
         ``None`` turns outlier removal off.
     remove_ground : bool
-        Look for a ground plane under the tree and remove it.
+        Look for the terrain under the tree (a plane over a wide, filled area of low,
+        level points) and remove the points on it; a cloud with no ground keeps every
+        point (:func:`~pipeline.reconstruct.preprocess.find_ground`).
+    remove_understory : bool
+        With ground found, remove what grows from or lies on it but is not the tree:
+        litter and fallen wood away from the stem's foot, shrubs and saplings
+        (:func:`~pipeline.reconstruct.foot.understory`).
     ground_tolerance_m : float
         Points less than this above the ground plane (or below it) are ground.
     normals_neighbors : int or None
@@ -69,7 +75,10 @@ class PrepareParams:
         none_means="off",
         gt=0,
     )
-    remove_ground: bool = param(False, help="remove a ground plane under the tree first")
+    remove_ground: bool = param(True, help="find the terrain under the tree and remove it")
+    remove_understory: bool = param(
+        True, help="with ground found, remove litter, fallen wood and shrubs around the stem"
+    )
     ground_tolerance_m: float = param(
         0.05, help="points this close to the ground plane are ground", unit="m", gt=0
     )

@@ -279,6 +279,7 @@ def _qsm_model(prepared: PreparedCloud, params: ReconstructParams) -> TreeModel:
         weights=prepared.weights,
         params=params.qsm,
         neighbors=prepared.neighbors,
+        foot=prepared.foot,
     )
     origin = prepared.frame.origin_array
     table = replace(res.table, start=res.table.start + origin)

@@ -47,6 +47,7 @@ from ..errors import EmptyInputError, InvalidGeometryError, InvalidParameterErro
 from ..frame import LocalFrame
 from ..geometry import point_spacing
 from ..params import PrepareParams
+from .foot import StemFoot, find_foot, understory
 
 __all__ = [
     "PrepareParams",
@@ -240,6 +241,9 @@ class PreparedCloud:
         first), sorted by distance (:func:`nearest_neighbors`); the QSM builds its graph
         from them instead of searching the cloud again. ``None`` on a cloud built by
         hand.
+    foot : StemFoot or None
+        The terrain under the tree and the stem's foot on it
+        (:func:`~pipeline.reconstruct.foot.find_foot`); the QSM grows from it.
     """
 
     frame: LocalFrame
@@ -253,6 +257,7 @@ class PreparedCloud:
     n_input: int
     params: PrepareParams = field(default_factory=PrepareParams)
     neighbors: np.ndarray | None = field(default=None, repr=False, compare=False)
+    foot: StemFoot | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -998,15 +1003,18 @@ def prepare(
         )
     )
 
-    # 3. ground removal
+    # 3. ground removal, the stem's foot, understory (pipeline.reconstruct.foot)
     n2 = len(pts)
     ground_info: dict[str, Any] = {}
+    plane = None
     if params.remove_ground:
         tree = cKDTree(pts) if tree is None else tree
         spacing = _spacing(pts, neighbors, nearest)
         ground, ground_info = find_ground(
             pts, params.ground_tolerance_m, spacing, tree=tree, workers=w
         )
+        if ground_info.get("detected"):
+            plane = tuple(ground_info["plane"])
         if ground.any():
             neighbors = _neighbors_of_kept(pts, neighbors, ~ground, k_keep, tree, workers=w)
             nearest = None
@@ -1020,6 +1028,28 @@ def prepare(
             enabled=params.remove_ground,
             tolerance_m=params.ground_tolerance_m,
             **ground_info,
+        )
+    )
+    n3 = len(pts)
+    spacing = _spacing(pts, neighbors, nearest)
+    foot = find_foot(pts, neighbors, spacing, plane=plane, weights=weights)
+    under_info: dict[str, Any] = {}
+    if params.remove_understory and foot is not None and plane is not None:
+        under, under_info = understory(pts, neighbors, spacing, foot)
+        if under.any() and (~under).sum() >= max(10, params.normals_neighbors or 0):
+            tree = cKDTree(pts) if tree is None else tree
+            neighbors = _neighbors_of_kept(pts, neighbors, ~under, k_keep, tree, workers=w)
+            nearest = None
+            pts, weights = pts[~under], weights[~under]
+            tree = None
+    steps.append(
+        _step(
+            "understory_removal",
+            n3,
+            len(pts),
+            enabled=params.remove_understory and plane is not None,
+            foot=None if foot is None else foot.to_dict(),
+            **under_info,
         )
     )
     if len(pts) < max(10, params.normals_neighbors or 0):
@@ -1053,4 +1083,5 @@ def prepare(
         leaf_fraction=leaf_fraction,
         n_input=n0,
         params=params,
+        foot=foot,
     )
