@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from ..errors import ReconstructionError
 from ..models import CylinderTable
 from ..params import QSMParams
+from .foot import StemFoot
 from .preprocess import _index_dtype, _lengths, nearest_neighbors
 
 
@@ -327,26 +328,73 @@ def _refine_circle(q: np.ndarray, w: np.ndarray, x0: np.ndarray, f_scale: float)
     return x
 
 
+#: The stem continues through the child reaching highest among those supporting at least
+#: this share of the longest child subtree (a conifer's leader is shorter in subtree
+#: length than a whorl branch near the top; the stem goes up, a branch goes out).
+STEM_SUBTREE_SHARE = 0.3
+
+
+def _continuation(kids: list[int], sub_len: np.ndarray, sub_top: np.ndarray, stem: bool) -> int:
+    """The child a branch continues through: the one with the longest subtree; on the
+    stem, the highest-reaching of the children with a substantial subtree."""
+    longest = max(kids, key=lambda c: (sub_len[c], -c))
+    if not stem:
+        return longest
+    big = [c for c in kids if sub_len[c] >= STEM_SUBTREE_SHARE * sub_len[longest]]
+    return max(big, key=lambda c: (sub_top[c], sub_len[c], -c))
+
+
+#: Thickness (m) of the stem slab a stem node's circle is fitted to (its own slice and
+#: its neighbours' along the stem).
+STEM_SLAB_M = 0.15
+#: Half-width (m) of the moving average that straightens the stem's unmeasured stretches.
+STEM_SMOOTH_M = 0.5
+#: A measured radius further than this share from the running median of its branch's
+#: measured radii (or 3 noise σ, whichever is larger) is an outlier: a fit pulled by a
+#: whorl's branch stubs, a needle clump, a neighbour's twig.
+OUTLIER_REL = 0.2
+#: Measured nodes on each side of a node in that running median.
+OUTLIER_HALF_WINDOW = 3
+
+
+def _taper(r: np.ndarray, data: np.ndarray, tol: float) -> np.ndarray:
+    """A branch's radii (base to tip) as a taper: a running median over
+    ``2 * OUTLIER_HALF_WINDOW + 1`` nodes, then never wider than the narrowest of the
+    nodes below it that rest on data (``data``: measured or interpolated) by more than
+    ``tol`` (the noise). Unlike an isotonic fit, a swelling (under a fork, a whorl) is
+    clipped instead of pooled into the measured radii below it."""
+    k = OUTLIER_HALF_WINDOW
+    if len(r) > 2 * k:
+        padded = np.concatenate([np.full(k, np.nan), r, np.full(k, np.nan)])
+        r = np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
+    floor = np.minimum.accumulate(np.where(data, r, np.inf))
+    return np.minimum(r, floor + tol)
+
+
+def _drop_outliers(
+    seq: np.ndarray, radius: np.ndarray, measured: np.ndarray, noise_sd: float
+) -> int:
+    """Unmark (in ``measured``) the measured radii of one branch's nodes ``seq`` that are
+    outliers against the running median of the branch's measured radii; returns how many.
+    Branches with fewer than five measured nodes are left alone."""
+    idx = seq[measured[seq]]
+    if len(idx) < 5:
+        return 0
+    r = radius[idx]
+    k = OUTLIER_HALF_WINDOW
+    padded = np.concatenate([np.full(k, np.nan), r, np.full(k, np.nan)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
+    med = np.nanmedian(windows, axis=1)
+    out = np.abs(r - med) > np.maximum(OUTLIER_REL * med, 3.0 * noise_sd)
+    measured[idx[out]] = False
+    return int(out.sum())
+
+
 def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ref = np.eye(3)[int(np.argmin(np.abs(a)))]
     u = np.cross(a, ref)
     u /= np.linalg.norm(u)
     return u, np.cross(a, u)
-
-
-def _isotonic_decreasing(y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted least-squares non-increasing fit (pool adjacent violators)."""
-    vals, wts, cnt = [], [], []
-    for yi, wi in zip(y.tolist(), w.tolist(), strict=True):
-        vals.append(yi)
-        wts.append(wi)
-        cnt.append(1)
-        while len(vals) > 1 and vals[-2] < vals[-1]:
-            wsum = wts[-2] + wts[-1]
-            v = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
-            c = cnt[-2] + cnt[-1]
-            vals[-2:], wts[-2:], cnt[-2:] = [v], [wsum], [c]
-    return np.repeat(vals, cnt)
 
 
 #: Without a noise estimate, the smallest measured radius is this many point spacings
@@ -392,6 +440,18 @@ def estimate_noise(
     return {"sd_m": None, "fits": 0, "from": None}
 
 
+def _sources(p: np.ndarray, foot: StemFoot | None, band: float, link: float) -> np.ndarray:
+    """The graph's sources: the points within ``band`` of the lowest height above the
+    terrain among those near the foot's axis (a cloud cut from a plot has litter and
+    fallen wood lower than the stem's foot); without a foot, the cloud's lowest points."""
+    if foot is not None:
+        near = foot.axis_distance(p) <= 1.5 * foot.radius_m + link + 0.05
+        if near.sum() >= 3:
+            hag = foot.height(p)
+            return np.flatnonzero(near & (hag <= float(hag[near].min()) + band))
+    return np.flatnonzero(p[:, 2] <= float(p[:, 2].min()) + band)
+
+
 # ---------------------------------------------------------------------------- main
 def fit_qsm(
     points: np.ndarray,
@@ -400,6 +460,7 @@ def fit_qsm(
     weights: np.ndarray | None = None,
     params: QSMParams | None = None,
     neighbors: np.ndarray | None = None,
+    foot: StemFoot | None = None,
 ) -> QSMResult:
     """Fit a cylinder QSM to a single-tree cloud.
 
@@ -418,6 +479,11 @@ def fit_qsm(
         (:attr:`~pipeline.reconstruct.preprocess.PreparedCloud.neighbors`); searched here
         when absent or when it has fewer than ``max(params.neighbors + 1,
         BRIDGE_NEIGHBORS)`` columns.
+    foot : StemFoot, optional
+        The terrain and the stem's foot (:attr:`PreparedCloud.foot
+        <pipeline.reconstruct.preprocess.PreparedCloud.foot>`): the graph grows from the
+        lowest points near the foot's axis and the stem starts on the terrain. Without
+        it, from the cloud's lowest points.
 
     Returns
     -------
@@ -439,7 +505,7 @@ def fit_qsm(
         neighbors, _ = nearest_neighbors(p, k_needed)
     g = _knn_graph(p, neighbors, params.neighbors, link)
     zmin = float(p[:, 2].min())
-    sources = np.flatnonzero(p[:, 2] <= zmin + band)
+    sources = _sources(p, foot, band, link)
     g, n_bridges = _bridge(p, g, neighbors, int(sources[0]))
     del neighbors
     # g is symmetric: as a directed graph it gives the same distances and predecessors
@@ -497,10 +563,12 @@ def fit_qsm(
     has_par = node_parent >= 0
     edge_len[has_par] = np.linalg.norm(centroid[has_par] - centroid[node_parent[has_par]], axis=1)
     sub_len = edge_len.copy()
+    sub_top = centroid[:, 2].copy()  # the highest node a node's subtree reaches
     for v in order:
         pv = node_parent[v]
         if pv >= 0:
             sub_len[pv] += sub_len[v]
+            sub_top[pv] = max(sub_top[pv], sub_top[v])
     children: list[list[int]] = [[] for _ in range(m)]
     for v in np.argsort(node_dist, kind="stable"):
         pv = node_parent[v]
@@ -535,7 +603,7 @@ def fit_qsm(
             kids = children[v]
             if not kids:
                 break
-            main = max(kids, key=lambda c: (sub_len[c], -c))
+            main = _continuation(kids, sub_len, sub_top, stem=order_k == 0)
             for c in sorted(kids, reverse=True):
                 if c != main:
                     stack.append((c, order_k + 1, v))
@@ -558,7 +626,10 @@ def fit_qsm(
     band_min = max(1.0 * spacing_m, 0.001)
     axes = np.zeros((m, 3))
     extent = np.full(m, np.inf)  # half the data's extent across the axis, per node
-    for seq in branches:
+    # the stem's fits take the points of a slab at least STEM_SLAB_M thick (its
+    # neighbouring nodes'): a sparse, one-sided stem has one row of points per slice
+    pool = max(0, int(np.ceil((STEM_SLAB_M / h - 1.0) / 2.0)))
+    for bi, seq in enumerate(branches):
         for i, v in enumerate(seq):
             prev_pt = (
                 centroid[seq[i - 1]]
@@ -582,6 +653,9 @@ def fit_qsm(
             idx = members_sorted[bounds[v] : bounds[v + 1]]
             if len(idx) < 6:
                 continue
+            if bi == 0 and pool:
+                near = seq[max(0, i - pool) : i + pool + 1]
+                idx = np.concatenate([members_sorted[bounds[c] : bounds[c + 1]] for c in near])
             u, vv = _basis(a)
             rel = p[idx] - centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
@@ -649,20 +723,32 @@ def fit_qsm(
 
     final_r = np.where(measured, radius, model)
     tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
-    for seq in branches:
+    noise_sd = noise["sd_m"] or 0.0
+    n_outliers = 0
+    for b, seq in enumerate(branches):
         s = np.asarray(seq)
+        n_outliers += _drop_outliers(s, radius, measured, noise_sd)
+        final_r[s] = np.where(measured[s], radius[s], final_r[s])
+        tag[s] = np.where(measured[s], 0, tag[s])
         meas = measured[s]
-        if meas.sum() >= 2:  # interpolate between measured anchors along the branch
-            along = np.concatenate(
-                [[0.0], np.cumsum(np.linalg.norm(np.diff(pos[s], axis=0), axis=1))]
-            )
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos[s], axis=0), axis=1))])
+        if meas.any():
             first, last = np.flatnonzero(meas)[[0, -1]]
-            inner = (~meas) & (np.arange(len(s)) > first) & (np.arange(len(s)) < last)
-            if inner.any():
+            ii = np.arange(len(s))
+            inner = (~meas) & (ii > first) & (ii < last)
+            if inner.any():  # interpolate between measured anchors along the branch
                 final_r[s[inner]] = np.interp(along[inner], along[meas], radius[s][meas])
                 tag[s[inner]] = 1
-        wts = np.where(measured[s], 0.2 + quality[s], 0.05)
-        final_r[s] = _isotonic_decreasing(final_r[s], wts)
+            # a modelled radius never exceeds the branch's nearest measured radius
+            final_r[s[ii < first]] = np.minimum(final_r[s[ii < first]], radius[s[first]])
+            after = ii > last
+            final_r[s[after]] = np.minimum(final_r[s[after]], radius[s[last]])
+            if b == 0 and after.any():  # the stem tapers from its last measurement to the top
+                top = along[-1] + 0.5 * h
+                frac = (top - along[after]) / max(top - along[last], 1e-9)
+                taper = r_tip + (radius[s[last]] - r_tip) * frac
+                final_r[s[after]] = np.minimum(final_r[s[after]], taper)
+        final_r[s] = _taper(final_r[s], tag[s] < 2, 2.0 * noise_sd + 0.25 * spacing_m)
     # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
     for b, seq in enumerate(branches):
         j = branch_parent_node[b]
@@ -675,6 +761,19 @@ def fit_qsm(
     # arcs, furcations, centroid fall-backs) and a zig-zag axis is longer than the branch,
     # which inflates length and volume (+14 % stem length measured on a 30 m preset).
     # A (1, 2, 3, 2, 1) moving average along the branch, ends kept, removes the jitter.
+    # The stem's unmeasured stretches (hidden in the crown, among needles or leaves) follow
+    # slice clusters of foliage that wander metres sideways; a stem goes up: there the
+    # axis is a moving average over ±STEM_SMOOTH_M.
+    stem = np.asarray(branches[0])
+    half = max(2, int(round(STEM_SMOOTH_M / h)))
+    if len(stem) > 2 * half:
+        csum = np.vstack([np.zeros(3), np.cumsum(pos[stem], axis=0)])
+        ii = np.arange(len(stem))
+        lo, hi = np.clip(ii - half, 0, None), np.clip(ii + half + 1, None, len(stem))
+        wide = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+        hidden = ~measured[stem]
+        hidden[0] = hidden[-1] = False
+        pos[stem[hidden]] = wide[hidden]
     kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0])
     for seq in branches:
         if len(seq) < 5:
@@ -700,7 +799,12 @@ def fit_qsm(
         tg = [tag[v] for v in seq]
         if j < 0:  # stem: extend from the ground up to the first node
             a = axes[seq[0]]
-            base = pos[seq[0]] - a * max((pos[seq[0]][2] - zmin) / max(a[2], 0.2), 0.0)
+            h0 = (
+                float(foot.height(pos[seq[0]][None, :])[0])
+                if foot is not None
+                else float(pos[seq[0]][2] - zmin)
+            )
+            base = pos[seq[0]] - a * max(h0 / max(a[2], 0.2), 0.0)
             pts = [base, *pts]
             rads = [rads[0], *rads]
             tg = [tg[0], *tg]
@@ -761,6 +865,7 @@ def fit_qsm(
         "graph_bridges": n_bridges,
         "nodes": int(keep.sum()),
         "nodes_measured": int(measured.sum()),
+        "radius_outliers": n_outliers,
         "branches": len(branches),
         "radius_model": {"r_tip_m": r_tip, "a": a_fit, "b": b_fit, "a_from": a_source},
         "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in tag_names},
