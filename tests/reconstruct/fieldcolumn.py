@@ -28,6 +28,7 @@ import numpy as np
 from pipeline.cloud import LABEL_CODES
 
 __all__ = [
+    "DEFAULT_STEP_DEG",
     "KINDS",
     "PART_CODES",
     "PARTS",
@@ -52,6 +53,11 @@ COLUMN_MARGIN_M = 0.3
 TERRAIN_CELL_M = 0.1
 #: Instrument height above the ground at each station (m).
 STATION_HEIGHT_M = 1.5
+#: The scanner's default angular step (deg). The VZ-400's usual 0.04° from stations 6-9 m
+#: outside a 10 m column gives over a million points, most of them ground near the
+#: stations; 0.08° keeps a column at 0.3-0.4 M points with the stem sampled every ~1.5 cm
+#: (what 0.04° gives at ~20 m, a common plot-scan distance).
+DEFAULT_STEP_DEG = 0.08
 
 
 @dataclass(frozen=True)
@@ -244,7 +250,7 @@ def _check_kind(kind: str) -> Kind:
     return KINDS[kind]
 
 
-def field_column(kind: str, seed: int = 0, step_deg: float = 0.04) -> FieldColumn:
+def field_column(kind: str, seed: int = 0, step_deg: float = DEFAULT_STEP_DEG) -> FieldColumn:
     """A tree cut from a scanned plot column, with its exact truth.
 
     Parameters
@@ -256,7 +262,8 @@ def field_column(kind: str, seed: int = 0, step_deg: float = 0.04) -> FieldColum
         Seeds everything: the trees, terrain, litter, placement and the scanner's noise.
         The same seed gives the same cloud, bit for bit.
     step_deg : float
-        The scanner's angular step (horizontal and vertical), degrees.
+        The scanner's angular step (horizontal and vertical), degrees (default
+        :data:`DEFAULT_STEP_DEG`).
 
     Returns
     -------
@@ -318,7 +325,8 @@ def field_column(kind: str, seed: int = 0, step_deg: float = 0.04) -> FieldColum
     for k, ang in enumerate(nb_angles):
         nseed = 1000 + 10 * seed + k
         scale = float(rng.uniform(0.85, 1.0))
-        nv = generate_tree(spec_kind.neighbour, seed=nseed, leaves=True).mesh(8)[0]
+        # its crown's outline from the wood (leaves add a few cm at the twig tips)
+        nv = generate_tree(spec_kind.neighbour, seed=nseed, leaves=False).mesh(8)[0]
         rot_deg, dist = _place_neighbour(
             nv[:, :2] * scale, float(ang), half, float(rng.uniform(0.8, 1.8)), rng
         )
@@ -457,7 +465,9 @@ def field_column(kind: str, seed: int = 0, step_deg: float = 0.04) -> FieldColum
 
 
 @cache
-def cached_field_column(kind: str, seed: int = 0, step_deg: float = 0.04) -> FieldColumn:
+def cached_field_column(
+    kind: str, seed: int = 0, step_deg: float = DEFAULT_STEP_DEG
+) -> FieldColumn:
     """:func:`field_column`, made once per process and kind, seed and step (the arrays
     are read-only: copy them before changing them)."""
     col = field_column(kind, seed, step_deg)
