@@ -272,8 +272,6 @@ def radius_error(stem: dict[str, list], ref: sr.TreeReference) -> dict[str, Any]
         r = sr.stem_radius_at(
             stem["start"], stem["end"], stem["r0"], stem["r1"], s.z_m, s.centre_xy_m
         )
-        if not stem["start"]:
-            r = None
         if r is None:
             missing.append(s.height_m)
             continue
@@ -334,7 +332,10 @@ def rows_for(tree: Tree, ref: sr.TreeReference, results: dict[str, dict]) -> lis
                 f"no stem cylinder at {', '.join(f'{h:.1f}' for h in rerr['no_stem_at'])} m"
             )
         if r.get("warnings"):
-            note.append("warnings: " + "; ".join(map(str, r["warnings"])))
+            codes = [
+                w.get("code", str(w)) if isinstance(w, dict) else str(w) for w in r["warnings"]
+            ]
+            note.append("warnings: " + ", ".join(codes))
         rows.append(
             [
                 tree.name,

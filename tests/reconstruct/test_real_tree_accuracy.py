@@ -52,7 +52,17 @@ def repo_clouds() -> list[str]:
 
 
 #: Failing today (the figures measured when they were marked); reason per (check, tree).
-XFAIL: dict[tuple[str, str], str] = {}
+#: From ``bench_real_trees.py`` on the working tree of 2026-11-26 (the QSM was being
+#: changed at the time: expect these to flip).
+XFAIL: dict[tuple[str, str], str] = {
+    ("radius", "shared:treels_pine/pine.laz"): (
+        "2026-11-26: stem radius +16 % of the clean slab at 9.5 m (28 clean slabs 0.5-14.5 m): "
+        "the stem held too wide in the crown"
+    ),
+    ("form", "shared:coffee_tree/cloud.txt"): (
+        "2026-11-26: form factor 0.73 (stem 11 L, DBH 7.2 cm, 3.7 m) and no warning"
+    ),
+}
 
 TREES = [f"shared:{a}/{b}" for a, b in SHARED] + [f"repo:{p}" for p in repo_clouds()]
 
