@@ -44,6 +44,9 @@ NEAR_GROUND_M = 0.3
 #: A piece not connected to the stem whose lowest point is this close to the terrain (m)
 #: grows from the ground: understory.
 UNDERSTORY_FOOT_M = 0.5
+#: Shortest link (m) that joins points into pieces when looking for understory: a shrub
+#: scanned sparser than the stem still holds together as one piece.
+UNDERSTORY_LINK_M = 0.05
 #: Horizontal room around the stem's foot kept at any height (m), beyond 1.5 stem radii
 #: (root flare, buttresses).
 FOOT_MARGIN_M = 0.1
@@ -244,8 +247,7 @@ def understory(
     room = 1.5 * foot.radius_m + FOOT_MARGIN_M
     near = (hag < NEAR_GROUND_M) & (foot.axis_distance(p) > room)
     keep = ~near
-    link = max(4.0 * spacing_m, 0.02)
-    lab = _components(_graph(neighbors, p, keep, link))
+    lab = _components(_graph(neighbors, p, keep, max(8.0 * spacing_m, UNDERSTORY_LINK_M)))
     # the stem's piece: the one holding most of the points near the axis in the foot band
     lo, hi = FOOT_BAND_M
     at_foot = keep & (hag >= lo) & (hag <= hi) & (foot.axis_distance(p) <= room)

@@ -186,11 +186,43 @@ def test_ground_removal_keeps_a_stem_base_without_ground():
     assert prep.points[:, 2].min() < prep.points[:, 2].max() - 1.99  # the base is still there
 
 
-def test_ground_removal_is_off_by_default():
+def test_ground_and_understory_removal_are_on_by_default():
     pts, _ = stem_on_ground()
     prep = prepare(pts, PrepareParams(voxel_size_m=None))
-    step = _steps(prep)["ground_removal"]
-    assert step["removed"] == 0 and step["params"]["enabled"] is False
+    steps = _steps(prep)
+    assert steps["ground_removal"]["params"]["enabled"] is True
+    assert steps["ground_removal"]["params"]["detected"] is True
+    assert steps["understory_removal"]["params"]["enabled"] is True
+
+
+def _blob(centre, size, n, rng):
+    return np.asarray(centre) + rng.uniform(-size / 2, size / 2, size=(n, 3))
+
+
+def test_understory_and_litter_go_a_detached_crown_piece_stays():
+    """A stem on ground with a shrub growing from the ground 1 m away, a twig lying on
+    the ground 0.8 m away and a piece of crown 1.6-1.9 m up, 0.6 m from the stem (no
+    link to it): the shrub and the twig go, the crown piece and the stem stay, and the
+    foot is found on the stem's axis."""
+    pts, n_stem = stem_on_ground()
+    rng = np.random.default_rng(7)
+    shrub = np.vstack([_blob((1.0, 0.2, z), 0.12, 150, rng) for z in np.arange(0.08, 0.9, 0.06)])
+    twig = np.c_[np.linspace(-0.9, -0.5, 400), np.full(400, -0.5), np.full(400, 0.12)]
+    twig += 0.003 * rng.normal(size=twig.shape)
+    crown = np.vstack([_blob((0.6, -0.2, z), 0.1, 150, rng) for z in np.arange(1.6, 1.9, 0.05)])
+    cloud = np.vstack([pts, shrub, twig, crown])
+    prep = prepare(Cloud(cloud + GEO), PrepareParams(voxel_size_m=None))
+    kept = prep.global_points - GEO
+    near = lambda c, r: (np.linalg.norm(kept[:, :2] - np.asarray(c)[None, :2], axis=1) < r)  # noqa: E731
+    assert near((1.0, 0.2), 0.15).sum() == 0, "the shrub is understory"
+    assert (near((-0.7, -0.5), 0.25) & (kept[:, 2] < 0.3)).sum() == 0, "the twig is litter"
+    assert near((0.6, -0.2), 0.1).sum() >= 0.9 * len(crown), "the crown piece stays"
+    assert (np.hypot(kept[:, 0], kept[:, 1]) < 0.2).sum() >= 0.98 * (pts[:n_stem, 2] > 0.06).sum()
+    foot = prep.foot
+    assert foot is not None and foot.plane is not None
+    xy_global = foot.xy + np.asarray(prep.frame.origin)[:2] - GEO[:2]
+    assert np.hypot(*xy_global) < 0.03  # the stem's axis is at (0, 0)
+    assert foot.z_m + prep.frame.origin[2] - GEO[2] == pytest.approx(0.0, abs=0.02)
 
 
 # --------------------------------------------------------------------------- normals
