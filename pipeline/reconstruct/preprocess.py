@@ -15,12 +15,14 @@ or not) into a :class:`PreparedCloud` in a float64 local frame, in this order:
    cloud by more than ``sor_std_ratio`` standard deviations (PCL's and Open3D's rule) and
    is also more than three times its neighbours' median is dropped: sparse but consistent
    regions (a treetop far from the scanner) stay.
-4. **Ground removal** (optional, ``remove_ground``): see :func:`find_ground`. A horizontal
-   or gently sloping plane is fitted (RANSAC with a fixed seed) to the points of the lowest
+4. **Ground removal** (``remove_ground``, on by default): see :func:`find_ground`. A
+   horizontal or gently sloping plane is fitted (RANSAC with a fixed seed) to the points of the lowest
    0.5 m whose local surface is near horizontal; it is taken for ground only when its
    inliers cover a wide, filled area (at least 0.25 m² and a quarter of their bounding
    box), so the cut end of a stem with no ground under it is never removed. Then every
-   point less than ``ground_tolerance_m`` above the plane (or below it) is dropped.
+   point less than ``ground_tolerance_m`` above the plane (or below it) is dropped. Then
+   the stem's foot and the understory (``remove_understory``): see
+   :mod:`pipeline.reconstruct.foot`.
 5. **Spacing**: the median nearest-neighbour distance of what is left.
 6. **Normals** (:func:`estimate_normals`): PCA of the ``normals_neighbors`` nearest
    neighbours, oriented outward (away from the local centroid at the smallest telling

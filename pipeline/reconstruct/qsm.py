@@ -6,7 +6,8 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
    components are joined by their shortest gaps (Borůvka steps over cross-component
    neighbour pairs, then nearest points), so occlusion gaps are bridged.
 2. **Geodesic distance** from the base (the points within ``base_band_m`` of the lowest
-   point) by Dijkstra, with predecessors.
+   height near the stem's foot, :mod:`pipeline.reconstruct.foot`; without a foot, of the
+   lowest point) by Dijkstra, with predecessors.
 3. **Slices** of the geodesic distance, ``slice_m`` thick; the graph restricted to each
    slice splits it into clusters: the skeleton's nodes. A node's parent is the node its
    points' shortest paths come from (a tree by construction: distance grows along paths).
@@ -20,9 +21,12 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
 6. **Regularised radii**: a per-tree pipe model ``r² = r_tip² + a · S`` of radius against
    growth length S (the length of the subtree a node supports, as rTwig does) is fitted
    to the measured nodes; unmeasured nodes take the model (``modelled``), or interpolate
-   between measured neighbours on their branch (``interpolated``); along each branch the
-   radius is made non-increasing (weighted isotonic regression), a child never exceeds
-   its parent at the junction, and nothing is thinner than the twig prior.
+   between measured neighbours on their branch (``interpolated``). A measured radius far
+   from its branch's running median is an outlier (a whorl, a needle clump); a modelled
+   radius never exceeds its branch's nearest measured one; the stem tapers linearly from
+   its last measurement to its top. Along each branch the radius is a running median never
+   wider than the data below it by more than the noise, a child never exceeds its parent
+   at the junction, and nothing is thinner than the twig prior.
 7. **Cylinders** (frusta) between consecutive nodes, children starting at their parent's
    surface, tips extended by half a slice, the stem extended down to the base.
 """
