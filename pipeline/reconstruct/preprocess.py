@@ -16,8 +16,8 @@ or not) into a :class:`PreparedCloud` in a float64 local frame, in this order:
    is also more than three times its neighbours' median is dropped: sparse but consistent
    regions (a treetop far from the scanner) stay.
 4. **Ground removal** (``remove_ground``, on by default): see :func:`find_ground`. A
-   horizontal or gently sloping plane is fitted (RANSAC with a fixed seed) to the points of the lowest
-   0.5 m whose local surface is near horizontal; it is taken for ground only when its
+   horizontal or gently sloping plane is fitted (RANSAC with a fixed seed) to the points
+   of the lowest 0.5 m whose local surface is near horizontal; it is taken for ground only when its
    inliers cover a wide, filled area (at least 0.25 m² and a quarter of their bounding
    box), so the cut end of a stem with no ground under it is never removed. Then every
    point less than ``ground_tolerance_m`` above the plane (or below it) is dropped. Then

@@ -365,6 +365,12 @@ OUTLIER_REL = 0.2
 OUTLIER_HALF_WINDOW = 3
 
 
+#: The taper's floor (the narrowest data below a node) counts only nodes this far (m)
+#: along the branch from its start: a stem's foot (cut, ragged, half in litter) and a
+#: branch's junction give small circles that would clamp everything above them.
+TAPER_FROM_M = 0.5
+
+
 def _taper(r: np.ndarray, data: np.ndarray, tol: float) -> np.ndarray:
     """A branch's radii (base to tip) as a taper: a running median over
     ``2 * OUTLIER_HALF_WINDOW + 1`` nodes, then never wider than the narrowest of the
@@ -758,7 +764,9 @@ def fit_qsm(
                 frac = (top - along[after]) / max(top - along[last], 1e-9)
                 taper = r_tip + (radius[s[last]] - r_tip) * frac
                 final_r[s[after]] = np.minimum(final_r[s[after]], taper)
-        final_r[s] = _taper(final_r[s], tag[s] < 2, 2.0 * noise_sd + 0.25 * spacing_m)
+        final_r[s] = _taper(
+            final_r[s], (tag[s] < 2) & (along >= TAPER_FROM_M), 2.0 * noise_sd + 0.25 * spacing_m
+        )
     # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
     for b, seq in enumerate(branches):
         j = branch_parent_node[b]

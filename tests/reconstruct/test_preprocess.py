@@ -213,7 +213,7 @@ def test_understory_and_litter_go_a_detached_crown_piece_stays():
     cloud = np.vstack([pts, shrub, twig, crown])
     prep = prepare(Cloud(cloud + GEO), PrepareParams(voxel_size_m=None))
     kept = prep.global_points - GEO
-    near = lambda c, r: (np.linalg.norm(kept[:, :2] - np.asarray(c)[None, :2], axis=1) < r)  # noqa: E731
+    near = lambda c, r: np.linalg.norm(kept[:, :2] - np.asarray(c)[None, :2], axis=1) < r  # noqa: E731
     assert near((1.0, 0.2), 0.15).sum() == 0, "the shrub is understory"
     assert (near((-0.7, -0.5), 0.25) & (kept[:, 2] < 0.3)).sum() == 0, "the twig is litter"
     assert near((0.6, -0.2), 0.1).sum() >= 0.9 * len(crown), "the crown piece stays"
