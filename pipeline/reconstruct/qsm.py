@@ -371,16 +371,22 @@ OUTLIER_HALF_WINDOW = 3
 TAPER_FROM_M = 0.5
 
 
+def _running_median(r: np.ndarray) -> np.ndarray:
+    """The median of each value and its ``OUTLIER_HALF_WINDOW`` neighbours on each side
+    (fewer at the ends)."""
+    k = OUTLIER_HALF_WINDOW
+    padded = np.concatenate([np.full(k, np.nan), r, np.full(k, np.nan)])
+    return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
+
+
 def _taper(r: np.ndarray, data: np.ndarray, tol: float) -> np.ndarray:
     """A branch's radii (base to tip) as a taper: a running median over
     ``2 * OUTLIER_HALF_WINDOW + 1`` nodes, then never wider than the narrowest of the
     nodes below it that rest on data (``data``: measured or interpolated) by more than
     ``tol`` (the noise). Unlike an isotonic fit, a swelling (under a fork, a whorl) is
     clipped instead of pooled into the measured radii below it."""
-    k = OUTLIER_HALF_WINDOW
-    if len(r) > 2 * k:
-        padded = np.concatenate([np.full(k, np.nan), r, np.full(k, np.nan)])
-        r = np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
+    if len(r) > 2 * OUTLIER_HALF_WINDOW:
+        r = _running_median(r)
     floor = np.minimum.accumulate(np.where(data, r, np.inf))
     return np.minimum(r, floor + tol)
 
@@ -395,10 +401,7 @@ def _drop_outliers(
     if len(idx) < 5:
         return 0
     r = radius[idx]
-    k = OUTLIER_HALF_WINDOW
-    padded = np.concatenate([np.full(k, np.nan), r, np.full(k, np.nan)])
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1)
-    med = np.nanmedian(windows, axis=1)
+    med = _running_median(r)
     out = np.abs(r - med) > np.maximum(OUTLIER_REL * med, 3.0 * noise_sd)
     measured[idx[out]] = False
     return int(out.sum())
