@@ -391,13 +391,11 @@ def _taper(r: np.ndarray, data: np.ndarray, tol: float) -> np.ndarray:
     return np.minimum(r, floor + tol)
 
 
-def _drop_outliers(
-    seq: np.ndarray, radius: np.ndarray, measured: np.ndarray, noise_sd: float
-) -> int:
-    """Unmark (in ``measured``) the measured radii of one branch's nodes ``seq`` that are
-    outliers against the running median of the branch's measured radii; returns how many.
-    Branches with fewer than five measured nodes are left alone."""
-    idx = seq[measured[seq]]
+def _drop_outliers(radius: np.ndarray, measured: np.ndarray, noise_sd: float) -> int:
+    """Unmark (in ``measured``) the measured radii of one branch's nodes (base to tip)
+    that are outliers against the running median of the branch's measured radii; returns
+    how many. Branches with fewer than five measured nodes are left alone."""
+    idx = np.flatnonzero(measured)
     if len(idx) < 5:
         return 0
     r = radius[idx]
@@ -405,6 +403,59 @@ def _drop_outliers(
     out = np.abs(r - med) > np.maximum(OUTLIER_REL * med, 3.0 * noise_sd)
     measured[idx[out]] = False
     return int(out.sum())
+
+
+def _branch_radii(
+    radius: np.ndarray,
+    model: np.ndarray,
+    measured: np.ndarray,
+    pos: np.ndarray,
+    *,
+    stem: bool,
+    noise_sd: float,
+    tol_m: float,
+    r_tip: float,
+    tip_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """One branch's radii, base to tip, from its nodes' fitted ``radius``, the radius
+    ``model`` and which fits are ``measured`` (positions ``pos``, (k, 3)).
+
+    Outlying fits are dropped (they take the model); unmeasured nodes between measured
+    ones interpolate them; a modelled radius never exceeds the branch's nearest measured
+    one; on the stem (``stem``) the radius above the last measurement tapers linearly to
+    ``r_tip`` at ``tip_m`` beyond the last node; then :func:`_taper` with ``tol_m``.
+
+    Returns
+    -------
+    radius : (k,) float
+    tag : (k,) int
+        0 measured, 1 interpolated, 2 modelled.
+    measured : (k,) bool
+        ``measured`` less the outliers.
+    outliers : int
+    """
+    measured = measured.copy()
+    dropped = _drop_outliers(radius, measured, noise_sd)
+    r = np.where(measured, radius, model)  # an outlier takes the model
+    tag = np.where(measured, 0, 2)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    if measured.any():
+        first, last = np.flatnonzero(measured)[[0, -1]]
+        ii = np.arange(len(r))
+        inner = (~measured) & (ii > first) & (ii < last)
+        if inner.any():  # interpolate between measured anchors along the branch
+            r[inner] = np.interp(along[inner], along[measured], radius[measured])
+            tag[inner] = 1
+        # a modelled radius never exceeds the branch's nearest measured radius
+        r[ii < first] = np.minimum(r[ii < first], radius[first])
+        after = ii > last
+        r[after] = np.minimum(r[after], radius[last])
+        if stem and after.any():  # the stem tapers from its last measurement to the top
+            top = along[-1] + tip_m
+            frac = (top - along[after]) / max(top - along[last], 1e-9)
+            r[after] = np.minimum(r[after], r_tip + (radius[last] - r_tip) * frac)
+    r = _taper(r, (tag < 2) & (along >= TAPER_FROM_M), tol_m)
+    return r, tag, measured, dropped
 
 
 def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -746,30 +797,18 @@ def fit_qsm(
     n_outliers = 0
     for b, seq in enumerate(branches):
         s = np.asarray(seq)
-        n_outliers += _drop_outliers(s, radius, measured, noise_sd)
-        final_r[s] = np.where(measured[s], radius[s], final_r[s])
-        tag[s] = np.where(measured[s], 0, tag[s])
-        meas = measured[s]
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos[s], axis=0), axis=1))])
-        if meas.any():
-            first, last = np.flatnonzero(meas)[[0, -1]]
-            ii = np.arange(len(s))
-            inner = (~meas) & (ii > first) & (ii < last)
-            if inner.any():  # interpolate between measured anchors along the branch
-                final_r[s[inner]] = np.interp(along[inner], along[meas], radius[s][meas])
-                tag[s[inner]] = 1
-            # a modelled radius never exceeds the branch's nearest measured radius
-            final_r[s[ii < first]] = np.minimum(final_r[s[ii < first]], radius[s[first]])
-            after = ii > last
-            final_r[s[after]] = np.minimum(final_r[s[after]], radius[s[last]])
-            if b == 0 and after.any():  # the stem tapers from its last measurement to the top
-                top = along[-1] + 0.5 * h
-                frac = (top - along[after]) / max(top - along[last], 1e-9)
-                taper = r_tip + (radius[s[last]] - r_tip) * frac
-                final_r[s[after]] = np.minimum(final_r[s[after]], taper)
-        final_r[s] = _taper(
-            final_r[s], (tag[s] < 2) & (along >= TAPER_FROM_M), 2.0 * noise_sd + 0.25 * spacing_m
+        final_r[s], tag[s], measured[s], dropped = _branch_radii(
+            radius[s],
+            model[s],
+            measured[s],
+            pos[s],
+            stem=b == 0,
+            noise_sd=noise_sd,
+            tol_m=2.0 * noise_sd + 0.25 * spacing_m,
+            r_tip=r_tip,
+            tip_m=0.5 * h,
         )
+        n_outliers += dropped
     # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
     for b, seq in enumerate(branches):
         j = branch_parent_node[b]

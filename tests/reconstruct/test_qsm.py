@@ -148,3 +148,32 @@ def test_noise_estimate_prefers_the_stem_and_says_when_it_has_none():
     assert est["from"] == "branches" and est["sd_m"] == pytest.approx(5e-3)
     est = estimate_noise(scatter, good, cov, np.full(n, 0.009), stem, p, 0.005)
     assert est == {"sd_m": None, "fits": 0, "from": None}
+
+
+
+def test_an_outlying_fit_at_a_branch_end_takes_the_model_not_the_tag_measured():
+    """Ten measured nodes of a 10 cm stem whose last fit reads 16 cm (a whorl's stubs,
+    a clump): that fit is an outlier against the running median of its neighbours, so
+    it takes the model (8 cm; the taper's running median then sets it from its
+    neighbours, 10 cm) and is tagged modelled, not measured."""
+    from pipeline.reconstruct.qsm import _branch_radii
+
+    k = 10
+    radius = np.full(k, 0.10)
+    radius[-1] = 0.16
+    pos = np.c_[np.zeros(k), np.zeros(k), 0.1 * np.arange(k)]
+    r, tag, measured, dropped = _branch_radii(
+        radius,
+        np.full(k, 0.08),
+        np.ones(k, dtype=bool),
+        pos,
+        stem=False,
+        noise_sd=0.001,
+        tol_m=0.002,
+        r_tip=0.0015,
+        tip_m=0.02,
+    )
+    assert dropped == 1
+    assert measured.tolist() == [True] * (k - 1) + [False]
+    assert tag.tolist() == [0] * (k - 1) + [2]
+    assert r == pytest.approx(np.full(k, 0.10))
