@@ -920,6 +920,22 @@ def leaf_measure(
 # --------------------------------------------------------------------------- prepare
 
 
+def _kept(
+    pts: np.ndarray,
+    weights: np.ndarray,
+    neighbors: np.ndarray,
+    keep: np.ndarray,
+    k: int,
+    tree: cKDTree | None,
+    workers: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points, weights and ``k`` nearest kept neighbours (:func:`_neighbors_of_kept`)
+    of the points ``keep`` marks; ``tree`` is ``pts``'s (built here when None)."""
+    tree = cKDTree(pts) if tree is None else tree
+    kept_neighbors = _neighbors_of_kept(pts, neighbors, keep, k, tree, workers=workers)
+    return pts[keep], weights[keep], kept_neighbors
+
+
 def _step(name: str, before: int, after: int, **params: Any) -> dict[str, Any]:
     return {
         "step": name,
@@ -989,10 +1005,8 @@ def prepare(
             pts, params.sor_neighbors, params.sor_std_ratio, workers=w, knn=neighbors
         )
         if not keep.all():
-            neighbors = _neighbors_of_kept(pts, neighbors, keep, k_keep, tree, workers=w)
-            nearest = None
-            pts, weights = pts[keep], weights[keep]
-            tree = None
+            pts, weights, neighbors = _kept(pts, weights, neighbors, keep, k_keep, tree, w)
+            nearest, tree = None, None
     neighbors = neighbors[:, :k_keep]
     steps.append(
         _step(
@@ -1018,10 +1032,8 @@ def prepare(
         if ground_info.get("detected"):
             plane = tuple(ground_info["plane"])
         if ground.any():
-            neighbors = _neighbors_of_kept(pts, neighbors, ~ground, k_keep, tree, workers=w)
-            nearest = None
-            pts, weights = pts[~ground], weights[~ground]
-            tree = None
+            pts, weights, neighbors = _kept(pts, weights, neighbors, ~ground, k_keep, tree, w)
+            nearest, tree = None, None
     steps.append(
         _step(
             "ground_removal",
@@ -1039,11 +1051,8 @@ def prepare(
     if params.remove_understory and foot is not None and plane is not None:
         under, under_info = understory(pts, neighbors, spacing, foot)
         if under.any() and (~under).sum() >= max(10, params.normals_neighbors or 0):
-            tree = cKDTree(pts) if tree is None else tree
-            neighbors = _neighbors_of_kept(pts, neighbors, ~under, k_keep, tree, workers=w)
-            nearest = None
-            pts, weights = pts[~under], weights[~under]
-            tree = None
+            pts, weights, neighbors = _kept(pts, weights, neighbors, ~under, k_keep, tree, w)
+            nearest, tree = None, None
     steps.append(
         _step(
             "understory_removal",
