@@ -289,4 +289,5 @@ def test_leaves_are_reported_on_leaf_on_input_only():
         "voxel_downsample",
         "outlier_removal",
         "ground_removal",
+        "understory_removal",
     ]
