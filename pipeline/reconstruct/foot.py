@@ -54,6 +54,17 @@ FOOT_MARGIN_M = 0.1
 AXIS_LAYER_M = 0.1
 
 
+def _height(
+    points: np.ndarray, plane: tuple[float, float, float, float] | None, base_z_m: float
+) -> np.ndarray:
+    """Height of ``points`` (n, 3) above ``plane`` (vertically), or above ``base_z_m``."""
+    p = np.asarray(points, dtype=np.float64)
+    if plane is None:
+        return p[:, 2] - base_z_m
+    a, b, c, d = plane
+    return p[:, 2] + (a * p[:, 0] + b * p[:, 1] + d) / c
+
+
 @dataclass(frozen=True)
 class StemFoot:
     """Where the stem meets the ground, in the prepared cloud's local frame.
@@ -84,11 +95,7 @@ class StemFoot:
 
     def height(self, points: np.ndarray) -> np.ndarray:
         """Height of ``points`` (n, 3) above the terrain (m), vertically."""
-        p = np.asarray(points, dtype=np.float64)
-        if self.plane is None:
-            return p[:, 2] - self.base_z_m
-        a, b, c, d = self.plane
-        return p[:, 2] + (a * p[:, 0] + b * p[:, 1] + d) / c
+        return _height(points, self.plane, self.base_z_m)
 
     def axis_distance(self, points: np.ndarray) -> np.ndarray:
         """Horizontal distance of ``points`` from the stem's axis at their own height (m)."""
@@ -109,22 +116,20 @@ class StemFoot:
         }
 
 
-def _graph(neighbors: np.ndarray, points: np.ndarray, keep: np.ndarray, link_m: float):
-    """Symmetric graph of the neighbour pairs within ``link_m`` whose ends are both kept."""
+def _pieces(
+    neighbors: np.ndarray, points: np.ndarray, keep: np.ndarray, link_m: float
+) -> np.ndarray:
+    """Each point's connected piece of the graph of neighbour pairs within ``link_m``
+    whose ends are both kept (a removed point is a piece of its own)."""
     n = len(points)
     k = neighbors.shape[1]
     rows = np.repeat(np.arange(n), k - 1)
     cols = neighbors[:, 1:].ravel().astype(np.int64)
     ok = keep[rows] & keep[cols]
     rows, cols = rows[ok], cols[ok]
-    d = np.linalg.norm(points[rows] - points[cols], axis=1)
-    near = d <= link_m
+    near = np.linalg.norm(points[rows] - points[cols], axis=1) <= link_m
     g = sparse.coo_matrix((np.ones(int(near.sum())), (rows[near], cols[near])), shape=(n, n))
-    return g.tocsr()
-
-
-def _components(g: sparse.csr_matrix) -> np.ndarray:
-    return connected_components(g, directed=False)[1]
+    return connected_components(g.tocsr(), directed=False)[1]
 
 
 def find_foot(
@@ -159,8 +164,7 @@ def find_foot(
     p = np.asarray(points, dtype=np.float64)
     w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=np.float64)
     z0 = float(p[:, 2].min())
-    probe = StemFoot(plane, z0, np.zeros(2), 0.0, np.array([0.0, 0.0, 1.0]), 0.0)
-    hag = probe.height(p)
+    hag = _height(p, plane, z0)
     top = float(np.max(hag))
     lo, hi = FOOT_BAND_M
     hi = min(hi, 0.4 * top)
@@ -169,7 +173,7 @@ def find_foot(
     if band.sum() < 20:
         return None
     link = max(4.0 * spacing_m, 0.02)
-    lab = _components(_graph(neighbors, p, band, link))
+    lab = _pieces(neighbors, p, band, link)
     lab_b = lab[band]
     wb, hb = w[band], hag[band]
     comps, inv = np.unique(lab_b, return_inverse=True)
@@ -203,7 +207,7 @@ def find_foot(
     direction /= np.linalg.norm(direction)
     # the foot: the axis followed down to the terrain (or the lowest band height)
     c0 = cen[int(np.argmin(cen[:, 2]))]
-    h0 = float(probe.height(c0[None, :])[0])
+    h0 = float(_height(c0[None, :], plane, z0)[0])
     t = direction[:2] / direction[2]
     if plane is None:
         dz = -h0
@@ -247,7 +251,7 @@ def understory(
     room = 1.5 * foot.radius_m + FOOT_MARGIN_M
     near = (hag < NEAR_GROUND_M) & (foot.axis_distance(p) > room)
     keep = ~near
-    lab = _components(_graph(neighbors, p, keep, max(8.0 * spacing_m, UNDERSTORY_LINK_M)))
+    lab = _pieces(neighbors, p, keep, max(8.0 * spacing_m, UNDERSTORY_LINK_M))
     # the stem's piece: the one holding most of the points near the axis in the foot band
     lo, hi = FOOT_BAND_M
     at_foot = keep & (hag >= lo) & (hag <= hi) & (foot.axis_distance(p) <= room)
