@@ -130,6 +130,10 @@ LEAF_ON_BRANCH_TO_STEM_MAX = 1.2
 STEM_MEASURED_MIN = 0.25
 
 
+#: Causes and remedies that several warnings name.
+DBH_INFLATED = "a DBH inflated at 1.3 m (a fork, a buttress, a neighbour's stem)"
+SEE_THE_STEM = "scan from more sides, or separate the leaves (--separate-leaves on)"
+
 #: The figures :func:`assess` returns (None where one does not apply), in order.
 FIGURES: tuple[str, ...] = (
     "stem_height_m",
@@ -392,8 +396,6 @@ def assess(
 
     # total volume envelope (every method)
     vt = figures.get("volume_total_m3")
-    out["volume_total_factor"] = None
-    out["volume_total_factor_range"] = None
     if vt and dbh and height and height >= MIN_HEIGHT_FOR_FORM_M:
         g_h = math.pi / 4.0 * dbh * dbh * height
         lo, hi = form_factor_range(height)
@@ -424,8 +426,7 @@ def assess(
                     hi,
                     f"total volume {float(vt) * 1000:.0f} L is only {f:.2f} x basal area x "
                     f"height (DBH {dbh * 100:.1f} cm, height {height:.1f} m)",
-                    "a DBH inflated at 1.3 m (a fork, a buttress, a neighbour's stem) or "
-                    "a height taken from noise above the crown",
+                    DBH_INFLATED + " or a height taken from noise above the crown",
                     "check the stem at 1.3 m in the cloud and the outliers above the tree",
                 )
             )
@@ -568,8 +569,7 @@ def _assess_stem(
                     hi,
                     f"stem form factor {f:.2f} (stem {vol * 1000:.0f} L, DBH "
                     f"{dbh * 100:.1f} cm, stem {h_stem:.1f} m tall)",
-                    "a DBH inflated at 1.3 m (a fork, a buttress, a neighbour's stem) or "
-                    "a stem that ends low (the crown's leader taken for a branch)",
+                    DBH_INFLATED + " or a stem that ends low (the leader taken for a branch)",
                     "check the stem at 1.3 m and the stem's top in cylinders.csv",
                 )
             )
@@ -606,7 +606,7 @@ def _assess_stem(
                 f"the stem's radius is held constant over {held:.1f} m of height",
                 "the stem hidden (by needles, leaves or occlusion) between few measured "
                 "nodes, so its radius was carried over metres it cannot see",
-                "scan from more sides or separate the leaves (--separate-leaves on)",
+                SEE_THE_STEM,
             )
         )
 
@@ -626,7 +626,7 @@ def _assess_stem(
                     f"only {share * 100:.0f} % of the stem's length has measured radii",
                     "the stem hidden by needles, leaves or occlusion: its radii follow "
                     "the pipe model",
-                    "scan from more sides, or separate the leaves (--separate-leaves on)",
+                    SEE_THE_STEM,
                 )
             )
 
