@@ -64,3 +64,15 @@ def box_arrays(lo: tuple[float, float, float], hi: tuple[float, float, float]):
     m = trimesh.creation.box(extents=hi_a - lo_a)
     v = np.asarray(m.vertices, dtype=np.float64) + (lo_a + hi_a) / 2
     return v, np.asarray(m.faces, dtype=np.int64)
+
+
+@pytest.fixture(scope="session")
+def tube_xyz(tmp_path_factory) -> Path:
+    """An XYZ cloud of a 5 m tube of constant radius 12 cm: a cylinder (stem form factor
+    1.0), never a real stem, so its reconstruction always raises plausibility warnings."""
+    from tests.reconstruct.shapes import tube
+
+    pts, _ = tube(radius=0.12, height=5.0, n=20000, noise_m=0.001, seed=0)
+    path = tmp_path_factory.mktemp("tube") / "tube.xyz"
+    np.savetxt(path, pts, fmt="%.6f")
+    return path

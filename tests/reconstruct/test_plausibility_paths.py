@@ -10,19 +10,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from pipeline.cli import main
-from tests.reconstruct.shapes import tube
-
-
-@pytest.fixture(scope="module")
-def tube_xyz(tmp_path_factory) -> Path:
-    pts, _ = tube(radius=0.12, height=5.0, n=20000, noise_m=0.001, seed=0)
-    path = tmp_path_factory.mktemp("tube") / "tube.xyz"
-    np.savetxt(path, pts, fmt="%.6f")
-    return path
 
 
 def test_cli_reconstruct_prints_each_warning_on_stderr(tube_xyz, tmp_path, capsys):

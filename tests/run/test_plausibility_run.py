@@ -6,19 +6,12 @@ from __future__ import annotations
 import html
 import json
 
-import numpy as np
-
 from pipeline.cli.run import print_run_summary
 from pipeline.run import run_tree
-from tests.reconstruct.shapes import tube
 
 
-def test_run_report_and_stderr_show_the_warnings(tmp_path, quick, capsys):
-    # a 5 m tube of constant radius: a cylinder (form factor 1.0), never a real stem
-    pts, _ = tube(radius=0.12, height=5.0, n=20000, noise_m=0.001, seed=0)
-    cloud = tmp_path / "tube.xyz"
-    np.savetxt(cloud, pts, fmt="%.6f")
-    result = run_tree(cloud, quick, tmp_path / "run")
+def test_run_report_and_stderr_show_the_warnings(tube_xyz, tmp_path, quick, capsys):
+    result = run_tree(tube_xyz, quick, tmp_path / "run")
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     warns = run["reconstruction"]["warnings"]
     assert "form_factor_high" in [w["code"] for w in warns]
