@@ -332,7 +332,7 @@ def _jumps(table: CylinderTable) -> dict[str, Any]:
 def _ground_fix(preparation: dict[str, Any] | None) -> str:
     steps = (preparation or {}).get("steps", [])
     ground = next((s for s in steps if s.get("step") == "ground_removal"), None)
-    if ground is not None and ground.get("enabled"):
+    if ground is not None and ground.get("params", {}).get("enabled"):
         return (
             f"ground removal ran and removed {ground.get('removed', 0):,} points: crop the "
             "cloud's ground and understory by hand, or raise the ground tolerance"

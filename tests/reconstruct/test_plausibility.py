@@ -140,6 +140,12 @@ def test_horizontal_fat_first_run_warns_ground_left_in():
     assert res["figures"]["stem_base_inclination_deg"] > 60.0
     w = next(w for w in res["warnings"] if w["code"] == "stem_base_not_upright")
     assert "ground" in w["likely_cause"] and "--remove-ground" in w["remedy"]
+    # where preparation's ground removal ran (its step record, as prepare writes it), the
+    # remedy says so instead of asking for it
+    ran = {"step": "ground_removal", "removed": 1234, "params": {"enabled": True}}
+    again = assess(t, figures(t), preparation={"steps": [ran]})
+    w = next(w for w in again["warnings"] if w["code"] == "stem_base_not_upright")
+    assert "ground removal ran and removed 1,234 points" in w["remedy"]
     # the 50 cm modelled run sits beside measured radii of at most 15 cm on its branch
     assert "modelled_radius_above_measured" in got
     assert res["figures"]["modelled_over_measured_ratio"] == pytest.approx(0.5 / 0.15)

@@ -2,22 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
-import pytest
-
-from tests.reconstruct.shapes import tube
-
-
-@pytest.fixture(scope="module")
-def tube_xyz(tmp_path_factory) -> Path:
-    """A 5 m tube of constant radius: a cylinder (form factor 1.0), never a real stem."""
-    pts, _ = tube(radius=0.12, height=5.0, n=20000, noise_m=0.001, seed=0)
-    path = tmp_path_factory.mktemp("tube") / "tube.xyz"
-    np.savetxt(path, pts, fmt="%.6f")
-    return path
-
 
 def test_service_reconstruct_job_carries_the_warnings(tube_xyz, tmp_path, store):
     from service.api.jobs import status_info
@@ -31,7 +15,8 @@ def test_service_reconstruct_job_carries_the_warnings(tube_xyz, tmp_path, store)
     codes = [w["code"] for w in summary["warnings"]]
     assert "form_factor_high" in codes
     message = done_message(summary)
-    assert message.startswith(f"done, {len(codes)} warnings: stem form factor")
+    plural = "s" if len(codes) > 1 else ""
+    assert message.startswith(f"done, {len(codes)} warning{plural}: stem form factor")
     job = store.create_job(
         process="reconstruct",
         inputs={},
