@@ -411,20 +411,10 @@ def fit_slab(
         xy = s[d <= window, :2]
         if len(xy) >= MIN_POINTS:
             break
-    empty = np.zeros(len(xy), dtype=bool)
     common = dict(height_m=height_m, z_m=z_m, thickness_m=t, points_xy=xy)
     if len(xy) < MIN_POINTS:
-        return Slab(
-            **common,
-            diameter_m=None,
-            centre_xy_m=None,
-            rms_m=None,
-            coverage_deg=0.0,
-            n_points=0,
-            n_window=len(xy),
-            verdict="sparse",
-            reason=f"{len(xy)} points near the stem (fewer than {MIN_POINTS})",
-            inlier_mask=empty,
+        return _no_circle(
+            common, "sparse", f"{len(xy)} points near the stem (fewer than {MIN_POINTS})"
         )
     # keep the clusters that reach the stem's predicted outline, drop detached blobs
     spacing = float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1]))
@@ -434,18 +424,7 @@ def fit_slab(
     keep = np.isin(lab, near)
     circ, agrees = _best_circle(xy[keep], (cx, cy), radius_m, gap_m, lab[keep])
     if circ is None:
-        return Slab(
-            **common,
-            diameter_m=None,
-            centre_xy_m=None,
-            rms_m=None,
-            coverage_deg=0.0,
-            n_points=0,
-            n_window=len(xy),
-            verdict="ambiguous",
-            reason="no circle fits the points near the stem",
-            inlier_mask=empty,
-        )
+        return _no_circle(common, "ambiguous", "no circle fits the points near the stem")
     inl = np.zeros(len(xy), dtype=bool)
     inl[np.flatnonzero(keep)[circ.inliers]] = True
     n_in = int(inl.sum())
@@ -494,6 +473,23 @@ def fit_slab(
         verdict=verdict,
         reason=reason,
         inlier_mask=inl,
+    )
+
+
+def _no_circle(common: dict, verdict: str, reason: str) -> Slab:
+    """A slab where no circle was fitted (``common``: its height, z, thickness, points)."""
+    n = len(common["points_xy"])
+    return Slab(
+        **common,
+        diameter_m=None,
+        centre_xy_m=None,
+        rms_m=None,
+        coverage_deg=0.0,
+        n_points=0,
+        n_window=n,
+        verdict=verdict,
+        reason=reason,
+        inlier_mask=np.zeros(n, dtype=bool),
     )
 
 
