@@ -421,9 +421,10 @@ def _branch_radii(
     ``model`` and which fits are ``measured`` (positions ``pos``, (k, 3)).
 
     Outlying fits are dropped (they take the model); unmeasured nodes between measured
-    ones interpolate them; a modelled radius never exceeds the branch's nearest measured
-    one; on the stem (``stem``) the radius above the last measurement tapers linearly to
-    ``r_tip`` at ``tip_m`` beyond the last node; then :func:`_taper` with ``tol_m``.
+    ones interpolate them, those below the first take its radius, and those above the
+    last never exceed its radius; on the stem (``stem``) the radius above the last
+    measurement tapers linearly to ``r_tip`` at ``tip_m`` beyond the last node; then
+    :func:`_taper` with ``tol_m``.
 
     Returns
     -------
@@ -446,8 +447,9 @@ def _branch_radii(
         if inner.any():  # interpolate between measured anchors along the branch
             r[inner] = np.interp(along[inner], along[measured], radius[measured])
             tag[inner] = 1
-        # a modelled radius never exceeds the branch's nearest measured radius
-        r[ii < first] = np.minimum(r[ii < first], radius[first])
+        # below its first measurement a branch is as wide as there (no thinner at its
+        # base, no wider than the data); above its last, never wider than there
+        r[ii < first] = radius[first]
         after = ii > last
         r[after] = np.minimum(r[after], radius[last])
         if stem and after.any():  # the stem tapers from its last measurement to the top
