@@ -205,6 +205,23 @@ def _warning(
     }
 
 
+def _outside(
+    warns: list[dict[str, Any]],
+    value: float,
+    lo: float,
+    hi: float,
+    *,
+    high: tuple[str, str, str, str],
+    low: tuple[str, str, str, str],
+) -> None:
+    """Append the ``high`` or ``low`` warning (code, what, cause, remedy) when ``value``
+    lies above ``hi`` or below ``lo``."""
+    if value > hi:
+        warns.append(_warning(high[0], value, lo, hi, *high[1:]))
+    elif value < lo:
+        warns.append(_warning(low[0], value, lo, hi, *low[1:]))
+
+
 def _stem_rows(table: CylinderTable) -> np.ndarray:
     """Rows of the main stem (order 0, the branch of the lowest order-0 cylinder), in
     order along it."""
@@ -403,33 +420,27 @@ def assess(
         f = float(vt) / g_h
         out["volume_total_factor"] = f
         out["volume_total_factor_range"] = [lo, hi]
-        if f > hi:
-            warns.append(
-                _warning(
-                    "volume_total_high",
-                    f,
-                    lo,
-                    hi,
-                    f"total volume {float(vt) * 1000:.0f} L is {f:.2f} x basal area x height "
-                    f"(DBH {dbh * 100:.1f} cm, height {height:.1f} m)",
-                    "ground, understory or leaves taken for wood, or a stem wider than the data",
-                    "check the warnings above, reconstruct with --remove-ground or "
-                    "--separate-leaves on",
-                )
-            )
-        elif f < lo:
-            warns.append(
-                _warning(
-                    "volume_total_low",
-                    f,
-                    lo,
-                    hi,
-                    f"total volume {float(vt) * 1000:.0f} L is only {f:.2f} x basal area x "
-                    f"height (DBH {dbh * 100:.1f} cm, height {height:.1f} m)",
-                    DBH_INFLATED + " or a height taken from noise above the crown",
-                    "check the stem at 1.3 m in the cloud and the outliers above the tree",
-                )
-            )
+        sizes = f"(DBH {dbh * 100:.1f} cm, height {height:.1f} m)"
+        _outside(
+            warns,
+            f,
+            lo,
+            hi,
+            high=(
+                "volume_total_high",
+                f"total volume {float(vt) * 1000:.0f} L is {f:.2f} x basal area x height {sizes}",
+                "ground, understory or leaves taken for wood, or a stem wider than the data",
+                "check the warnings above, reconstruct with --remove-ground or "
+                "--separate-leaves on",
+            ),
+            low=(
+                "volume_total_low",
+                f"total volume {float(vt) * 1000:.0f} L is only {f:.2f} x basal area x "
+                f"height {sizes}",
+                DBH_INFLATED + " or a height taken from noise above the crown",
+                "check the stem at 1.3 m in the cloud and the outliers above the tree",
+            ),
+        )
 
     # leaves taken for wood
     vs, vb = figures.get("volume_stem_m3"), figures.get("volume_branch_m3")
@@ -546,33 +557,29 @@ def _assess_stem(
         lo, hi = form_factor_range(h_stem)
         out["stem_form_factor"] = f
         out["stem_form_factor_range"] = [lo, hi]
-        if f > hi:
-            warns.append(
-                _warning(
-                    "form_factor_high",
-                    f,
-                    lo,
-                    hi,
-                    f"stem form factor {f:.2f} (stem {vol * 1000:.0f} L, DBH "
-                    f"{dbh * 100:.1f} cm, stem {h_stem:.1f} m tall; a cylinder is 1.0)",
-                    "a stem too wide above 1.3 m: ground left in under the stem, radii "
-                    "held constant or modelled where the stem is hidden",
-                    "see the stem warnings; " + ground_fix,
-                )
-            )
-        elif f < lo:
-            warns.append(
-                _warning(
-                    "form_factor_low",
-                    f,
-                    lo,
-                    hi,
-                    f"stem form factor {f:.2f} (stem {vol * 1000:.0f} L, DBH "
-                    f"{dbh * 100:.1f} cm, stem {h_stem:.1f} m tall)",
-                    DBH_INFLATED + " or a stem that ends low (the leader taken for a branch)",
-                    "check the stem at 1.3 m and the stem's top in cylinders.csv",
-                )
-            )
+        what = (
+            f"stem form factor {f:.2f} (stem {vol * 1000:.0f} L, DBH "
+            f"{dbh * 100:.1f} cm, stem {h_stem:.1f} m tall"
+        )
+        _outside(
+            warns,
+            f,
+            lo,
+            hi,
+            high=(
+                "form_factor_high",
+                what + "; a cylinder is 1.0)",
+                "a stem too wide above 1.3 m: ground left in under the stem, radii "
+                "held constant or modelled where the stem is hidden",
+                "see the stem warnings; " + ground_fix,
+            ),
+            low=(
+                "form_factor_low",
+                what + ")",
+                DBH_INFLATED + " or a stem that ends low (the leader taken for a branch)",
+                "check the stem at 1.3 m and the stem's top in cylinders.csv",
+            ),
+        )
 
     # taper
     if dbh and h_stem > BREAST_HEIGHT_M:
