@@ -17,16 +17,19 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
    normal to the local axis, a circle is fitted by RANSAC and refined by robust
    (soft-L1) least squares; the fit is accepted ("measured") only when its arc coverage,
    residual, inlier share and radius pass quality gates. Accepted fits also move the node
-   to the circle's centre (a centroid is biased toward the scanned side).
+   to the circle's centre (a centroid is biased toward the scanned side). A wide stem
+   node fits the slab of every point square to the stem's axis around it instead of its
+   own slice (a geodesic slice of a stem scanned from one side holds half its ring).
 6. **Regularised radii**: a per-tree pipe model ``r² = r_tip² + a · S`` of radius against
    growth length S (the length of the subtree a node supports, as rTwig does) is fitted
-   to the measured nodes; unmeasured nodes take the model (``modelled``), or interpolate
-   between measured neighbours on their branch (``interpolated``). A measured radius far
-   from its branch's running median is an outlier (a whorl, a needle clump); a modelled
-   radius never exceeds its branch's nearest measured one; the stem tapers linearly from
-   its last measurement to its top. Along each branch the radius is a running median never
-   wider than the data below it by more than the noise, a child never exceeds its parent
-   at the junction, and nothing is thinner than the twig prior.
+   to the measured nodes, the branches' ``a`` at most the stem's; unmeasured nodes take
+   the model (``modelled``), or interpolate between measured neighbours on their branch
+   (``interpolated``). A measured radius far from its branch's running median is an
+   outlier (a whorl, a needle clump); a modelled radius never exceeds its branch's
+   nearest measured one; the stem tapers linearly from its last measurement to its top.
+   Along each branch the radius is a running median never wider than the data below it
+   by more than the noise, a child never exceeds its parent at the junction, and nothing
+   is thinner than the twig prior.
 7. **Cylinders** (frusta) between consecutive nodes, children starting at their parent's
    surface, tips extended by half a slice, the stem extended down to the base.
 """
@@ -60,6 +63,9 @@ class QSMResult:
     node_fit: dict[str, np.ndarray] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
+
+#: Measured branch nodes needed before the branches get their own pipe-model coefficient.
+BRANCH_A_MIN_FITS = 10
 
 # ---------------------------------------------------------------------------- graph
 #: Points handled at a time when the graph is built (bounds temporary memory).
@@ -348,12 +354,19 @@ def _continuation(kids: list[int], sub_len: np.ndarray, sub_top: np.ndarray, ste
     return max(big, key=lambda c: (sub_top[c], sub_len[c], -c))
 
 
-#: Thickness (m) of the stem slab a sparse stem node's circle is fitted to (its own slice
-#: and its neighbours' along the stem) ...
+#: A stem node at least this many slice lengths wide (half its extent across the axis)
+#: fits the slab of points square to the stem's axis around it (see ``fit_qsm``, 5.); a
+#: thinner stem's slice is a slab already (and a slab over a thin, curved stem widens
+#: its circles: +12 % stem volume on the sapling).
+STEM_SLAB_MIN_EXTENT_SLICES = 1.0
+#: The slab takes every point (any node's: the far side of a stem can sit in a parallel
+#: chain of nodes) within this many times the node's half-extent of its centroid across
+#: the axis (a half-ring's centroid lies about 0.6 r off the stem's centre).
+STEM_SLAB_REACH = 2.5
+#: The slab is a slice thick, at least STEM_SLAB_M (m) ...
 STEM_SLAB_M = 0.15
-#: ... when its own slice holds fewer points than this and the stem is at least as wide
-#: as the slab is thick (a dense stem keeps its own slice; a slab over a thin, curved
-#: stem widens its circles: +12 % stem volume on the sapling).
+#: ... where the node's own slice holds fewer points than this and the stem is at least
+#: as wide as STEM_SLAB_M: a sparse, one-sided stem has one row of points per slice.
 STEM_SPARSE_POINTS = 60
 #: Half-width (m) of the moving average that straightens the stem's unmeasured stretches.
 STEM_SMOOTH_M = 0.5
@@ -696,9 +709,13 @@ def fit_qsm(
     band_min = max(1.0 * spacing_m, 0.001)
     axes = np.zeros((m, 3))
     extent = np.full(m, np.inf)  # half the data's extent across the axis, per node
-    # a sparse stem node's fit takes the points of a slab at least STEM_SLAB_M thick (its
-    # neighbouring nodes'): a sparse, one-sided stem has one row of points per slice
-    pool = max(0, int(np.ceil((STEM_SLAB_M / h - 1.0) / 2.0)))
+    # a wide stem node's fit takes the slab of points square to the stem's axis around it:
+    # the geodesic slices are level sets of the path length from the base, which on a stem
+    # scanned from one side tilt and wind (the far side's paths run round the stem), so one
+    # slice, and the chain of nodes it belongs to, held half the ring and a parallel chain
+    # the other half (the real pine: 180-240 degrees per node against 240-350 in a
+    # horizontal slab), and half-ring circles read its DBH +4 %
+    tree_all = None  # a k-d tree of every point, built for the first wide stem node
     for bi, seq in enumerate(branches):
         for i, v in enumerate(seq):
             prev_pt = (
@@ -727,11 +744,32 @@ def fit_qsm(
             rel = p[idx] - centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
             extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
-            if bi == 0 and pool and len(idx) < STEM_SPARSE_POINTS and extent[v] >= STEM_SLAB_M:
-                near = seq[max(0, i - pool) : i + pool + 1]
-                idx = np.concatenate([members_sorted[bounds[c] : bounds[c + 1]] for c in near])
-                rel = p[idx] - centroid[v]
-                q = np.stack([rel @ u, rel @ vv], axis=1)
+            if bi == 0 and extent[v] >= STEM_SLAB_MIN_EXTENT_SLICES * h:
+                sparse_node = len(idx) < STEM_SPARSE_POINTS and extent[v] >= STEM_SLAB_M
+                half_t = 0.5 * (max(h, STEM_SLAB_M) if sparse_node else h)
+                reach = int(np.ceil((half_t + 2.0 * extent[v]) / h))
+                # the axis over the slab's reach: tilted slices make consecutive
+                # centroids zig-zag, and a slab square to a tilted axis is an ellipse
+                a_long = (
+                    centroid[seq[min(len(seq) - 1, i + reach)]] - centroid[seq[max(0, i - reach)]]
+                )
+                if np.linalg.norm(a_long) > 0:
+                    a = a_long / np.linalg.norm(a_long)
+                    u, vv = _basis(a)
+                if tree_all is None:
+                    tree_all = cKDTree(p)
+                r_near = STEM_SLAB_REACH * extent[v]
+                cand = np.asarray(
+                    tree_all.query_ball_point(centroid[v], r_near + half_t), dtype=np.int64
+                )
+                rel_c = p[cand] - centroid[v]
+                along = rel_c @ a
+                slab = (np.abs(along) <= half_t) & (
+                    np.sum(rel_c**2, axis=1) - along**2 <= r_near**2
+                )
+                if slab.sum() >= 6:
+                    idx, rel = cand[slab], rel_c[slab]
+                    q = np.stack([rel @ u, rel @ vv], axis=1)
             fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
             if fit is None:
                 continue
@@ -773,23 +811,42 @@ def fit_qsm(
     # r^(1/b) = r_tip^(1/b) + a * S; b = 0.5 is the pipe model, "cross-section area = tip
     # area + area proportional to the length supported". a comes from the measured nodes
     # (weighted median); without measurements, from the spread of the base's points.
+    # The stem and the branches get their own a: a stem grows girth that supports no
+    # length (below the crown, and its heartwood), so the stem's a is 2-4x the branches'
+    # (4.3x in the balsam-fir preset's own table; Shinozaki et al. 1964 for the pipe model
+    # inside the crown), and the stem's a on a conifer's branches gave them 2.5x their
+    # volume. The branches' a is the smaller of the stem's and their own measured nodes'
+    # (at least BRANCH_A_MIN_FITS of them): those are biased up (only radii above the
+    # noise floor are measured, and bark bumps on a stem read as short thick branches: the
+    # real pine's gave 6x its branch volume), so they may only lower it.
     r_tip = params.twig_radius_m
     b_fit = params.pipe_exponent
     grow = sub_len + 0.5 * h
-    mm = measured & keep & (radius > r_tip * 1.05)
     e = 1.0 / b_fit
-    if mm.sum() >= 3:
-        ratio = (radius[mm] ** e - r_tip**e) / grow[mm]
+    mm = measured & keep & (radius > r_tip * 1.05)
+    on_stem = branch_of == 0
+
+    def weighted_a(sel: np.ndarray) -> float:
+        ratio = (radius[sel] ** e - r_tip**e) / grow[sel]
         o = np.argsort(ratio)
-        cw = np.cumsum(quality[mm][o])
-        a_fit = float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
+        cw = np.cumsum(quality[sel][o])
+        return float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
+
+    if mm.sum() >= 3:
+        a_stem = weighted_a(mm & on_stem) if (mm & on_stem).sum() >= 3 else weighted_a(mm)
         a_source = "measured nodes"
+        a_branch, a_branch_source = a_stem, "the stem's (too few measured branch nodes)"
+        if (mm & ~on_stem).sum() >= BRANCH_A_MIN_FITS:
+            a_own = weighted_a(mm & ~on_stem)
+            a_branch_source = "the stem's (below the measured branch nodes')"
+            if a_own < a_stem:
+                a_branch, a_branch_source = a_own, "measured branch nodes"
     else:
         idx = members_sorted[bounds[main_root] : bounds[main_root + 1]]
         spread = float(np.sqrt(np.mean(np.sum((p[idx, :2] - p[idx, :2].mean(0)) ** 2, 1))))
-        a_fit = max(spread**e - r_tip**e, 0.0) / grow[main_root]
-        a_source = "base spread (no measured nodes)"
-    model = (r_tip**e + a_fit * grow) ** b_fit
+        a_stem = a_branch = max(spread**e - r_tip**e, 0.0) / grow[main_root]
+        a_source = a_branch_source = "base spread (no measured nodes)"
+    model = (r_tip**e + np.where(on_stem, a_stem, a_branch) * grow) ** b_fit
     # never wider than the data around the node
     model = np.minimum(model, np.where(np.isfinite(extent), extent + 0.25 * spacing_m, model))
 
@@ -929,7 +986,14 @@ def fit_qsm(
         "nodes_measured": int(measured.sum()),
         "radius_outliers": n_outliers,
         "branches": len(branches),
-        "radius_model": {"r_tip_m": r_tip, "a": a_fit, "b": b_fit, "a_from": a_source},
+        "radius_model": {
+            "r_tip_m": r_tip,
+            "b": b_fit,
+            "a_stem": a_stem,
+            "a_stem_from": a_source,
+            "a_branch": a_branch,
+            "a_branch_from": a_branch_source,
+        },
         "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in tag_names},
     }
     return QSMResult(

@@ -153,16 +153,7 @@ def _errors(truth: dict, fig: dict) -> dict[str, float]:
 @pytest.mark.parametrize(
     "kind",
     [
-        pytest.param(
-            "conifer",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="issue 21: the needle-on fir's shoot sprays are taken for twigs: "
-                "total volume +16.5 % (DBH -2.0 mm, stem -1.4 %, leaf share 0.65; "
-                "2026-11-26); before the foot and the radius rules (a171217: no ground "
-                "removed) DBH +13.3 mm, stem +295 %, total +519 %",
-            ),
-        ),
+        "conifer",
         "broadleaf",
     ],
 )
