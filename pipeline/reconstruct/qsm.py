@@ -418,6 +418,26 @@ def _drop_outliers(radius: np.ndarray, measured: np.ndarray, noise_sd: float) ->
     return int(out.sum())
 
 
+def _drop_wider_than_below(
+    radius: np.ndarray, measured: np.ndarray, along: np.ndarray, tol: float
+) -> int:
+    """Unmark (in ``measured``) a stem's measured radii (base to tip; ``along``: distance
+    along the stem) wider by more than ``tol`` than the narrowest running median of the
+    measured radii below them (from ``TAPER_FROM_M`` up); returns how many. A stem does
+    not widen upwards: such fits are partial arcs through whorls, fronds or a fork's
+    pair, and as interpolation anchors they held a palm's stem at its base's radius 5 m
+    up into its fronds."""
+    idx = np.flatnonzero(measured)
+    if len(idx) < 2:
+        return 0
+    med = _running_median(radius[idx])
+    floor = np.minimum.accumulate(np.where(along[idx] >= TAPER_FROM_M, med, np.inf))
+    below = np.concatenate([[np.inf], floor[:-1]])
+    wide = radius[idx] > below + tol
+    measured[idx[wide]] = False
+    return int(wide.sum())
+
+
 def _branch_radii(
     radius: np.ndarray,
     model: np.ndarray,
@@ -433,7 +453,8 @@ def _branch_radii(
     """One branch's radii, base to tip, from its nodes' fitted ``radius``, the radius
     ``model`` and which fits are ``measured`` (positions ``pos``, (k, 3)).
 
-    Outlying fits are dropped (they take the model); unmeasured nodes between measured
+    Outlying fits are dropped (they take the model), on the stem also those wider than
+    the stem below them (:func:`_drop_wider_than_below`); unmeasured nodes between measured
     ones interpolate them, those below the first take its radius, and those above the
     last never exceed its radius; on the stem (``stem``) the radius above the last
     measurement tapers linearly to ``r_tip`` at ``tip_m`` beyond the last node; then
@@ -450,9 +471,11 @@ def _branch_radii(
     """
     measured = measured.copy()
     dropped = _drop_outliers(radius, measured, noise_sd)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    if stem:
+        dropped += _drop_wider_than_below(radius, measured, along, tol_m)
     r = np.where(measured, radius, model)  # an outlier takes the model
     tag = np.where(measured, 0, 2)
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
     if measured.any():
         first, last = np.flatnonzero(measured)[[0, -1]]
         ii = np.arange(len(r))

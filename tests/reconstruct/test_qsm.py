@@ -178,3 +178,41 @@ def test_an_outlying_fit_at_a_branch_end_takes_the_model_not_the_tag_measured():
     assert measured.tolist() == [True] * (k - 1) + [False]
     assert tag.tolist() == [0] * (k - 1) + [2]
     assert r == pytest.approx(np.full(k, 0.10))
+
+
+def test_a_stem_fit_wider_than_the_stem_below_is_no_anchor():
+    """A stem measured at 10 cm up to 4 m, hidden from 4 to 9.5 m (a palm's fronds), then
+    three partial fits in the crown at 17, 19 and 15 cm: those are not the stem (a stem
+    does not widen upwards), so the hidden stretch tapers from the 10 cm below to the
+    top instead of interpolating up to them (which held it at 10 cm + the noise to 9.5 m:
+    the real palm's stem 493 L, now 306 L)."""
+    from pipeline.reconstruct.qsm import _branch_radii
+
+    z = np.arange(0.0, 10.0, 0.1)
+    k = len(z)
+    radius = np.full(k, np.nan)
+    seen = z < 4.0
+    radius[seen] = 0.10
+    crown = [int(np.argmin(np.abs(z - h))) for h in (9.3, 9.4, 9.5)]
+    radius[crown] = [0.17, 0.19, 0.15]
+    measured = np.isfinite(radius)
+    pos = np.c_[np.zeros(k), np.zeros(k), z]
+    r, tag, kept, dropped = _branch_radii(
+        np.nan_to_num(radius),
+        np.full(k, 0.12),
+        measured,
+        pos,
+        stem=True,
+        noise_sd=0.003,
+        tol_m=0.008,
+        r_tip=0.0015,
+        tip_m=0.05,
+    )
+    assert dropped == 3 and not kept[crown].any()
+    assert (tag[crown] == 2).all()
+    # above the last true measurement the stem tapers: halfway to the top it is about
+    # half as wide (a straight taper from 10 cm at 3.9 m to 1.5 mm at 9.95 m)
+    mid = int(np.argmin(np.abs(z - 6.9)))
+    expected = 0.0015 + (0.10 - 0.0015) * (9.95 - z[mid]) / (9.95 - 3.9)
+    assert r[mid] == pytest.approx(expected, rel=0.05)
+    assert (np.diff(r[z >= 3.9]) <= 1e-12).all()
