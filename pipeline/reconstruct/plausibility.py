@@ -117,19 +117,20 @@ BASE_SPREAD_MAX = 4.0
 
 #: Largest plausible branch / stem volume ratio in the volume envelope. Not from a
 #: verified source: the procedural presets read 0.13 .. 0.50; treesim's QSMs of the real
-#: clouds (``benchmarks/bench_real_trees.py``, 2026-11-26) 0.11 .. 1.37, and 1.65 on the
-#: leaf-on Lille and 2.83 on the palm, whose leaves and fronds are kept as wood.
+#: clouds (``benchmarks/bench_real_trees.py``, 2026-11-26, after the stem-slab fits)
+#: 0.11 .. 1.58, and 2.00 on the leaf-on Lille and 2.26 on the palm, whose leaves and
+#: fronds are kept as wood.
 BRANCH_TO_STEM_MAX = 1.5
 #: On a leaf-on cloud, a branch / stem volume ratio above this suggests leaves fitted as
 #: wood. Not from a verified source: conifers read about 0.1 .. 0.3 (balsam-fir preset
-#: 0.13; the real pines 0.11 .. 0.57, one at 1.06), broadleaves up to about 1; the leaf-on
-#: Lille (1.65) and AdTree tree7 (1.33), whose leaf clumps the classifier keeps as wood,
+#: 0.13; the real pines 0.11 .. 0.65, one at 1.07), broadleaves up to about 1; the leaf-on
+#: Lille (2.00) and AdTree tree7 (1.55), whose leaf clumps the classifier keeps as wood,
 #: read more (bench_real_trees.py, 2026-11-26).
 LEAF_ON_BRANCH_TO_STEM_MAX = 1.2
 #: Least share of the stem's length with measured radii before "stem hidden". Measured on
-#: the real clouds with defaults (bench_real_trees.py, 2026-11-26): coffee tree 0.79,
-#: pines 0.26 .. 0.58, aRchi trees 0.48-0.49, palm 0.41, rtls tree 0.23, AdTree tree7
-#: 0.17, leaf-on Lille 0.13 (its stem in leaves).
+#: the real clouds with defaults (bench_real_trees.py, 2026-11-26): coffee tree 0.78,
+#: pines 0.31 .. 0.52, aRchi trees 0.45, palm 0.35, rtls tree 0.24, AdTree tree7 0.16,
+#: leaf-on Lille 0.09 (its stem in leaves).
 STEM_MEASURED_MIN = 0.25
 
 
