@@ -22,15 +22,19 @@ demo: $(DEMO_STAMP)
 	$(VENV)/bin/treesim demo -o out/demo
 
 ## The test suite (what CI runs): every test, slow ones included; those that need the
-## project's shared data skip with a reason where it is absent (a user's clone).
+## project's shared data skip with a reason where it is absent (a user's clone). On every
+## core (pytest-xdist; PYTEST_WORKERS=0 runs in one process), a test file per worker at a
+## time so that a file's cached scenes are made once.
+PYTEST_WORKERS ?= auto
+PYTEST := $(VENV)/bin/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
 test: $(TEST_STAMP)
-	$(VENV)/bin/python -m pytest -q
+	$(PYTEST)
 
 ## Everything, and nothing may skip for want of data: the slow tests and the shared-data
 ## tests, which need $(SHARED_DATA) (present on the project's machines).
 test-all: $(TEST_STAMP)
 	@test -d $(SHARED_DATA)/trees || { echo "test-all needs $(SHARED_DATA)/trees (the project's shared data)"; exit 1; }
-	$(VENV)/bin/python -m pytest -q
+	$(PYTEST)
 
 ## Benchmarks: printed figures and side-by-side ratios, not pass/fail; every
 ## benchmarks/bench_*.py in turn.
