@@ -786,9 +786,9 @@ def fit_qsm(
                     tree_all.query_ball_point(centroid[v], r_near + half_t), dtype=np.int64
                 )
                 rel_c = p[cand] - centroid[v]
-                along = rel_c @ a
-                slab = (np.abs(along) <= half_t) & (
-                    np.sum(rel_c**2, axis=1) - along**2 <= r_near**2
+                on_axis = rel_c @ a
+                slab = (np.abs(on_axis) <= half_t) & (
+                    np.sum(rel_c**2, axis=1) - on_axis**2 <= r_near**2
                 )
                 if slab.sum() >= 6:
                     idx, rel = cand[slab], rel_c[slab]
@@ -861,7 +861,7 @@ def fit_qsm(
         a_branch, a_branch_source = a_stem, "the stem's (too few measured branch nodes)"
         if (mm & ~on_stem).sum() >= BRANCH_A_MIN_FITS:
             a_own = weighted_a(mm & ~on_stem)
-            a_branch_source = "the stem's (below the measured branch nodes')"
+            a_branch_source = "the stem's (lower than the measured branch nodes')"
             if a_own < a_stem:
                 a_branch, a_branch_source = a_own, "measured branch nodes"
     else:
