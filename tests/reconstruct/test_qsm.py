@@ -184,8 +184,8 @@ def test_a_stem_fit_wider_than_the_stem_below_is_no_anchor():
     """A stem measured at 10 cm up to 4 m, hidden from 4 to 9.5 m (a palm's fronds), then
     three partial fits in the crown at 17, 19 and 15 cm: those are not the stem (a stem
     does not widen upwards), so the hidden stretch tapers from the 10 cm below to the
-    top instead of interpolating up to them (which held it at 10 cm + the noise to 9.5 m:
-    the real palm's stem 493 L, now 306 L)."""
+    top instead of interpolating up to them (the taper then held it at 10 cm + the noise
+    to 9.5 m: the real palm's stem at 11.4 cm from 4 to 9.6 m)."""
     from pipeline.reconstruct.qsm import _branch_radii
 
     z = np.arange(0.0, 10.0, 0.1)
