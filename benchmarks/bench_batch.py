@@ -1,6 +1,6 @@
 """Batch throughput: trees per minute on 1 and 2 workers, and where the time goes.
 
-Runs ``pipeline.run_batch`` on the same trees (``../shared/data/trees/`` when present,
+Runs ``treesim.run_batch`` on the same trees (``../shared/data/trees/`` when present,
 else the bundled coffee tree and four procedural saplings) with the ``local`` executor:
 
 * 1 worker × all cores' threads, then one worker per core × 1 thread (and, with
@@ -35,10 +35,10 @@ SHARED = ROOT.parent / "shared" / "data" / "trees"
 
 def fallback_inputs(folder: Path) -> list[Path]:
     """The bundled coffee tree and four saplings scanned at 0.05° (no shared data)."""
-    from pipeline.io import write_cloud
-    from pipeline.models import generate_tree
-    from pipeline.scan import ScannerSpec, ring_layout, scan
-    from pipeline.scene import MeshPart, Scene
+    from treesim.io import write_cloud
+    from treesim.models import generate_tree
+    from treesim.scan import ScannerSpec, ring_layout, scan
+    from treesim.scene import MeshPart, Scene
 
     paths = [ROOT / "pipeline" / "data" / "coffee_tree" / "cloud.txt"]
     for seed in range(4):
@@ -94,11 +94,11 @@ def hardware_ceiling(processes: int, work: Any, n: int) -> float:
 
 
 def main() -> int:
-    from pipeline._system import cpu_count
-    from pipeline.batch import run_batch
-    from pipeline.executors import detect_available
-    from pipeline.params import run_preset as preset
-    from pipeline.run import STAGES
+    from treesim._system import cpu_count
+    from treesim.batch import run_batch
+    from treesim.executors import detect_available
+    from treesim.params import run_preset as preset
+    from treesim.run import STAGES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="draft", choices=["draft", "standard", "fine"])

@@ -1,4 +1,4 @@
-"""AVOHD comparison speed: ``pipeline.compare`` against pymeshlab's Hausdorff filter.
+"""AVOHD comparison speed: ``treesim.compare`` against pymeshlab's Hausdorff filter.
 
 One run, same data for both: the bundled coffee tree's TreeQSM model meshed at 24 facets
 per ring (~100k triangles) and 1M points sampled on its surface with 2 mm Gaussian noise
@@ -39,10 +39,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.cloud import Cloud  # noqa: E402
-from pipeline.compare import CompareParams, compare  # noqa: E402
-from pipeline.geometry import sample_surface  # noqa: E402
-from pipeline.models import cylinders_to_mesh, read_cylinders  # noqa: E402
+from treesim.cloud import Cloud  # noqa: E402
+from treesim.compare import CompareParams, compare  # noqa: E402
+from treesim.geometry import sample_surface  # noqa: E402
+from treesim.models import cylinders_to_mesh, read_cylinders  # noqa: E402
 
 SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 

@@ -6,7 +6,7 @@ compared with the scanned mesh), once for each way of meshing the QSM:
 
 * ``separate``: a closed frustum per cylinder (treesim before issue #13): end caps buried
   in the next cylinder, notches at bends and junctions;
-* ``tubes``: :func:`pipeline.models.branch_tubes`, one closed mitred tube per branch,
+* ``tubes``: :func:`treesim.models.branch_tubes`, one closed mitred tube per branch,
   each branch's start sunk into its parent (what ``reconstruct`` and ``run`` mesh now).
 
 Each scanned cloud is compared with its mesh keeping every bit of surface
@@ -35,21 +35,21 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.cloud import LABEL_CODES  # noqa: E402
-from pipeline.compare import compare  # noqa: E402
-from pipeline.io import read_cloud  # noqa: E402
-from pipeline.models import (  # noqa: E402
+from treesim.cloud import LABEL_CODES  # noqa: E402
+from treesim.compare import compare  # noqa: E402
+from treesim.io import read_cloud  # noqa: E402
+from treesim.models import (  # noqa: E402
     branch_tubes,
     cylinders_to_mesh,
     sink_branches,
     tubes_to_mesh,
 )
-from pipeline.params import run_preset  # noqa: E402
-from pipeline.reconstruct import reconstruct  # noqa: E402
-from pipeline.run import lod_plan  # noqa: E402
-from pipeline.scan import stations_for  # noqa: E402
-from pipeline.scene import Scene  # noqa: E402
-from pipeline.steps import scan_scene  # noqa: E402
+from treesim.params import run_preset  # noqa: E402
+from treesim.reconstruct import reconstruct  # noqa: E402
+from treesim.run import lod_plan  # noqa: E402
+from treesim.scan import stations_for  # noqa: E402
+from treesim.scene import Scene  # noqa: E402
+from treesim.steps import scan_scene  # noqa: E402
 
 CLOUD = ROOT / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
 

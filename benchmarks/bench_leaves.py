@@ -5,7 +5,7 @@ the wood/leaf classifier was not fitted on), each scanned with the RIEGL VZ-400 
 model from three stations at ``--step-deg`` degrees (default 0.08; 0.04 is the field
 standard and costs about four times as much):
 
-1. wood precision and recall of :func:`pipeline.reconstruct.leafwood.separate_leaves`
+1. wood precision and recall of :func:`treesim.reconstruct.leafwood.separate_leaves`
    against the scanner's exact labels (points after 5 mm voxels), and its time;
 2. the QSM's DBH error (mm), stem and total volume errors (%) against the generator's
    cylinder table for: the leaf-off scan, the leaf-on scan as it is
@@ -36,15 +36,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cloud import LABEL_CODES, Cloud  # noqa: E402
-from pipeline.reconstruct import ReconstructParams, reconstruct  # noqa: E402
-from pipeline.reconstruct.leafwood import separate_leaves  # noqa: E402
 from tests.reconstruct.leafon import (  # noqa: E402
     labelled_voxels,
     scan_preset,
     slab_circle_diameter_m,
     wood_scores,
 )
+from treesim.cloud import LABEL_CODES, Cloud  # noqa: E402
+from treesim.reconstruct import ReconstructParams, reconstruct  # noqa: E402
+from treesim.reconstruct.leafwood import separate_leaves  # noqa: E402
 
 TREES = Path(__file__).resolve().parents[2] / "shared" / "data" / "trees"
 LILLE = TREES / "adtree" / "Lille_2.xyz"
@@ -63,10 +63,10 @@ def auto_table() -> None:
     (weighted; auto separates from LEAF_SHARE_CUT) and preparation's normal-spread
     ``leaf_fraction``, on the procedural presets (seed 0) at 0.04-0.12 deg and the
     real clouds."""
-    from pipeline.io import read_cloud
-    from pipeline.models import SPECIES
-    from pipeline.reconstruct._leaves import LEAF_SHARE_CUT, separate
-    from pipeline.reconstruct.preprocess import prepare
+    from treesim.io import read_cloud
+    from treesim.models import SPECIES
+    from treesim.reconstruct._leaves import LEAF_SHARE_CUT, separate
+    from treesim.reconstruct.preprocess import prepare
 
     def row(name: str, points: np.ndarray) -> None:
         p = prepare(points, normals=False)
@@ -160,7 +160,7 @@ def lille() -> None:
     if not LILLE.is_file():
         print(f"Lille: skipped ({LILLE} is absent)")
         return
-    from pipeline.io import read_cloud
+    from treesim.io import read_cloud
 
     cloud = read_cloud(LILLE)
     heights = (0.5, 0.8, 1.0, 1.3, 1.6, 2.0, 2.4)

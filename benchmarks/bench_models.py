@@ -10,7 +10,7 @@ Measures, for every species preset (seed 0, the preset's default leaves):
    joints of the tapering frusta add);
 3. the bundled coffee tree's TreeQSM table meshed both ways (separate prisms, mitred
    tubes) at the same facet counts;
-4. level of detail (:mod:`pipeline.models.lod`) for the coffee tree seen from a ring of
+4. level of detail (:mod:`treesim.models.lod`) for the coffee tree seen from a ring of
    four stations at ``--lod-distance-m`` (10 m) with a ``--lod-step-deg`` (0.04 degree)
    scanner, against the largest of ``--facets``: planning time, mesh time and triangles
    with and without LOD, the facets chosen, the ratio of the meshes' inscribed-prism
@@ -37,9 +37,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.geometry.sampling import sample_surface  # noqa: E402
-from pipeline.geometry.triangles import point_to_mesh_distances  # noqa: E402
-from pipeline.models import (  # noqa: E402
+from treesim.geometry.sampling import sample_surface  # noqa: E402
+from treesim.geometry.triangles import point_to_mesh_distances  # noqa: E402
+from treesim.models import (  # noqa: E402
     SPECIES,
     cylinders_to_mesh,
     generate_tree,
@@ -48,7 +48,7 @@ from pipeline.models import (  # noqa: E402
     read_cylinders,
     tubes_to_mesh,
 )
-from pipeline.scan.stations import ring_around  # noqa: E402
+from treesim.scan.stations import ring_around  # noqa: E402
 
 SAMPLE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 

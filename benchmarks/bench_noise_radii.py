@@ -25,12 +25,12 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cloud import Cloud  # noqa: E402
-from pipeline.models import CylinderTable, generate_tree  # noqa: E402
-from pipeline.params import PrepareParams, QSMParams  # noqa: E402
-from pipeline.reconstruct.preprocess import prepare  # noqa: E402
-from pipeline.reconstruct.qsm import fit_qsm  # noqa: E402
 from tests.reconstruct.test_qsm_truth import LEAF_OFF, scan_preset  # noqa: E402
+from treesim.cloud import Cloud  # noqa: E402
+from treesim.models import CylinderTable, generate_tree  # noqa: E402
+from treesim.params import PrepareParams, QSMParams  # noqa: E402
+from treesim.reconstruct.preprocess import prepare  # noqa: E402
+from treesim.reconstruct.qsm import fit_qsm  # noqa: E402
 
 #: Bands of fitted radius, in units of σ.
 BANDS = ((0, 2), (2, 3), (3, 4), (4, 5), (5, 8), (8, 1e9))

@@ -33,9 +33,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.params import instrument  # noqa: E402
-from pipeline.plan import PlanParams, plan_scans  # noqa: E402
-from pipeline.plot import Plot  # noqa: E402
 from tests.plan.setups import (  # noqa: E402
     acceptance_plan,
     model_check,
@@ -43,6 +40,9 @@ from tests.plan.setups import (  # noqa: E402
     ring_plan,
     spaced_plot,
 )
+from treesim.params import instrument  # noqa: E402
+from treesim.plan import PlanParams, plan_scans  # noqa: E402
+from treesim.plot import Plot  # noqa: E402
 
 
 def stand(n: int, radius_m: float, facets: int, seed: int = 3) -> Plot:

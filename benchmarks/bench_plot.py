@@ -13,7 +13,7 @@ RSS is the process's own ``ru_maxrss``; time includes building the trees):
    only the trees whose box it can reach;
 3. the same short-range scan with ``cache_triangles=0`` (no tree kept between stations:
    memory follows one station's scene; trees needed again are rebuilt);
-4. the whole plot as one scene scanned at once by :func:`pipeline.scan.scan` (the
+4. the whole plot as one scene scanned at once by :func:`treesim.scan.scan` (the
    baseline: every tree held and loaded), at the short range.
 
 Usage: ``python benchmarks/bench_plot.py [--quick] [--readme]`` (``--quick``: 16 facets
@@ -46,10 +46,10 @@ _CHILD = r"""
 import json, resource, sys, time
 from dataclasses import replace
 sys.path.insert(0, {root!r})
-from pipeline.params import ScanParams
-from pipeline.plot.io import read_plot
-from pipeline.plot.scan import plot_stations, scan_plot
-from pipeline.scan import ScannerSpec, scan
+from treesim.params import ScanParams
+from treesim.plot.io import read_plot
+from treesim.plot.scan import plot_stations, scan_plot
+from treesim.scan import ScannerSpec, scan
 
 case, plot_dir, res, rng, threads = {case!r}, {plot_dir!r}, {res!r}, {rng!r}, {threads!r}
 plot = read_plot(plot_dir)
@@ -110,9 +110,9 @@ def main() -> None:
     a = ap.parse_args()
     facets = a.facets or (16 if a.quick else 200)
     res = a.resolution_deg or (0.2 if a.quick else 0.1)
-    from pipeline.plot import Terrain
-    from pipeline.plot.generate import generate_stand
-    from pipeline.plot.io import write_plot
+    from treesim.plot import Terrain
+    from treesim.plot.generate import generate_stand
+    from treesim.plot.io import write_plot
 
     radius = 15.0  # 300 stems/ha: 21 trees
     with tempfile.TemporaryDirectory() as tmp:

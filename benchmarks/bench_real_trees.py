@@ -4,7 +4,7 @@ For every real single-tree cloud in ``../shared/data/trees`` (``--shared``; skip
 note when absent) and under ``tests/data/trees/`` (public clouds added to the repository,
 each folder with its PROVENANCE.md; none is fine), measured side by side in one run:
 
-* **treesim**: ``pipeline.reconstruct.reconstruct(cloud)`` with defaults in a fresh child
+* **treesim**: ``treesim.reconstruct.reconstruct(cloud)`` with defaults in a fresh child
   process per tree: wall time of the call, peak RSS of the child (``ru_maxrss``), DBH,
   height, stem and total volume, form factor = stem volume / (pi/4 DBH^2 height), and the
   plausibility warnings of ``tree.json`` (``figures["warnings"]``) where it has them;
@@ -16,7 +16,7 @@ each folder with its PROVENANCE.md; none is fine), measured side by side in one 
   sets draw from it): the same figures, its own DBH (``DBHqsm``: the trunk cylinder at
   1.3 m along the trunk) and height;
 * **peer models** that come with the data (cylinder tables beside the cloud, e.g. the
-  coffee tree's TreeQSM and SimpleForest tables), read with ``pipeline.models``;
+  coffee tree's TreeQSM and SimpleForest tables), read with ``treesim.models``;
 * **the slab reference** (``tests/reconstruct/slab_reference.py``, computed from the
   cloud alone): DBH at 1.3 m with its verdict, the taper of the clean slabs, the height.
   Per tool: the DBH error against the slab (where the slab is clean) and the stem radius
@@ -113,8 +113,8 @@ def find_trees(shared: Path, repo: Path) -> tuple[list[Tree], list[str]]:
 _TREESIM_CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, {root!r})
-from pipeline.io import read_cloud
-from pipeline.reconstruct import reconstruct
+from treesim.io import read_cloud
+from treesim.reconstruct import reconstruct
 cloud = read_cloud({cloud!r})
 t0 = time.perf_counter()
 model = reconstruct(cloud)
@@ -174,7 +174,7 @@ def run_treesim(tree: Tree, out: Path, timeout_s: float) -> dict[str, Any]:
     code = _TREESIM_CHILD.format(root=str(ROOT), cloud=str(tree.cloud), out=str(out))
     res = _child([sys.executable, "-c", code], timeout_s)
     if "error" not in res:
-        from pipeline.models.cylinders import read_cylinders
+        from treesim.models.cylinders import read_cylinders
 
         t = read_cylinders(out / "cylinders.csv")
         res["stem"] = _stem_arrays(t.start, t.end, t.radius_m, t.end_radius_m, t.branch_order == 0)
@@ -235,7 +235,7 @@ def run_pytlidar(tree: Tree, points: np.ndarray, out: Path, py: Path, timeout_s:
 
 def run_peer(path: Path) -> dict[str, Any]:
     """A peer model's figures from its cylinder table."""
-    from pipeline.models.cylinders import read_cylinders
+    from treesim.models.cylinders import read_cylinders
 
     try:
         t = read_cylinders(path)
@@ -402,7 +402,7 @@ def main() -> None:
     ap.add_argument("--readme", action="store_true", help="write the table into README.md")
     a = ap.parse_args()
 
-    from pipeline.io import read_cloud
+    from treesim.io import read_cloud
 
     trees, notes = find_trees(a.shared, a.repo_trees)
     for n in notes:

@@ -17,7 +17,7 @@ Measures, in one run (issue 5's Benchmark section):
    0.04°): ``qsm`` at 8, 16, 32 and 64 facets per ring and ``poisson`` at depths 6, 7, 8
    and 9 (``--quick``: 8 and 32 facets, depths 6 and 8): reconstruct time, triangles, and
    the reconstructed-vs-true-mesh AVOHD. Both directions are exact point-to-triangle
-   distances from :func:`pipeline.compare.compare`: *accuracy* samples the reconstructed
+   distances from :func:`treesim.compare.compare`: *accuracy* samples the reconstructed
    surface (seeded, one sample per 2 mm², at most 400k) and measures each sample to the
    true mesh (the 32-facet generator mesh that was scanned); *completeness* samples the
    true mesh the same way and measures each sample to the reconstructed mesh. Hausdorff
@@ -108,9 +108,9 @@ def fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:
 
 def preset_scene(name: str):
     """(tree, scene, stations) of a leaf-off preset, meshed at 32 facets."""
-    from pipeline.models import generate_tree
-    from pipeline.scan import ring_layout
-    from pipeline.scene import MeshPart, Scene
+    from treesim.models import generate_tree
+    from treesim.scan import ring_layout
+    from treesim.scene import MeshPart, Scene
 
     tree = generate_tree(name, seed=0, leaves=False)
     v, f, _ = tree.mesh(32)
@@ -127,16 +127,16 @@ def preset_scene(name: str):
 
 
 def scan_points(scene, stations, res_deg: float) -> np.ndarray:
-    from pipeline.scan import ScannerSpec, scan
+    from treesim.scan import ScannerSpec, scan
 
     spec = ScannerSpec(horizontal_resolution_deg=res_deg, vertical_resolution_deg=res_deg)
     return scan(scene, stations, spec).cloud.points
 
 
 def prepared_count(points: np.ndarray) -> int:
-    from pipeline.cloud import Cloud
-    from pipeline.reconstruct import PrepareParams
-    from pipeline.reconstruct.preprocess import prepare
+    from treesim.cloud import Cloud
+    from treesim.reconstruct import PrepareParams
+    from treesim.reconstruct.preprocess import prepare
 
     return len(prepare(Cloud(points), PrepareParams()).points)
 
@@ -146,7 +146,7 @@ def child(source: str, method: str, write_to: str = "") -> None:
     """Run in a fresh process: read ``source`` (a cloud file or .npy), reconstruct it,
     optionally write the outputs, and print one JSON line with timings, figures and the
     peak RSS of this process and of its (pymeshlab) children."""
-    from pipeline.reconstruct import ReconstructParams, reconstruct
+    from treesim.reconstruct import ReconstructParams, reconstruct
 
     out: dict[str, Any] = {}
     try:
@@ -154,7 +154,7 @@ def child(source: str, method: str, write_to: str = "") -> None:
         if source.endswith(".npy"):
             cloud = np.load(source)
         else:
-            from pipeline.io import read_cloud
+            from treesim.io import read_cloud
 
             cloud = read_cloud(source)
         out["read_s"] = time.perf_counter() - t0
@@ -327,7 +327,7 @@ def _area(v: np.ndarray, f: np.ndarray) -> float:
 def _samples(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, float]:
     """Seeded surface samples, one per SAMPLE_SPACING_M² (at most MAX_SAMPLES), and the
     effective spacing (m)."""
-    from pipeline.geometry import sample_surface
+    from treesim.geometry import sample_surface
 
     area = _area(v, f)
     n = int(min(MAX_SAMPLES, max(1000, np.ceil(area / SAMPLE_SPACING_M**2))))
@@ -337,17 +337,17 @@ def _samples(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _to_mesh(points: np.ndarray, v: np.ndarray, f: np.ndarray):
     """Exact point-to-triangle distance stats of ``points`` to the mesh (the accuracy
-    direction of :func:`pipeline.compare.compare`; its own completeness is minimised)."""
-    from pipeline.cloud import Cloud
-    from pipeline.compare import CompareParams, compare
+    direction of :func:`treesim.compare.compare`; its own completeness is minimised)."""
+    from treesim.cloud import Cloud
+    from treesim.compare import CompareParams, compare
 
     params = CompareParams(sample_spacing_m=1.0, min_samples=1000, max_samples=1000, seed=0)
     return compare(Cloud(points), (v, f), params=params).accuracy
 
 
 def curve(quick: bool) -> None:
-    from pipeline.cloud import Cloud
-    from pipeline.reconstruct import ReconstructParams, reconstruct
+    from treesim.cloud import Cloud
+    from treesim.reconstruct import ReconstructParams, reconstruct
 
     facets = (8, 32) if quick else (8, 16, 32, 64)
     depths = (6, 8) if quick else (6, 7, 8, 9)
@@ -423,8 +423,8 @@ def curve(quick: bool) -> None:
 
 def instrument_points(scene, stations, res_deg: float) -> np.ndarray:
     """Points of a scan at ``res_deg`` with the scaling instrument's noise model."""
-    from pipeline.params.scanner import instrument
-    from pipeline.scan import scan
+    from treesim.params.scanner import instrument
+    from treesim.scan import scan
 
     spec = instrument(SCALING_INSTRUMENT).spec(
         noise=True, horizontal_resolution_deg=res_deg, vertical_resolution_deg=res_deg

@@ -46,12 +46,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import readme as readme_part  # noqa: E402
-from pipeline.io.mesh import write_mesh  # noqa: E402
-from pipeline.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
-from pipeline.scan import ScannerSpec, Station, scan  # noqa: E402
-from pipeline.scan.rays import box_window, windowed_grid  # noqa: E402
-from pipeline.scene import MeshPart, Scene  # noqa: E402
 from tests.scan.beam_agreement import agreement  # noqa: E402
+from treesim.io.mesh import write_mesh  # noqa: E402
+from treesim.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
+from treesim.scan import ScannerSpec, Station, scan  # noqa: E402
+from treesim.scan.rays import box_window, windowed_grid  # noqa: E402
+from treesim.scene import MeshPart, Scene  # noqa: E402
 
 COFFEE = ROOT / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 #: HELIOS++ 2.2.2, one ray per pulse, on a comparable scene (issue 11's measurement).
@@ -126,7 +126,7 @@ def cli_scan(mesh: Path, out: Path, station: Station, res: float, extra=()) -> d
         "import runpy, sys\n"
         f"sys.argv = {argv!r}\n"
         "try:\n"
-        "    runpy.run_module('pipeline.cli', run_name='__main__')\n"
+        "    runpy.run_module('treesim.cli', run_name='__main__')\n"
         "except SystemExit as e:\n"
         "    assert not e.code, e.code\n"
     ) + _PRINT_PEAK
@@ -209,7 +209,7 @@ def readme_table(f: dict) -> str:
             "HELIOS++ 2.2.2's single-ray rate (~358 k pulses/s; target 10×)",
         ),
         (
-            "the same scan in-process (`pipeline.steps.scan_files`)",
+            "the same scan in-process (`treesim.steps.scan_files`)",
             f"{f['inproc_s']:.2f} s: {f['plain']['s'] / f['inproc_s']:.2f}× the plain cast; "
             "the rest of the end-to-end time is the interpreter and its imports",
         ),
@@ -298,8 +298,8 @@ def main() -> None:
             f"(target >= 0.7); vs HELIOS++ single ray (~358k pulses/s): "
             f"{rate / HELIOS_PULSES_PER_S:.1f}x (target >= 10)"
         )
-        from pipeline.params import ScanParams
-        from pipeline.steps import scan_files
+        from treesim.params import ScanParams
+        from treesim.steps import scan_files
 
         inproc = []
         for _ in range(2):
@@ -310,7 +310,7 @@ def main() -> None:
             inproc.append(time.perf_counter() - t0)
         fig["inproc_s"] = min(inproc)
         print(
-            f"the same scan in this process (pipeline.steps.scan_files: load, cast, LAZ "
+            f"the same scan in this process (treesim.steps.scan_files: load, cast, LAZ "
             f"written; no interpreter start or imports): {min(inproc):.2f} s, ratio to the "
             f"plain cast {plain['s'] / min(inproc):.2f}"
         )

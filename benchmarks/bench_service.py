@@ -14,7 +14,7 @@ data folder, and measures:
   file on the same disk (``shutil.copyfile``);
 * **jobs per hour**: N ``run`` jobs of the bundled tree with a preset, queued at once on
   the embedded worker, from the first submission to the last success; side by side with
-  the same run in-process (``pipeline.run.run_tree``), so the service's own overhead shows.
+  the same run in-process (``treesim.run.run_tree``), so the service's own overhead shows.
 
 Measured figures only; nothing is reused between runs.
 
@@ -56,7 +56,7 @@ class Service:
         env.update(TREESIM_DATA_DIR=str(data), TREESIM_POLL_INTERVAL_S="0.2")
         self.log = open(data.parent / f"serve-{self.port}.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.cli", "serve", "--port", str(self.port),
+            [sys.executable, "-m", "treesim.cli", "serve", "--port", str(self.port),
              "--workers", str(workers), "--log-level", "warning"],
             env=env, stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True,
         )  # fmt: skip
@@ -134,8 +134,8 @@ def _print_polls(what: str, polled: tuple[list[float], float]) -> None:
 def _las_file(path: Path, target_mb: float) -> Path:
     import numpy as np
 
-    from pipeline.cloud import Cloud
-    from pipeline.io import write_cloud
+    from treesim.cloud import Cloud
+    from treesim.io import write_cloud
 
     n = int(target_mb * 1e6 / 30)  # treesim's LAS records are 30 bytes a point
     rng = np.random.default_rng(0)
@@ -204,7 +204,7 @@ def main() -> int:
                 print(f"  plain file copy on the same disk:                            "
                       f"{t_copy:6.2f} s  {size_mb / t_copy:7.0f} MB/s")  # fmt: skip
                 print(f"  upload / copy throughput: {t_copy / t_up:.2f}")
-                from pipeline.io import inspect_file
+                from treesim.io import inspect_file
 
                 t = time.perf_counter()
                 inspect_file(las)
@@ -215,8 +215,8 @@ def main() -> int:
             svc.stop()
 
         # -- jobs per hour, the embedded worker --------------------------------------------
-        from pipeline.params import run_preset
-        from pipeline.run import run_tree
+        from treesim.params import run_preset
+        from treesim.run import run_tree
 
         t = time.perf_counter()
         run_tree(BUNDLED, run_preset(args.preset), tmp_path / "inproc")

@@ -29,8 +29,8 @@ OUT = ROOT / "benchmarks" / "sweeps" / "presets"
 
 
 def main() -> int:
-    from pipeline.cli.progress import BatchProgressBar
-    from pipeline.sweep import run_sweep
+    from treesim.cli.progress import BatchProgressBar
+    from treesim.sweep import run_sweep
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--config", default=str(CONFIG))

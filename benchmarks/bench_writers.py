@@ -2,7 +2,7 @@
 
 Writes a 5M-point cloud with the scanner's fields (station, range_m, incidence_deg, label,
 return_number, number_of_returns, intensity, scan_line, scan_column) through
-:func:`pipeline.io.open_cloud_writer` in 1M-point chunks, each made just before it is
+:func:`treesim.io.open_cloud_writer` in 1M-point chunks, each made just before it is
 written (as the scanner does), in a fresh process per case:
 
 1. LAZ with lazrs on one core (``threads=1``, ``LazBackend.Lazrs``);
@@ -37,8 +37,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.io import open_cloud_writer  # noqa: E402
-from pipeline.scan import SCAN_FIELDS  # noqa: E402
+from treesim.io import open_cloud_writer  # noqa: E402
+from treesim.scan import SCAN_FIELDS  # noqa: E402
 
 #: The scanner's fields, as a scan writes them.
 FIELDS = dict(SCAN_FIELDS)

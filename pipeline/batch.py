@@ -1,14 +1,14 @@
-"""Many trees: :func:`run_batch` runs :func:`pipeline.run_tree` on each, resumably.
+"""Many trees: :func:`run_batch` runs :func:`treesim.run_tree` on each, resumably.
 
 Inputs are point cloud files, folders (every cloud inside, by suffix, recursively; text
 tables without x, y, z columns, such as QSM cylinder tables, and PLY meshes are skipped
 with a note) and CSV manifests (a ``path`` column, an optional ``id`` column and per-tree
-settings in columns named as :data:`pipeline.params.SETTINGS`, e.g. ``method``,
+settings in columns named as :data:`treesim.params.SETTINGS`, e.g. ``method``,
 ``resolution_deg``, ``stations``; relative paths are relative to the manifest).
 
 The output folder holds
 
-* ``trees/<id>/``: each finished tree's :func:`~pipeline.run_tree` outputs and, written
+* ``trees/<id>/``: each finished tree's :func:`~treesim.run_tree` outputs and, written
   last, ``result.json`` (the tree's hash and summary row);
 * ``trees/<id>.failed/``: a failed tree's partial outputs and ``error.json`` (error class,
   message, traceback);
@@ -16,7 +16,7 @@ The output folder holds
   time per stage) and ``index.html`` linking every report.
 
 **Resumable.** A tree's hash covers its file's content (SHA-256), the settings that
-decide its result (:func:`pipeline.run.params_hash`; not thread counts) and treesim's
+decide its result (:func:`treesim.run.params_hash`; not thread counts) and treesim's
 version. A tree whose ``trees/<id>/result.json`` holds the same hash is not run again, so
 after Ctrl-C (or a crash) the same command finishes only the rest. Failed trees are tried
 again.
@@ -112,7 +112,7 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 )
 
 _TEXT_SUFFIXES = (".xyz", ".txt", ".csv", ".asc", ".pts")
-#: A folder holding this file is a plot (see :mod:`pipeline.plot.io`).
+#: A folder holding this file is a plot (see :mod:`treesim.plot.io`).
 _PLOT_FILE = "plot.toml"
 _LOCK_NAME = ".treesim-batch.lock"
 
@@ -128,7 +128,7 @@ class TreeInput:
         Its output folder's name (``trees/<id>``).
     path : Path
     settings : tuple of (str, str)
-        Per-tree settings from a manifest (see :data:`pipeline.params.SETTINGS`), and its
+        Per-tree settings from a manifest (see :data:`treesim.params.SETTINGS`), and its
         ``reference_qsm`` (a QSM table's path, set beside the reconstruction).
     kind : {"tree", "plot"}
     """
@@ -186,7 +186,7 @@ def _is_manifest(p: Path) -> bool:
     return "path" in names and not {"x", "y", "z"} <= names
 
 
-#: Manifest columns that are not settings (:data:`pipeline.params.SETTINGS`).
+#: Manifest columns that are not settings (:data:`treesim.params.SETTINGS`).
 _MANIFEST_COLUMNS = ("path", "id", "reference_qsm")
 
 
@@ -393,7 +393,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
             {
                 "kind": "treesim.batch_tree",
                 "hash": task.hash,
-                "finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
                 "threads": threads,
                 "row": row,
             },
@@ -587,12 +587,12 @@ def run_batch(
         Worker processes (``local``, local dask cluster); default one per core.
     threads : int, optional
         Threads per tree; default ``cores // workers`` (see
-        :func:`pipeline.executors.plan_executor`).
+        :func:`treesim.executors.plan_executor`).
     scheduler : str, optional
         A running dask scheduler's address.
     progress : callable(BatchProgress), optional
         Called when a tree finishes and about twice a second (e.g. the command line's
-        :class:`pipeline.cli.progress.BatchProgressBar`).
+        :class:`treesim.cli.progress.BatchProgressBar`).
 
     Returns
     -------
@@ -772,7 +772,7 @@ def _drive(
     slots; collect the rows it returns (``rows[task.id]``). A broken process pool (a
     worker killed, e.g. by the OOM killer) is replaced and its tasks are tried again; a
     task in flight at ``_ATTEMPTS`` breaks is failed. Tasks need ``id``, ``path`` and
-    ``hash`` (a failure's row); :mod:`pipeline.sweep` drives its points through here too."""
+    ``hash`` (a failure's row); :mod:`treesim.sweep` drives its points through here too."""
     pending = deque(tasks)
     attempts: dict[str, int] = {}
     t_first = time.perf_counter()
@@ -872,7 +872,7 @@ _PLOT_COLUMNS = {
 
 
 def _run_plot(task: _Task, out: Path, threads: int) -> dict[str, Any]:
-    """Scan a plot (:func:`pipeline.plot.scan.plot_scan_files`) with the batch's scan and
+    """Scan a plot (:func:`treesim.plot.scan.plot_scan_files`) with the batch's scan and
     compare settings: ``n_stations`` on a ring around the plot centre at ``distance_m``
     (default half the plot's radius), ``height_m`` above the terrain. Returns the plot's
     row, its trees' rows under ``trees``."""
@@ -952,7 +952,7 @@ def _write_summaries(result: BatchResult, params: RunParams) -> None:
         {
             "kind": "treesim.batch",
             "treesim": __version__,
-            "finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "interrupted": result.interrupted,
             "elapsed_s": result.elapsed_s,
             "executor": result.plan.to_dict(),

@@ -15,7 +15,7 @@ Only surface a scanner could see counts: a mesh made of overlapping closed parts
 cylinders whose end caps are buried in the next one, branches starting inside their
 parents) has area inside the solid, and samples there would measure the mesh's
 construction, not the scan. Samples that lie inside another closed part of the same mesh
-(ray parity per part, :func:`pipeline.geometry.inside_other_parts`) are dropped, and
+(ray parity per part, :func:`treesim.geometry.inside_other_parts`) are dropped, and
 ``reference.hidden_surface`` says how much area that was (estimated from the
 area-uniform samples, with its standard error) and why (``hidden_surface="keep"`` keeps
 them).
@@ -40,7 +40,7 @@ Definitions used throughout (and written into ``comparison.json``):
   densely as the cloud (``area / spacing²`` samples, clamped to ``min_samples`` ..
   ``max_samples``).
 
-Precision: everything is float64, in a :class:`~pipeline.frame.LocalFrame`. Open3D's
+Precision: everything is float64, in a :class:`~treesim.frame.LocalFrame`. Open3D's
 ``RaycastingScene`` (float32) only *picks* the closest triangle; the distance to it is
 recomputed exactly in float64 (Ericson's region test), so a point lying on the mesh
 measures ~1e-15 m, and ~1e-9 m at UTM coordinates (the rounding of the input itself).
@@ -50,7 +50,7 @@ Two measured Open3D 0.20 pitfalls are handled:
   thin cylinder facets, as QSM meshes have) whose first corner is the sharp apex: up to
   1.5 mm off, for 47 % of the points on a 0.15 m × 2 m, 256-facet cylinder. treesim hands
   it every triangle with the first corner opposite the longest edge
-  (:func:`pipeline.geometry.well_conditioned`), which removes the error;
+  (:func:`treesim.geometry.well_conditioned`), which removes the error;
 * a float32 near-tie can pick the neighbour of the right triangle: where the closest
   point lies on the picked triangle's boundary, the triangles sharing that edge or
   corner are measured exactly too and the least distance is kept; so are the triangles
@@ -390,7 +390,7 @@ def compare(
         The (simulated) cloud. Its ``label`` and ``station`` fields, when present, split
         the figures by hit label and by station.
     reference : Cloud, Scene or (vertices (v, 3) float, faces (f, 3) int)
-        The reference: a mesh (a ``pipeline.scan.Scene`` keeps its part labels) or a cloud.
+        The reference: a mesh (a ``treesim.scan.Scene`` keeps its part labels) or a cloud.
     tolerance_m : float, optional
         Coverage tolerance τ (m); default ``3 × point_spacing_m``.
     sample_spacing_m : float, optional
@@ -408,7 +408,7 @@ def compare(
     ------
     EmptyInputError
         If the cloud or the reference is empty, or either cloud has fewer than
-        :data:`~pipeline.params.MIN_CLOUD_POINTS` points (too few to measure).
+        :data:`~treesim.params.MIN_CLOUD_POINTS` points (too few to measure).
     InvalidGeometryError
         If either holds NaN or infinite coordinates.
     InvalidParameterError

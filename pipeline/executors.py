@@ -1,6 +1,6 @@
 """Where a batch's trees run: ``inline``, ``local`` (a process pool) or ``dask``.
 
-All three are :class:`concurrent.futures.Executor` objects, so :func:`pipeline.run_batch`
+All three are :class:`concurrent.futures.Executor` objects, so :func:`treesim.run_batch`
 drives them the same way:
 
 * ``inline``: every task runs in the calling process when it is submitted (tests,

@@ -2,10 +2,10 @@
 
 ``run_tree(cloud, params, outdir)`` takes a field point cloud of one tree and
 
-1. reconstructs a tree mesh (:func:`pipeline.reconstruct.reconstruct`): ``tree.ply``,
+1. reconstructs a tree mesh (:func:`treesim.reconstruct.reconstruct`): ``tree.ply``,
    ``cylinders.csv`` (qsm), ``tree.json``;
-2. scans that mesh with the virtual TLS scanner (:func:`pipeline.scan.scan`) from a ring
-   of stations around it placed by the station rule (:mod:`pipeline.scan.stations`):
+2. scans that mesh with the virtual TLS scanner (:func:`treesim.scan.scan`) from a ring
+   of stations around it placed by the station rule (:mod:`treesim.scan.stations`):
    ``scan.laz`` (0.1 mm LAZ with the per-point fields), ``scan.ply`` (the same in float64,
    exactly what was compared) and ``scan.json``;
 3. compares the simulated cloud, in float64, with the mesh it was scanned from
@@ -16,7 +16,7 @@
 4. draws a report per comparison (``vs_*/report.html`` and plots) from the files just
    written, so that ``treesim report vs_mesh`` draws the same figures again, the field and
    simulated clouds side by side (``clouds.png``), and one run page, ``report.html``
-   (:mod:`pipeline.report.run_page`), that presents it all;
+   (:mod:`treesim.report.run_page`), that presents it all;
 
 and writes ``run.json`` last: the parameters, software versions, ``timings_s`` per stage,
 and the figures under ``reconstruction`` (``tree.json``'s names), ``tolerance``,
@@ -25,8 +25,8 @@ and the figures under ``reconstruction`` (``tree.json``'s names), ``tolerance``,
 relative to it (and their SHA-256), links inside it are relative, and every page is
 self-contained or links within the folder, so an output folder can be moved.
 
-The parameters (:class:`~pipeline.params.RunParams`), the run presets and the TOML
-language are the parameter model's, :mod:`pipeline.params`.
+The parameters (:class:`~treesim.params.RunParams`), the run presets and the TOML
+language are the parameter model's, :mod:`treesim.params`.
 """
 
 from __future__ import annotations
@@ -123,7 +123,7 @@ def software_versions() -> dict[str, str]:
 
 
 #: Level of detail of QSM meshes in a run: facets whose sagitta is at most this fraction
-#: of the point spacing at the nearest station (:func:`pipeline.models.plan_lod`). A
+#: of the point spacing at the nearest station (:func:`treesim.models.plan_lod`). A
 #: tenth keeps the inscribed polygon's one-sided offset (about 2/3 of the sagitta) under
 #: 7 % of the spacing, so a cylinder fitted to the simulated cloud is not biased thinner
 #: by more than that, while twigs, whose sagitta is tiny at any count, drop to 8 facets.
@@ -132,10 +132,10 @@ RUN_LOD_TOLERANCE = 0.1
 
 def lod_plan(table: Any, stations: Sequence[Any], spec: Any, max_facets: int) -> Any:
     """A run's level of detail for a cylinder table scanned with ``spec`` (a
-    :class:`~pipeline.params.ScannerSpec`) from ``stations``: facets per row from the
+    :class:`~treesim.params.ScannerSpec`) from ``stations``: facets per row from the
     point spacing at the nearest station (the finer of the scanner's two steps) within
     :data:`RUN_LOD_TOLERANCE`, at most ``max_facets``
-    (:func:`pipeline.models.plan_lod`; returns its ``LodPlan``)."""
+    (:func:`treesim.models.plan_lod`; returns its ``LodPlan``)."""
     import math
 
     from .models import plan_lod
@@ -186,7 +186,7 @@ def _lod_scene(
 
 
 #: The figures a reference QSM and the reconstruction are compared on (``tree.json``'s and
-#: :meth:`~pipeline.models.CylinderTable.summary`'s names).
+#: :meth:`~treesim.models.CylinderTable.summary`'s names).
 REFERENCE_FIGURES = (
     "dbh_m",
     "height_m",
@@ -203,7 +203,7 @@ def reference_qsm_figures(table: CylinderTable, reconstruction: dict[str, Any]) 
     Parameters
     ----------
     table : CylinderTable
-        The reference, as :func:`pipeline.models.read_cylinders` read it (TreeQSM CSV or
+        The reference, as :func:`treesim.models.read_cylinders` read it (TreeQSM CSV or
         text export, SimpleForest or treesim's CSV).
     reconstruction : dict
         ``tree.json``'s figures.
@@ -231,11 +231,11 @@ def run_tolerance(field_cloud: Cloud, params: RunParams) -> dict[str, Any]:
     """The one coverage tolerance τ of a run, used by both of its comparisons.
 
     ``params.compare.tolerance_m`` when given; else
-    :data:`~pipeline.compare.TOLERANCE_FACTOR` × the *field* cloud's median point spacing,
+    :data:`~treesim.compare.TOLERANCE_FACTOR` × the *field* cloud's median point spacing,
     measured once. Deriving τ from the field cloud, never from the simulated one, keeps it
     fixed for a tree whatever the scan design, so runs of one tree with different
     stations or resolutions report coverage within the same distance (the sweep's rule,
-    :func:`pipeline.sweep.trees.derive_tolerance`, for one tree).
+    :func:`treesim.sweep.trees.derive_tolerance`, for one tree).
 
     Returns
     -------

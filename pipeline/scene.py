@@ -1,8 +1,8 @@
 """Scenes: labelled triangle meshes, float64, validated before Open3D sees them.
 
-The mesh counterpart of :class:`~pipeline.cloud.Cloud`, at the bottom of the package:
+The mesh counterpart of :class:`~treesim.cloud.Cloud`, at the bottom of the package:
 :class:`MeshPart` is one labelled mesh, :class:`Scene` a validated set of them merged into
-one triangle soup. Mesh files are read into scenes by :func:`pipeline.io.load_scene`.
+one triangle soup. Mesh files are read into scenes by :func:`treesim.io.load_scene`.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class Scene:
     vertices : (v, 3) float64
     faces : (f, 3) int64
     face_label : (f,) uint8
-        Label code (see ``pipeline.cloud.LABEL_CODES``) of every triangle.
+        Label code (see ``treesim.cloud.LABEL_CODES``) of every triangle.
     face_tree : (f,) uint32 or None
         The tree id of every triangle (its part's ``tree_id``; 0: no tree), or None
         when no part belongs to a tree and ``keep_tree_ids`` is off.
@@ -191,7 +191,7 @@ class Scene:
         faces : (f, 3) int
             Triangles as vertex indices.
         face_label : (f,) int
-            Label code per triangle (``pipeline.cloud.LABEL_CODES``; unknown codes
+            Label code per triangle (``treesim.cloud.LABEL_CODES``; unknown codes
             become ``other``).
         name_prefix : str
             Prefix of the part names, which end in the label (``"model:"`` gives
@@ -268,7 +268,7 @@ def labelled_parts(
     faces : (f, 3) int
         Triangles as vertex indices.
     face_label : (f,) int
-        Label code per triangle (``pipeline.cloud.LABEL_CODES``; unknown codes become
+        Label code per triangle (``treesim.cloud.LABEL_CODES``; unknown codes become
         ``other``).
     name_prefix : str
         Prefix of the part names, which end in the code's label name.

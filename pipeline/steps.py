@@ -5,7 +5,7 @@ stage's command writes, returning a :class:`StepResult` (a JSON-ready summary, t
 written, and the in-memory result). ``treesim reconstruct``, ``treesim scan`` and
 ``treesim compare`` are these functions plus printing; the service's ``reconstruct``,
 ``scan`` and ``compare`` processes call them too, so a stage behaves the same whichever
-way it is asked for. The whole loop on one tree is :func:`pipeline.run.run_tree`.
+way it is asked for. The whole loop on one tree is :func:`treesim.run.run_tree`.
 
 ``progress(fraction, message)`` is the same callback as ``run_tree``'s: a fraction in 0..1
 and a short stage name; each step ends with ``(1.0, "done")``.
@@ -94,7 +94,7 @@ def reconstruct_files(
     (qsm) and ``tree.json`` into ``outdir``.
 
     ``threads`` > 0 replaces the preparation's thread count (0 keeps the parameters').
-    ``columns`` names a text cloud's columns (see :func:`pipeline.io.read_cloud`).
+    ``columns`` names a text cloud's columns (see :func:`treesim.io.read_cloud`).
     """
     from .io import read_cloud
     from .reconstruct import reconstruct
@@ -122,11 +122,11 @@ def reconstruct_files(
 def scan_scene(
     scene: Any, stations: Sequence[Any], params: ScanParams, *, threads: int = 0, **options: Any
 ) -> Any:
-    """:func:`pipeline.scan.scan` of ``scene`` from ``stations`` with the scanner, ray
+    """:func:`treesim.scan.scan` of ``scene`` from ``stations`` with the scanner, ray
     budget and level of detail of ``params`` (the one place a :class:`ScanParams` is
     unpacked for a scan); ``threads`` are Open3D's (0: all cores); ``options`` go to
     ``scan`` as they are (``window``, ``progress``, ``sink``, ``estimate``, ...).
-    Returns the :class:`~pipeline.scan.ScanResult`."""
+    Returns the :class:`~treesim.scan.ScanResult`."""
     from .scan import scan
 
     return scan(
@@ -157,10 +157,10 @@ def scan_files(
     picks the format) and the scan's settings and figures to ``<stem>.json`` beside it.
 
     ``stations`` are scanner positions (m); None places ``params``' ring of stations
-    around the scene (:func:`pipeline.scan.stations_for`). ``label`` forces one part
+    around the scene (:func:`treesim.scan.stations_for`). ``label`` forces one part
     label on every mesh; ``window`` casts rays only towards the scene (False: the full
     field of view). ``estimate`` is called once before casting with the scan's
-    :class:`~pipeline.scan.ScanEstimate` (for this output's format).
+    :class:`~treesim.scan.ScanEstimate` (for this output's format).
     """
     from .io import open_cloud_writer
     from .scan import scan_fields, scan_metadata
@@ -290,10 +290,10 @@ def estimate_scan_files(
     threads: int = 0,
 ) -> StepResult:
     """What :func:`scan_files` with the same arguments would cast, record, write and
-    take (:func:`pipeline.scan.estimate_scan`), without scanning or writing anything.
+    take (:func:`treesim.scan.estimate_scan`), without scanning or writing anything.
 
     Returns a :class:`StepResult` whose ``result`` is the
-    :class:`~pipeline.scan.ScanEstimate` (for ``out_path``'s format) and ``summary`` its
+    :class:`~treesim.scan.ScanEstimate` (for ``out_path``'s format) and ``summary`` its
     dict; ``details`` holds the scene and the station rule.
     """
     from .scan import estimate_scan

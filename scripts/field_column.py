@@ -25,16 +25,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cloud import Cloud  # noqa: E402
-from pipeline.errors import TreesimError  # noqa: E402
-from pipeline.io import write_cloud  # noqa: E402
-from pipeline.jsonio import write_json  # noqa: E402
 from tests.reconstruct.fieldcolumn import (  # noqa: E402
     DEFAULT_STEP_DEG,
     KINDS,
     PARTS,
     field_column,
 )
+from treesim.cloud import Cloud  # noqa: E402
+from treesim.errors import TreesimError  # noqa: E402
+from treesim.io import write_cloud  # noqa: E402
+from treesim.jsonio import write_json  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""Fit the wood/leaf classifier of ``pipeline.reconstruct.leafwood`` (its model file).
+"""Fit the wood/leaf classifier of ``treesim.reconstruct.leafwood`` (its model file).
 
 A CANUPO-style classifier (Brodu & Lague 2012): multiscale eigen features, then a
 decision by a one-hidden-layer network (32 tanh units, logistic output; fitted by L-BFGS
@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.cloud import LABEL_CODES  # noqa: E402
-from pipeline.reconstruct.leafwood import base_features as features  # noqa: E402
-from pipeline.reconstruct.leafwood import neighbours  # noqa: E402
 from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores  # noqa: E402
+from treesim.cloud import LABEL_CODES  # noqa: E402
+from treesim.reconstruct.leafwood import base_features as features  # noqa: E402
+from treesim.reconstruct.leafwood import neighbours  # noqa: E402
 
 #: (preset, seed, angular step in degrees): the training scans.
 TRAINING = (
@@ -106,8 +106,8 @@ def main() -> None:
     import argparse
     import json
 
-    from pipeline._version import software_versions
-    from pipeline.reconstruct.leafwood import MODEL_PATH, context_features, stage_score
+    from treesim._version import software_versions
+    from treesim.reconstruct.leafwood import MODEL_PATH, context_features, stage_score
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, help="keep the training scans in this folder")
@@ -162,7 +162,7 @@ def main() -> None:
         precision, recall = wood_scores(s["score"] > threshold, s["wood"])
         print(f"training {s['name']}: wood precision {precision:.3f}, recall {recall:.3f}")
     model = {
-        "description": "wood/leaf classifier of pipeline.reconstruct.leafwood",
+        "description": "wood/leaf classifier of treesim.reconstruct.leafwood",
         "fitted_by": "scripts/fit_leafwood.py",
         "training": [
             {"preset": n, "seed": sd, "step_deg": st, "scanner": "riegl-vz400 noise", "stations": 3}

@@ -4,7 +4,8 @@
 #
 #   scripts/setup.sh demo   the shared libraries open3d and pymeshlab load, a virtualenv in
 #                           $VENV (.venv) and treesim itself: what `make demo` needs, quietly
-#   scripts/setup.sh test   (the default) all of that, plus the dev, dask and e57 extras and
+#   scripts/setup.sh test   (the default) all of that, plus the dev extra (with the service,
+#                           dask, e57 and postgres extras) and
 #                           headless Chromium: what the test suite needs (`make test`)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -52,7 +53,7 @@ if [ "$MODE" = demo ]; then
   "${PIP[@]}" -q -e .  # -qq: errors only
 else
   "${PIP[@]}" --upgrade pip
-  "${PIP[@]}" -e ".[dev,dask,e57]"
+  "${PIP[@]}" -e ".[dev]"  # dev pulls in the service, dask, e57 and postgres extras
 fi
 "$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh, pgeof" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }

@@ -46,7 +46,7 @@ def _clean_tmp(data_dir: Path, older_than_s: float = 3600.0) -> None:
 
 def create_app(settings: Settings | None = None, *, store: Store | None = None) -> FastAPI:
     """The service for ``settings`` (default: from the environment)."""
-    from pipeline._version import __version__
+    from treesim._version import __version__
 
     settings = settings or Settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)

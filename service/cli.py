@@ -1,27 +1,52 @@
 """``treesim serve`` and ``treesim worker``: the service's commands.
 
 They are added to the ``treesim`` command line through the ``treesim.commands`` entry point
-(``pyproject.toml``), so :mod:`pipeline` stays free of web code. Flags override the
-``TREESIM_*`` environment (:class:`service.settings.Settings`).
+(``pyproject.toml``), so :mod:`treesim` stays free of web code. Flags override the
+``TREESIM_*`` environment (:class:`treesim.service.settings.Settings`).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import ipaddress
 from typing import Any
 
-from pipeline.cli._options import whole_number
-from pipeline.errors import InvalidParameterError
+from treesim.cli._options import whole_number
+from treesim.errors import InvalidParameterError
 
-__all__ = ["register", "settings_from_args"]
+__all__ = ["register", "require_service_extra", "settings_from_args"]
 
 #: Flag destination → Settings field, for the flags that are settings.
 _SETTING_FLAGS = ("host", "port", "data_dir", "database_url", "workers", "executor", "scheduler")
 
 
+#: The importable modules the ``service`` extra installs (``pyproject.toml``).
+SERVICE_MODULES = (
+    "fastapi",
+    "uvicorn",
+    "sqlalchemy",
+    "alembic",
+    "pydantic_settings",
+    "prometheus_client",
+    "jsonschema",
+)
+
+
+def require_service_extra(command: str) -> None:
+    """Raise a clear error when the web stack is not installed (``pip install treesim``
+    gives the library and the command line only)."""
+    missing = [m for m in SERVICE_MODULES if importlib.util.find_spec(m) is None]
+    if missing:
+        raise InvalidParameterError(
+            f"treesim {command} needs the service extra, which is not installed (missing: "
+            f"{', '.join(missing)}): pip install 'treesim[service]'"
+        )
+
+
 def settings_from_args(args: argparse.Namespace) -> Any:
     """Settings from the environment, overridden by the flags given."""
+    require_service_extra(getattr(args, "command", None) or "serve")
     from pydantic import ValidationError
 
     from .settings import Settings

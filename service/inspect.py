@@ -1,7 +1,7 @@
 """Opening and checking uploaded files away from the API's process.
 
-An upload is opened with treesim's own readers (:func:`pipeline.io.inspect_file`; a zip
-archive is a plot, :func:`service.plots.inspect_plot_archive`) before it is accepted. That
+An upload is opened with treesim's own readers (:func:`treesim.io.inspect_file`; a zip
+archive is a plot, :func:`treesim.service.plots.inspect_plot_archive`) before it is accepted. That
 runs in a small pool of ``spawn``-ed processes: a huge cloud's memory, a
 slow parse or a native reader that crashes stay out of the server, and a crash fails only
 that upload (the pool is rebuilt).
@@ -17,13 +17,13 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import InputFormatError
+from treesim.errors import InputFormatError
 
 __all__ = ["Inspector"]
 
 
 def _inspect(path: str, filename: str | None, max_unpacked: int | None = None) -> dict[str, Any]:
-    from pipeline.io import inspect_file
+    from treesim.io import inspect_file
 
     from .plots import inspect_plot_archive, is_zip
 
@@ -43,8 +43,8 @@ def _inspect_cylinders(path: str) -> dict[str, Any] | None:
     """A QSM cylinder table's facts (kind ``cylinders``), or None when it is not one."""
     import numpy as np
 
-    from pipeline.errors import TreesimError
-    from pipeline.models import read_cylinders
+    from treesim.errors import TreesimError
+    from treesim.models import read_cylinders
 
     try:
         table = read_cylinders(path)  # validated
@@ -63,14 +63,14 @@ def _inspect_cylinders(path: str) -> dict[str, Any] | None:
 
 
 def _warm() -> bool:
-    import pipeline.io  # noqa: F401 - import the readers once, before the first upload
+    import treesim.io  # noqa: F401 - import the readers once, before the first upload
 
     return True
 
 
 class Inspector:
     """``await inspector.inspect(path, filename)`` → the file's facts (see
-    :class:`pipeline.io.FileInfo`), or treesim's error for a bad file."""
+    :class:`treesim.io.FileInfo`), or treesim's error for a bad file."""
 
     def __init__(self, workers: int = 1) -> None:
         self.workers = workers

@@ -1,7 +1,7 @@
 """Plots for the service: the ``plot`` upload (a zip archive of a plot file and its trees),
 and how a job of ``plan`` or ``plot-scan`` gets its plot (:class:`PlotSource`: an archive,
 a mesh, a stand the job generates itself, of at most
-:data:`pipeline.plot.generate.MAX_TREES` trees, or one
+:data:`treesim.plot.generate.MAX_TREES` trees, or one
 procedural tree; :func:`open_plot`).
 
 A plot archive holds ``plot.toml`` at its root or in its one top folder, the trees CSV it
@@ -12,7 +12,7 @@ name. It is checked when uploaded and again when a job unpacks it:
   drive, no ``..``, no backslash, no link, no name twice;
 * at most :data:`MAX_ENTRIES` entries and a stated number of bytes unpacked (the
   upload's limit times :data:`UNPACK_FACTOR`), counted while unpacking;
-* ``plot.toml`` reads (:func:`pipeline.plot.io.read_plot`), and every path it and its
+* ``plot.toml`` reads (:func:`treesim.plot.io.read_plot`), and every path it and its
   trees name is relative, stays inside the archive and is there.
 
 Trees are built only when a job runs: a mesh that does not read fails that job, with
@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from pipeline.errors import (
+from treesim.errors import (
     EmptyInputError,
     InputFormatError,
     InvalidParameterError,
@@ -53,8 +53,8 @@ __all__ = [
 MAX_ENTRIES = 10_000
 #: A plot archive may unpack to this many times the upload limit.
 UNPACK_FACTOR = 4
-#: The plot file an archive must hold (:data:`pipeline.plot.io.PLOT_FILE`, named here so
-#: that the API starts without importing :mod:`pipeline.plot`).
+#: The plot file an archive must hold (:data:`treesim.plot.io.PLOT_FILE`, named here so
+#: that the API starts without importing :mod:`treesim.plot`).
 PLOT_FILE = "plot.toml"
 
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
@@ -193,7 +193,7 @@ def read_unpacked_plot(plot_file: Path, root: Path, label: str) -> Any:
     inside ``root``; errors name the archive, never the folder it was unpacked into."""
     import tomllib
 
-    from pipeline.plot.io import read_plot
+    from treesim.plot.io import read_plot
 
     root = root.resolve()
     shown = plot_file.relative_to(root).as_posix()
@@ -254,8 +254,8 @@ def inspect_plot_archive(
 @dataclass(frozen=True)
 class PlotSource:
     """One of: a plot archive (input ``plot``), a tree mesh (input ``mesh``), a generated
-    stand (``stand``, a :class:`pipeline.plot.generate.StandParams` of at most
-    :data:`pipeline.plot.generate.MAX_TREES` trees), one procedural tree (``tree``;
+    stand (``stand``, a :class:`treesim.plot.generate.StandParams` of at most
+    :data:`treesim.plot.generate.MAX_TREES` trees), one procedural tree (``tree``;
     ``radius_m`` the candidate area)."""
 
     stand: Any = None  # StandParams
@@ -268,7 +268,7 @@ class PlotSource:
             return
         # refused when the job is submitted, not when it runs (imported here: the stand's
         # StandParams already loaded the module; the API's start-up does not)
-        from pipeline.plot.generate import MAX_TREES
+        from treesim.plot.generate import MAX_TREES
 
         if st.expected_trees > MAX_TREES:
             exc = InvalidParameterError(
@@ -315,7 +315,7 @@ def open_plot(
     (for the job's JSON). A plot archive is unpacked into a hidden folder of the job's
     output folder, removed when the block ends (a killed job's attempt folder goes
     whole); a generated stand's files are written to ``stand/`` among the results."""
-    from pipeline.plan.sources import mesh_tree_plot, model_tree_plot
+    from treesim.plan.sources import mesh_tree_plot, model_tree_plot
 
     source.check(set(inputs))
     if "plot" in inputs:
@@ -331,7 +331,7 @@ def open_plot(
         yield mesh_tree_plot(inputs["mesh"], radius_m=source.radius_m), True, {"mesh": "input"}
         return
     if source.stand is not None:
-        from pipeline.plot.io import write_plot
+        from treesim.plot.io import write_plot
 
         plot, stand = source.stand.generate()
         (out / "stand").mkdir(parents=True, exist_ok=True)

@@ -3,7 +3,7 @@
 Every error the service answers, and every error a job ends with, is a problem object
 ``{"type", "title", "status", "detail", ...}`` built here: :data:`PROBLEMS` lists the
 problem types (``GET /problems`` shows them), :data:`ERROR_TABLE` maps each
-:class:`~pipeline.errors.TreesimError` subclass to one. No web framework is imported here:
+:class:`~treesim.errors.TreesimError` subclass to one. No web framework is imported here:
 a job's own process uses it too.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline import errors as e
+from treesim import errors as e
 
 __all__ = [
     "ERROR_TABLE",

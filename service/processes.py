@@ -1,10 +1,10 @@
 """The processes the service runs as jobs: ``run``, ``reconstruct``, ``scan``, ``compare``,
 ``plan`` and ``plot-scan``.
 
-Each is a thin adapter over one :mod:`pipeline` function: its inputs (files, by kind), the
+Each is a thin adapter over one :mod:`treesim` function: its inputs (files, by kind), the
 JSON Schema of its parameters (generated from the parameter model,
-:func:`pipeline.params.json_schema`, plus the preset names the CLI takes), how a request's
-parameters become the parameter dataclass (:func:`pipeline.params.merge` decides), and the
+:func:`treesim.params.json_schema`, plus the preset names the CLI takes), how a request's
+parameters become the parameter dataclass (:func:`treesim.params.merge` decides), and the
 call that runs it in a job's process. A new process is one more entry in
 :data:`PROCESSES`; nothing else in the service names a parameter.
 """
@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import InvalidParameterError
-from pipeline.params import (
+from treesim.errors import InvalidParameterError
+from treesim.params import (
     DEFAULT_RUN_PRESET,
     INSTRUMENTS,
     RUN_PRESETS,
@@ -115,7 +115,7 @@ class Process:
 
 
 def _version() -> str:
-    from pipeline._version import __version__
+    from treesim._version import __version__
 
     return __version__
 
@@ -204,7 +204,7 @@ def _execute_run(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.run import run_tree
+    from treesim.run import run_tree
 
     result = run_tree(
         inputs["cloud"],
@@ -241,7 +241,7 @@ def _execute_reconstruct(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.steps import reconstruct_files
+    from treesim.steps import reconstruct_files
 
     result = reconstruct_files(inputs["cloud"], params, out, threads=threads, progress=progress)
     return result.summary
@@ -302,7 +302,7 @@ def _execute_scan(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.steps import scan_files
+    from treesim.steps import scan_files
 
     result = scan_files(
         [inputs["mesh"]], params, out / "scan.laz", threads=threads, progress=progress
@@ -339,7 +339,7 @@ def _execute_compare(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.steps import compare_files
+    from treesim.steps import compare_files
 
     cp = replace(params.compare, nthreads=threads)
     result = compare_files(
@@ -351,9 +351,9 @@ def _execute_compare(
 # -- plots: where a plan or a plot scan gets its plot ------------------------------------------
 def _source_schema() -> dict[str, Any]:
     """``stand``, ``tree`` and ``radius_m``: a plot made by the job instead of one uploaded."""
-    from pipeline.models import SPECIES
-    from pipeline.params.models import ModelParams
-    from pipeline.plot.generate import StandParams
+    from treesim.models import SPECIES
+    from treesim.params.models import ModelParams
+    from treesim.plot.generate import StandParams
 
     stand = json_schema(StandParams)
     stand["description"] = (
@@ -387,8 +387,8 @@ def _source_schema() -> dict[str, Any]:
 
 def _pop_source(data: dict[str, Any]) -> Any:
     """The plot source of a plan or plot scan, its fields taken out of ``data``."""
-    from pipeline.params.models import ModelParams
-    from pipeline.plot.generate import StandParams
+    from treesim.params.models import ModelParams
+    from treesim.plot.generate import StandParams
 
     from .plots import PlotSource
 
@@ -439,7 +439,7 @@ class PlanJob:
 
 
 def _plan_extra() -> dict[str, Any]:
-    from pipeline.plan.params import DEFAULT_INSTRUMENT
+    from treesim.plan.params import DEFAULT_INSTRUMENT
 
     res = _resolution_schema()
     res["description"] += (
@@ -460,7 +460,7 @@ def _plan_extra() -> dict[str, Any]:
 
 
 def _plan_schema() -> dict[str, Any]:
-    from pipeline.plan.params import PlanParams
+    from treesim.plan.params import PlanParams
 
     return _job_schema(PlanParams)
 
@@ -477,8 +477,8 @@ def _with_resolution(spec: ScannerSpec, resolution_deg: Any) -> ScannerSpec:
 
 
 def _parse_plan(parameters: Mapping[str, Any]) -> PlanJob:
-    from pipeline.params import instrument
-    from pipeline.plan.params import DEFAULT_INSTRUMENT, PlanParams
+    from treesim.params import instrument
+    from treesim.plan.params import DEFAULT_INSTRUMENT, PlanParams
 
     data = dict(parameters)
     source = _pop_source(data)
@@ -495,10 +495,10 @@ def _execute_plan(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.params import instrument
-    from pipeline.plan import plan_scans
-    from pipeline.plan.outputs import write_plan
-    from pipeline.steps import scale_progress
+    from treesim.params import instrument
+    from treesim.plan import plan_scans
+    from treesim.plan.outputs import write_plan
+    from treesim.steps import scale_progress
 
     from .plots import open_plot
 
@@ -623,7 +623,7 @@ def _execute_plot_scan(
     progress: Progress,
     name: str,
 ) -> dict[str, Any]:
-    from pipeline.plot.scan import plot_scan_files, plot_stations, read_stations_csv
+    from treesim.plot.scan import plot_scan_files, plot_stations, read_stations_csv
 
     from .plots import open_plot
 

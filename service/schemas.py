@@ -2,12 +2,12 @@
 
 Parameters are not modelled here: each process's ``parameters`` object is described by the
 JSON Schema generated from the parameter model (``GET /v1/processes/{id}``) and checked by
-it (:func:`service.processes.check_parameters`).
+it (:func:`treesim.service.processes.check_parameters`).
 """
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -19,7 +19,7 @@ def iso(t: float | None) -> str | None:
     """Seconds since the epoch as an ISO 8601 UTC time (millisecond precision)."""
     if t is None:
         return None
-    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.fromtimestamp(t, tz=UTC).isoformat(timespec="milliseconds")
 
 
 class Link(BaseModel):

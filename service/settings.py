@@ -122,7 +122,7 @@ class Settings(BaseSettings):
         """Threads each job uses: :attr:`job_threads`, or cores // workers."""
         if self.job_threads:
             return self.job_threads
-        from pipeline._system import cpu_count
+        from treesim._system import cpu_count
 
         return max(1, cpu_count() // max(1, self.workers))
 

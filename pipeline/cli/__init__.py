@@ -6,7 +6,7 @@ to see a traceback for unexpected errors.
 
 A new command is a module here with ``register(subparsers)`` and its ``cmd_*`` function,
 added to :data:`COMMANDS`; its options that set parameters come from
-:mod:`pipeline.cli._options` (``param_option``), never typed by hand. Packages above the
+:mod:`treesim.cli._options` (``param_option``), never typed by hand. Packages above the
 library add commands through the ``treesim.commands`` entry point group (a
 ``register(subparsers)`` callable): the service's ``serve`` and ``worker`` come that way,
 so this package never imports web code.

@@ -1,4 +1,4 @@
-"""``python -m pipeline.cli``: the ``treesim`` command."""
+"""``python -m treesim.cli``: the ``treesim`` command."""
 
 import sys
 

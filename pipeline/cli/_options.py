@@ -2,9 +2,9 @@
 
 :func:`param_option` adds the flag that sets one field of a parameter dataclass: its name,
 type, choices, help text, unit and shown default all come from the field's
-:func:`~pipeline.params.param` declaration, so no command types a default or a help
+:func:`~treesim.params.param` declaration, so no command types a default or a help
 text of its own. :func:`collect` gathers the options a user gave into the nested mapping
-that :func:`pipeline.params.merge` checks and applies, the same way as a TOML file.
+that :func:`treesim.params.merge` checks and applies, the same way as a TOML file.
 """
 
 from __future__ import annotations
@@ -188,7 +188,7 @@ def param_options(
 
 def setting_option(group: Any, setting: Setting, *, default_text: str) -> argparse.Action:
     """Add the flag of a flat setting (``treesim run``/``batch``): its value is read by
-    :func:`pipeline.params.apply_settings`, like a manifest column."""
+    :func:`treesim.params.apply_settings`, like a manifest column."""
     info = setting.info
     unit = f"{info.unit}; " if info.unit else ""
     zero = f"; 0: {info.none_means}" if info.optional else ""

@@ -90,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_plot(path: str | Path) -> Any:
-    """A plot from a plot file (``plot.toml`` and its trees, :func:`pipeline.plot.io.read_plot`)."""
+    """A plot from a plot file (``plot.toml`` and its trees, :func:`treesim.plot.io.read_plot`)."""
     from ..plot.io import read_plot
 
     p = Path(path)

@@ -137,7 +137,7 @@ def estimate_printer(min_seconds: float | None = None):
 
 def params_from_args(args: argparse.Namespace) -> tuple[ScanParams, int]:
     """ScanParams from the defaults, the instrument, then the flags (the rule is
-    :func:`pipeline.params.scan_params`'s); and the threads."""
+    :func:`treesim.params.scan_params`'s); and the threads."""
     given = collect(args)
     # --threads is RunParams.threads (validated there); the rest is ScanParams
     threads = merge(RunParams(), {k: given.pop(k) for k in ("threads",) if k in given}).threads
@@ -162,8 +162,8 @@ def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | No
 
 
 def _step_args(args: argparse.Namespace, label: str | None) -> dict[str, Any]:
-    """The arguments :func:`pipeline.steps.scan_files` and
-    :func:`~pipeline.steps.estimate_scan_files` take from the flags (all but the meshes
+    """The arguments :func:`treesim.steps.scan_files` and
+    :func:`~treesim.steps.estimate_scan_files` take from the flags (all but the meshes
     and the output)."""
     params, threads = params_from_args(args)
     return {
@@ -178,7 +178,7 @@ def _step_args(args: argparse.Namespace, label: str | None) -> dict[str, Any]:
 def run_scan(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
-    """Scan (:func:`pipeline.steps.scan_files`), then print a per-station table."""
+    """Scan (:func:`treesim.steps.scan_files`), then print a per-station table."""
     from ..steps import scan_files
 
     output_file(out, inputs=meshes)
@@ -218,7 +218,7 @@ def run_scan(
 def dry_run(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
-    """Plan and estimate the scan (:func:`pipeline.steps.estimate_scan_files`), print
+    """Plan and estimate the scan (:func:`treesim.steps.estimate_scan_files`), print
     the stations' windows and the estimate; nothing is scanned or written."""
     from ..steps import estimate_scan_files
 

@@ -105,7 +105,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "OUTDIR/sweep.csv, sweep.json and sweep.html (accuracy against time with the "
         "Pareto fronts, each parameter alone, the table). Points already finished with "
         "the same tree, settings and version are not run again.",
-        epilog="The CONFIG format: see 'pydoc pipeline.sweep' or the README's 'treesim "
+        epilog="The CONFIG format: see 'pydoc treesim.sweep' or the README's 'treesim "
         "sweep' section; 'treesim sweep CONFIG --list' shows the points it expands to.",
     )
     sp.add_argument("config", metavar="CONFIG", help="the sweep file (TOML)")

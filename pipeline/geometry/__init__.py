@@ -1,15 +1,15 @@
 """Geometry kernels shared by the stages (compare, reconstruct, scan).
 
 At the bottom of the package, beside ``cloud``, ``frame`` and ``io``: it imports only
-``pipeline.errors``. Coordinates are metres, float64, preferably in a
-:class:`~pipeline.frame.LocalFrame`.
+``treesim.errors``. Coordinates are metres, float64, preferably in a
+:class:`~treesim.frame.LocalFrame`.
 
-* :mod:`~pipeline.geometry.triangles`: exact point-to-triangle and point-to-mesh distances,
+* :mod:`~treesim.geometry.triangles`: exact point-to-triangle and point-to-mesh distances,
   and the triangles around vertices;
-* :mod:`~pipeline.geometry.sampling`: area-uniform sampling of a mesh surface;
-* :mod:`~pipeline.geometry.hidden`: a mesh's closed parts, and which points on it lie
+* :mod:`~treesim.geometry.sampling`: area-uniform sampling of a mesh surface;
+* :mod:`~treesim.geometry.hidden`: a mesh's closed parts, and which points on it lie
   inside another closed part (surface no scanner outside can see);
-* :mod:`~pipeline.geometry.spacing`: a cloud's nearest-neighbour spacing, k-d trees.
+* :mod:`~treesim.geometry.spacing`: a cloud's nearest-neighbour spacing, k-d trees.
 """
 
 from .hidden import MeshParts, inside_other_parts, mesh_parts

@@ -12,7 +12,7 @@
   CSR incidence), where a float32 pick's neighbours are looked for (here and in the
   scanner's float64 re-test).
 
-Coordinates are metres, preferably in a :class:`~pipeline.frame.LocalFrame`.
+Coordinates are metres, preferably in a :class:`~treesim.frame.LocalFrame`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Point cloud files: read and write :class:`~pipeline.cloud.Cloud` by file suffix.
+"""Point cloud files: read and write :class:`~treesim.cloud.Cloud` by file suffix.
 
 One module per format family (``text``, ``las``, ``ply``); :data:`FORMATS` maps each
 lower-case suffix to its reader and writers, and :func:`read_cloud` / :func:`write_cloud`
@@ -8,17 +8,17 @@ dispatch through it (suffixes are matched case-insensitively).
 without holding it: a :class:`CloudWriter` per format, with the same output as
 :func:`write_cloud` (which is one chunk through the same writers).
 
-* ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`pipeline.io.text`
-* ``.las`` ``.laz``: :mod:`pipeline.io.las` (laspy, LAZ through lazrs)
-* ``.ply``: :mod:`pipeline.io.ply` (plyfile)
-* ``.e57``: :mod:`pipeline.io.e57` (read only; needs the optional ``pye57``)
+* ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`treesim.io.text`
+* ``.las`` ``.laz``: :mod:`treesim.io.las` (laspy, LAZ through lazrs)
+* ``.ply``: :mod:`treesim.io.ply` (plyfile)
+* ``.e57``: :mod:`treesim.io.e57` (read only; needs the optional ``pye57``)
 
 A file without a trustworthy name (an upload) is known by its bytes:
 :func:`sniff_format`, and :func:`inspect_file` reads and checks all of it
-(:mod:`pipeline.io.sniff`).
+(:mod:`treesim.io.sniff`).
 
-Meshes (:mod:`pipeline.io.mesh`): :func:`load_mesh` / :func:`load_scene` read them into
-labelled parts and a :class:`~pipeline.scene.Scene`, :func:`write_mesh` writes them;
+Meshes (:mod:`treesim.io.mesh`): :func:`load_mesh` / :func:`load_scene` read them into
+labelled parts and a :class:`~treesim.scene.Scene`, :func:`write_mesh` writes them;
 :func:`read_reference` reads a comparison reference, mesh or cloud, by content.
 """
 
@@ -229,7 +229,7 @@ def open_cloud_writer(
     The file holds what :func:`write_cloud` would write for the concatenated chunks
     (LAS/LAZ: up to the offsets, see ``origin_hint_m``). Memory does not grow with the
     number of points: PLY and text write each chunk as it comes, LAS/LAZ buffer at most
-    :data:`pipeline.io.las.BATCH_POINTS` points.
+    :data:`treesim.io.las.BATCH_POINTS` points.
 
     Parameters
     ----------
@@ -249,7 +249,7 @@ def open_cloud_writer(
         LAS/LAZ only: coordinate resolution in metres (default 0.1 mm).
     threads : int, optional
         LAZ only: compression threads; 0 (default) all cores, 1 a single one (see
-        :class:`pipeline.io.las.LasCloudWriter`).
+        :class:`treesim.io.las.LasCloudWriter`).
 
     Returns
     -------

@@ -183,7 +183,7 @@ def decode_metadata(lines: list[str]) -> dict[str, Any]:
 def atomic_output(path: Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; move it onto ``path`` on success.
 
-    :func:`pipeline.atomic.atomic_path` with OS errors mapped to
+    :func:`treesim.atomic.atomic_path` with OS errors mapped to
     :class:`InputFormatError`: a failed write leaves no partial file behind (and an
     existing file untouched).
     """

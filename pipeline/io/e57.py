@@ -4,7 +4,7 @@ An E57 file holds one or more scans, each with its own pose (rotation and transl
 into the file's common frame) and Cartesian or spherical coordinates. :func:`read_e57`
 reads every scan, applies its pose in float64 (so georeferenced translations keep full
 precision), drops the points a scan marks invalid, and merges the scans into one
-:class:`~pipeline.cloud.Cloud`:
+:class:`~treesim.cloud.Cloud`:
 
 * ``points``: x, y, z in the file's common frame, float64;
 * fields ``station`` (the 0-based scan index, int32), ``intensity`` (float64) and
@@ -15,7 +15,7 @@ precision), drops the points a scan marks invalid, and merges the scans into one
 
 ``pye57`` is optional: install it with ``pip install pye57`` (MIT, manylinux wheels bundle
 libE57Format). Without it, reading an ``.e57`` file raises
-:class:`~pipeline.errors.InputFormatError` saying so; nothing else needs it. Writing E57 is
+:class:`~treesim.errors.InputFormatError` saying so; nothing else needs it. Writing E57 is
 not supported (write LAZ or PLY).
 """
 

@@ -328,7 +328,7 @@ def _check_origin(origin_hint_m: Any) -> np.ndarray:
 class LasCloudWriter(CloudWriter):
     """Stream points into a LAS (``.las``) or LAZ (``.laz``) file, point format 6 (LAS 1.4).
 
-    What :func:`write_las` writes, in chunks (see :class:`~pipeline.io.writer.CloudWriter`
+    What :func:`write_las` writes, in chunks (see :class:`~treesim.io.writer.CloudWriter`
     for the protocol): the same header, extra dimensions, descriptions, metadata VLR, scale
     and defaults. Chunks are packed into a buffer of at most :data:`BATCH_POINTS` points
     that goes to laspy's streaming writer when full and at close; laspy completes the

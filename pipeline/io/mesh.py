@@ -190,7 +190,7 @@ def load_scene(
     *,
     labels: Sequence[str | None] | None = None,
 ) -> Scene:
-    """Load one or more mesh files into a :class:`~pipeline.scene.Scene`.
+    """Load one or more mesh files into a :class:`~treesim.scene.Scene`.
 
     Parameters
     ----------
@@ -233,7 +233,7 @@ def write_mesh(
     vertices : (v, 3) float
     faces : (f, 3) int
     face_label : (f,) uint8, optional
-        Label code per face (``pipeline.cloud.LABEL_CODES``); default all ``wood``.
+        Label code per face (``treesim.cloud.LABEL_CODES``); default all ``wood``.
     """
     p = Path(path)
     suffix = p.suffix.lower()

@@ -120,7 +120,7 @@ def _whole_field_dtype(name: str, values: np.ndarray) -> np.dtype:
 class PlyCloudWriter(CloudWriter):
     """Stream points into a binary little-endian PLY file.
 
-    What :func:`write_ply` writes, in chunks (see :class:`~pipeline.io.writer.CloudWriter`
+    What :func:`write_ply` writes, in chunks (see :class:`~treesim.io.writer.CloudWriter`
     for the protocol): ``double x, y, z``, one property per field, metadata as comments.
     Each chunk is written as it comes (no buffer beyond the chunk).
 

@@ -258,7 +258,7 @@ def _format_for(dtype: np.dtype) -> str:
 class TextCloudWriter(CloudWriter):
     """Stream points into a delimited text file, one line per point.
 
-    What :func:`write_text` writes, in chunks (see :class:`~pipeline.io.writer.CloudWriter`
+    What :func:`write_text` writes, in chunks (see :class:`~treesim.io.writer.CloudWriter`
     for the protocol): the header line ``x y z field...`` when opened, then each chunk's
     rows as they come, formatted :data:`_WRITE_CHUNK` rows at a time.
 

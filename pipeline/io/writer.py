@@ -1,6 +1,6 @@
 """Streaming point cloud writers: points arrive in chunks, the file is written as they come.
 
-:class:`CloudWriter` is what :func:`pipeline.io.open_cloud_writer` returns; each format
+:class:`CloudWriter` is what :func:`treesim.io.open_cloud_writer` returns; each format
 module subclasses it (``las.LasCloudWriter``, ``ply.PlyCloudWriter``,
 ``text.TextCloudWriter``) and the whole-cloud writers (``write_las``, ``write_ply``,
 ``write_text``) are one ``write`` between an open and a close, so each format has a single
@@ -8,7 +8,7 @@ implementation.
 
 The writer declares its fields (names and dtypes) when it is opened; every chunk must
 carry exactly those fields, and their values are cast to the declared dtypes. Output is
-atomic (:class:`~pipeline.io._common.AtomicFile`): the content goes to a temporary file
+atomic (:class:`~treesim.io._common.AtomicFile`): the content goes to a temporary file
 beside the destination, moved onto it by :meth:`CloudWriter.close`; :meth:`~CloudWriter.abort`,
 an exception inside the ``with`` block, or any error raised by ``write`` or ``close``
 removes the temporary file and leaves an existing destination untouched.
@@ -35,7 +35,7 @@ __all__ = ["CloudWriter"]
 class CloudWriter(ABC):
     """Write a point cloud file chunk by chunk; a context manager.
 
-    Use through :func:`pipeline.io.open_cloud_writer`::
+    Use through :func:`treesim.io.open_cloud_writer`::
 
         with open_cloud_writer("scan.laz", fields={"intensity": np.uint16}) as out:
             for points, fields in chunks:

@@ -462,7 +462,7 @@ class CylinderTable:
         The mesh inscribes a regular polygon of ``facets`` sides in each disc, whose area
         is ``facets / 2 * r^2 * sin(2 pi / facets)``; this is :attr:`volume_m3` scaled by
         that area over pi r^2. ``facets`` is one count (>= 3) or one per row ((n,) int,
-        as :func:`~pipeline.models.mesh.cylinders_to_mesh` accepts).
+        as :func:`~treesim.models.mesh.cylinders_to_mesh` accepts).
         """
         if np.ndim(facets) == 0:
             f = _check_facets(facets)  # type: ignore[arg-type]

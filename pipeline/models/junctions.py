@@ -4,7 +4,7 @@ A QSM (treesim's, TreeQSM's) starts a branch at its parent's *surface*: the bran
 disc, perpendicular to the branch, touches the parent at its centre and leaves a wedge
 between the disc and the parent's curved side (a notch a scanner sees into), or a flat
 disc standing out of the parent where the branch leaves it obliquely. Procedural trees
-(:mod:`pipeline.models.procedural`) avoid this by construction: their branches start
+(:mod:`treesim.models.procedural`) avoid this by construction: their branches start
 inside their parents.
 
 :func:`sink_branches` does the same to any table, for meshing only: before every row
@@ -15,7 +15,7 @@ branch's tube (same axis and radius: one shared ring), so the tube runs into its
 and the junction is closed. The plug lies inside the parent: its base disc is centred on
 (or next to) the parent's axis, within the parent's circle wherever the branch is no
 thicker than its parent; so it adds no visible surface, only surface that
-:func:`pipeline.compare.compare` leaves out as hidden, and volume inside the parent,
+:func:`treesim.compare.compare` leaves out as hidden, and volume inside the parent,
 which :attr:`SunkTable.plug_volume_m3` reports (the table's volumes do not change: they
 come from the input table).
 
@@ -162,7 +162,7 @@ def branch_tubes(
 ) -> tuple[TubeMesh, SunkTable]:
     """A QSM table meshed as one closed tube per branch with closed junctions.
 
-    :func:`sink_branches`, then :func:`~pipeline.models.mesh.tubes_to_mesh` (mitred
+    :func:`sink_branches`, then :func:`~treesim.models.mesh.tubes_to_mesh` (mitred
     joints, no notches at bends, no buried caps between a branch's cylinders).
 
     Parameters
@@ -193,7 +193,7 @@ def qsm_mesh(
     model from-qsm``, plot trees from tables or clouds): ``joints="miter"`` gives
     :func:`branch_tubes` (closed tubes, each branch's start sunk into its parent),
     ``"separate"`` a closed prism per cylinder
-    (:func:`~pipeline.models.mesh.cylinders_to_mesh`).
+    (:func:`~treesim.models.mesh.cylinders_to_mesh`).
 
     Returns
     -------

@@ -42,14 +42,14 @@ radius).
 
 **Why at least 8 facets** (:data:`LOD_MIN_FACETS`). Procedural trees put every child's
 base disc inside the parent's inscribed polygon at
-:data:`~pipeline.models.procedural.MIN_JUNCTION_FACETS` (8) facets, so their junctions
+:data:`~treesim.models.procedural.MIN_JUNCTION_FACETS` (8) facets, so their junctions
 stay closed at any level of detail; an octagon also keeps 90 % of the disc's area and its
 width stays within 92.4 % (cos 22.5 degrees) of the diameter, where a triangle keeps 41 %
 and 75 %: thin twigs still occlude about as much as the cylinders they stand for.
 
-Meshing (:func:`~pipeline.models.mesh.cylinders_to_mesh`): separate prisms take each row's
+Meshing (:func:`~treesim.models.mesh.cylinders_to_mesh`): separate prisms take each row's
 count; mitred tubes take the largest count of their rows, so a tube is never coarser than
-any of its cylinders asked for (see :mod:`pipeline.models.mesh`). Usage::
+any of its cylinders asked for (see :mod:`treesim.models.mesh`). Usage::
 
     facets = lod_facets(table, stations_xyz, spacing_rad=math.radians(min(h_res, v_res)),
                         max_facets=params.facets)
@@ -278,7 +278,7 @@ class LodPlan:
         joints : {"separate", "miter"}
             How the table will be meshed (tubes take the largest count of their rows).
         max_bend_deg, max_gap_ratio : float
-            As for :func:`~pipeline.models.mesh.tubes_to_mesh`.
+            As for :func:`~treesim.models.mesh.tubes_to_mesh`.
 
         Returns
         -------

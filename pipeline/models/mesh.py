@@ -1,6 +1,6 @@
 """Triangle meshes of cylinder tables: closed prisms per cylinder, or mitred tubes per branch.
 
-Two ways to mesh a :class:`~pipeline.models.cylinders.CylinderTable`, both with
+Two ways to mesh a :class:`~treesim.models.cylinders.CylinderTable`, both with
 ``facets`` vertices per ring (a regular polygon inscribed in each circle; the speed /
 accuracy knob) and both closed, outward-oriented and watertight:
 
@@ -15,16 +15,16 @@ accuracy knob) and both closed, outward-oriented and watertight:
   removes on the other), so the mitred tube encloses the same volume as the separate
   prisms. Where two joined cylinders' radii differ, the joint gets a flat annulus in the
   mitre plane. A chain starts and ends with flat caps; a branch's first cap is wherever
-  the table starts it (inside its parent for :mod:`pipeline.models.procedural` trees).
+  the table starts it (inside its parent for :mod:`treesim.models.procedural` trees).
 
 ``facets`` may also be one count per table row (level of detail, see
-:mod:`pipeline.models.lod`). Separate prisms take each row's count. A tube's rings must
+:mod:`treesim.models.lod`). Separate prisms take each row's count. A tube's rings must
 all have the same count (its side quads and annuli join ring vertex ``k`` to ring vertex
 ``k``), so a tube takes the largest count of its rows: no row gets fewer facets than it
 asked for, tubes of different counts share no vertices, and every guarantee above holds
 per tube at its own count (closed, outward, the prisms' volume; a procedural child's base
 disc stays inside its parent's tube whenever the parent has at least
-:data:`~pipeline.models.procedural.MIN_JUNCTION_FACETS`). One count, or an array of equal
+:data:`~treesim.models.procedural.MIN_JUNCTION_FACETS`). One count, or an array of equal
 counts, gives the same mesh bit for bit as before per-row counts existed.
 
 A regular ``facets``-gon inscribed in a circle holds ``(facets / 2 pi) sin(2 pi / facets)``
@@ -199,7 +199,7 @@ def cylinders_to_mesh(
         Validated first (radii and lengths > 0, unit axes), so no triangle is degenerate.
     facets : int or (n,) int array
         Sides of the polygon around each cylinder, >= 3: one count for all, or one per
-        table row (e.g. from :func:`pipeline.models.lod.lod_facets`). Separate prisms
+        table row (e.g. from :func:`treesim.models.lod.lod_facets`). Separate prisms
         honour each row's count; mitred tubes use, per tube, the largest count of its rows
         (a tube's rings must match, see :func:`tubes_to_mesh`). An array whose values are
         all equal gives exactly the mesh of that single count.
@@ -638,7 +638,7 @@ def tubes_to_mesh(
         Validated first.
     facets : int or (n,) int array
         Vertices per ring, >= 3: one count for all tubes, or one per table row (e.g.
-        from :func:`pipeline.models.lod.lod_facets`). All rings of a tube share one count
+        from :func:`treesim.models.lod.lod_facets`). All rings of a tube share one count
         (side quads and annuli join ring vertex ``k`` to ring vertex ``k``), so each tube
         gets the largest count of its rows (:attr:`TubeMesh.tube_facets`): a row never
         gets fewer facets than asked. Tubes of different counts share no vertices, so

@@ -7,12 +7,12 @@ taper and splitting, and leaves on the last level. The same model is behind Arba
 Blender's Sapling add-on. :func:`generate_tree` implements it for measurement rather
 than rendering:
 
-* The wood is built as a :class:`~pipeline.models.cylinders.CylinderTable` of frusta
+* The wood is built as a :class:`~treesim.models.cylinders.CylinderTable` of frusta
   (one row per stem segment, ``end_radius_m`` for the taper, parent links, ``branch``
   per stem, ``branch_order`` by topology as QSM tools count it) and that table **is**
   the truth: DBH, height, stem and branch volume and branches per order are its figures,
   and the mesh is made from it (:meth:`ProceduralTree.wood_mesh`, one mitred tube per
-  stem, see :func:`~pipeline.models.mesh.tubes_to_mesh`).
+  stem, see :func:`~treesim.models.mesh.tubes_to_mesh`).
 * Every stem starts inside its parent: its base disc lies inside the parent's tube (for
   meshes of at least :data:`MIN_JUNCTION_FACETS` facets), so junctions have no cracks.
   This bounds a child's radius by :data:`CHILD_RADIUS_LIMIT` times the parent's.
@@ -472,7 +472,7 @@ class ProceduralTree:
             Wood triangles first, then leaf triangles.
         face_label : (f,) uint8
             ``LABEL_CODES["wood"]`` or ``LABEL_CODES["leaf"]`` per triangle (for
-            :func:`pipeline.io.mesh.write_mesh`).
+            :func:`treesim.io.mesh.write_mesh`).
         """
         wood = self.wood_mesh(facets)
         vertices = np.concatenate([wood.vertices, self.leaf_vertices])

@@ -10,7 +10,7 @@ One frozen keyword-only dataclass per stage, nested into :class:`RunParams`::
 
 Each field is declared with :func:`param` (help, unit, what ``None`` means, whether it only
 changes speed), and everything that shows or reads settings is generated from that: the
-command line's options (:mod:`pipeline.cli`), TOML files and ``--print-params``
+command line's options (:mod:`treesim.cli`), TOML files and ``--print-params``
 (:mod:`.settings`), batch manifests (:data:`SETTINGS`) and the service's JSON schemas
 (:func:`json_schema`). Nothing else types a default.
 
@@ -20,9 +20,9 @@ treesim has three kinds of preset, named apart:
   ``fine``: whole :class:`RunParams`, traded between speed and accuracy;
 * **instruments** (:data:`INSTRUMENTS`, :func:`instrument`): a real scanner's published
   figures, giving a :class:`ScannerSpec`;
-* **tree species** (:data:`pipeline.models.SPECIES`): procedural tree models.
+* **tree species** (:data:`treesim.models.SPECIES`): procedural tree models.
 
-This package imports only :mod:`pipeline.errors` and :mod:`pipeline.jsonio`: every stage
+This package imports only :mod:`treesim.errors` and :mod:`treesim.jsonio`: every stage
 may import it.
 """
 
@@ -121,4 +121,4 @@ def preset_measurements() -> str:
     """What each run preset costs and how accurate it is, as measured by the committed
     sweep (``benchmarks/bench_sweep.py``) and written by ``benchmarks/preset_table.py``
     (the file ``pipeline/data/preset_measurements.txt``; printed in ``treesim run --help``)."""
-    return (resources.files("pipeline") / "data" / "preset_measurements.txt").read_text("utf-8")
+    return (resources.files("treesim") / "data" / "preset_measurements.txt").read_text("utf-8")

@@ -1,7 +1,7 @@
 """Field metadata: every parameter carries its help text and unit once.
 
 A parameter dataclass declares each field with :func:`param`; the command line, the TOML
-file (:mod:`pipeline.params.settings`), ``--print-params`` and the service's JSON schemas
+file (:mod:`treesim.params.settings`), ``--print-params`` and the service's JSON schemas
 read the help, unit and default from here (:func:`describe`), so none of them types a
 default or a help text of its own.
 """

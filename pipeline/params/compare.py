@@ -22,7 +22,7 @@ class CompareParams:
     tolerance_m : float, optional
         Coverage tolerance τ (m); default ``3 × point_spacing_m`` of the compared cloud
         (``treesim compare``); a run uses one τ for both its comparisons, by default 3 ×
-        the field cloud's spacing (:func:`pipeline.run.run_tolerance`).
+        the field cloud's spacing (:func:`treesim.run.run_tolerance`).
     sample_spacing_m : float, optional
         Mesh references: spacing of the surface samples for completeness (m), i.e. one
         sample per ``sample_spacing_m²``; default ``point_spacing_m``.
@@ -106,7 +106,7 @@ class ReportParams:
         time and only the figures count.
     profile_bin_m : float, optional
         Height of the occlusion profile's slices (m); default a round height giving about
-        20 slices (:func:`pipeline.report.profile.auto_bin_m`).
+        20 slices (:func:`treesim.report.profile.auto_bin_m`).
     """
 
     max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)

@@ -20,7 +20,7 @@ class ModelParams:
     Parameters
     ----------
     species : str, optional
-        A tree species (:data:`pipeline.models.SPECIES`).
+        A tree species (:data:`treesim.models.SPECIES`).
     seed : int
         Seed of the procedural tree.
     leaves : bool, optional

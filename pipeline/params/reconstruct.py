@@ -24,7 +24,7 @@ __all__ = [
 #: Fewest points of a cloud that can be measured at all: four can span a volume, three
 #: always lie in a plane. Reconstruction never accepts fewer (``PrepareParams.min_points``
 #: may not be set below it; its default asks 300 of a tree) and neither does comparison
-#: (:func:`pipeline.compare.compare`), for the cloud and for a reference cloud.
+#: (:func:`treesim.compare.compare`), for the cloud and for a reference cloud.
 MIN_CLOUD_POINTS = 4
 
 
@@ -45,11 +45,11 @@ class PrepareParams:
     remove_ground : bool
         Look for the terrain under the tree (a plane over a wide, filled area of low,
         level points) and remove the points on it; a cloud with no ground keeps every
-        point (:func:`~pipeline.reconstruct.preprocess.find_ground`).
+        point (:func:`~treesim.reconstruct.preprocess.find_ground`).
     remove_understory : bool
         With ground found, remove what grows from or lies on it but is not the tree:
         litter and fallen wood away from the stem's foot, shrubs and saplings
-        (:func:`~pipeline.reconstruct.foot.understory`).
+        (:func:`~treesim.reconstruct.foot.understory`).
     ground_tolerance_m : float
         Points less than this above the ground plane (or below it) are ground.
     normals_neighbors : int or None
@@ -122,7 +122,7 @@ class QSMParams:
     min_radius_m : float, optional
         Smallest radius that can be measured; default ``max(resolve_sigmas × σ, 0.5 ×
         spacing)``, σ the noise of the points about the surface, estimated from the
-        stem's well-measured circle fits (:func:`pipeline.reconstruct.qsm.estimate_noise`;
+        stem's well-measured circle fits (:func:`treesim.reconstruct.qsm.estimate_noise`;
         ``1.5 × spacing`` when no fit allows an estimate).
     resolve_sigmas : float
         k of the radius a circle fit resolves, ``k σ``: below it a fitted radius is mostly
@@ -229,7 +229,7 @@ class ReconstructParams:
     timeout_s : float
         Longest a pymeshlab step may run before it is stopped.
     separate_leaves : {"auto", "on", "off"}
-        Label points wood or leaf (:mod:`pipeline.reconstruct.leafwood`) and build the
+        Label points wood or leaf (:mod:`treesim.reconstruct.leafwood`) and build the
         model from the wood only: ``on`` always, ``off`` never, ``auto`` when the
         classifier calls at least 16.5 % of the points leaf (``leaf_share``; measured
         0.00-0.14 on leaf-off trees, 0.20-0.63 on leaf-on ones). ``auto`` runs the
@@ -237,7 +237,7 @@ class ReconstructParams:
         points on 2 cores) and is modelled as with ``off``.
     leaf_layer : bool
         With leaves separated, add leaf quads (label ``leaf``) in the leaf points' volume
-        to the mesh (:mod:`pipeline.models.leaves`), so the model can be scanned leaf-on.
+        to the mesh (:mod:`treesim.models.leaves`), so the model can be scanned leaf-on.
     leaf_side_m : float
         Side of a modelled leaf quad (m); 5 cm gives 25 cm², a typical broadleaf leaf.
     """

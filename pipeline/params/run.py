@@ -42,7 +42,7 @@ class ScanParams:
     distance_m : float, optional
         Horizontal distance of the stations from the tree's centre; default the station
         rule ``max(min_distance_m, 1.5 × crown diameter, 0.5 × height)``
-        (:mod:`pipeline.scan.stations`).
+        (:mod:`treesim.scan.stations`).
     min_distance_m : float
         Smallest distance the rule gives.
     height_m : float
@@ -52,7 +52,7 @@ class ScanParams:
     scanner : ScannerSpec
         Angular resolution, fields of view, ranges, optional beam and noise models.
     lod : {"auto", "full"}
-        Level of detail (:func:`pipeline.scan.scan`): ``"auto"`` models only what the
+        Level of detail (:func:`treesim.scan.scan`): ``"auto"`` models only what the
         scene requires and says why in the scan's summary; ``"full"`` models everything
         everywhere (every beam sub-ray, every triangle, the QSM mesh's full facets).
     chunk_rays : int
@@ -225,7 +225,7 @@ def _run_presets() -> dict[str, RunParams]:
 
 #: The run presets by name: ``draft`` (a quick look), ``standard`` (the default),
 #: ``fine``. Each is a point of the committed sweep ``benchmarks/sweeps/presets.toml``; its
-#: measured cost and accuracy: :func:`pipeline.params.preset_measurements`.
+#: measured cost and accuracy: :func:`treesim.params.preset_measurements`.
 RUN_PRESETS: dict[str, RunParams] = _run_presets()
 
 

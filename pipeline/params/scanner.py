@@ -5,8 +5,8 @@ heading, z up; azimuth is measured counter-clockwise from x in the horizontal pl
 elevation up from the horizontal plane.
 
 *Instruments* (:data:`INSTRUMENTS`) are one of treesim's three kinds of preset: a real
-scanner's published figures. The others are run presets (:data:`pipeline.params.RUN_PRESETS`)
-and tree species (:data:`pipeline.models.SPECIES`).
+scanner's published figures. The others are run presets (:data:`treesim.params.RUN_PRESETS`)
+and tree species (:data:`treesim.models.SPECIES`).
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ class ScannerSpec:
     beam_sampling : {"adaptive", "full"}
         ``"adaptive"`` (default) casts each pulse's central ray and gives the sub-rays
         only to pulses whose footprint can straddle an edge; ``"full"`` casts every
-        sub-ray of every pulse (brute force). See :mod:`pipeline.scan.trace`.
+        sub-ray of every pulse (brute force). See :mod:`treesim.scan.trace`.
     range_resolution_m : float
         Two echoes of one pulse closer than this merge into one return (beam model only).
     range_noise_sd_m : float
@@ -365,7 +365,7 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
 
 
 #: The figures ``beam=True`` and ``noise=True`` turn on when no instrument is named
-#: (``treesim scan --beam`` / ``--noise``, :func:`pipeline.params.scan_params`): a generic
+#: (``treesim scan --beam`` / ``--noise``, :func:`treesim.params.scan_params`): a generic
 #: current terrestrial laser scanner, with the model's own ``subrays`` (7) and
 #: ``range_resolution_m`` (0.3 m).
 #:

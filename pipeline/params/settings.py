@@ -248,18 +248,9 @@ def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     ------
     InputFormatError
         If the file is missing, unreadable or not valid TOML.
-    InvalidParameterError
-        On Python 3.10 without ``tomli``.
     """
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        try:
-            import tomli as tomllib  # type: ignore[no-redef]
-        except ModuleNotFoundError:
-            raise InvalidParameterError(
-                f"reading a {what} needs Python 3.11 or 'pip install tomli'"
-            ) from None
+    import tomllib
+
     p = Path(path)
     if not p.is_file():
         raise InputFormatError(f"{what} {p} not found; check the path")
@@ -320,7 +311,7 @@ def to_toml(params: RunParams) -> str:
 
 
 _JSON_TYPES = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
-#: JSON Schema's names of the bounds :func:`~pipeline.params.param` declares.
+#: JSON Schema's names of the bounds :func:`~treesim.params.param` declares.
 _JSON_BOUNDS = ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
 
 
@@ -390,8 +381,8 @@ def scan_params(
     scanner replaced by an instrument's figures (with its beam and noise models only when
     asked), both angular steps from ``resolution_deg``, then the nested ``settings``
     (field names of :class:`ScanParams`, ``scanner`` a table) checked by
-    :func:`~pipeline.params.merge`. Without an instrument, ``beam`` and ``noise`` turn the
-    models on with a generic scanner's figures (:data:`~pipeline.params.GENERIC_TLS`);
+    :func:`~treesim.params.merge`. Without an instrument, ``beam`` and ``noise`` turn the
+    models on with a generic scanner's figures (:data:`~treesim.params.GENERIC_TLS`);
     ``settings`` still override them.
 
     Raises

@@ -1,11 +1,11 @@
 """Scan planning: where to stand, how often, to measure a plot's trees well enough.
 
 :func:`plan_scans` samples every tree's surface, casts rays from a grid of candidate
-stations to the samples (:mod:`~pipeline.plan.visibility`), chooses stations by lazy
-greedy set cover and swaps (:mod:`~pipeline.plan.cover`) towards a per-tree goal
+stations to the samples (:mod:`~treesim.plan.visibility`), chooses stations by lazy
+greedy set cover and swaps (:mod:`~treesim.plan.cover`) towards a per-tree goal
 (coverage at τ, DBH arc) within a budget (stations, field time), compares the plan with
-the classic layouts (:mod:`~pipeline.plan.layouts`) and verifies it with a full-resolution
-scan (:func:`~pipeline.plan.verify.verify_plan`); :func:`write_plan` writes ``plan.json``,
+the classic layouts (:mod:`~treesim.plan.layouts`) and verifies it with a full-resolution
+scan (:func:`~treesim.plan.verify.verify_plan`); :func:`write_plan` writes ``plan.json``,
 ``stations.csv``, ``map.png`` and ``curve.png``.
 """
 

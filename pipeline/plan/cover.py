@@ -1,7 +1,7 @@
 """Choosing stations: the goal as an objective, lazy greedy set cover, swap search.
 
 **Objective.** A station hits each sample with a probability ``p``, independently of the
-other stations (:mod:`pipeline.plan.visibility`), stored as its intensity
+other stations (:mod:`treesim.plan.visibility`), stored as its intensity
 ``λ = −ln(1 − p)``. A set of stations ``S`` is summed up per sample by ``Λ = Σ_S λ`` (the
 sample is covered with probability ``1 − exp(−Λ)``) and its best quality over ``S``
 (0: no station can hit it). Per tree, with goal coverage ``g`` and goal arc ``A``::
@@ -61,7 +61,7 @@ __all__ = [
 #: Weight of the quality tie-break, per tree (see the module's notes).
 TIE_BREAK = 1e-6
 #: Slack of the coverage goal: one station's hit probability is capped at ``1 − 1e-6``
-#: (:data:`pipeline.plan.visibility.P_MAX`), so samples it is sure to hit count as covered.
+#: (:data:`treesim.plan.visibility.P_MAX`), so samples it is sure to hit count as covered.
 COVERAGE_SLACK = 1e-6
 #: Least change of F that counts as a gain (a greedy step, a swap): F sums thousands of
 #: float64 terms, whose rounding is ~1e-13; one sample's tie-break is ~1e-12 and more.
@@ -228,7 +228,7 @@ def lazy_greedy(
     ----------
     obj : Objective
     intensity : (k, n) float32
-        Candidates' hit intensities ``λ`` (:class:`~pipeline.plan.visibility.Visibility`).
+        Candidates' hit intensities ``λ`` (:class:`~treesim.plan.visibility.Visibility`).
     max_stations : int
         Budget in stations.
     quality : (k, n) uint8, optional

@@ -8,7 +8,7 @@ surface (an exact point-to-triangle distance, Open3D, in the plot's local frame)
 **Classic layouts** (:func:`classic_layouts`), as field teams use them:
 
 * ``ring-3``: three stations 120° apart around the plot centre, at ``ring_distance_m``
-  (default half the plot radius; one tree: the station rule, :func:`pipeline.scan.
+  (default half the plot radius; one tree: the station rule, :func:`treesim.scan.
   stations.station_distance_m`), the first on +x;
 * ``centre+3``: the centre and a ring of three at the same distance;
 * ``cross-5``: the "5-scan cross", the centre and four stations on +x, +y, -x, -y;
@@ -71,7 +71,7 @@ class TreeClearance:
 
 
 def rule_distance_m(vertices: np.ndarray) -> float:
-    """The station rule's distance (:func:`pipeline.scan.stations.station_distance_m`) for
+    """The station rule's distance (:func:`treesim.scan.stations.station_distance_m`) for
     a tree of these vertices (n, 3): crown diameter the mean of its x and y extents,
     height its z extent."""
     ext = vertices.max(axis=0) - vertices.min(axis=0)

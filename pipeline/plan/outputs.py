@@ -1,7 +1,7 @@
 """What a plan writes: ``plan.json``, ``stations.csv``, ``map.png``, ``curve.png``.
 
 Figures use matplotlib's object API on the Agg canvas (no pyplot, no global backend), as
-:mod:`pipeline.report.figures` does.
+:mod:`treesim.report.figures` does.
 """
 
 from __future__ import annotations

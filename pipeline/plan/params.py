@@ -21,13 +21,13 @@ class PlanParams:
 
     * ``goal_coverage``: the fraction of the tree's visible surface samples (stem and
       crown, area-uniform; surface inside another closed part of the tree left out, as
-      :func:`pipeline.compare.compare` does) with a return within ``tolerance_m``;
+      :func:`treesim.compare.compare` does) with a return within ``tolerance_m``;
     * ``dbh_arc_deg``: the stem band ``dbh_band_m`` (1.1-1.5 m above the stem base) seen
       over at least this arc around the stem axis. The band is cut into ``arc_bin_deg``
       sectors; a sector counts as seen when at least half its band samples are seen.
 
     Budget: at most ``max_stations`` stations and at most ``max_field_time_min`` of field
-    time (set-up plus scan per station, :meth:`pipeline.params.InstrumentPreset.
+    time (set-up plus scan per station, :meth:`treesim.params.InstrumentPreset.
     station_time_s`); whichever is tighter.
     """
 

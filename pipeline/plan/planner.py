@@ -1,12 +1,12 @@
 """``plan_scans``: from a plot, an instrument, a goal and a budget to an ordered set of stations.
 
 The steps (timed apart in ``plan.json``'s ``timings_s``): sample every tree
-(:mod:`pipeline.plan.samples`), build the plot's ray-casting scene once, lay the candidate
-grid (:mod:`pipeline.plan.layouts`), cast each candidate's rays to the samples of the trees
-in its range and window (:mod:`pipeline.plan.visibility`), choose stations (lazy greedy,
-then swaps: :mod:`pipeline.plan.cover`), evaluate the classic layouts with the same model,
+(:mod:`treesim.plan.samples`), build the plot's ray-casting scene once, lay the candidate
+grid (:mod:`treesim.plan.layouts`), cast each candidate's rays to the samples of the trees
+in its range and window (:mod:`treesim.plan.visibility`), choose stations (lazy greedy,
+then swaps: :mod:`treesim.plan.cover`), evaluate the classic layouts with the same model,
 and, unless ``params.verify`` is off, scan the plan and the best classic layout at full
-resolution and measure each tree (:mod:`pipeline.plan.verify`).
+resolution and measure each tree (:mod:`treesim.plan.verify`).
 """
 
 from __future__ import annotations
@@ -359,7 +359,7 @@ def plan_scans(
 
     Parameters
     ----------
-    plot : pipeline.plot.Plot
+    plot : treesim.plot.Plot
         The trees and terrain (``trees``, ``tree(id)``, ``tree_parts(id)``, ``terrain``,
         ``radius_m``, ``centre_xy``, ``scene()``).
     spec : ScannerSpec

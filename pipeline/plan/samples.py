@@ -1,10 +1,10 @@
 """Each tree's surface samples: the targets the planner's rays aim at.
 
-Per tree, two strata, both area-uniform and seeded (:func:`pipeline.geometry.sample_surface`):
+Per tree, two strata, both area-uniform and seeded (:func:`treesim.geometry.sample_surface`):
 
 * **coverage samples** (``samples_per_tree``) on the whole tree (stem and crown, every
   part but the terrain); samples inside another closed part of the same tree (buried
-  branch bases, end caps) are dropped, as :func:`pipeline.compare.compare` drops them, so
+  branch bases, end caps) are dropped, as :func:`treesim.compare.compare` drops them, so
   that coverage is of the surface a scanner could see;
 * **band samples** (``band_samples``) on the stem between ``dbh_band_m`` above the stem
   base: the wood triangles that reach into the band within ``STEM_SEARCH_M`` of the stem
@@ -16,7 +16,7 @@ Per tree, two strata, both area-uniform and seeded (:func:`pipeline.geometry.sam
 
 Samples are stored tree by tree, each tree's band samples first (sorted by sector), then
 its coverage samples: every sector and every tree's coverage is a contiguous block, so
-that the objective (:mod:`pipeline.plan.cover`) sums them with one ``np.add.reduceat``.
+that the objective (:mod:`treesim.plan.cover`) sums them with one ``np.add.reduceat``.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A single tree is planned as a plot of one tree (id 1) on flat ground at its stem base,
 the candidates within ``radius_m`` of it: by default 1.5 × the station rule's distance
-(:func:`pipeline.scan.stations.station_distance_m`), so that the rule's ring lies well
+(:func:`treesim.scan.stations.station_distance_m`), so that the rule's ring lies well
 inside the candidate area.
 """
 
@@ -44,7 +44,7 @@ def species_tree_plot(
 
 def model_tree_plot(mp: Any, *, radius_m: float | None = None) -> tuple[Plot, dict[str, Any]]:
     """(plot, what): :func:`species_tree_plot` of the tree a
-    :class:`pipeline.params.models.ModelParams` names (``treesim plan --species``, the
+    :class:`treesim.params.models.ModelParams` names (``treesim plan --species``, the
     service's ``tree``), and its species, seed, leaves and facets (a plan's inputs)."""
     plot = species_tree_plot(
         str(mp.species), seed=mp.seed, leaves=mp.leaves, facets=mp.facets, radius_m=radius_m

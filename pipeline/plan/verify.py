@@ -5,7 +5,7 @@ instrument at the chosen resolution: every pulse of the field of view that can r
 scene, not the planner's rays to samples), splits the cloud by its ``tree_id`` field and
 measures per tree:
 
-* ``coverage``: :func:`pipeline.compare.compare` of the tree's points against the tree's
+* ``coverage``: :func:`treesim.compare.compare` of the tree's points against the tree's
   own mesh at τ (its surface samples, hidden surface dropped: the same definition as the
   goal, with compare's own denser samples);
 * ``coverage_samples``: the planner's own coverage samples with a point within τ (the
@@ -14,7 +14,7 @@ measures per tree:
   stem axis, by the goal's sector rule.
 
 The scan is the one place this module touches the plot's geometry (:func:`_scan_plot`,
-through :func:`pipeline.plot.scan.scan_plot`, which loads per station only the trees the
+through :func:`treesim.plot.scan.scan_plot`, which loads per station only the trees the
 station can record).
 """
 
@@ -42,7 +42,7 @@ def _scan_plot(
     plot: Any, stations: Sequence[Station], spec: ScannerSpec, *, nthreads: int, progress: Any
 ) -> Cloud:
     """The plot scanned from ``stations`` (the trees each station can record, and the
-    terrain: :func:`pipeline.plot.scan.scan_plot`)."""
+    terrain: :func:`treesim.plot.scan.scan_plot`)."""
     from ..params import ScanParams
     from ..plot.scan import scan_plot
 

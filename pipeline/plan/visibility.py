@@ -47,7 +47,7 @@ some point of the grid falls within τ of it.
 **Stations together.** Each station's grid phase is independent of the others', so a set
 ``S`` of stations covers a sample with ``P = 1 − Π_S (1 − p_s) = 1 − exp(−Σ_S λ_s)`` with
 the *intensity* ``λ = −ln(1 − p)`` (``p`` capped at ``1 − 1e-6``: ``λ <= 13.8``). Adding a
-station adds its ``λ``, removing one subtracts it (:mod:`pipeline.plan.cover`). Twigs and
+station adds its ``λ``, removing one subtracts it (:mod:`treesim.plan.cover`). Twigs and
 needles that no single station resolves (``p < 1`` everywhere) are thus covered by several
 stations together, as real scans cover them.
 
@@ -58,7 +58,7 @@ equally (better incidence, even spacing around stems).
 **Cost.** One Open3D ``RaycastingScene`` holds the whole plot (trees and terrain, float32 in a
 float64 local frame around the plot). A candidate casts one ray per sample of only the
 trees whose bounding box lies within its range and field of view (the scanner's angular
-window of a box, :func:`pipeline.scan.rays.box_window`). The cost is rays × the BVH's
+window of a box, :func:`treesim.scan.rays.box_window`). The cost is rays × the BVH's
 traversal: it grows with the candidates and samples, and slowly with the scene's
 triangles (``benchmarks/bench_plan.py``), whose BVH is built once.
 """

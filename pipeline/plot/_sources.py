@@ -23,7 +23,7 @@ from ..errors import InputFormatError, InvalidParameterError, ReconstructionErro
 if TYPE_CHECKING:
     from ..models import CylinderTable, TreeParams
 
-PlotTree = Any  # a pipeline.plot.core.PlotTree (not imported: core imports this module)
+PlotTree = Any  # a treesim.plot.core.PlotTree (not imported: core imports this module)
 
 __all__ = ["BASE_BAND_M", "FIT_ITERATIONS", "fit_species", "local_tree", "stem_base"]
 

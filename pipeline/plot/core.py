@@ -1,4 +1,4 @@
-"""The plot core: :class:`Terrain`, :class:`PlotTree`, :class:`Plot` (see :mod:`pipeline.plot`)."""
+"""The plot core: :class:`Terrain`, :class:`PlotTree`, :class:`Plot` (see :mod:`treesim.plot`)."""
 
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ class Terrain:
     A ``dtm`` is bilinear between its cell centres (NODATA cells take their nearest
     valid cell's height; beyond the grid, the nearest edge's); a ``cloud`` is linear on
     the Delaunay triangles of its points in x, y (the nearest point's height beyond
-    their hull). See :mod:`pipeline.plot._surface`.
+    their hull). See :mod:`treesim.plot._surface`.
     """
 
     kind: str = "flat"
@@ -163,7 +163,7 @@ class PlotTree:
     dbh_m, height_m : float, optional
         Targets of a procedural tree (``source="species"``): the species' trunk length
         and radius ratio are adjusted so that this seed's tree comes close to them
-        (:func:`pipeline.plot._sources.fit_species`); the tree's exact figures are
+        (:func:`treesim.plot._sources.fit_species`); the tree's exact figures are
         :meth:`Plot.truth`'s. Other sources ignore them (a stand file may carry the
         figures it measured).
     """
@@ -248,7 +248,7 @@ class Plot:
     -----
     Trees are built when first asked for and kept (:meth:`tree_parts`);
     :meth:`release` drops them (their bounds and triangle counts stay known), which is
-    how :func:`pipeline.plot.scan.scan_plot` keeps memory bounded.
+    how :func:`treesim.plot.scan.scan_plot` keeps memory bounded.
     """
 
     trees: Sequence[PlotTree]

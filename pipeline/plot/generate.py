@@ -20,7 +20,7 @@ The rules (sources in the README's Plots section; research notes B2):
   tries the distance is relaxed by 10 % (and the relaxation reported).
 * **Trees**: rotation uniform in [0, 360)°, each its own seed; the species' trunk length
   and radius ratio are fitted to the drawn DBH and height
-  (:func:`pipeline.plot._sources.fit_species`); the exact figures are
+  (:func:`treesim.plot._sources.fit_species`); the exact figures are
   :meth:`Plot.truth`'s.
 
 Everything comes from one ``numpy.random.default_rng(seed)``: the same arguments give

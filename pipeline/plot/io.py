@@ -35,10 +35,9 @@ from __future__ import annotations
 import csv
 import io as _io
 import math
+import tomllib
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 from ..atomic import write_text
 from ..errors import InputFormatError, InvalidParameterError, TreesimError

@@ -1,8 +1,8 @@
 """Scanning a plot station by station, loading only the trees each station can record,
 and each tree's figures in the plot context.
 
-:func:`scan_plot` casts each station alone (:func:`pipeline.steps.scan_scene` with the
-plot's :meth:`~pipeline.plot.Plot.frame` and ``station_offset``), into a scene of only
+:func:`scan_plot` casts each station alone (:func:`treesim.steps.scan_scene` with the
+plot's :meth:`~treesim.plot.Plot.frame` and ``station_offset``), into a scene of only
 the trees whose bounding box it can record and the terrain triangles within its range.
 A tree whose box lies wholly beyond ``max_range_m`` or outside the field of view can
 neither return nor occlude a return (any ray into the tree enters its box first), so it
@@ -12,7 +12,7 @@ lazily, kept while a later station needs them and within ``cache_triangles``, an
 dropped otherwise, so memory follows the largest station's scene, not the plot.
 
 :func:`tree_figures` measures each tree's points (by ``tree_id``) against its own mesh:
-points, coverage at τ, AVOHD accuracy and completeness (:func:`pipeline.compare.compare`).
+points, coverage at τ, AVOHD accuracy and completeness (:func:`treesim.compare.compare`).
 """
 
 from __future__ import annotations
@@ -147,7 +147,7 @@ class PlotScanResult:
         them, and ``station`` numbered over all stations.
     stations : list of Station
     station_stats : list of StationStats
-        As :class:`pipeline.scan.ScanResult`'s, one per station.
+        As :class:`treesim.scan.ScanResult`'s, one per station.
     loading : list of dict
         Per station: ``trees_loaded`` (ids), ``trees_beyond_range``,
         ``trees_outside_fov``, ``triangles_loaded`` (trees and terrain patch),
@@ -243,7 +243,7 @@ def scan_plot(
         Built trees kept between stations, in triangles (the current station's trees
         are held whatever their size); a tree dropped and needed again is rebuilt.
     check_inside : bool
-        Refuse stations inside geometry (see :func:`pipeline.scan.scan`).
+        Refuse stations inside geometry (see :func:`treesim.scan.scan`).
 
     Returns
     -------
@@ -435,7 +435,7 @@ def tree_figures(
     progress: Progress | None = None,
 ) -> list[dict[str, Any]]:
     """Each tree's figures in the plot's scan: its points (``tree_id``) against its own
-    mesh, both ways (:func:`pipeline.compare.compare`).
+    mesh, both ways (:func:`treesim.compare.compare`).
 
     Returns one dict per tree (the plot's order): ``tree_id``, ``species``, ``x_m``,
     ``y_m``, ``points``, ``coverage`` (share of its visible surface within τ of a
@@ -633,7 +633,7 @@ def plot_scan_files(
     figures) and ``tree_figures.csv`` (one row per tree). Interrupted or failed, it
     leaves nothing behind (no cloud, no JSON, no CSV, no folder it made).
 
-    Returns a :class:`pipeline.steps.StepResult` (``result``: the
+    Returns a :class:`treesim.steps.StepResult` (``result``: the
     :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
     """
     import open3d  # noqa: F401  (imported before any file exists; see steps.scan_files)

@@ -3,9 +3,9 @@
 ``reconstruct(cloud, ReconstructParams(method=...))`` prepares the cloud (validation,
 voxel downsampling, outlier removal, optional ground removal, normals), then builds
 
-* ``qsm`` (default): a cylinder QSM (:mod:`pipeline.reconstruct.qsm`), meshed as one
+* ``qsm`` (default): a cylinder QSM (:mod:`treesim.reconstruct.qsm`), meshed as one
   closed, mitred tube per branch whose start is sunk into its parent
-  (:func:`pipeline.models.branch_tubes`: no buried end caps between a branch's
+  (:func:`treesim.models.branch_tubes`: no buried end caps between a branch's
   cylinders, no notches at bends or junctions), labelled wood;
 * ``poisson``: a screened Poisson surface (pymeshlab, in a child process), trimmed by
   density;
@@ -33,7 +33,7 @@ from ..models import CylinderTable, branch_tubes, mesh_volume, write_cylinders
 from ..params import METHODS, PrepareParams, QSMParams, ReconstructParams
 
 if TYPE_CHECKING:  # the stages import scipy: loaded when a reconstruction runs, so that
-    # `import pipeline` (every treesim command) does not pay for it
+    # `import treesim` (every treesim command) does not pay for it
     from .preprocess import PreparedCloud
     from .qsm import QSMResult
 
@@ -69,7 +69,7 @@ class TreeModel:
         Mesh vertices in the input's coordinates.
     faces : (f, 3) int64
     face_label : (f,) uint8
-        ``pipeline.cloud.LABEL_CODES`` per face (all wood today).
+        ``treesim.cloud.LABEL_CODES`` per face (all wood today).
     cylinders : CylinderTable or None
         The QSM in the input's coordinates (qsm only).
     figures : dict

@@ -1,4 +1,4 @@
-"""The leaf-on path of :func:`pipeline.reconstruct.reconstruct`: separate, then add leaves.
+"""The leaf-on path of :func:`treesim.reconstruct.reconstruct`: separate, then add leaves.
 
 Kept apart from ``__init__.py`` so that the reconstruction's dispatch changes by two calls:
 ``separate`` before the model is built (the model sees the wood points only) and

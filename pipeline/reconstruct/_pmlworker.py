@@ -7,7 +7,7 @@ without re-running the caller's main module, which ``multiprocessing``'s spawn d
 which recurses in a script without an ``if __name__ == "__main__":`` guard). Arrays go in
 and come back as ``.npy`` files in a private temporary folder, so no pipe can block
 either side. A signal or a non-zero exit, a timeout (the child is killed), or an exception
-in the child becomes a :class:`~pipeline.errors.ReconstructionError` whose message says
+in the child becomes a :class:`~treesim.errors.ReconstructionError` whose message says
 what happened and what to try. The child exits by itself if the parent dies (it watches
 its standard input, which only the parent holds open).
 
@@ -45,11 +45,13 @@ _EXIT_ORPHANED = 70
 #: What the child interpreter runs (``-c``, so that importing the package does not warn
 #: about this module being run as ``__main__`` after it was imported).
 _CHILD_COMMAND = (
-    "import sys; from pipeline.reconstruct._pmlworker import _child_main; "
+    "import sys; from treesim.reconstruct._pmlworker import _child_main; "
     "sys.exit(_child_main(sys.argv[1:]))"
 )
 
-#: The folder holding the ``pipeline`` package, put on the child's ``PYTHONPATH``.
+#: The folder holding the installed ``treesim`` package (site-packages for a wheel), put on
+#: the child's ``PYTHONPATH`` in case the parent found it through a path set by hand; an
+#: editable install is found by the child's own ``site`` (the same interpreter).
 _PACKAGE_ROOT = str(Path(__file__).resolve().parents[2])
 
 

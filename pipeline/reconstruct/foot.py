@@ -7,7 +7,7 @@ a cloud starts in the litter, runs along the ground to the stem and models that 
 the whole tree's pipe-model radius (a spruce cut from a plot: a 51 cm "stem" along the
 ground holding 1.7 m³ of its 2.0 m³). So before the skeleton:
 
-1. :func:`~pipeline.reconstruct.preprocess.find_ground` fits the terrain plane (a robust
+1. :func:`~treesim.reconstruct.preprocess.find_ground` fits the terrain plane (a robust
    lowest-surface fit; ground only where it covers a wide, filled area, so the cut end of
    a stem with no ground under it stays) and the points on it are removed;
 2. :func:`find_foot` finds the stem in the band 0.1-1.5 m above that terrain (the
@@ -151,7 +151,7 @@ def find_foot(
     spacing_m : float
         Median point spacing (m).
     plane : (4,) float, optional
-        The terrain plane (:func:`~pipeline.reconstruct.preprocess.find_ground`); without
+        The terrain plane (:func:`~treesim.reconstruct.preprocess.find_ground`); without
         it heights are taken above the lowest point.
     weights : (n,) float, optional
         Points each point stands for.

@@ -1,6 +1,6 @@
 """Preparing a field point cloud for reconstruction: checks, thinning, cleaning, normals.
 
-:func:`prepare` turns a :class:`~pipeline.cloud.Cloud` (any coordinates, georeferenced
+:func:`prepare` turns a :class:`~treesim.cloud.Cloud` (any coordinates, georeferenced
 or not) into a :class:`PreparedCloud` in a float64 local frame, in this order:
 
 1. **Checks** (:func:`validate_tree_cloud`): enough points, no NaN/inf rows, not all
@@ -22,7 +22,7 @@ or not) into a :class:`PreparedCloud` in a float64 local frame, in this order:
    box), so the cut end of a stem with no ground under it is never removed. Then every
    point less than ``ground_tolerance_m`` above the plane (or below it) is dropped. Then
    the stem's foot and the understory (``remove_understory``): see
-   :mod:`pipeline.reconstruct.foot`.
+   :mod:`treesim.reconstruct.foot`.
 5. **Spacing**: the median nearest-neighbour distance of what is left.
 6. **Normals** (:func:`estimate_normals`): PCA of the ``normals_neighbors`` nearest
    neighbours, oriented outward (away from the local centroid at the smallest telling
@@ -136,7 +136,7 @@ def nearest_neighbors(
         itself first unless it has a duplicate).
     nearest_m : (n,) float64
         Distance to the nearest other row (the second column's distance): its median is
-        :func:`~pipeline.geometry.point_spacing` with ``distinct=False``.
+        :func:`~treesim.geometry.point_spacing` with ``distinct=False``.
     """
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
@@ -161,7 +161,7 @@ def _lengths(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 
 def _spacing(points: np.ndarray, neighbors: np.ndarray, nearest: np.ndarray | None) -> float:
-    """:func:`~pipeline.geometry.point_spacing` with ``distinct=False`` (the same bits)
+    """:func:`~treesim.geometry.point_spacing` with ``distinct=False`` (the same bits)
     from the :func:`nearest_neighbors` of ``points``: the median of ``nearest`` when the
     search returned it, else of the lengths to the second column."""
     if nearest is None:
@@ -245,7 +245,7 @@ class PreparedCloud:
         hand.
     foot : StemFoot or None
         The terrain under the tree and the stem's foot on it
-        (:func:`~pipeline.reconstruct.foot.find_foot`); the QSM grows from it.
+        (:func:`~treesim.reconstruct.foot.find_foot`); the QSM grows from it.
     """
 
     frame: LocalFrame
@@ -1019,7 +1019,7 @@ def prepare(
         )
     )
 
-    # 3. ground removal, the stem's foot, understory (pipeline.reconstruct.foot)
+    # 3. ground removal, the stem's foot, understory (treesim.reconstruct.foot)
     n2 = len(pts)
     ground_info: dict[str, Any] = {}
     plane = None

@@ -6,7 +6,7 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
    components are joined by their shortest gaps (Borůvka steps over cross-component
    neighbour pairs, then nearest points), so occlusion gaps are bridged.
 2. **Geodesic distance** from the base (the points within ``base_band_m`` of the lowest
-   height near the stem's foot, :mod:`pipeline.reconstruct.foot`; without a foot, of the
+   height near the stem's foot, :mod:`treesim.reconstruct.foot`; without a foot, of the
    lowest point) by Dijkstra, with predecessors.
 3. **Slices** of the geodesic distance, ``slice_m`` thick; the graph restricted to each
    slice splits it into clusters: the skeleton's nodes. A node's parent is the node its
@@ -81,7 +81,7 @@ def _knn_graph(
     weighted by length (at least 1e-9).
 
     ``neighbors`` (n, >= k + 1) are each point's nearest points, itself first
-    (:func:`~pipeline.reconstruct.preprocess.nearest_neighbors`). The symmetric matrix
+    (:func:`~treesim.reconstruct.preprocess.nearest_neighbors`). The symmetric matrix
     is filled in place, a chunk of points at a time, in two passes (count, then fill):
     each edge a point keeps, and its mirror when the far end does not keep it too. The
     result equals ``A.maximum(A.T)`` of the one-sided graph ``A`` (both directions of an
@@ -582,12 +582,12 @@ def fit_qsm(
     params : QSMParams
     neighbors : (n, k) int, optional
         Each point's nearest points, itself first, sorted by distance
-        (:attr:`~pipeline.reconstruct.preprocess.PreparedCloud.neighbors`); searched here
+        (:attr:`~treesim.reconstruct.preprocess.PreparedCloud.neighbors`); searched here
         when absent or when it has fewer than ``max(params.neighbors + 1,
         BRIDGE_NEIGHBORS)`` columns.
     foot : StemFoot, optional
         The terrain and the stem's foot (:attr:`PreparedCloud.foot
-        <pipeline.reconstruct.preprocess.PreparedCloud.foot>`): the graph grows from the
+        <treesim.reconstruct.preprocess.PreparedCloud.foot>`): the graph grows from the
         lowest points near the foot's axis and the stem starts on the terrain. Without
         it, from the cloud's lowest points.
 

@@ -2,7 +2,7 @@
 
 Both methods run pymeshlab in a spawned child process (:mod:`._pmlworker`): a crash,
 a hang past ``timeout_s`` or an empty result fails this reconstruction with a
-:class:`~pipeline.errors.ReconstructionError`, never the caller. Both work in the
+:class:`~treesim.errors.ReconstructionError`, never the caller. Both work in the
 prepared cloud's local frame and return vertices in the input's coordinates (float64).
 
 * :func:`poisson`: screened Poisson (``depth`` is the speed/accuracy knob: the octree has
@@ -409,7 +409,7 @@ def poisson(
     Parameters
     ----------
     prepared : PreparedCloud
-        From :func:`~pipeline.reconstruct.preprocess.prepare` (a ``Cloud`` or an array is
+        From :func:`~treesim.reconstruct.preprocess.prepare` (a ``Cloud`` or an array is
         prepared with the defaults first). Its normals must point outward.
     depth : int
         Octree depth, 4..16: 8 is ~1/256 of the cloud's extent (2.5 cm on a 6 m tree).
@@ -593,7 +593,7 @@ def ball_pivoting(
     Parameters
     ----------
     prepared : PreparedCloud
-        From :func:`~pipeline.reconstruct.preprocess.prepare` (a ``Cloud`` or an array is
+        From :func:`~treesim.reconstruct.preprocess.prepare` (a ``Cloud`` or an array is
         prepared with the defaults first).
     radii_m : sequence of float, optional
         Ball radii (m), applied smallest first, each pass keeping the faces of the

@@ -1,6 +1,6 @@
 """Reports of a comparison: ``report.json``, PNG plots and one offline HTML page.
 
-``build_report(source, outdir)`` takes a :class:`~pipeline.compare.Comparison` or the
+``build_report(source, outdir)`` takes a :class:`~treesim.compare.Comparison` or the
 folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 
 * ``report.json``: the figures, the parameters, the plain-language summary and the
@@ -10,7 +10,7 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
   of the reference samples coloured by distance;
 * ``coverage.png``: coverage by station (and by hit label);
 * ``occlusion.png``: the occlusion profile, coverage and point density by height slice,
-  per station and all together (:mod:`pipeline.report.profile`; its numbers in
+  per station and all together (:mod:`treesim.report.profile`; its numbers in
   ``report.json``'s ``occlusion_profile``);
 * ``report.html``: all of it in one self-contained page (images and data inline, no
   external resources), with an interactive 3D view of a subsample.
@@ -100,7 +100,7 @@ def build_report(
         pngs = {}
 
     paragraph = summary_paragraph(s)
-    generated = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    generated = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     page = build_html(
         data,
         pngs,

@@ -66,7 +66,7 @@ class ReportData:
     def from_comparison(
         cls, comparison: Comparison, *, inputs: dict[str, Any] | None = None
     ) -> ReportData:
-        """Build from an in-memory :class:`~pipeline.compare.Comparison`."""
+        """Build from an in-memory :class:`~treesim.compare.Comparison`."""
         from ..jsonio import json_ready as _json_ready
 
         summary = _json_ready(

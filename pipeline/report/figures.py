@@ -431,7 +431,7 @@ def occlusion_profile(
     profile: dict[str, Any], path: Path, *, ref_word: str, dpi: int = 130
 ) -> Path:
     """Coverage (left) and point density (right) by height slice: one line per station
-    alone and a thick one for all stations together (:mod:`pipeline.report.profile`)."""
+    alone and a thick one for all stations together (:mod:`treesim.report.profile`)."""
     import matplotlib
 
     edges = np.asarray(profile["edges_m"], dtype=np.float64)

@@ -12,7 +12,7 @@ reference into horizontal slices of ``bin_m`` from its lowest point up and gives
 * ``density_per_m2`` (mesh references): those points over the slice's reference surface
   area (the area's share is its share of the area-uniform samples).
 
-Everything is computed from what a report reads (:class:`~pipeline.report.data.ReportData`),
+Everything is computed from what a report reads (:class:`~treesim.report.data.ReportData`),
 so a report drawn again from the saved files gives the same profile.
 """
 

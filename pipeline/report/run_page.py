@@ -187,7 +187,7 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
     Parameters
     ----------
     s : dict
-        ``run.json``'s content (:func:`pipeline.run.run_tree` builds it).
+        ``run.json``'s content (:func:`treesim.run.run_tree` builds it).
     version : str
         treesim's version, shown in the page's byline.
     viewer : dict, optional

@@ -438,7 +438,7 @@ def sweep_page(doc: dict[str, Any]) -> str:
     Parameters
     ----------
     doc : dict
-        ``sweep.json`` (:func:`pipeline.sweep.engine.sweep_document`): ``rows``,
+        ``sweep.json`` (:func:`treesim.sweep.engine.sweep_document`): ``rows``,
         ``fronts``, ``figures``, ``parameters``, ``trees``, ``tolerance``, ...
 
     Returns

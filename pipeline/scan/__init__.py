@@ -1,12 +1,12 @@
 """The virtual terrestrial laser scanner.
 
-``scan(scene, stations, spec)`` casts each station's rays at a :class:`~pipeline.scene.Scene`
+``scan(scene, stations, spec)`` casts each station's rays at a :class:`~treesim.scene.Scene`
 and returns the simulated cloud; :func:`estimate_scan` says beforehand what it will cost
-(rays, points, file size, time: :mod:`pipeline.scan.estimate`); :func:`stations_for`
+(rays, points, file size, time: :mod:`treesim.scan.estimate`); :func:`stations_for`
 places stations by the station rule.
-The scanner's settings (:class:`~pipeline.params.ScannerSpec`) and instruments live in the
-parameter model, :mod:`pipeline.params`. ``Scene``, ``MeshPart``, ``label_from_name``
-(:mod:`pipeline.scene`) and ``load_mesh``, ``load_scene`` (:mod:`pipeline.io.mesh`) are
+The scanner's settings (:class:`~treesim.params.ScannerSpec`) and instruments live in the
+parameter model, :mod:`treesim.params`. ``Scene``, ``MeshPart``, ``label_from_name``
+(:mod:`treesim.scene`) and ``load_mesh``, ``load_scene`` (:mod:`treesim.io.mesh`) are
 re-exported for convenience: what the scanner scans, and how it is read.
 """
 

@@ -1,6 +1,6 @@
 """What a scan will cost, said before it runs: rays, points, file size and time.
 
-:func:`pipeline.scan.estimate_scan` (and ``scan(..., estimate=callback)``, which calls
+:func:`treesim.scan.estimate_scan` (and ``scan(..., estimate=callback)``, which calls
 back once before casting) plan the scan as it will run — each station's window, the
 cells some triangle can reach, the triangles loaded — and then cast a *sample* of the
 planned pulses (at most :data:`SAMPLE_PULSES` and 1/32 of them, in blocks spread over

@@ -1,6 +1,6 @@
 """Where the scene can be: a conservative raster of each station's angular window.
 
-A station's window (:func:`~pipeline.scan.rays.windowed_grid`) is the rectangle of scan
+A station's window (:func:`~treesim.scan.rays.windowed_grid`) is the rectangle of scan
 lines × columns that the scene's bounding box subtends. For a tree most of that rectangle
 is sky between the branches. This module finds, per station, the cells of the window that
 some triangle can occupy, so that the scanner casts the fine grid only there.
@@ -303,7 +303,7 @@ class SparseGrid:
     """Some pulses of a window, in the window's order (column by column, lines rising).
 
     Built from an occupancy raster: each window column carries the lines of the occupied
-    cells of its raster column. Behaves like :class:`~pipeline.scan.rays.PulseGrid`
+    cells of its raster column. Behaves like :class:`~treesim.scan.rays.PulseGrid`
     (``n_pulses``, ``indices(start, stop)``) without ever holding every pulse.
     """
 

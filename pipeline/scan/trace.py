@@ -1,12 +1,12 @@
 """Casting: stations × pulse grids → Open3D ``RaycastingScene`` → float64 hits.
 
 Which pulses: each station's window (the angular rectangle of the scene's bounding box),
-narrowed to the cells some triangle can reach (:mod:`pipeline.scan.occupancy`; the same
+narrowed to the cells some triangle can reach (:mod:`treesim.scan.occupancy`; the same
 points, bit for bit). Under ``lod="auto"`` triangles no station can record are never
 loaded, and the beam model's sub-rays go only to pulses whose footprint can straddle an
 edge (:class:`_AdaptiveBeam`); ``ScanResult.lod`` says what ran and why.
 
-Precision: the scene is shifted into a :class:`~pipeline.frame.LocalFrame` (float64)
+Precision: the scene is shifted into a :class:`~treesim.frame.LocalFrame` (float64)
 before Open3D (float32) sees it; each ray starts just before the scene's bounding box
 (moved forward in float64, from the float64 direction), so float32 never holds a long
 range; every hit is then recomputed in float64 as the intersection of the ray with the
@@ -777,7 +777,7 @@ class _RayTables:
 
     def directions(self, lines: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Float64 unit directions (n, 3) of grid pulses in the scene's frame: the values
-        :func:`~pipeline.scan.rays.directions` computes, gathered (and turned)."""
+        :func:`~treesim.scan.rays.directions` computes, gathered (and turned)."""
         ce = self.ce64[lines]
         d = np.stack([ce * self.cz64[cols], ce * self.sz64[cols], self.se64[lines]], axis=1)
         return d if self.level else d @ self.rot.T
@@ -835,7 +835,7 @@ class _StationPlan:
     o: np.ndarray
     #: the pulses to cast (the window, or its cells some triangle can reach)
     grid: Any
-    #: the window's angles (:func:`~pipeline.scan.rays.box_window`) and its pulses
+    #: the window's angles (:func:`~treesim.scan.rays.box_window`) and its pulses
     window: Any
     n_window: int
     #: adaptive beam sampling's thin-geometry keys (None: thin everywhere, or no mask)
@@ -937,7 +937,7 @@ def _plan_scan(
 
 def _estimate(plan: _Plan, suffix: str, max_rays: int | None) -> ScanEstimate:
     """The scan's size and time from a sample of its planned pulses, cast and refined
-    here (:mod:`pipeline.scan.estimate`)."""
+    here (:mod:`treesim.scan.estimate`)."""
     spec, stations = plan.spec, plan.stations
     s = spec.rays_per_pulse
     total = plan.pulses_cast
@@ -1023,7 +1023,7 @@ def estimate_scan(
 ) -> ScanEstimate:
     """What :func:`scan` with these settings would cast, record, write and take, without
     scanning: the scan is planned as it would run and a sample of its pulses is cast here
-    (see :mod:`pipeline.scan.estimate`). Nothing is written.
+    (see :mod:`treesim.scan.estimate`). Nothing is written.
 
     Parameters
     ----------
@@ -1086,7 +1086,7 @@ def scan(
         the whole field of view (``False``; same points, many more rays).
     cull : bool
         Within the window, cast only the cells some triangle can reach
-        (:mod:`pipeline.scan.occupancy`; default). Conservative: the same points, bit for
+        (:mod:`treesim.scan.occupancy`; default). Conservative: the same points, bit for
         bit, as casting the whole window.
     chunk_rays : int
         Rays cast per batch; bounds peak memory to about ``chunk_rays × 200`` bytes.
@@ -1100,7 +1100,7 @@ def scan(
         Called after each chunk.
     sink : callable(points, fields), optional
         Receives each chunk's points (float64, the scene's coordinates) and fields as
-        they are made (e.g. a :func:`pipeline.io.open_cloud_writer`'s ``write``); the
+        they are made (e.g. a :func:`treesim.io.open_cloud_writer`'s ``write``); the
         result's cloud then holds no points, so memory does not grow with the output.
     lod : {"auto", "full"}
         Level of detail. ``"auto"`` (default) models only what the scene requires:
@@ -1111,12 +1111,12 @@ def scan(
     estimate : callable(ScanEstimate), optional
         Called once, after planning and before casting, with the scan's estimated rays,
         points, file size (as LAZ) and time, from a sample cast on this machine
-        (:mod:`pipeline.scan.estimate`); :func:`estimate_scan` gives it alone.
+        (:mod:`treesim.scan.estimate`); :func:`estimate_scan` gives it alone.
     frame : LocalFrame, optional
         The float64 origin the scene is cast around (default: the centre of its
         vertices' bounds). Scans of parts of one scene that share a frame share their
         float32 geometry: a plot scanned station by station, with only the trees each
-        station can record (:func:`pipeline.plot.scan.scan_plot`), gives the points of
+        station can record (:func:`treesim.plot.scan.scan_plot`), gives the points of
         the whole plot's scan.
     station_offset : int
         Index of ``stations[0]`` in a longer list (a plot scanned station by station):
@@ -1531,7 +1531,7 @@ class _AdaptiveBeam:
         num = np.einsum("ij,ij->i", caster.v0[prim] - self.o, n)
         # n · (sub-ray direction), without building the sub-rays: they are
         # (d + tan(u) e1 + tan(v) e2) / sqrt(1 + tan²u + tan²v) on the beam's orthonormal
-        # basis (:func:`~pipeline.scan.beam.subray_directions`)
+        # basis (:func:`~treesim.scan.beam.subray_directions`)
         e1, e2 = beam_model.beam_basis(d)
         tu, tv = np.tan(offsets[:, 0]), np.tan(offsets[:, 1])
         norm = np.sqrt(1.0 + tu * tu + tv * tv)

@@ -2,7 +2,7 @@
 
 ``treesim sweep CONFIG -o OUTDIR`` (:func:`run_sweep`) runs every design of a grid (or a
 list) of settings on one or more trees and records, per **point** (one tree × one design,
-one cached run of :func:`pipeline.run_tree`):
+one cached run of :func:`treesim.run_tree`):
 
 * cost: wall time of the loop and of each stage (imports and first use of open3d and
   matplotlib excluded), peak resident memory of the process that ran it (a fresh process

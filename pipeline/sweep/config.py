@@ -1,7 +1,7 @@
 """A sweep's configuration: the TOML file read, every name and value checked, the grid
 expanded into designs.
 
-The file (see :mod:`pipeline.sweep` for a full example)::
+The file (see :mod:`treesim.sweep` for a full example)::
 
     description = "..."          # optional
     preset = "standard"          # the run preset every design starts from
@@ -16,10 +16,10 @@ The file (see :mod:`pipeline.sweep` for a full example)::
     [[point]]                    # one design each: names = values, optional preset and label
 
 Parameters are named as the flat settings of ``treesim run``/``batch``
-(:data:`pipeline.params.SETTINGS`: ``resolution_deg``, ``stations``, ``facets``,
+(:data:`treesim.params.SETTINGS`: ``resolution_deg``, ``stations``, ``facets``,
 ``voxel_m``, ...) or as dotted paths of the parameter model
 (``scan.scanner.beam_divergence_mrad``, ``reconstruct.qsm.slice_m``; TOML's dotted keys
-and quoted keys both work). Each value goes through :func:`pipeline.params.merge`, the
+and quoted keys both work). Each value goes through :func:`treesim.params.merge`, the
 check every TOML file and flag gets.
 """
 
@@ -148,7 +148,7 @@ def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def _nested(values: Mapping[str, Any], where: str) -> dict[str, Any]:
-    """Named values as the nested mapping :func:`~pipeline.params.merge` takes."""
+    """Named values as the nested mapping :func:`~treesim.params.merge` takes."""
     nested: dict[str, Any] = {}
     for name, v in values.items():
         for path in paths_of(name, where=where):
@@ -204,7 +204,7 @@ class TreeSpec:
 
 def bundled_cloud(name: str) -> Path:
     """The cloud of a tree bundled with treesim (``pipeline/data/<name>/cloud.txt``)."""
-    data = resources.files("pipeline") / "data"
+    data = resources.files("treesim") / "data"
     names = sorted(p.name for p in data.iterdir() if p.is_dir() and (p / "cloud.txt").is_file())
     if name not in names:
         raise InvalidParameterError(
@@ -608,15 +608,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
     InvalidParameterError
         For any unknown name or bad value (see :func:`parse_sweep`).
     """
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        try:
-            import tomli as tomllib  # type: ignore[no-redef]
-        except ModuleNotFoundError:
-            raise InvalidParameterError(
-                "reading a sweep needs Python 3.11 or 'pip install tomli'"
-            ) from None
+    import tomllib
+
     p = Path(path)
     if not p.is_file():
         raise InputFormatError(f"sweep file {p} not found; check the path")

@@ -1,9 +1,9 @@
 """Running a sweep: trees made ready, points run (resumably) on an executor, the outputs.
 
-See :mod:`pipeline.sweep` for what a sweep is and writes. Points go through batch's task
-engine (:func:`pipeline.batch._drive`: slots, a broken pool replaced, failures isolated)
+See :mod:`treesim.sweep` for what a sweep is and writes. Points go through batch's task
+engine (:func:`treesim.batch._drive`: slots, a broken pool replaced, failures isolated)
 on any executor; each point's work runs in a fresh process of its own
-(:mod:`pipeline.sweep.point`).
+(:mod:`treesim.sweep.point`).
 """
 
 from __future__ import annotations
@@ -231,7 +231,7 @@ def _child(task: _PointTask, out: Path, *, truth: bool) -> dict[str, Any]:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
     with open(out / "point.log", "ab") as log:
         proc = subprocess.run(
-            [sys.executable, "-m", "pipeline.sweep.point", str(task_file)],
+            [sys.executable, "-m", "treesim.sweep.point", str(task_file)],
             stdout=log,
             stderr=subprocess.STDOUT,
             env=env,
@@ -284,7 +284,7 @@ def _same(a: dict[str, Any], b: dict[str, Any]) -> bool:
 
 
 def _write_result(folder: Path, result: dict[str, Any]) -> None:
-    result["finished"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    result["finished"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     write_json(folder / "result.json", result)
 
 
@@ -570,7 +570,7 @@ def run_sweep(
         Timings per point (default the file's ``repeat``). A finished point with fewer
         timings gets only the missing ones; one with more keeps them all.
     executor, workers, threads, scheduler
-        As for :func:`pipeline.run_batch`. ``inline`` (the default) runs one point at a
+        As for :func:`treesim.run_batch`. ``inline`` (the default) runs one point at a
         time, the cleanest timings; every point runs in a fresh process of its own anyway.
     fresh : bool
         Make every tree ready and run every point again, ignoring finished ones (after
@@ -755,7 +755,7 @@ def sweep_document(result: SweepResult, trees: list[PreparedTree]) -> dict[str, 
         "name": cfg.name,
         "description": cfg.description,
         "config": {"path": str(cfg.path) if cfg.path else None, "content": cfg.raw},
-        "finished": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "finished": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "interrupted": result.interrupted,
         "elapsed_s": result.elapsed_s,
         "executor": result.plan.to_dict(),

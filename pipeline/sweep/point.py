@@ -1,4 +1,4 @@
-"""One point of a sweep, in a fresh process: ``python -m pipeline.sweep.point TASK.json``.
+"""One point of a sweep, in a fresh process: ``python -m treesim.sweep.point TASK.json``.
 
 Every point (and every repeat of it) runs in a process of its own, started for it, so
 that its peak memory is its own: Linux's peak resident set size (``VmHWM``) of a process
@@ -8,7 +8,7 @@ The process
 1. imports what a run uses and uses open3d and matplotlib once (:func:`warm_up`), so the
    timed stages hold the loop's own work, not imports and first-use costs, and records its
    resident memory then (``base_rss_mib``);
-2. runs :func:`pipeline.run.run_tree` on the tree's field cloud with the point's settings
+2. runs :func:`treesim.run.run_tree` on the tree's field cloud with the point's settings
    into the task's folder, then reads its peak resident memory (``peak_rss_mib``: the
    process's high-water mark, imports included, up to the end of the loop);
 3. for a tree with a truth mesh (and ``truth`` set), compares the simulated cloud
@@ -99,7 +99,7 @@ def _watch_parent(parent: int) -> None:
 
 
 def run_point(task: dict[str, Any]) -> dict[str, Any]:
-    """Run one point as ``task`` says (see :mod:`pipeline.sweep.engine`); return what
+    """Run one point as ``task`` says (see :mod:`treesim.sweep.engine`); return what
     ``point.json`` holds."""
     t0 = time.perf_counter()
     warm_up()

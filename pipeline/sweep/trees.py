@@ -2,7 +2,7 @@
 
 * A **field cloud** (``cloud = ...``, ``bundled = ...``) is used as it is; its key is the
   SHA-256 of its content.
-* A **procedural tree** (``species = ...``) is generated (:func:`pipeline.models.generate_tree`),
+* A **procedural tree** (``species = ...``) is generated (:func:`treesim.models.generate_tree`),
   meshed with its ``facets`` (the truth mesh, wood and leaves labelled) and scanned with the
   sweep's reference field design (``[reference]``, seeded) into its field cloud. Its truth
   figures are those of its exact cylinder table (:meth:`ProceduralTree.truth`). Its key is
@@ -65,7 +65,7 @@ class PreparedTree:
 
 def _scan_settings(reference: ScanParams) -> dict[str, Any]:
     """The reference design's settings less those that decide only how fast it scans (the
-    model's ``execution_only`` fields, as :func:`pipeline.params.params_hash` leaves out)."""
+    model's ``execution_only`` fields, as :func:`treesim.params.params_hash` leaves out)."""
     d = json_ready(asdict(reference))
     for info in walk(ScanParams):
         if info.execution_only:

@@ -1,5 +1,5 @@
 """Every error answered as ``application/problem+json`` (RFC 9457), from one table
-(:mod:`service.problems`); no bad input ever gets a 500."""
+(:mod:`treesim.service.problems`); no bad input ever gets a 500."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from pipeline.errors import TreesimError
+from treesim.errors import TreesimError
 
 from ..problems import MEDIA_TYPE, ServiceProblem, problem, problem_for
 

@@ -9,8 +9,8 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import FileResponse, RedirectResponse
 
-from pipeline.errors import InvalidParameterError
-from pipeline.io import MESH_SUFFIXES
+from treesim.errors import InvalidParameterError
+from treesim.io import MESH_SUFFIXES
 
 from ..jobs.store import STATUSES, Store, decode_cursor
 from ..problems import ServiceProblem
@@ -93,7 +93,7 @@ def get_process(process_id: str) -> ProcessDescription:
 
 # -- submitting -------------------------------------------------------------------------------
 def _kind_of_result(path: Path) -> str:
-    from pipeline.io.ply import ply_has_faces
+    from treesim.io.ply import ply_has_faces
 
     suffix = path.suffix.lower()
     if suffix == ".csv":  # a table (stations.csv of a plan), never a cloud

@@ -16,7 +16,7 @@ router = APIRouter(include_in_schema=False)
 
 @router.get("/", response_class=HTMLResponse)
 def index() -> HTMLResponse:
-    page = (resources.files("service") / "static" / "index.html").read_text("utf-8")
+    page = (resources.files("treesim.service") / "static" / "index.html").read_text("utf-8")
     return HTMLResponse(page, headers={"Cache-Control": "no-store"})
 
 

@@ -13,7 +13,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
-from pipeline.errors import EmptyInputError
+from treesim.errors import EmptyInputError
 
 from ..plots import UNPACK_FACTOR
 from ..problems import ServiceProblem

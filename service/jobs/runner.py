@@ -1,7 +1,7 @@
 """What runs inside a job's own process (a spawned child, or a task on a Dask worker).
 
 The worker hands over a :class:`JobSpec` (plain data); the job reads its inputs, runs its
-process (:mod:`service.processes`) writing into the attempt folder, reports progress into a
+process (:mod:`treesim.service.processes`) writing into the attempt folder, reports progress into a
 small file the worker polls, and ends with a result file: ``{"ok": true, "summary": ...}``
 or ``{"ok": false, "problem": ...}``. A child that dies without writing one crashed (a
 signal, the out-of-memory killer, a pymeshlab segfault): the worker sees its exit code.
@@ -107,7 +107,7 @@ def execute(spec: JobSpec) -> dict[str, Any]:
 
 
 def _outcome(spec: JobSpec) -> dict[str, Any]:
-    from pipeline.errors import TreesimError
+    from treesim.errors import TreesimError
 
     from ..problems import problem, problem_for
 

@@ -1,5 +1,5 @@
 """Every command-line option that sets a model parameter takes its default and help from
-the parameter model (:mod:`pipeline.params`): no literal default is typed twice."""
+the parameter model (:mod:`treesim.params`): no literal default is typed twice."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import argparse
 import ast
 from pathlib import Path
 
-from pipeline.cli import build_parser
-from pipeline.cli._options import PARAM, SETTING
-from pipeline.params import RUN_PRESETS, SETTINGS, RunParams, walk
-from pipeline.params.models import ModelParams
+from treesim.cli import build_parser
+from treesim.cli._options import PARAM, SETTING
+from treesim.params import RUN_PRESETS, SETTINGS, RunParams, walk
+from treesim.params.models import ModelParams
 
 CLI = Path(__file__).resolve().parents[2] / "pipeline" / "cli"
 
@@ -119,7 +119,7 @@ def test_the_cli_sources_type_no_numeric_default():
 def test_a_parameter_on_by_default_can_be_turned_off():
     """A bool parameter whose default is True gets ``--no-NAME`` beside ``--NAME``: the
     bare flag alone could only set what is already set."""
-    from pipeline.cli._options import collect
+    from treesim.cli._options import collect
 
     seen = set()
     for name, parser in PARSERS:

@@ -1,4 +1,5 @@
-"""The import graph of ``pipeline/``: no cycle, and every arrow points down the layers.
+"""The import graph of ``pipeline/`` (installed as ``treesim``): no cycle, and every arrow
+points down the layers.
 
 Reads every import of every module (function-local ones included) with ``ast``; nothing
 is imported. The layers, bottom to top (README, "Layout"):
@@ -63,19 +64,26 @@ WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqla
 
 
 def _module_name(path: Path) -> str:
-    rel = path.relative_to(PKG.parent).with_suffix("")
-    parts = list(rel.parts)
+    """The installed name of a module under pipeline/ (the folder is the package treesim)."""
+    parts = ["treesim", *path.relative_to(PKG).with_suffix("").parts]
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
 
 
+def _path(name: str) -> Path:
+    """The path (without suffix) of the installed module name ``name`` under pipeline/."""
+    return PKG.joinpath(*name.split(".")[1:])
+
+
 def _is_package(name: str) -> bool:
-    return (PKG.parent / name.replace(".", "/") / "__init__.py").exists()
+    return (_path(name) / "__init__.py").exists()
 
 
 def _exists(name: str) -> bool:
-    p = PKG.parent / name.replace(".", "/")
+    if name.split(".")[0] != "treesim":
+        return False
+    p = _path(name)
     return p.with_suffix(".py").exists() or (p / "__init__.py").exists()
 
 
@@ -115,14 +123,14 @@ GRAPH = _imports()
 
 def _top(name: str) -> str | None:
     parts = name.split(".")
-    if parts[0] != "pipeline":
+    if parts[0] != "treesim":
         return None
     return parts[1] if len(parts) > 1 else ""
 
 
 def test_the_graph_is_read():
-    assert "pipeline.run" in GRAPH and "pipeline.cli.scan" in GRAPH
-    assert "pipeline.params" in GRAPH["pipeline.run"]
+    assert "treesim.run" in GRAPH and "treesim.cli.scan" in GRAPH
+    assert "treesim.params" in GRAPH["treesim.run"]
 
 
 def test_no_import_of_web_libraries():
@@ -131,8 +139,8 @@ def test_no_import_of_web_libraries():
 
 
 def test_nobody_inside_imports_the_facade():
-    bad = [m for m, ts in GRAPH.items() if "pipeline" in ts and m != "pipeline"]
-    assert not bad, f"these import the facade (pipeline/__init__): {bad}"
+    bad = [m for m, ts in GRAPH.items() if "treesim" in ts and m != "treesim"]
+    assert not bad, f"these import the facade (pipeline/__init__.py, treesim): {bad}"
 
 
 def _arrow_ok(src: str, dst: str) -> bool:
@@ -207,7 +215,7 @@ def test_no_cycle_between_modules():
     edges: dict[str, set[str]] = defaultdict(set)
     for mod, targets in GRAPH.items():
         for t in targets:
-            if not t.startswith("pipeline") or t == mod or t.endswith(".*"):
+            if not t.startswith("treesim") or t == mod or t.endswith(".*"):
                 continue
             if _is_package(mod) and t.startswith(mod + "."):
                 continue

@@ -18,7 +18,7 @@ HEAVY = ("scipy", "open3d", "matplotlib", "pymeshlab", "fastapi", "pydantic", "s
 def test_building_the_command_line_imports_no_stage_library():
     code = (
         "import sys\n"
-        "from pipeline.cli import build_parser\n"
+        "from treesim.cli import build_parser\n"
         "build_parser()\n"
         f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
     )

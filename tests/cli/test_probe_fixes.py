@@ -10,11 +10,11 @@ from pathlib import Path
 import laspy
 import pytest
 
-from pipeline.cli import build_parser, main
-from pipeline.cli._options import PARAM, SETTING
-from pipeline.io.mesh import write_mesh
 from tests.architecture.test_cli_options import PARSERS
 from tests.conftest import box_arrays, messages
+from treesim.cli import build_parser, main
+from treesim.cli._options import PARAM, SETTING
+from treesim.io.mesh import write_mesh
 
 
 def _usage_error(capsys, argv: list[str]) -> str:
@@ -128,7 +128,7 @@ def _outside(info) -> list[float]:
 def test_every_number_option_refuses_what_its_parameter_refuses():
     """The range an option checks is the parameter model's (``param(ge=...)``), and the
     model refuses the same values: the flags cannot drift from the model."""
-    from pipeline.errors import InvalidParameterError
+    from treesim.errors import InvalidParameterError
 
     checked = 0
     for name, parser in PARSERS:
@@ -200,12 +200,12 @@ def test_a_negative_value_out_of_range_is_named_not_taken_for_an_option(capsys):
 
 # -- 3. outputs are checked first: a file where a folder must be is one line, nothing run ----
 _STAGES = {
-    "pipeline.steps": ("scan_files", "compare_files", "reconstruct_files"),
-    "pipeline.run": ("run_tree",),
-    "pipeline.batch": ("run_batch",),
-    "pipeline.report": ("build_report",),
-    "pipeline.models": ("generate_tree", "read_cylinders"),
-    "pipeline.sweep": ("load_sweep", "run_sweep"),
+    "treesim.steps": ("scan_files", "compare_files", "reconstruct_files"),
+    "treesim.run": ("run_tree",),
+    "treesim.batch": ("run_batch",),
+    "treesim.report": ("build_report",),
+    "treesim.models": ("generate_tree", "read_cylinders"),
+    "treesim.sweep": ("load_sweep", "run_sweep"),
 }
 
 
@@ -283,7 +283,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
     ],
 )
 def test_beam_and_noise_alone_use_a_generic_scanner(extra, expected, box_ply, tmp_path, capsys):
-    from pipeline.params import GENERIC_TLS
+    from treesim.params import GENERIC_TLS
 
     out = tmp_path / "s.laz"
     argv = ["scan", str(box_ply), "-o", str(out), "--resolution-deg", "2", "--station", "0,0,0.5"]
@@ -298,7 +298,7 @@ def test_beam_and_noise_alone_use_a_generic_scanner(extra, expected, box_ply, tm
 
 
 def test_the_help_states_the_generic_figures(capsys):
-    from pipeline.params import GENERIC_TLS
+    from treesim.params import GENERIC_TLS
 
     with pytest.raises(SystemExit):
         main(["scan", "--help"])
@@ -330,15 +330,15 @@ def test_scan_and_compare_write_one_line_per_stage_to_a_log(box_ply, tmp_path, c
 @pytest.mark.parametrize(
     ("command", "target"),
     [
-        ("run", "pipeline.run.run_tree"),
-        ("reconstruct", "pipeline.steps.reconstruct_files"),
-        ("demo", "pipeline.run.run_tree"),
+        ("run", "treesim.run.run_tree"),
+        ("reconstruct", "treesim.steps.reconstruct_files"),
+        ("demo", "treesim.run.run_tree"),
     ],
 )
 def test_run_reconstruct_and_demo_report_their_stages(
     command, target, tmp_path, capsys, monkeypatch
 ):
-    from pipeline.errors import ReconstructionError
+    from treesim.errors import ReconstructionError
 
     def fake(*args, progress=None, **kwargs):
         for fraction, message in [(0.0, "reading"), (0.1, "reading"), (0.3, "done"), (0.5, "x")]:
@@ -363,7 +363,7 @@ def test_run_reconstruct_and_demo_report_their_stages(
 
 
 def test_the_terminal_form_is_unchanged(capsys):
-    from pipeline.cli.progress import progress_printer
+    from treesim.cli.progress import progress_printer
 
     show = progress_printer(True, label="scan")
     show(0.5, "station 1/2")
@@ -386,8 +386,8 @@ def test_the_terminal_form_is_unchanged(capsys):
 def test_the_plain_bar_first_says_what_it_will_run_in_its_own_words(kw, first):
     import io
 
-    from pipeline.batch import BatchProgress
-    from pipeline.cli.progress import BatchProgressBar
+    from treesim.batch import BatchProgress
+    from treesim.cli.progress import BatchProgressBar
 
     stream = io.StringIO()
     bar = BatchProgressBar(stream, tty=False, **kw)

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from pipeline.cli import main
-from pipeline.io.mesh import write_mesh
 from tests.conftest import box_arrays, cylinder_arrays, messages
+from treesim.cli import main
+from treesim.io.mesh import write_mesh
 
 EXTRA_DIMS = {"station", "range_m", "incidence_deg", "label", "scan_line", "scan_column"}
 
@@ -87,7 +87,7 @@ def test_scan_writes_ply_with_double_coordinates_and_scalar_fields(cylinder_obj,
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "treesim.cli", *args], capture_output=True, text=True, timeout=120
     )
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.geometry import sample_surface
+from treesim.geometry import sample_surface
 
 UTM = (500000.0, 5500000.0, 300.0)
 

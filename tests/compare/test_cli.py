@@ -1,7 +1,7 @@
 """``treesim compare``: files written, names scripts rely on, one-line errors.
 
-These call ``pipeline.cli.main``; they need ``pipeline.cli.compare.register`` wired into
-``pipeline.cli.build_parser``.
+These call ``treesim.cli.main``; they need ``treesim.cli.compare.register`` wired into
+``treesim.cli.build_parser``.
 """
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.cloud import Cloud
-from pipeline.io import read_cloud, write_cloud
-from pipeline.io.mesh import write_mesh
 from tests.compare.shapes import centroids, open_cylinder, sample_faces
 from tests.conftest import messages
+from treesim.cli import main
+from treesim.cloud import Cloud
+from treesim.io import read_cloud, write_cloud
+from treesim.io.mesh import write_mesh
 
 REQUIRED_STATS = ("n", "mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")
 

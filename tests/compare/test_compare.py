@@ -1,4 +1,4 @@
-"""Known answers for pipeline.compare: exact distances, occlusion, splits, validation."""
+"""Known answers for treesim.compare: exact distances, occlusion, splits, validation."""
 
 from __future__ import annotations
 
@@ -7,18 +7,18 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.cloud import LABEL_CODES, Cloud
-from pipeline.compare import CompareParams, compare, write_comparison
-from pipeline.errors import (
+from tests.compare.shapes import UTM, centroids, open_cylinder, sample_faces, sphere_mesh
+from treesim.cloud import LABEL_CODES, Cloud
+from treesim.compare import CompareParams, compare, write_comparison
+from treesim.errors import (
     EmptyInputError,
     InvalidGeometryError,
     InvalidParameterError,
     TreesimError,
 )
-from pipeline.geometry import closest_points_on_triangles, point_spacing, well_conditioned
-from pipeline.io import read_cloud
-from pipeline.scene import MeshPart, Scene
-from tests.compare.shapes import UTM, centroids, open_cylinder, sample_faces, sphere_mesh
+from treesim.geometry import closest_points_on_triangles, point_spacing, well_conditioned
+from treesim.io import read_cloud
+from treesim.scene import MeshPart, Scene
 
 REQUIRED_STATS = ("n", "mean_m", "rms_m", "median_m", "p95_m", "p99_m", "max_m")
 

@@ -13,13 +13,13 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.compare import HIDDEN_WHY, CompareParams, compare
-from pipeline.geometry import inside_other_parts, mesh_parts, sample_surface
-from pipeline.models import cylinder_mesh
-from pipeline.models.cylinders import CylinderTable
-from pipeline.models.mesh import cylinders_to_mesh
 from tests.compare.shapes import UTM, open_cylinder
+from treesim.cloud import Cloud
+from treesim.compare import HIDDEN_WHY, CompareParams, compare
+from treesim.geometry import inside_other_parts, mesh_parts, sample_surface
+from treesim.models import cylinder_mesh
+from treesim.models.cylinders import CylinderTable
+from treesim.models.mesh import cylinders_to_mesh
 
 FACETS = 16
 
@@ -190,9 +190,9 @@ def test_keep_measures_the_hidden_area_as_uncovered(coaxial_cloud):
 
 
 def test_the_cli_says_what_it_left_out(coaxial_cloud, tmp_path, capsys):
-    from pipeline.cli import main
-    from pipeline.io import write_cloud
-    from pipeline.io.mesh import write_mesh
+    from treesim.cli import main
+    from treesim.io import write_cloud
+    from treesim.io.mesh import write_mesh
 
     v, f, pts = coaxial_cloud
     mesh = write_mesh(tmp_path / "pair.ply", v, f)

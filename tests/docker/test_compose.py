@@ -76,7 +76,7 @@ def test_the_roles_are_there():
 
 @pytest.mark.parametrize("service", ["api", "worker"])
 def test_commands_parse_with_the_real_cli(service):
-    from pipeline.cli import build_parser
+    from treesim.cli import build_parser
 
     cmd = SERVICES[service]["command"]
     argv = shlex.split(cmd) if isinstance(cmd, str) else list(cmd)
@@ -86,7 +86,7 @@ def test_commands_parse_with_the_real_cli(service):
 
 
 def test_every_treesim_variable_is_a_setting():
-    from service.settings import Settings
+    from treesim.service.settings import Settings
 
     known = set(Settings.env_names().values())
     named = set(re.findall(r"\b(TREESIM_[A-Z_]+)\b", COMPOSE_TEXT))
@@ -97,14 +97,14 @@ def test_every_treesim_variable_is_a_setting():
 def test_the_token_is_required_and_the_api_listens_on_all_addresses():
     # serve refuses a public host without a token: compose must require one
     assert re.search(r"TREESIM_API_TOKEN: \$\{TREESIM_API_TOKEN:\?", COMPOSE_TEXT)
-    from pipeline.cli import build_parser
+    from treesim.cli import build_parser
 
     args = build_parser().parse_args(SERVICES["api"]["command"])
     assert args.host == "0.0.0.0" and not args.insecure
 
 
 def test_ports_agree_with_the_api_and_the_image():
-    from pipeline.cli import build_parser
+    from treesim.cli import build_parser
 
     args = build_parser().parse_args(SERVICES["api"]["command"])
     published = SERVICES["api"]["ports"]
@@ -136,8 +136,8 @@ def _python_check(test: list[str]) -> str:
 def test_healthchecks_ask_routes_the_app_answers(tmp_path):
     from fastapi.testclient import TestClient
 
-    from service.app import create_app
-    from service.settings import Settings
+    from treesim.service.app import create_app
+    from treesim.service.settings import Settings
 
     app = create_app(Settings(data_dir=tmp_path, workers=0, database_url=None))
     client = TestClient(app)  # no lifespan: what a fresh container's API answers first
@@ -155,7 +155,7 @@ def test_the_worker_healthcheck_reads_the_heartbeat_file_it_sets():
     beat = _env("worker")["TREESIM_HEARTBEAT_FILE"]
     code = _python_check(SERVICES["worker"]["healthcheck"]["test"])
     assert repr(beat) in code
-    from service.settings import Settings
+    from treesim.service.settings import Settings
 
     s = Settings(heartbeat_file=beat)
     assert str(s.heartbeat_file) == beat

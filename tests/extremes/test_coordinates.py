@@ -21,16 +21,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.compare import compare
-from pipeline.io import read_cloud
-from pipeline.io.mesh import write_mesh
-from pipeline.params import CompareParams, ScanParams
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import MeshPart, Scene
-from pipeline.steps import compare_files, scan_files
 from tests.extremes.shapes import prism, rotation_x, rotation_z, sheet
 from tests.extremes.test_range import bound_m
 from tests.scan.test_scan_precision import BOUND_M
+from treesim.compare import compare
+from treesim.io import read_cloud
+from treesim.io.mesh import write_mesh
+from treesim.params import CompareParams, ScanParams
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import MeshPart, Scene
+from treesim.steps import compare_files, scan_files
 
 SHIFTS_M = [1e5, 1e6, 1e7]
 GRID = 2.0**-20

@@ -1,6 +1,6 @@
 """Degenerate input: what the scanner does with meshes and stations that are not nice.
 
-Decisions (README "The scanner", ``pipeline.scene.Scene``):
+Decisions (README "The scanner", ``treesim.scene.Scene``):
 
 * zero-area triangles are dropped and counted; duplicate triangles (either orientation)
   and non-manifold edges are kept, and change nothing the rays can tell;
@@ -24,12 +24,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.cli import main
-from pipeline.errors import InvalidGeometryError
-from pipeline.io import read_cloud
-from pipeline.io.mesh import write_mesh
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, messages
 from tests.extremes.shapes import (
     float32_ray_error_m,
@@ -39,6 +33,12 @@ from tests.extremes.shapes import (
     rotation_z,
 )
 from tests.extremes.test_range import bound_m
+from treesim.cli import main
+from treesim.errors import InvalidGeometryError
+from treesim.io import read_cloud
+from treesim.io.mesh import write_mesh
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import MeshPart, Scene
 
 EXAMPLES = settings(max_examples=4, deadline=None, derandomize=True)
 SPHERE = ScannerSpec(

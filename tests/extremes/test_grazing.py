@@ -15,8 +15,6 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import MeshPart, Scene
 from tests.extremes.shapes import (
     float32_ray_error_m,
     rectangle,
@@ -25,6 +23,8 @@ from tests.extremes.shapes import (
     rotation_z,
 )
 from tests.extremes.test_range import bound_m
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import MeshPart, Scene
 
 HALF = (15.0, 1.0)
 SPEC = ScannerSpec(

@@ -23,8 +23,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import MeshPart, Scene
 from tests.extremes.shapes import (
     prism,
     prism_distance_m,
@@ -34,6 +32,8 @@ from tests.extremes.shapes import (
     sheet_offset_m,
 )
 from tests.scan.test_scan_precision import BOUND_M
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import MeshPart, Scene
 
 RANGES_M = [0.5, 100.0, 1000.0, 2000.0]
 ROUNDING_ULPS = 32

@@ -11,7 +11,7 @@ scan, bounded memory, and Ctrl-C leaves nothing behind.
 * The memory numpy holds during a scan does not grow with its rays (the scanner casts in
   chunks and streams the points out); the process as a whole is measured by
   ``tests/scan/test_scan_models.py::test_a_large_scan_runs_in_bounded_memory``.
-* Interrupted (Ctrl-C in-process, or SIGINT to ``python -m pipeline.cli scan``), a scan
+* Interrupted (Ctrl-C in-process, or SIGINT to ``python -m treesim.cli scan``), a scan
   exits 130 and leaves no cloud, no temporary file, no sidecar and no folder it made,
   also when the interrupt lands inside the LAZ compressor (which turns it into its own
   error).
@@ -32,15 +32,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.io import read_cloud
-from pipeline.io.mesh import write_mesh
-from pipeline.params import ScanParams
-from pipeline.scan import ScannerSpec, Station, estimate_scan, scan
-from pipeline.scene import MeshPart, Scene
-from pipeline.steps import scan_files
 from tests.conftest import cylinder_arrays, messages
 from tests.extremes.shapes import float32_ray_error_m, rectangle, rectangle_pulses, rotation_z
+from treesim.cli import main
+from treesim.io import read_cloud
+from treesim.io.mesh import write_mesh
+from treesim.params import ScanParams
+from treesim.scan import ScannerSpec, Station, estimate_scan, scan
+from treesim.scene import MeshPart, Scene
+from treesim.steps import scan_files
 
 ROOT = Path(__file__).resolve().parents[2]
 RESOLUTIONS_DEG = [10.0, 1.0, 0.1, 0.01, 0.001, 0.0005]
@@ -120,7 +120,7 @@ def test_dry_run_prints_the_estimate_and_writes_nothing(tmp_path, capsys):
 
 
 def test_a_long_scan_says_its_estimate_first(tmp_path, capsys, monkeypatch):
-    import pipeline.cli.scan as cli_scan
+    import treesim.cli.scan as cli_scan
 
     v, f = cylinder_arrays(0.3, 4.0, 64)
     mesh = write_mesh(tmp_path / "pole.ply", v, f)
@@ -165,7 +165,7 @@ def files_under(folder: Path) -> list[str]:
 
 @pytest.mark.parametrize("suffix", [".laz", ".ply"])
 def test_ctrl_c_in_process_leaves_nothing_and_exits_130(tmp_path, capsys, monkeypatch, suffix):
-    import pipeline.cli.scan as cli_scan
+    import treesim.cli.scan as cli_scan
 
     mesh = pole(tmp_path)
     before = files_under(tmp_path)
@@ -189,7 +189,7 @@ def test_ctrl_c_inside_the_laz_compressor_still_exits_130(tmp_path, capsys, monk
     # lazrs calls the file's write from its compressor and turns a KeyboardInterrupt
     # raised there into its own error ('Failed to call write'): a real SIGINT, sent
     # from inside that write, must still end the command as interrupted
-    import pipeline.io.las as las
+    import treesim.io.las as las
 
     mesh = pole(tmp_path)
     before = files_under(tmp_path)
@@ -225,7 +225,7 @@ def test_sigint_to_a_scanning_process_leaves_nothing_and_exits_130(tmp_path):
     mesh = pole(tmp_path)
     before = files_under(tmp_path)
     out = tmp_path / "made" / "scan.laz"
-    cmd = [sys.executable, "-m", "pipeline.cli", "scan", str(mesh), "-o", str(out)]
+    cmd = [sys.executable, "-m", "treesim.cli", "scan", str(mesh), "-o", str(out)]
     cmd += ["--station", "6,0,1.5", "--resolution-deg", "0.002", "--chunk-rays", "100000"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
@@ -244,7 +244,7 @@ def test_sigint_to_a_scanning_process_leaves_nothing_and_exits_130(tmp_path):
 
 def test_an_interrupted_scan_then_a_whole_one(tmp_path, capsys, monkeypatch):
     # after an interruption the same command runs to the end and writes its files
-    import pipeline.cli.scan as cli_scan
+    import treesim.cli.scan as cli_scan
 
     mesh = pole(tmp_path)
     out = tmp_path / "scan.laz"

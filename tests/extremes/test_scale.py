@@ -15,9 +15,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import MeshPart, Scene
 from tests.extremes.shapes import float32_ray_error_m, prism, prism_pulses
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import MeshPart, Scene
 
 TRUNK = (16, 0.5, 2.0)  # facets, radius (m), height (m)
 TWIG = (8, 0.0005, 1.0)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cloud import LABEL_NAMES, Cloud
+from treesim.cloud import LABEL_NAMES, Cloud
 
 #: ../shared/data next to the repository (absent in a user's clone).
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InputFormatError
-from pipeline.io import e57
+from treesim.errors import InputFormatError
+from treesim.io import e57
 
 pye57 = pytest.importorskip("pye57")
 

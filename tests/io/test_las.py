@@ -8,9 +8,9 @@ import laspy
 import numpy as np
 import pytest
 
-from pipeline.cloud import LABEL_NAMES, Cloud
-from pipeline.errors import InputFormatError, InvalidGeometryError, InvalidParameterError
-from pipeline.io import read_cloud, write_cloud
+from treesim.cloud import LABEL_NAMES, Cloud
+from treesim.errors import InputFormatError, InvalidGeometryError, InvalidParameterError
+from treesim.io import read_cloud, write_cloud
 
 EXTRA_DTYPES = {
     "station": np.uint16,

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from pipeline.cloud import LABEL_CODES
-from pipeline.io.mesh import load_mesh, write_mesh
+from treesim.cloud import LABEL_CODES
+from treesim.io.mesh import load_mesh, write_mesh
 
 
 def test_a_binary_triangle_ply_reads_as_trimesh_reads_it(tmp_path):
@@ -67,7 +67,7 @@ def test_a_quad_after_triangles_is_not_read_as_a_triangle(tmp_path):
         b"property float x\nproperty float y\nproperty float z\n"
         b"element face 3\nproperty list uchar int vertex_indices\nend_header\n" + body
     )
-    from pipeline.io.mesh import _load_ply
+    from treesim.io.mesh import _load_ply
 
     # the fixed-length read refuses it: trimesh gets the file (and triangulates)
     assert _load_ply(path, None) is None

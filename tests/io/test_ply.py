@@ -8,9 +8,9 @@ import numpy as np
 import plyfile
 import pytest
 
-from pipeline.cloud import LABEL_NAMES, Cloud
-from pipeline.errors import InputFormatError
-from pipeline.io import read_cloud, write_cloud
+from treesim.cloud import LABEL_NAMES, Cloud
+from treesim.errors import InputFormatError
+from treesim.io import read_cloud, write_cloud
 
 
 def test_round_trip_is_exact(tmp_path: Path, geo_cloud: Cloud) -> None:

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import InputFormatError, InvalidParameterError, TreesimError
-from pipeline.io import FORMATS, read_cloud, supported_suffixes, write_cloud
+from treesim.cloud import Cloud
+from treesim.errors import InputFormatError, InvalidParameterError, TreesimError
+from treesim.io import FORMATS, read_cloud, supported_suffixes, write_cloud
 
 
 def test_registry_covers_every_format() -> None:

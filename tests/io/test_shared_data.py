@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.io import read_cloud
+from treesim.io import read_cloud
 
 from .conftest import SHARED_DATA
 

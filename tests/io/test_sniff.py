@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import (
+from treesim.cloud import Cloud
+from treesim.errors import (
     EmptyInputError,
     InputFormatError,
     InvalidGeometryError,
     TreesimError,
     UnsupportedFormatError,
 )
-from pipeline.io import inspect_file, sniff_format, write_cloud, write_mesh
+from treesim.io import inspect_file, sniff_format, write_cloud, write_mesh
 
 from .conftest import GEO_ORIGIN
 

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import EmptyInputError, InputFormatError, InvalidGeometryError
-from pipeline.io import read_cloud, write_cloud
 from tests.conftest import bundled_path
+from treesim.cloud import Cloud
+from treesim.errors import EmptyInputError, InputFormatError, InvalidGeometryError
+from treesim.io import read_cloud, write_cloud
 
 from .conftest import GEO_ORIGIN
 

@@ -11,9 +11,9 @@ import numpy as np
 import plyfile
 import pytest
 
-from pipeline.cloud import LABEL_NAMES, Cloud
-from pipeline.errors import InputFormatError, InvalidGeometryError, InvalidParameterError
-from pipeline.io import (
+from treesim.cloud import LABEL_NAMES, Cloud
+from treesim.errors import InputFormatError, InvalidGeometryError, InvalidParameterError
+from treesim.io import (
     CloudWriter,
     las,
     open_cloud_writer,
@@ -21,7 +21,7 @@ from pipeline.io import (
     supported_suffixes,
     write_cloud,
 )
-from pipeline.io.ply import PlyCloudWriter
+from treesim.io.ply import PlyCloudWriter
 
 from .conftest import GEO_ORIGIN
 

@@ -33,7 +33,7 @@ def simpleforest_csv() -> Path:
 @pytest.fixture(scope="session")
 def preset_trees():
     """Every species preset generated with seed 0 (and its default leaves), generated once."""
-    from pipeline.models import SPECIES as PRESETS
-    from pipeline.models import generate_tree
+    from treesim.models import SPECIES as PRESETS
+    from treesim.models import generate_tree
 
     return {name: generate_tree(name, seed=0) for name in PRESETS}

@@ -1,4 +1,4 @@
-"""``treesim model generate | list | from-qsm`` through ``pipeline.cli.main``."""
+"""``treesim model generate | list | from-qsm`` through ``treesim.cli.main``."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.io import load_mesh
-from pipeline.models import (
+from treesim.cli import main
+from treesim.io import load_mesh
+from treesim.models import (
     SPECIES as PRESETS,
 )
-from pipeline.models import (
+from treesim.models import (
     CylinderTable,
     generate_tree,
     read_cylinders,

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import EmptyInputError, InputFormatError, ModelError, TreesimError
-from pipeline.models import TREESIM_COLUMNS, CylinderTable, read_cylinders, write_cylinders
+from treesim.errors import EmptyInputError, InputFormatError, ModelError, TreesimError
+from treesim.models import TREESIM_COLUMNS, CylinderTable, read_cylinders, write_cylinders
 
 # ---------------------------------------------------------------------------- helpers
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.geometry import inside_other_parts, mesh_parts, sample_surface
-from pipeline.models import CylinderTable, branch_tubes, mesh_volume, sink_branches
 from tests.models.geometry import triangle_areas
+from treesim.geometry import inside_other_parts, mesh_parts, sample_surface
+from treesim.models import CylinderTable, branch_tubes, mesh_volume, sink_branches
 
 R_TRUNK, R_BRANCH = 0.15, 0.06
 

@@ -2,7 +2,7 @@
 
 Known answers for analytic cylinders, monotonicity in distance, the bounds, and on whole
 trees: fewer triangles than the uniform mesh, and a mesh within the stated fraction of
-the point spacing of the uniform one (measured with :mod:`pipeline.geometry`).
+the point spacing of the uniform one (measured with :mod:`treesim.geometry`).
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import InvalidParameterError
-from pipeline.geometry.sampling import sample_surface
-from pipeline.geometry.triangles import point_to_mesh_distances
-from pipeline.models import (
+from treesim.errors import InvalidParameterError
+from treesim.geometry.sampling import sample_surface
+from treesim.geometry.triangles import point_to_mesh_distances
+from treesim.models import (
     LOD_MIN_FACETS,
     LOD_TOLERANCE,
     CylinderTable,
@@ -29,8 +29,8 @@ from pipeline.models import (
     read_cylinders,
     tubes_to_mesh,
 )
-from pipeline.models.lod import facets_for_sagitta, nearest_station_distance_m, sagitta_m
-from pipeline.scan.stations import ring_around
+from treesim.models.lod import facets_for_sagitta, nearest_station_distance_m, sagitta_m
+from treesim.scan.stations import ring_around
 
 STEP_RAD = math.radians(0.04)
 

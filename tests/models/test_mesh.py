@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InvalidParameterError
-from pipeline.models import (
+from treesim.errors import InvalidParameterError
+from treesim.models import (
     CylinderTable,
     cylinder_mesh,
     cylinders_to_mesh,

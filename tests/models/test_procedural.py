@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InvalidParameterError, TreesimError
-from pipeline.models import (
+from tests.models.geometry import (
+    assert_closed_and_outward,
+    assert_no_degenerate,
+    triangle_areas,
+    winding_numbers,
+)
+from treesim.errors import InvalidParameterError, TreesimError
+from treesim.models import (
     LEAF_SHAPES,
     SHAPES,
     LeafParams,
@@ -19,20 +25,14 @@ from pipeline.models import (
     mesh_volume,
     shape_ratio,
 )
-from pipeline.models import (
+from treesim.models import (
     SPECIES as PRESETS,
 )
-from pipeline.models import (
+from treesim.models import (
     species_preset as preset,
 )
-from pipeline.models.mesh import _ring_basis
-from pipeline.models.procedural import CHILD_RADIUS_LIMIT, MIN_JUNCTION_FACETS
-from tests.models.geometry import (
-    assert_closed_and_outward,
-    assert_no_degenerate,
-    triangle_areas,
-    winding_numbers,
-)
+from treesim.models.mesh import _ring_basis
+from treesim.models.procedural import CHILD_RADIUS_LIMIT, MIN_JUNCTION_FACETS
 
 NAMES = list(PRESETS)
 

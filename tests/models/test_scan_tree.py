@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cloud import LABEL_CODES
-from pipeline.scan import ScannerSpec, ring_layout, scan
-from pipeline.scene import MeshPart, Scene
 from tests.models.geometry import near_distances
+from treesim.cloud import LABEL_CODES
+from treesim.scan import ScannerSpec, ring_layout, scan
+from treesim.scene import MeshPart, Scene
 
 #: Hits are refined in float64 onto their triangle (the scanner's promise is ~1e-9 m; at
 #: triangle edges a hit may sit on the plane just outside): a hit is "on" a part within this.

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import EmptyInputError, InputFormatError, ModelError
-from pipeline.models import TREEQSM_TEXT_COLUMNS, CylinderTable, read_cylinders
+from treesim.errors import EmptyInputError, InputFormatError, ModelError
+from treesim.models import TREEQSM_TEXT_COLUMNS, CylinderTable, read_cylinders
 
 HEADER_24 = (
     "radius (m)\tlength (m)\tstart_point\taxis_direction\tparent\textension\tbranch\t"

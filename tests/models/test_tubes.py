@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InvalidParameterError
-from pipeline.models import (
+from tests.models.geometry import assert_closed_and_outward, assert_no_degenerate
+from treesim.errors import InvalidParameterError
+from treesim.models import (
     CylinderTable,
     cylinders_to_mesh,
     mesh_volume,
     read_cylinders,
     tubes_to_mesh,
 )
-from tests.models.geometry import assert_closed_and_outward, assert_no_degenerate
 
 
 def _chain(nodes, radii, end_radii=None, branch=None) -> CylinderTable:

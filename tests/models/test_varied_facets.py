@@ -14,8 +14,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InvalidParameterError
-from pipeline.models import (
+from tests.models.geometry import (
+    assert_closed_and_outward,
+    assert_no_degenerate,
+    winding_numbers,
+)
+from tests.models.test_procedural import _base_circles, _child_rows
+from treesim.errors import InvalidParameterError
+from treesim.models import (
     CylinderTable,
     cylinders_to_mesh,
     generate_tree,
@@ -25,13 +31,7 @@ from pipeline.models import (
     read_cylinders,
     tubes_to_mesh,
 )
-from pipeline.models.procedural import MIN_JUNCTION_FACETS
-from tests.models.geometry import (
-    assert_closed_and_outward,
-    assert_no_degenerate,
-    winding_numbers,
-)
-from tests.models.test_procedural import _base_circles, _child_rows
+from treesim.models.procedural import MIN_JUNCTION_FACETS
 
 BENT = [[0, 0, 0], [0, 0, 1.0], [0.5, 0, 1.8], [0.6, 0.4, 2.5], [0.2, 0.7, 3.0]]
 

@@ -6,8 +6,8 @@ from dataclasses import fields
 
 import pytest
 
-from pipeline.errors import InvalidParameterError
-from pipeline.params import (
+from treesim.errors import InvalidParameterError
+from treesim.params import (
     INSTRUMENTS,
     RUN_PRESETS,
     SETTINGS,
@@ -21,7 +21,7 @@ from pipeline.params import (
     to_toml,
     walk,
 )
-from pipeline.params.models import ModelParams
+from treesim.params.models import ModelParams
 
 
 def test_every_field_has_help_and_every_length_a_unit():
@@ -47,7 +47,7 @@ def test_execution_only_fields_are_the_ones_that_do_not_change_results():
 
 @pytest.mark.parametrize("name", list(RUN_PRESETS))
 def test_toml_round_trips_every_run_preset(tmp_path, name):
-    from pipeline.params import load_config
+    from treesim.params import load_config
 
     p = tmp_path / "p.toml"
     p.write_text(to_toml(run_preset(name)))
@@ -127,7 +127,7 @@ def test_every_declared_choice_is_enforced_by_the_model():
     # every text field declared with choices refuses another value where the dataclass is
     # built (a TOML file, the service, Python), not only on the command line; CompareParams'
     # hidden_surface and ModelParams' joints had no check of their own
-    from pipeline.params import CompareParams, ReconstructParams, ScanParams, describe
+    from treesim.params import CompareParams, ReconstructParams, ScanParams, describe
 
     checked = []
     for cls in (CompareParams, ModelParams, ReconstructParams, ScannerSpec, ScanParams):

@@ -7,11 +7,11 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.params import instrument
-from pipeline.plan import PlanParams, plan_scans, verify_plan
-from pipeline.plan.sources import species_tree_plot
-from pipeline.plot import Plot, PlotTree
-from pipeline.plot.generate import generate_stand
+from treesim.params import instrument
+from treesim.plan import PlanParams, plan_scans, verify_plan
+from treesim.plan.sources import species_tree_plot
+from treesim.plot import Plot, PlotTree
+from treesim.plot.generate import generate_stand
 
 VZ400 = instrument("riegl-vz400")
 #: The single-tree ring case: candidate spacing (m) and the DBH arc goal (deg).

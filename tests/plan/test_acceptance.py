@@ -74,7 +74,7 @@ def test_plot_plan_against_the_classic_layouts(plot_plan):
 
 
 def test_plan_files(plot_plan, tmp_path):
-    from pipeline.plan.outputs import PLAN_FILES, write_plan
+    from treesim.plan.outputs import PLAN_FILES, write_plan
 
     paths = write_plan(plot_plan, tmp_path)
     assert set(paths) == set(PLAN_FILES)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from pipeline.cli import main
+from treesim.cli import main
 
 
 def test_plan_one_species_tree(tmp_path, capsys):
@@ -105,7 +105,7 @@ def test_plan_one_mesh_tree_with_verification(tmp_path, capsys):
     import numpy as np
     import trimesh
 
-    from pipeline.plan.sources import mesh_tree_plot, species_tree_plot
+    from treesim.plan.sources import mesh_tree_plot, species_tree_plot
 
     parts = species_tree_plot("sapling", facets=8).tree_parts(1)
     v = np.concatenate([p.vertices for p in parts])

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.plan.planner import _compare, _judge_verified
+from treesim.plan.planner import _compare, _judge_verified
 
 from .setups import model_check
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InvalidParameterError
-from pipeline.params import INSTRUMENTS, ScannerSpec, instrument
-from pipeline.plan import (
+from treesim.errors import InvalidParameterError
+from treesim.params import INSTRUMENTS, ScannerSpec, instrument
+from treesim.plan import (
     Objective,
     PlanParams,
     SampleSet,
@@ -23,9 +23,9 @@ from pipeline.plan import (
     sample_trees,
     visibility,
 )
-from pipeline.plan.cover import default_quality, reachable_trees, state
-from pipeline.plan.visibility import hit_probability, intensity_of
-from pipeline.scene import MeshPart, Scene
+from treesim.plan.cover import default_quality, reachable_trees, state
+from treesim.plan.visibility import hit_probability, intensity_of
+from treesim.scene import MeshPart, Scene
 
 
 def _part(mesh: trimesh.Trimesh, name: str, tree_id: int = 0) -> MeshPart:

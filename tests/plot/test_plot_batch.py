@@ -6,10 +6,10 @@ import csv
 import io
 from dataclasses import replace
 
-from pipeline.batch import discover_inputs, run_batch
-from pipeline.cli import main
-from pipeline.cli.progress import BatchProgressBar
-from pipeline.params import run_preset
+from treesim.batch import discover_inputs, run_batch
+from treesim.cli import main
+from treesim.cli.progress import BatchProgressBar
+from treesim.params import run_preset
 
 
 def test_a_plot_in_a_batch_gives_a_row_per_tree_and_is_reused(tmp_path, capsys):
@@ -46,10 +46,10 @@ def test_a_plot_in_a_batch_gives_a_row_per_tree_and_is_reused(tmp_path, capsys):
 
 def test_a_changed_tree_file_runs_the_plot_again(tmp_path):
     # the plot's hash covers the files its trees are made from, not only plot.toml
-    from pipeline.io.mesh import write_mesh
-    from pipeline.plot import Plot, PlotTree
-    from pipeline.plot.io import write_plot
     from tests.conftest import box_arrays
+    from treesim.io.mesh import write_mesh
+    from treesim.plot import Plot, PlotTree
+    from treesim.plot.io import write_plot
 
     d = tmp_path / "p"
     d.mkdir()

@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pipeline.params import ScanParams
-from pipeline.plot import Plot, PlotTree, Terrain
-from pipeline.plot.scan import box_reachable, scan_plot, station_trees, tree_figures
-from pipeline.scan import ScannerSpec, Station, scan
+from treesim.params import ScanParams
+from treesim.plot import Plot, PlotTree, Terrain
+from treesim.plot.scan import box_reachable, scan_plot, station_trees, tree_figures
+from treesim.scan import ScannerSpec, Station, scan
 
 
 def _params(res=0.25, **spec):
@@ -150,7 +150,7 @@ def test_tree_figures_measure_each_tree_on_its_own_mesh():
 
 @pytest.mark.parametrize("when", ["station 2/2", "tree 2"])
 def test_an_interrupted_plot_scan_leaves_nothing(tmp_path, when):
-    from pipeline.plot.scan import plot_scan_files
+    from treesim.plot.scan import plot_scan_files
 
     plot = _saplings([(3.0, 0.0), (-3.0, 0.0)], radius_m=5)
 
@@ -169,8 +169,8 @@ def test_an_interrupted_plot_scan_leaves_nothing(tmp_path, when):
 def test_a_station_that_sees_only_the_terrain_labels_its_points_tree_0(tmp_path):
     # the sapling stands 9 m away, beyond the 5 m range: the station's scene is the
     # terrain alone, and its points still carry tree_id (0), in memory and in the file
-    from pipeline.io import open_cloud_writer, read_cloud
-    from pipeline.plot.scan import plot_fields
+    from treesim.io import open_cloud_writer, read_cloud
+    from treesim.plot.scan import plot_fields
 
     plot = _saplings([(9.0, 0.0)], radius_m=10)
     params = _params(0.5, max_range_m=5.0)

@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.cloud import Cloud
-from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.io import write_cloud, write_mesh
-from pipeline.models import generate_tree, write_cylinders
-from pipeline.plot import Plot, PlotTree, Terrain
-from pipeline.plot._sources import fit_species
-from pipeline.plot.generate import generate_stand, parse_shares
-from pipeline.plot.io import read_plot, read_trees_csv, write_plot
+from treesim.cli import main
+from treesim.cloud import Cloud
+from treesim.errors import InputFormatError, InvalidParameterError
+from treesim.io import write_cloud, write_mesh
+from treesim.models import generate_tree, write_cylinders
+from treesim.plot import Plot, PlotTree, Terrain
+from treesim.plot._sources import fit_species
+from treesim.plot.generate import generate_stand, parse_shares
+from treesim.plot.io import read_plot, read_trees_csv, write_plot
 
 COFFEE = "pipeline/data/coffee_tree/QSM_treeqsm_v2.4.1_cylinders.csv"
 
@@ -47,7 +47,7 @@ def test_mesh_tree_stands_its_stem_base_on_its_position(tmp_path):
 
 
 def test_qsm_tree_is_meshed_and_its_truth_is_its_table():
-    from pipeline.models import read_cylinders
+    from treesim.models import read_cylinders
 
     table = read_cylinders(COFFEE)
     plot = Plot([PlotTree(tree_id=1, x_m=5.0, y_m=5.0, source="qsm", path=COFFEE, rotation_deg=90)])
@@ -57,7 +57,7 @@ def test_qsm_tree_is_meshed_and_its_truth_is_its_table():
     assert truth["height_m"] == pytest.approx(s["height_m"], rel=1e-9)
     assert truth["volume_total_m3"] == pytest.approx(s["volume_total_m3"], rel=1e-12)
     # meshed as treesim model from-qsm meshes it: closed tubes, branch starts sunk
-    from pipeline.models import cylinders_to_mesh, qsm_mesh
+    from treesim.models import cylinders_to_mesh, qsm_mesh
 
     _, faces, sunk = qsm_mesh(table, facets=plot.facets)
     assert sunk is not None and sunk.n_plugs > 0
@@ -93,7 +93,7 @@ def test_cloud_tree_is_reconstructed_once_and_kept(tmp_path, monkeypatch):
     # a second plot reads the kept reconstruction: reconstructing again would fail here
     import importlib
 
-    rec = importlib.import_module("pipeline.reconstruct")
+    rec = importlib.import_module("treesim.reconstruct")
     monkeypatch.setattr(rec, "reconstruct", lambda *a, **k: pytest.fail("reconstructed again"))
     again = Plot([tree], base_dir=str(tmp_path)).truth(1)
     assert again["dbh_m"] == t["dbh_m"]
@@ -303,7 +303,7 @@ def test_cli_generate_then_scan(tmp_path, capsys):
         "plot_scan.laz", "plot_scan.json", "tree_figures.csv"}  # fmt: skip
     import json
 
-    from pipeline.io import read_cloud
+    from treesim.io import read_cloud
 
     info = json.loads((scan_out / "plot_scan.json").read_text())
     cloud = read_cloud(scan_out / "plot_scan.laz")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.errors import InvalidParameterError
-from pipeline.io import read_cloud, write_cloud
-from pipeline.scan import ScannerSpec, Station, scan, scan_fields
-from pipeline.scene import MeshPart, Scene
+from treesim.errors import InvalidParameterError
+from treesim.io import read_cloud, write_cloud
+from treesim.scan import ScannerSpec, Station, scan, scan_fields
+from treesim.scene import MeshPart, Scene
 
 
 def _box(centre, tree_id, label="wood"):
@@ -56,8 +56,8 @@ def test_bad_tree_ids_are_refused(bad):
 
 
 def test_labelled_parts_keep_only_their_own_vertices():
-    from pipeline.models import generate_tree
-    from pipeline.scene import labelled_parts
+    from treesim.models import generate_tree
+    from treesim.scene import labelled_parts
 
     v, f, lab = generate_tree("aspen-leafon", seed=3).mesh(facets=8)
     parts = labelled_parts(v, f, lab, tree_id=4)

@@ -6,8 +6,8 @@ scans (e.g. TreeLS's pine, a 2.5 m square column).
 The cloud therefore holds what real single-tree clouds hold: the ground under the tree,
 litter, shrubs (one at the stem foot), pieces of the neighbours' branches clipped at the
 column's walls, and the needle-on or leaf-on target, whose stem foot stands on the slope
-(its uphill side buried, as :class:`pipeline.plot.Plot` places trees). The truth is the
-target's own cylinder table (:meth:`pipeline.plot.Plot.truth`): exact, whatever the scan
+(its uphill side buried, as :class:`treesim.plot.Plot` places trees). The truth is the
+target's own cylinder table (:meth:`treesim.plot.Plot.truth`): exact, whatever the scan
 sees. The column is sized to hold the target's whole crown plus a margin; the generator
 checks that it clips none of it.
 
@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from pipeline.cloud import LABEL_CODES
+from treesim.cloud import LABEL_CODES
 
 __all__ = [
     "DEFAULT_STEP_DEG",
@@ -111,7 +111,7 @@ def _rough_dtm(
     [-half_m, half_m]^2: (x, y, z (nx, ny), roughness sd in m)."""
     from scipy.ndimage import gaussian_filter
 
-    from pipeline.plot import Terrain
+    from treesim.plot import Terrain
 
     n = int(round(2 * half_m / TERRAIN_CELL_M)) + 1
     xs = -half_m + TERRAIN_CELL_M * np.arange(n)
@@ -146,8 +146,8 @@ def _litter_parts(
     """Twigs (thin hexagonal prisms lying on the ground) and flat pieces (dead leaves,
     bark: small quads 0.5-4 cm above it) over the column's square, none within
     ``stem_clear_m`` of the stem axis."""
-    from pipeline.models import CylinderTable, cylinders_to_mesh
-    from pipeline.scene import MeshPart
+    from treesim.models import CylinderTable, cylinders_to_mesh
+    from treesim.scene import MeshPart
 
     area = (2 * half_m) ** 2
 
@@ -276,9 +276,9 @@ def field_column(kind: str, seed: int = 0, step_deg: float = DEFAULT_STEP_DEG) -
         If the column would clip the target's crown, a neighbour's stem stood inside it
         or no neighbour reached into it (the scene is not what it claims to be).
     """
-    from pipeline.plot import Plot, PlotTree, Terrain
-    from pipeline.scan import Station, instrument, scan
-    from pipeline.scene import Scene
+    from treesim.plot import Plot, PlotTree, Terrain
+    from treesim.scan import Station, instrument, scan
+    from treesim.scene import Scene
 
     spec_kind = _check_kind(kind)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -319,7 +319,7 @@ def field_column(kind: str, seed: int = 0, step_deg: float = DEFAULT_STEP_DEG) -
     a0 = rng.uniform(0, 2 * np.pi)
     n_nb = spec_kind.n_neighbours
     nb_angles = a0 + 2 * np.pi * np.arange(n_nb) / n_nb + rng.uniform(-0.3, 0.3, n_nb)
-    from pipeline.models import generate_tree
+    from treesim.models import generate_tree
 
     neighbours = []
     for k, ang in enumerate(nb_angles):

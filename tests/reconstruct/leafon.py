@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.cloud import LABEL_CODES
+from treesim.cloud import LABEL_CODES
 
 
 def scan_preset(name: str, step_deg: float, seed: int = 0):
     """The preset ``name`` (seed ``seed``) scanned at ``step_deg``: (tree, cloud)."""
-    from pipeline.models import SPECIES, generate_tree
-    from pipeline.scan import instrument, ring_layout, scan
-    from pipeline.scene import MeshPart, Scene
+    from treesim.models import SPECIES, generate_tree
+    from treesim.scan import instrument, ring_layout, scan
+    from treesim.scene import MeshPart, Scene
 
     tree = generate_tree(name, seed=seed, leaves=SPECIES[name].leaves_on)
     v, f, lab = tree.mesh(32)
@@ -43,7 +43,7 @@ def labelled_voxels(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The points thinned to ``voxel_m`` voxels (as preparation does, in a local frame) and
     each voxel's truth: wood when at least half its points are."""
-    from pipeline.reconstruct.preprocess import voxel_downsample
+    from treesim.reconstruct.preprocess import voxel_downsample
 
     local = points - points.mean(axis=0)
     pts, _, inv = voxel_downsample(local, voxel_m)

@@ -1,7 +1,7 @@
 """Independent references from a single-tree cloud: ground under the stem, height, stem slabs.
 
 Shared by ``tests/reconstruct/test_real_tree_accuracy.py`` and
-``benchmarks/bench_real_trees.py``. It imports nothing from ``pipeline.reconstruct`` (numpy
+``benchmarks/bench_real_trees.py``. It imports nothing from ``treesim.reconstruct`` (numpy
 and scipy only, its own code), so it can judge the reconstruction without sharing its
 mistakes.
 

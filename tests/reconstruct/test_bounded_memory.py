@@ -12,20 +12,20 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import point_spacing
-from pipeline.reconstruct.preprocess import (
+from tests.reconstruct.shapes import stem_on_ground, tube
+from treesim.geometry import point_spacing
+from treesim.reconstruct.preprocess import (
     PrepareParams,
     nearest_neighbors,
     prepare,
     statistical_outliers,
 )
-from pipeline.reconstruct.qsm import _bridge, _knn_graph, fit_qsm
-from tests.reconstruct.shapes import stem_on_ground, tube
+from treesim.reconstruct.qsm import _bridge, _knn_graph, fit_qsm
 
-# `pipeline.reconstruct` the package, not the function `pipeline.reconstruct`
-_edge_watertight = importlib.import_module("pipeline.reconstruct")._edge_watertight
-_preprocess = importlib.import_module("pipeline.reconstruct.preprocess")
-_qsm = importlib.import_module("pipeline.reconstruct.qsm")
+# `treesim.reconstruct` the package, not the function `treesim.reconstruct`
+_edge_watertight = importlib.import_module("treesim.reconstruct")._edge_watertight
+_preprocess = importlib.import_module("treesim.reconstruct.preprocess")
+_qsm = importlib.import_module("treesim.reconstruct.qsm")
 
 
 @pytest.fixture(params=["one chunk", "chunks of 97"])
@@ -183,9 +183,9 @@ def test_watertight_check():
 
 def test_prepare_params_default_neighbours_cover_the_qsm():
     # the QSM reuses the prepared neighbours when they have enough columns
-    from pipeline.reconstruct import QSMParams
-    from pipeline.reconstruct.preprocess import KEPT_NEIGHBORS
-    from pipeline.reconstruct.qsm import BRIDGE_NEIGHBORS
+    from treesim.reconstruct import QSMParams
+    from treesim.reconstruct.preprocess import KEPT_NEIGHBORS
+    from treesim.reconstruct.qsm import BRIDGE_NEIGHBORS
 
     assert KEPT_NEIGHBORS >= max(QSMParams().neighbors + 1, BRIDGE_NEIGHBORS)
     assert PrepareParams().normals_neighbors <= KEPT_NEIGHBORS

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
 from tests.conftest import messages
+from treesim.cli import main
 
 REQUIRED = {
     "dbh_m",
@@ -41,9 +41,9 @@ def test_reconstruct_bundled_coffee_tree_writes_every_output(tmp_path, capsys):
     assert (tmp_path / "cylinders.csv").read_text().startswith("radius,length,start_x")
     # the mesh: one closed tube per branch (or per run between sharp bends), every branch
     # start sunk into its parent; its volume is the table's prisms plus those plugs
-    from pipeline.geometry import mesh_parts
-    from pipeline.io import load_scene
-    from pipeline.models import mesh_volume, read_cylinders
+    from treesim.geometry import mesh_parts
+    from treesim.io import load_scene
+    from treesim.models import mesh_volume, read_cylinders
 
     scene = load_scene([tmp_path / "tree.ply"])
     parts = mesh_parts(scene.vertices, scene.faces)
@@ -64,7 +64,7 @@ def test_reconstruct_bundled_coffee_tree_writes_every_output(tmp_path, capsys):
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "treesim.cli", *args], capture_output=True, text=True, timeout=120
     )
 
 

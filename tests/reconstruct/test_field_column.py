@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from pipeline.cloud import Cloud
-from pipeline.models import generate_tree
-from pipeline.reconstruct import ReconstructParams, reconstruct
+from treesim.cloud import Cloud
+from treesim.models import generate_tree
+from treesim.reconstruct import ReconstructParams, reconstruct
 
 from .fieldcolumn import (
     DEFAULT_STEP_DEG,

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.io import read_cloud
-from pipeline.reconstruct import ReconstructParams, reconstruct
 from tests.conftest import shared_path
 from tests.reconstruct.leafon import slab_circle_diameter_m
+from treesim.io import read_cloud
+from treesim.reconstruct import ReconstructParams, reconstruct
 
 pytestmark = pytest.mark.shared_data
 
@@ -33,8 +33,8 @@ pytestmark = pytest.mark.shared_data
     ],
 )
 def test_auto_on_the_real_clouds(folder, name, leafy):
-    from pipeline.reconstruct._leaves import separate
-    from pipeline.reconstruct.preprocess import prepare
+    from treesim.reconstruct._leaves import separate
+    from treesim.reconstruct.preprocess import prepare
 
     prepared = prepare(read_cloud(shared_path("trees", folder, name)), normals=False)
     sep = separate(prepared, "auto")

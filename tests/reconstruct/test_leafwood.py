@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.cloud import LABEL_CODES, Cloud
-from pipeline.errors import ModelError, ReconstructionError
-from pipeline.models.leaves import leaf_layer
-from pipeline.reconstruct import reconstruct
-from pipeline.reconstruct.leafwood import separate_leaves
 from tests.reconstruct.leafon import labelled_voxels, scan_preset, wood_scores
+from treesim.cloud import LABEL_CODES, Cloud
+from treesim.errors import ModelError, ReconstructionError
+from treesim.models.leaves import leaf_layer
+from treesim.reconstruct import reconstruct
+from treesim.reconstruct.leafwood import separate_leaves
 
 STEP_DEG = 0.08
 
@@ -99,8 +99,8 @@ def test_reconstruct_off_by_default_on_leaf_off_clouds():
     ],
 )
 def test_auto_tells_leaf_on_from_leaf_off(preset, step_deg, leafy):
-    from pipeline.reconstruct._leaves import LEAF_SHARE_CUT, separate
-    from pipeline.reconstruct.preprocess import prepare
+    from treesim.reconstruct._leaves import LEAF_SHARE_CUT, separate
+    from treesim.reconstruct.preprocess import prepare
 
     _, cloud = scan_preset(preset, step_deg)
     sep = separate(prepare(cloud.points, normals=False), "auto")

@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pipeline.models import SPECIES, CylinderTable, generate_tree
-from pipeline.reconstruct.plausibility import (
+from treesim.models import SPECIES, CylinderTable, generate_tree
+from treesim.reconstruct.plausibility import (
     BASE_SPREAD_MAX,
     HOLD_MAX_M,
     assess,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
+from treesim.cli import main
 
 
 def test_cli_reconstruct_prints_each_warning_on_stderr(tube_xyz, tmp_path, capsys):
@@ -42,7 +42,7 @@ def test_coffee_tree_is_plausible_no_warning_on_stderr(tmp_path, capsys):
 
 
 def test_batch_row_and_cli_line_name_the_codes():
-    from pipeline.batch import SUMMARY_COLUMNS, _row_from_summary
+    from treesim.batch import SUMMARY_COLUMNS, _row_from_summary
 
     warns = [{"code": "form_factor_high", "message": "m"}, {"code": "stem_radius_held"}]
     row = _row_from_summary({"reconstruction": {"warnings": warns}})

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
-from pipeline.reconstruct.preprocess import (
+from treesim.cloud import Cloud
+from treesim.errors import EmptyInputError, InvalidGeometryError, InvalidParameterError
+from treesim.reconstruct.preprocess import (
     PreparedCloud,
     PrepareParams,
     estimate_normals,

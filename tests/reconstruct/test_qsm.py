@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from pipeline.models import CylinderTable, cylinders_to_mesh
-from pipeline.reconstruct.qsm import QSMParams, estimate_noise, fit_circle, fit_qsm
-from pipeline.scan import ScannerSpec, ring_layout, scan
-from pipeline.scene import MeshPart, Scene
+from treesim.models import CylinderTable, cylinders_to_mesh
+from treesim.reconstruct.qsm import QSMParams, estimate_noise, fit_circle, fit_qsm
+from treesim.scan import ScannerSpec, ring_layout, scan
+from treesim.scene import MeshPart, Scene
 
 
 def scanned(table: CylinderTable, res_deg: float = 0.04, distance_m: float = 8.0):
@@ -91,7 +91,7 @@ def test_deterministic_and_frame_independent():
 
 
 def test_bad_parameters_are_refused():
-    from pipeline.errors import InvalidParameterError
+    from treesim.errors import InvalidParameterError
 
     with pytest.raises(InvalidParameterError):
         QSMParams(slice_m=-1)
@@ -157,7 +157,7 @@ def test_an_outlying_fit_at_a_branch_end_takes_the_model_not_the_tag_measured():
     a clump): that fit is an outlier against the running median of its neighbours, so
     it takes the model (8 cm; the taper's running median then sets it from its
     neighbours, 10 cm) and is tagged modelled, not measured."""
-    from pipeline.reconstruct.qsm import _branch_radii
+    from treesim.reconstruct.qsm import _branch_radii
 
     k = 10
     radius = np.full(k, 0.10)
@@ -186,7 +186,7 @@ def test_a_stem_fit_wider_than_the_stem_below_is_no_anchor():
     does not widen upwards), so the hidden stretch tapers from the 10 cm below to the
     top instead of interpolating up to them (the taper then held it at 10 cm + the noise
     to 9.5 m: the real palm's stem at 11.4 cm from 4 to 9.6 m)."""
-    from pipeline.reconstruct.qsm import _branch_radii
+    from treesim.reconstruct.qsm import _branch_radii
 
     z = np.arange(0.0, 10.0, 0.1)
     k = len(z)

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.models import SPECIES as PRESETS
-from pipeline.models import generate_tree
-from pipeline.params import instrument, model_fields
-from pipeline.reconstruct import ReconstructParams, reconstruct
-from pipeline.scan import ScannerSpec, ring_layout, scan
-from pipeline.scene import MeshPart, Scene
+from treesim.cloud import Cloud
+from treesim.models import SPECIES as PRESETS
+from treesim.models import generate_tree
+from treesim.params import instrument, model_fields
+from treesim.reconstruct import ReconstructParams, reconstruct
+from treesim.scan import ScannerSpec, ring_layout, scan
+from treesim.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
 README = Path(__file__).resolve().parents[2] / "README.md"

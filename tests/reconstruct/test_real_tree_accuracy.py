@@ -93,8 +93,8 @@ def cloud_path(tree: str) -> Path:
 @cache
 def measured(tree: str) -> tuple[sr.TreeReference, dict, object]:
     """(slab reference, treesim figures, stem cylinder arrays) of one tree (once)."""
-    from pipeline.io import read_cloud
-    from pipeline.reconstruct import reconstruct
+    from treesim.io import read_cloud
+    from treesim.reconstruct import reconstruct
 
     cloud = read_cloud(cloud_path(tree))
     ref = sr.reference(cloud.points)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.io import read_cloud
-from pipeline.reconstruct import ReconstructParams, reconstruct
 from tests.conftest import bundled_path, shared_path
+from treesim.io import read_cloud
+from treesim.reconstruct import ReconstructParams, reconstruct
 
 TREES = [
     ("coffee_tree", "cloud.txt"),

@@ -8,12 +8,12 @@ import os
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import InvalidGeometryError, InvalidParameterError, ReconstructionError
-from pipeline.reconstruct import surface
-from pipeline.reconstruct._pmlworker import FAULT_ENV
-from pipeline.reconstruct.preprocess import PreparedCloud, PrepareParams, prepare
-from pipeline.reconstruct.surface import (
+from treesim.cloud import Cloud
+from treesim.errors import InvalidGeometryError, InvalidParameterError, ReconstructionError
+from treesim.reconstruct import surface
+from treesim.reconstruct._pmlworker import FAULT_ENV
+from treesim.reconstruct.preprocess import PreparedCloud, PrepareParams, prepare
+from treesim.reconstruct.surface import (
     SurfaceResult,
     ball_pivoting,
     clean_mesh,
@@ -240,7 +240,7 @@ def test_clean_mesh_removes_duplicates_degenerates_and_small_pieces():
 
 
 def test_clean_mesh_splits_a_zero_area_sliver_and_stays_closed():
-    from pipeline.models.mesh import mesh_volume
+    from treesim.models.mesh import mesh_volume
 
     octa_v = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
     octa_f = [

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.compare import compare
-from pipeline.report import ReportData
-from pipeline.report.profile import auto_bin_m, occlusion_profile
 from tests.compare.shapes import open_cylinder, sample_faces
+from treesim.cloud import Cloud
+from treesim.compare import compare
+from treesim.report import ReportData
+from treesim.report.profile import auto_bin_m, occlusion_profile
 
 R, H, N = 0.2, 1.2, 24_000
 TAU = 0.01

@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.cloud import LABEL_CODES, Cloud
-from pipeline.compare import compare, write_comparison
-from pipeline.report import PNG_FILES, ReportParams, build_report, summary_paragraph
-from pipeline.report.text import length
-from pipeline.scene import MeshPart, Scene
 from tests.compare.shapes import centroids, open_cylinder, sample_faces
 from tests.report.browser import open_page
+from treesim.cli import main
+from treesim.cloud import LABEL_CODES, Cloud
+from treesim.compare import compare, write_comparison
+from treesim.report import PNG_FILES, ReportParams, build_report, summary_paragraph
+from treesim.report.text import length
+from treesim.scene import MeshPart, Scene
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -192,8 +192,8 @@ def test_summary_paragraph_known_text():
 
 def test_hidden_surface_is_reported_with_its_reason():
     """The dropped area and why: in the summary sentence and the HTML parameter rows."""
-    from pipeline.compare import HIDDEN_WHY
-    from pipeline.report.html import _parameter_rows
+    from treesim.compare import HIDDEN_WHY
+    from treesim.report.html import _parameter_rows
 
     hidden = {
         "rule": "drop",

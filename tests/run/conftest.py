@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.io import write_cloud
-from pipeline.models import generate_tree
-from pipeline.params import RunParams
-from pipeline.params import run_preset as preset
-from pipeline.report import ReportParams
-from pipeline.scan import ScannerSpec, ring_layout, scan
-from pipeline.scene import MeshPart, Scene
+from treesim.io import write_cloud
+from treesim.models import generate_tree
+from treesim.params import RunParams
+from treesim.params import run_preset as preset
+from treesim.report import ReportParams
+from treesim.scan import ScannerSpec, ring_layout, scan
+from treesim.scene import MeshPart, Scene
 
 # The sapling's true DBH as the README prints it ("the procedural `sapling` (DBH 3.06 cm"),
 # and half its last printed digit (0.01 cm)
@@ -63,7 +63,7 @@ def saplings(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture(scope="session")
 def sapling0_qsm(tmp_path_factory) -> Path:
     """The exact cylinder table of ``sapling0``'s tree (its truth), as treesim's CSV."""
-    from pipeline.models import write_cylinders
+    from treesim.models import write_cylinders
 
     tree = generate_tree("sapling", seed=0, leaves=False)
     return write_cylinders(tmp_path_factory.mktemp("qsm") / "sapling0_truth.csv", tree.cylinders)

@@ -16,19 +16,19 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.batch import (
+from tests.conftest import shared_path
+from tests.run.conftest import PINNED_DBH_ROUNDING_M, SAPLING0_DRAFT_DBH_M
+from treesim.batch import (
     SUMMARY_COLUMNS,
     TIME_COLUMNS,
     BatchProgress,
     discover_inputs,
     run_batch,
 )
-from pipeline.cli.progress import BatchProgressBar as ProgressBar
-from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.executors import Executor, detect_available, plan_executor
-from pipeline.params import to_toml
-from tests.conftest import shared_path
-from tests.run.conftest import PINNED_DBH_ROUNDING_M, SAPLING0_DRAFT_DBH_M
+from treesim.cli.progress import BatchProgressBar as ProgressBar
+from treesim.errors import InputFormatError, InvalidParameterError
+from treesim.executors import Executor, detect_available, plan_executor
+from treesim.params import to_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -65,7 +65,7 @@ def test_detect_available_lists_inline_and_local():
 
 
 def test_plans_keep_workers_times_threads_within_the_cores():
-    from pipeline._system import cpu_count
+    from treesim._system import cpu_count
 
     cores = cpu_count()
     for workers in range(1, cores + 1):
@@ -133,7 +133,7 @@ def test_a_corrupt_file_fails_alone_and_finished_trees_are_reused(saplings, quic
     for p in saplings.values():
         shutil.copy(p, data / p.name)
     # a LAZ file cut short (a copy that stopped half-way)
-    from pipeline.io import read_cloud, write_cloud
+    from treesim.io import read_cloud, write_cloud
 
     whole = write_cloud(tmp_path / "whole.laz", read_cloud(saplings["sapling0"]))
     (data / "broken.laz").write_bytes(whole.read_bytes()[:3000])
@@ -189,8 +189,8 @@ def test_a_corrupt_file_fails_alone_and_finished_trees_are_reused(saplings, quic
 
 
 def test_inputs_from_folders_skip_tables_and_meshes(tmp_path, saplings):
-    from pipeline.io.mesh import write_mesh
     from tests.conftest import box_arrays
+    from treesim.io.mesh import write_mesh
 
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir()
@@ -239,7 +239,7 @@ def test_progress_bar_plain_and_terminal():
 
 # -- killed and interrupted batches -----------------------------------------------------
 def _start_batch(inputs: list[Path], out: Path, config: Path, *extra: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, inputs), "-o", str(out)]
+    cmd = [sys.executable, "-m", "treesim.cli", "batch", *map(str, inputs), "-o", str(out)]
     cmd += ["--config", str(config), "--no-progress", *extra]
     return subprocess.Popen(
         cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -321,7 +321,7 @@ def test_a_second_batch_into_a_locked_folder_fails_and_loses_nothing(
 ):
     import threading
 
-    import pipeline.batch as batch
+    import treesim.batch as batch
 
     out = tmp_path / "out"
     run_batch([saplings["sapling0"]], quick, out, executor="inline")
@@ -382,7 +382,7 @@ import os
 import sys
 from pathlib import Path
 
-import pipeline.batch as batch
+import treesim.batch as batch
 
 _real_run_tree = batch.run_tree
 
@@ -398,7 +398,7 @@ def _run_tree(path, *args, **kwargs):
 batch.run_tree = _run_tree
 
 if __name__ == "__main__":
-    from pipeline.params import load_config
+    from treesim.params import load_config
 
     out = Path(sys.argv[1])
     params = load_config(sys.argv[2])
@@ -409,7 +409,7 @@ if __name__ == "__main__":
 
 @pytest.mark.slow
 def test_a_dying_worker_fails_only_its_tree_after_two_attempts(four_trees, tmp_path):
-    from pipeline.batch import _ATTEMPTS
+    from treesim.batch import _ATTEMPTS
 
     assert _ATTEMPTS == 2  # the README: "fails only the trees it was running (tried twice)"
     inputs, config = four_trees
@@ -447,7 +447,7 @@ def test_a_dying_worker_fails_only_its_tree_after_two_attempts(four_trees, tmp_p
 
 
 def test_a_manifest_sets_a_reference_qsm_beside_each_tree(saplings, sapling0_qsm, quick, tmp_path):
-    from pipeline.models import read_cylinders
+    from treesim.models import read_cylinders
 
     shutil.copy(saplings["sapling0"], tmp_path / "s0.ply")
     ref = shutil.copy(sapling0_qsm, tmp_path / "truth.csv")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli import main
-from pipeline.params import to_toml
+from treesim.cli import main
+from treesim.params import to_toml
 
 
 def one_line_error(capsys) -> str:
@@ -94,7 +94,7 @@ def test_print_params_is_a_config_file(tmp_path, capsys):
     assert main(["run", "--print-params", "--preset", "fine", "--method", "poisson"]) == 0
     cfg = tmp_path / "fine.toml"
     cfg.write_text(capsys.readouterr().out)
-    from pipeline.params import load_config
+    from treesim.params import load_config
 
     p = load_config(cfg)
     assert p.preset == "fine" and p.reconstruct.method == "poisson"
@@ -111,9 +111,9 @@ def test_a_missing_reference_qsm_says_so_in_one_line(saplings, tmp_path, capsys)
 def test_the_demo_sets_the_bundled_treeqsm_model_beside_the_reconstruction(
     tmp_path, monkeypatch, capsys
 ):
-    from pipeline.cli.demo import SAMPLE_QSM
-    from pipeline.errors import ReconstructionError
-    from pipeline.models import read_cylinders
+    from treesim.cli.demo import SAMPLE_QSM
+    from treesim.errors import ReconstructionError
+    from treesim.models import read_cylinders
 
     given = {}
 
@@ -121,7 +121,7 @@ def test_the_demo_sets_the_bundled_treeqsm_model_beside_the_reconstruction(
         given.update(kwargs)
         raise ReconstructionError("stopped here")
 
-    monkeypatch.setattr("pipeline.run.run_tree", fake)
+    monkeypatch.setattr("treesim.run.run_tree", fake)
     assert main(["demo", "-o", str(tmp_path / "o")]) == 1
     capsys.readouterr()
     assert given["reference_qsm"] == SAMPLE_QSM

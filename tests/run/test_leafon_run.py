@@ -15,11 +15,11 @@ import laspy
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.cloud import LABEL_CODES, Cloud
-from pipeline.io import write_cloud
-from pipeline.params import to_toml
 from tests.reconstruct.leafon import scan_preset
+from treesim.cli import main
+from treesim.cloud import LABEL_CODES, Cloud
+from treesim.io import write_cloud
+from treesim.params import to_toml
 
 
 @pytest.mark.slow

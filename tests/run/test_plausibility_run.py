@@ -6,8 +6,8 @@ from __future__ import annotations
 import html
 import json
 
-from pipeline.cli.run import print_run_summary
-from pipeline.run import run_tree
+from treesim.cli.run import print_run_summary
+from treesim.run import run_tree
 
 
 def test_run_report_and_stderr_show_the_warnings(tube_xyz, tmp_path, quick, capsys):

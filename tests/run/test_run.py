@@ -10,19 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.models import generate_tree
-from pipeline.params import RUN_PRESETS as PRESETS
-from pipeline.params import (
-    RunParams,
-    apply_settings,
-    load_config,
-    params_hash,
-    to_toml,
-)
-from pipeline.params import run_preset as preset
-from pipeline.run import STAGES, run_tree
-from pipeline.scan import station_distance_m
 from tests.run.conftest import (
     PINNED_DBH_ROUNDING_M,
     README_DBH_ROUNDING_M,
@@ -30,6 +17,19 @@ from tests.run.conftest import (
     SAPLING0_DRAFT_DBH_M,
     sapling_cloud,
 )
+from treesim.errors import InputFormatError, InvalidParameterError
+from treesim.models import generate_tree
+from treesim.params import RUN_PRESETS as PRESETS
+from treesim.params import (
+    RunParams,
+    apply_settings,
+    load_config,
+    params_hash,
+    to_toml,
+)
+from treesim.params import run_preset as preset
+from treesim.run import STAGES, run_tree
+from treesim.scan import station_distance_m
 
 ARTEFACTS = (
     "tree.ply",
@@ -140,9 +140,9 @@ def test_run_page_presents_both_comparisons(sapling_run):
 
 
 def test_one_tolerance_from_the_field_cloud_serves_both_comparisons(sapling_run, saplings):
-    from pipeline.frame import LocalFrame
-    from pipeline.geometry import point_spacing
-    from pipeline.io import read_cloud
+    from treesim.frame import LocalFrame
+    from treesim.geometry import point_spacing
+    from treesim.io import read_cloud
 
     result, _ = sapling_run
     field = read_cloud(saplings["sapling0"]).points
@@ -327,7 +327,7 @@ def test_trivially_exact_comparisons_say_so(sapling_run):
 
 
 def test_field_and_simulated_clouds_side_by_side(sapling_run, saplings):
-    from pipeline.io import read_cloud
+    from treesim.io import read_cloud
 
     result, _ = sapling_run
     c = result.summary["clouds"]
@@ -349,10 +349,10 @@ def test_a_moved_output_folder_works_and_its_figures_can_be_recomputed(sapling_r
     import re
     import shutil
 
-    from pipeline.compare import compare
-    from pipeline.io import read_cloud, read_reference
-    from pipeline.params import CompareParams
-    from pipeline.report import ReportParams, build_report
+    from treesim.compare import compare
+    from treesim.io import read_cloud, read_reference
+    from treesim.params import CompareParams
+    from treesim.report import ReportParams, build_report
 
     result, _ = sapling_run
     moved = tmp_path / "elsewhere" / "run"
@@ -430,11 +430,11 @@ def test_lod_scan_keeps_the_models_leaf_layer():
 
     import numpy as np
 
-    from pipeline.cloud import LABEL_CODES
-    from pipeline.models import generate_tree
-    from pipeline.params import run_preset
-    from pipeline.run import _lod_scene
-    from pipeline.scan import Station
+    from treesim.cloud import LABEL_CODES
+    from treesim.models import generate_tree
+    from treesim.params import run_preset
+    from treesim.run import _lod_scene
+    from treesim.scan import Station
 
     tree = generate_tree("sapling", seed=0, leaves=False)
     wood_v, wood_f, _ = tree.mesh(32)

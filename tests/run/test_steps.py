@@ -1,4 +1,4 @@
-"""The single stages on files (``pipeline.steps``), with known answers: a tube's QSM has the
+"""The single stages on files (``treesim.steps``), with known answers: a tube's QSM has the
 tube's diameter; a box scanned from one station gives points on the box's faces and a JSON
 beside the cloud; a cloud taken from a mesh compared with that mesh is at distance zero;
 progress rises to 1.0; the same results as the stage functions called directly."""
@@ -10,11 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.cloud import Cloud
-from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.io import read_cloud, write_cloud, write_mesh
-from pipeline.params import CompareParams, ReconstructParams, ReportParams, ScanParams, merge
-from pipeline.steps import compare_files, reconstruct_files, scan_files
+from treesim.cloud import Cloud
+from treesim.errors import InputFormatError, InvalidParameterError
+from treesim.io import read_cloud, write_cloud, write_mesh
+from treesim.params import CompareParams, ReconstructParams, ReportParams, ScanParams, merge
+from treesim.steps import compare_files, reconstruct_files, scan_files
 
 from ..reconstruct.shapes import GEO, tube
 
@@ -30,7 +30,7 @@ def _rises_to_one(seen) -> None:
 
 
 def test_reconstruct_files_writes_the_tree_and_matches_the_library(tmp_path):
-    from pipeline.reconstruct import reconstruct
+    from treesim.reconstruct import reconstruct
 
     pts, _ = tube(radius=0.15, height=2.0, n=20000, seed=1)
     src = write_cloud(tmp_path / "tube.ply", Cloud(pts + GEO))
@@ -95,7 +95,7 @@ def test_scan_files_places_a_ring_without_stations(tmp_path, box):
 def test_scan_files_streams_what_the_scanner_makes(tmp_path, box, suffix):
     # the cloud is written chunk by chunk while it is cast: what is read back is the
     # in-memory scan of the same scene, whatever the chunk size
-    from pipeline.scan import Station, load_scene, scan
+    from treesim.scan import Station, load_scene, scan
 
     path, _ = box
     params = merge(

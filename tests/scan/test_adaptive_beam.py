@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.models import cylinders_to_mesh, read_cylinders
-from pipeline.params import ScanParams
-from pipeline.scan import ScannerSpec, Station, scan, stations_for
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, bundled_path, cylinder_arrays
 from tests.scan.beam_agreement import agreement
+from treesim.models import cylinders_to_mesh, read_cylinders
+from treesim.params import ScanParams
+from treesim.scan import ScannerSpec, Station, scan, stations_for
+from treesim.scene import MeshPart, Scene
 
 
 def within_tolerance(adaptive, full) -> dict[str, float]:
@@ -138,7 +138,7 @@ def test_neighbours_found_by_table_or_by_search_alike(monkeypatch):
     # both must flag the same pulses
     import sys
 
-    trace = sys.modules["pipeline.scan.trace"]
+    trace = sys.modules["treesim.scan.trace"]
     scene = pole_before_wall((8.0, -1.0, -1.0), (8.2, 1.0, 2.0), 0.04, 24, (5.0, 0.1, -0.5))
     spec = ScannerSpec(
         horizontal_resolution_deg=0.1,

@@ -1,7 +1,7 @@
 """Casting only where the scene can be: the same points, bit for bit, as the window.
 
 ``scan(..., cull=True)`` (the default) casts only the cells of each station's window that
-some triangle's conservative angular bounds reach (:mod:`pipeline.scan.occupancy`);
+some triangle's conservative angular bounds reach (:mod:`treesim.scan.occupancy`);
 ``cull=False`` casts the whole window rectangle. Every case here compares the two on
 geometry chosen to break a careless raster: thin twigs seen edge-on, triangles across the
 ±180° atan2 seam and the 0/360° column seam, triangles around the zenith and the nadir,
@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.models import generate_tree
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scan.occupancy import triangle_bounds
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, cylinder_arrays
+from treesim.models import generate_tree
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scan.occupancy import triangle_bounds
+from treesim.scene import MeshPart, Scene
 
 
 def identical(a, b) -> None:
@@ -211,11 +211,11 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     points, bit for bit."""
     import importlib
 
-    import pipeline.scene as scene_module
+    import treesim.scene as scene_module
 
-    occupancy = importlib.import_module("pipeline.scan.occupancy")
-    trace = importlib.import_module("pipeline.scan.trace")
-    from pipeline.scan.rays import windowed_grid
+    occupancy = importlib.import_module("treesim.scan.occupancy")
+    trace = importlib.import_module("treesim.scan.trace")
+    from treesim.scan.rays import windowed_grid
 
     tree = generate_tree("sapling", seed=3)
     v, f, _ = tree.mesh(facets=8)
@@ -231,7 +231,7 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     o = stations[0].position
     rel = (scene.vertices - o) @ stations[0].rotation
     box = rel[scene.faces].reshape(-1, 3)
-    from pipeline.scan.rays import box_window
+    from treesim.scan.rays import box_window
 
     win = windowed_grid(spec, box_window(box.min(axis=0), box.max(axis=0)))
     given = occupancy.occupancy_grid(rel, scene.faces, spec, win, 0.0, abs_error_m=1e-6)

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.scan import ScannerSpec, Station, ring_layout, scan
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import cylinder_arrays
 from tests.scan.test_scan_precision import BOUND_M
+from treesim.scan import ScannerSpec, Station, ring_layout, scan
+from treesim.scene import MeshPart, Scene
 
 R, H, D, ZS, SECTIONS = 0.15, 2.0, 10.0, 1.5, 2048
 UTM = (500000.0, 5500000.0, 300.0)

@@ -10,13 +10,13 @@ import textwrap
 import numpy as np
 import pytest
 
-from pipeline.errors import InvalidParameterError, ResourceLimitError, ScanError
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scan import instrument as preset
-from pipeline.scan.rays import box_window
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, cylinder_arrays
 from tests.scan.test_scan_precision import BOUND_M
+from treesim.errors import InvalidParameterError, ResourceLimitError, ScanError
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scan import instrument as preset
+from treesim.scan.rays import box_window
+from treesim.scene import MeshPart, Scene
 
 # incidence_deg is stored as float32: one ULP at 90° is 7.6e-6°
 INCIDENCE_FLOAT32_DEG = float(np.spacing(np.float32(90.0)))
@@ -208,8 +208,8 @@ def test_a_large_scan_runs_in_bounded_memory():
     code = textwrap.dedent(
         """
         import numpy as np
-        from pipeline.scan import ScannerSpec, Station, scan
-        from pipeline.scene import MeshPart, Scene
+        from treesim.scan import ScannerSpec, Station, scan
+        from treesim.scene import MeshPart, Scene
         from tests.conftest import cylinder_arrays
         parts = []
         for y in (-8.0, 8.0):

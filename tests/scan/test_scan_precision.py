@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.scan import MeshPart, ScannerSpec, Scene, Station, scan
 from tests.conftest import box_arrays
+from treesim.scan import MeshPart, ScannerSpec, Scene, Station, scan
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 # The coordinates the README names for the claim (x = 500 000, y = 5 500 000).

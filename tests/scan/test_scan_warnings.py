@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.params import ScannerSpec
-from pipeline.scan import Station, scan
-from pipeline.scene import MeshPart, Scene
 from tests.conftest import box_arrays, cylinder_arrays
+from treesim.params import ScannerSpec
+from treesim.scan import Station, scan
+from treesim.scene import MeshPart, Scene
 
 COARSE = ScannerSpec(horizontal_resolution_deg=2.0, vertical_resolution_deg=2.0)
 

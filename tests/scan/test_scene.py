@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import EmptyInputError, InputFormatError, InvalidGeometryError
-from pipeline.io import load_mesh, load_scene
-from pipeline.io.mesh import write_mesh
-from pipeline.scan import ScannerSpec, Station, scan
-from pipeline.scene import label_from_name
 from tests.conftest import box_arrays, shared_path
+from treesim.errors import EmptyInputError, InputFormatError, InvalidGeometryError
+from treesim.io import load_mesh, load_scene
+from treesim.io.mesh import write_mesh
+from treesim.scan import ScannerSpec, Station, scan
+from treesim.scene import label_from_name
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".off", ".glb"])
@@ -62,7 +62,7 @@ def test_degenerate_triangles_are_dropped_and_counted(tmp_path):
     v, f = box_arrays((0, 0, 0), (1, 1, 1))
     v = np.vstack([v, [[5, 5, 5]]])
     f = np.vstack([f, [[0, 0, 8]], [[1, 8, 8]]])
-    from pipeline.scene import MeshPart, Scene
+    from treesim.scene import MeshPart, Scene
 
     scene = Scene([MeshPart(vertices=v, faces=f, label="wood")])
     assert scene.n_triangles == 12 and scene.dropped_degenerate == 2

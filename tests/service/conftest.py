@@ -16,8 +16,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service.jobs.store import Store
-from service.settings import Settings
+from treesim.service.jobs.store import Store
+from treesim.service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 BUNDLED_CLOUD = REPO / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
@@ -113,7 +113,7 @@ class Server:
     def start(self) -> Server:
         fh = open(self.log, "ab")  # noqa: SIM115 - closed with the process
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.cli", *self.args],
+            [sys.executable, "-m", "treesim.cli", *self.args],
             env=self.env,
             stdout=fh,
             stderr=subprocess.STDOUT,

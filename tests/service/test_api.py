@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from pipeline.cloud import Cloud
-from pipeline.io import write_cloud
-from service.app import create_app
-from service.settings import Settings
+from treesim.cloud import Cloud
+from treesim.io import write_cloud
+from treesim.service.app import create_app
+from treesim.service.settings import Settings
 
 from .conftest import BUNDLED_CLOUD
 
@@ -215,7 +215,7 @@ def test_parameter_schemas_accept_the_models_defaults(client):
     client that fills in every default is accepted."""
     import jsonschema
 
-    from pipeline.params import RunParams, execution_only_paths
+    from treesim.params import RunParams, execution_only_paths
 
     defaults = RunParams().to_dict()
     for path in execution_only_paths():  # threads, timeouts: the worker decides those

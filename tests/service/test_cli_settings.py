@@ -8,15 +8,15 @@ import sys
 
 import pytest
 
-from service.cli import is_loopback
-from service.settings import Settings
+from treesim.service.cli import is_loopback
+from treesim.service.settings import Settings
 
 from .conftest import REPO, service_env
 
 
 def _treesim(*args: str, env: dict[str, str], timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "pipeline.cli", *args],
+        [sys.executable, "-m", "treesim.cli", *args],
         env=env,
         capture_output=True,
         text=True,
@@ -64,7 +64,7 @@ def test_worker_checks_its_executor(tmp_path):
 def test_flags_override_the_environment(tmp_path, monkeypatch):
     import argparse
 
-    from service.cli import settings_from_args
+    from treesim.service.cli import settings_from_args
 
     monkeypatch.setenv("TREESIM_WORKERS", "3")
     monkeypatch.setenv("TREESIM_DATA_DIR", str(tmp_path / "env"))
@@ -97,7 +97,7 @@ def test_every_setting_is_documented_in_the_readme():
 
 
 def test_the_flags_help_states_the_settings_defaults():
-    from pipeline.cli import build_parser
+    from treesim.cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if hasattr(a, "choices") and a.choices)

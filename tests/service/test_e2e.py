@@ -97,7 +97,7 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
         [
             sys.executable,
             "-m",
-            "pipeline.cli",
+            "treesim.cli",
             "run",
             str(BUNDLED_CLOUD),
             "--preset",
@@ -222,7 +222,7 @@ def test_twenty_uploads_and_ten_jobs_at_once(serve, tmp_path, backend):
     finally:
         other.stop()
     # both worker processes took jobs: the claims really raced
-    from service.jobs.store import Store
+    from treesim.service.jobs.store import Store
 
     store = Store(url or f"sqlite:///{data / 'treesim.db'}")
     try:

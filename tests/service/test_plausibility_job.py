@@ -4,9 +4,9 @@ from __future__ import annotations
 
 
 def test_service_reconstruct_job_carries_the_warnings(tube_xyz, tmp_path, store):
-    from service.api.jobs import status_info
-    from service.jobs.worker import done_message
-    from service.processes import PROCESSES
+    from treesim.service.api.jobs import status_info
+    from treesim.service.jobs.worker import done_message
+    from treesim.service.processes import PROCESSES
 
     proc = PROCESSES["reconstruct"]
     summary = proc.execute(

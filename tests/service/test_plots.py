@@ -18,10 +18,10 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from pipeline.plot import Plot, PlotTree
-from pipeline.plot.io import write_plot
-from service.app import create_app
-from service.settings import Settings
+from treesim.plot import Plot, PlotTree
+from treesim.plot.io import write_plot
+from treesim.service.app import create_app
+from treesim.service.settings import Settings
 
 from .conftest import wait_job
 
@@ -172,9 +172,9 @@ def test_a_plot_archive_that_unpacks_too_big_is_refused(client):
 def test_the_service_starts_without_the_plot_and_plan_modules():
     """Plots are read in the upload's inspector and in jobs, never in the API's start-up."""
     root = Path(__file__).resolve().parents[2]
-    heavy = ("pipeline.plot", "pipeline.plan", "open3d")
+    heavy = ("treesim.plot", "treesim.plan", "open3d")
     code = (
-        "import sys\nimport service.app\n"
+        "import sys\nimport treesim.service.app\n"
         f"print(','.join(m for m in {heavy!r} if m in sys.modules))\n"
     )
     out = subprocess.run(

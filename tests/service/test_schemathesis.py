@@ -15,8 +15,8 @@ from schemathesis.checks import (
     status_code_conformance,
 )
 
-from service.app import create_app
-from service.settings import Settings
+from treesim.service.app import create_app
+from treesim.service.settings import Settings
 
 from .conftest import BUNDLED_CLOUD
 

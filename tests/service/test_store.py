@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from service.jobs.store import Store, metadata
+from treesim.service.jobs.store import Store, metadata
 
 from .conftest import store_url
 

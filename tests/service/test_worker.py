@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from service.jobs.store import Store
-from service.jobs.worker import Worker
+from treesim.service.jobs.store import Store
+from treesim.service.jobs.worker import Worker
 
 from .conftest import BUNDLED_CLOUD
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from benchmarks import preset_table
-from pipeline.sweep import load_sweep
-from pipeline.sweep.engine import _csv_value
+from treesim.sweep import load_sweep
+from treesim.sweep.engine import _csv_value
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "benchmarks" / "sweeps" / "presets"
@@ -36,7 +36,7 @@ def _holds(recorded: dict, now: dict, where: str = "") -> list[str]:
 
 
 def test_it_is_the_committed_config_and_every_point_finished(doc):
-    from pipeline.jsonio import json_ready
+    from treesim.jsonio import json_ready
 
     cfg = load_sweep(ROOT / "benchmarks" / "sweeps" / "presets.toml")
     # the designs are the config's, setting for setting (no stale sweep under a changed

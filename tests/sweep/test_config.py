@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.errors import InputFormatError, InvalidParameterError
-from pipeline.params import SETTINGS, run_preset
-from pipeline.sweep import known_names, load_sweep, parse_sweep
+from treesim.errors import InputFormatError, InvalidParameterError
+from treesim.params import SETTINGS, run_preset
+from treesim.sweep import known_names, load_sweep, parse_sweep
 
 SAPLING = [{"species": "sapling", "leaves": False}]
 
@@ -229,7 +229,7 @@ def test_the_committed_sweep_is_valid_and_large_enough():
     labels = {lab for d in cfg.designs for lab in d.labels}
     assert {"draft", "standard", "fine"} <= labels
     # each preset is a point of the sweep with exactly the preset's settings
-    from pipeline.params import params_hash
+    from treesim.params import params_hash
 
     for d in cfg.designs:
         for lab in d.labels:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pipeline.sweep import dominates, pareto_front
+from treesim.sweep import dominates, pareto_front
 
 
 def brute_force(cost, value, higher_is_better=False):

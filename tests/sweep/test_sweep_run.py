@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.batch import BatchProgress
-from pipeline.cli import main
-from pipeline.cli.progress import BatchProgressBar
-from pipeline.errors import InvalidParameterError
-from pipeline.sweep import FIGURES, pareto_front, run_sweep
+from treesim.batch import BatchProgress
+from treesim.cli import main
+from treesim.cli.progress import BatchProgressBar
+from treesim.errors import InvalidParameterError
+from treesim.sweep import FIGURES, pareto_front, run_sweep
 
 #: A small tree, coarse everything: the sapling scanned at 0.2° into its field cloud, the
 #: draft preset, reports without plots (drawing them was 80 % of a point's time).
@@ -230,7 +230,7 @@ def figures_of(row: dict) -> dict:
 
 @pytest.mark.parametrize("executor", ["local", "dask"])
 def test_every_executor_gives_the_same_figures(executor, two_points, tmp_path):
-    from pipeline.executors import Executor
+    from treesim.executors import Executor
 
     if not Executor(executor).is_available():
         pytest.skip(f"the {executor} executor is not installed here (pip install 'treesim[dask]')")
@@ -286,7 +286,7 @@ def test_a_point_whose_scan_records_nothing_says_why(tmp_path):
 
 # -- up front ---------------------------------------------------------------------------------
 def test_an_unwritable_output_folder_stops_before_anything_runs(tmp_path, monkeypatch):
-    from pipeline.sweep import engine
+    from treesim.sweep import engine
 
     def no_tree(*args, **kwargs):
         raise AssertionError("a tree was made ready for an output folder it cannot write")

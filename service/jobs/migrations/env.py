@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from alembic import context
 
-from service.jobs.store import metadata
+from treesim.service.jobs.store import metadata
 
 connection = context.config.attributes.get("connection")
 if connection is None:  # pragma: no cover - the store always passes one
-    raise RuntimeError("run migrations through service.jobs.store.Store.migrate()")
+    raise RuntimeError("run migrations through treesim.service.jobs.store.Store.migrate()")
 context.configure(
     connection=connection,
     target_metadata=metadata,
