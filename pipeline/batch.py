@@ -50,6 +50,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from filelock import FileLock, Timeout
+
 from .atomic import atomic_path, write_text
 from .errors import InputFormatError, InvalidParameterError, TreesimError
 from .executors import Executor, ExecutorPlan, open_executor, plan_executor, slots, task_threads
@@ -529,23 +531,23 @@ class BatchResult(RowCounts):
 
 @contextmanager
 def _lock(outdir: Path, what: str = "batch") -> Iterator[None]:
-    """Hold the output folder's lock file for the block (one batch or sweep at a time)."""
+    """Hold the output folder's lock file for the block (one batch or sweep at a time).
+
+    The lock is :mod:`filelock`'s (``flock`` on POSIX, ``msvcrt.locking`` on Windows), tried
+    once without waiting: a second writer into the same folder fails at once with an
+    :class:`InvalidParameterError`, on every platform (there is no silent no-lock).
+    """
+    lock = FileLock(outdir / _LOCK_NAME, timeout=0)
     try:
-        import fcntl
-    except ImportError:  # not POSIX: no lock
-        yield
-        return
-    fh = open(outdir / _LOCK_NAME, "a+")  # noqa: SIM115 - held for the whole batch
+        lock.acquire()
+    except Timeout:
+        raise InvalidParameterError(
+            f"another {what} is writing into {outdir}; wait for it or choose another -o"
+        ) from None
     try:
-        try:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise InvalidParameterError(
-                f"another {what} is writing into {outdir}; wait for it or choose another -o"
-            ) from None
         yield
     finally:
-        fh.close()
+        lock.release()
 
 
 def _finished_row(outdir: Path, tree_id: str, tree_hash: str) -> dict[str, Any] | None:
