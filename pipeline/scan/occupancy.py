@@ -56,8 +56,6 @@ MAX_PIECE_CELLS = 512
 MAX_PIECES = 1 << 21
 #: Pieces bounded at once (bounds the temporaries of :func:`occupancy_grid`).
 _PIECE_CHUNK = 1 << 18
-#: Relative float32 error budget for vertices and ray origins (~80 float32 ulps).
-_REL_F32 = 1e-5
 #: Direction error of float32 unit vectors and their products (rad), with room to spare.
 _DIR_EPS_RAD = 1e-6
 
