@@ -36,7 +36,9 @@ Outline (every step is deterministic: no random cover sets, fixed RANSAC seeds):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -355,7 +357,7 @@ def _continuation(kids: list[int], sub_len: np.ndarray, sub_top: np.ndarray, ste
 
 
 #: A stem node at least this many slice lengths wide (half its extent across the axis)
-#: fits the slab of points square to the stem's axis around it (see ``fit_qsm``, 5.); a
+#: fits the slab of points square to the stem's axis around it (see ``_fit_nodes``, 5.); a
 #: thinner stem's slice is a slab already (and a slab over a thin, curved stem widens
 #: its circles: +12 % stem volume on the sapling).
 STEM_SLAB_MIN_EXTENT_SLICES = 1.0
@@ -558,6 +560,625 @@ def _sources(p: np.ndarray, foot: StemFoot | None, band: float, link: float) -> 
     return np.flatnonzero(p[:, 2] <= float(p[:, 2].min()) + band)
 
 
+# ---------------------------------------------------------------------------- stages
+#: Names of the radius tags (0 measured, 1 interpolated, 2 modelled).
+_TAG_NAMES = np.array(["measured", "interpolated", "modelled"])
+
+
+@dataclass
+class _Graph:
+    """Stages 1-2: the point graph and every point's geodesic distance from the base."""
+
+    #: the bridged graph; :func:`_slice_clusters` takes it and leaves None, so that it is
+    #: freed before the slices' components are found
+    g: sparse.csr_matrix | None
+    dist: np.ndarray  # (n,) geodesic distance from the base
+    pred: np.ndarray  # (n,) each point's predecessor on its shortest path (< 0: none)
+    n_bridges: int
+
+
+@dataclass
+class _Skeleton:
+    """Stages 3-4: the skeleton's nodes (slice clusters), their tree and its branches."""
+
+    cl: np.ndarray  # (n,) the node of each point
+    node_parent: np.ndarray  # (m,) -1 at the main root
+    centroid: np.ndarray  # (m, 3) weighted centroid of the node's points
+    wsum: np.ndarray  # (m,) the node's points' weights
+    main_root: int
+    sub_len: np.ndarray  # (m,) the length of the subtree a node supports
+    sub_top: np.ndarray  # (m,) the highest node a node's subtree reaches
+    children: list[list[int]]
+    keep: np.ndarray  # (m,) False for a pruned spur
+    members_sorted: np.ndarray  # the points sorted by node; node v's are
+    bounds: np.ndarray  # members_sorted[bounds[v] : bounds[v + 1]]
+    # stage 4: the branches (node sequences, base to tip, in DFS order, the stem first)
+    branches: list[list[int]] = field(default_factory=list)
+    branch_of: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    branch_order: list[int] = field(default_factory=list)
+    branch_parent_node: list[int] = field(default_factory=list)
+
+    def members(self, v: int) -> np.ndarray:
+        """The indices of node ``v``'s points."""
+        return self.members_sorted[self.bounds[v] : self.bounds[v + 1]]
+
+
+@dataclass
+class _Fits:
+    """Stage 5: the nodes' circle fits and positions."""
+
+    pos: np.ndarray  # (m, 3) the node's position: its centroid, or its circle's centre
+    radius: np.ndarray  # (m,) the fit's radius (NaN: no fit)
+    quality: np.ndarray  # (m,) coverage share x inlier share of an accepted fit, else 0
+    good_fit: np.ndarray  # (m,) passes every gate but the radius floor
+    fit_centre: np.ndarray  # (m, 3)
+    scatter: np.ndarray  # (m,)
+    coverage: np.ndarray  # (m,) degrees
+    axes: np.ndarray  # (m, 3) the local axis
+    extent: np.ndarray  # (m,) half the data's extent across the axis (inf: not measured)
+    measured: np.ndarray | None = None  # (m,) stage 5b: good fits above the radius floor
+
+
+def _geodesic(
+    p: np.ndarray,
+    params: QSMParams,
+    link: float,
+    band: float,
+    neighbors: np.ndarray | None,
+    foot: StemFoot | None,
+) -> _Graph:
+    """Stages 1-2: the graph, its components bridged, and the geodesic distance from the
+    base."""
+    n = len(p)
+    k_needed = min(max(params.neighbors + 1, BRIDGE_NEIGHBORS), n)
+    if neighbors is None or len(neighbors) != n or neighbors.shape[1] < k_needed:
+        neighbors, _ = nearest_neighbors(p, k_needed)
+    g = _knn_graph(p, neighbors, params.neighbors, link)
+    sources = _sources(p, foot, band, link)
+    g, n_bridges = _bridge(p, g, neighbors, int(sources[0]))
+    del neighbors
+    # g is symmetric: as a directed graph it gives the same distances and predecessors
+    # as directed=False, without SciPy's transposed copy of the graph
+    dist, pred, _ = dijkstra(
+        g, directed=True, indices=sources, min_only=True, return_predecessors=True
+    )
+    if not np.isfinite(dist).all():
+        raise ReconstructionError("the point graph is not connected after gap bridging")
+    return _Graph(g=g, dist=dist, pred=pred, n_bridges=n_bridges)
+
+
+def _slice_clusters(graph: _Graph, h: float) -> tuple[int, np.ndarray]:
+    """Stage 3a: slices of the geodesic distance ``h`` thick, split by the graph
+    restricted to each slice into clusters (the nodes); returns (m, node of each point).
+    Takes ``graph.g`` (left None)."""
+    g, graph.g = graph.g, None
+    n = g.shape[0]
+    sl = np.floor(graph.dist / h).astype(np.int64)
+    # the graph's edges within a slice, a chunk of rows at a time (whole-graph row and
+    # slice arrays were 1.2 GB of temporaries at 3.9 M points)
+    same = np.empty(g.nnz, dtype=bool)
+    per_row = np.empty(n, dtype=g.indptr.dtype)
+    for lo in range(0, n, _CHUNK):
+        hi = min(lo + _CHUNK, n)
+        a, b = g.indptr[lo], g.indptr[hi]
+        count = np.diff(g.indptr[lo : hi + 1])
+        keep = np.repeat(sl[lo:hi], count) == sl[g.indices[a:b]]
+        same[a:b] = keep
+        per_row[lo:hi] = np.bincount(
+            np.repeat(np.arange(hi - lo), count), weights=keep, minlength=hi - lo
+        )
+    indptr = np.zeros(n + 1, dtype=g.indptr.dtype)
+    np.cumsum(per_row, out=indptr[1:])
+    data, indices = g.data[same], g.indices[same]
+    del g, same, per_row
+    gs = sparse.csr_matrix((data, indices, indptr), shape=(n, n))
+    return _components(gs)  # gs is symmetric too
+
+
+def _node_tree(p: np.ndarray, w: np.ndarray, graph: _Graph, m: int, cl: np.ndarray) -> _Skeleton:
+    """Stage 3b: the nodes' tree (a node's parent is the node its points' shortest paths
+    come from), their centroids and subtree lengths; spurs pruned."""
+    dist, pred = graph.dist, graph.pred
+    # parent cluster by predecessor votes
+    has_pred = pred >= 0
+    ci, cp = cl[has_pred], cl[pred[has_pred]]
+    cross = ci != cp
+    votes = sparse.coo_matrix((w[has_pred][cross], (ci[cross], cp[cross])), shape=(m, m)).tocsr()
+    node_parent = np.full(m, -1, dtype=np.int64)
+    nz = np.diff(votes.indptr) > 0
+    node_parent[nz] = np.asarray(votes[nz].argmax(axis=1)).ravel()
+    wsum = np.bincount(cl, weights=w, minlength=m)
+    centroid = np.stack([np.bincount(cl, weights=w * p[:, j], minlength=m) for j in range(3)], 1)
+    centroid /= wsum[:, None]
+    npts = np.bincount(cl, minlength=m)
+    roots = np.flatnonzero(node_parent < 0)
+    main_root = int(roots[np.argmax(wsum[roots])])
+    for r in roots:  # extra bases (e.g. buttresses, stray low points) hang off the main one
+        if r != main_root:
+            node_parent[r] = main_root
+
+    # children, subtree length (process nodes by decreasing geodesic distance)
+    node_dist = np.bincount(cl, weights=w * dist, minlength=m) / wsum
+    order = np.argsort(-node_dist, kind="stable")
+    edge_len = np.zeros(m)
+    has_par = node_parent >= 0
+    edge_len[has_par] = np.linalg.norm(centroid[has_par] - centroid[node_parent[has_par]], axis=1)
+    sub_len = edge_len.copy()
+    sub_top = centroid[:, 2].copy()  # the highest node a node's subtree reaches
+    for v in order:
+        pv = node_parent[v]
+        if pv >= 0:
+            sub_len[pv] += sub_len[v]
+            sub_top[pv] = max(sub_top[pv], sub_top[v])
+    children: list[list[int]] = [[] for _ in range(m)]
+    for v in np.argsort(node_dist, kind="stable"):
+        pv = node_parent[v]
+        if pv >= 0:
+            children[pv].append(int(v))
+
+    # prune spurs: leaf nodes with very few points hanging off a node that continues
+    keep = np.ones(m, dtype=bool)
+    for v in range(m):
+        if not children[v] and node_parent[v] >= 0 and npts[v] < 4:
+            if len(children[node_parent[v]]) > 1:
+                keep[v] = False
+    for v in range(m):
+        children[v] = [c for c in children[v] if keep[c]]
+    return _Skeleton(
+        cl=cl,
+        node_parent=node_parent,
+        centroid=centroid,
+        wsum=wsum,
+        main_root=main_root,
+        sub_len=sub_len,
+        sub_top=sub_top,
+        children=children,
+        keep=keep,
+        members_sorted=np.argsort(cl, kind="stable"),
+        bounds=np.concatenate([[0], np.cumsum(np.bincount(cl, minlength=m))]),
+    )
+
+
+def _trace_branches(sk: _Skeleton) -> None:
+    """Stage 4: the branches (filled into ``sk``). A node continues its branch through
+    the child with the longest subtree (alternatives tried on the procedural presets:
+    weighting by straightness or by the child's cross-section picked fork limbs or whorl
+    branches as the stem); its other children start branches of the next order."""
+    sk.branch_of = np.full(len(sk.centroid), -1, dtype=np.int64)
+    stack = [(sk.main_root, 0, -1)]
+    while stack:
+        start, order_k, junction = stack.pop()
+        b = len(sk.branches)
+        seq = []
+        v = start
+        while True:
+            seq.append(v)
+            sk.branch_of[v] = b
+            kids = sk.children[v]
+            if not kids:
+                break
+            main = _continuation(kids, sk.sub_len, sk.sub_top, stem=order_k == 0)
+            for c in sorted(kids, reverse=True):
+                if c != main:
+                    stack.append((c, order_k + 1, v))
+            v = main
+        sk.branches.append(seq)
+        sk.branch_order.append(order_k)
+        sk.branch_parent_node.append(junction)
+
+
+def _node_axis(sk: _Skeleton, seq: list[int], i: int) -> np.ndarray:
+    """The unit axis at node ``seq[i]`` of a branch: from the node before it (its
+    parent, at the branch's start) to the node after it, or the one-sided direction at
+    an end; vertical for a lone node."""
+    centroid, v = sk.centroid, seq[i]
+    prev_pt = (
+        centroid[seq[i - 1]]
+        if i > 0
+        else (centroid[sk.node_parent[v]] if sk.node_parent[v] >= 0 else None)
+    )
+    next_pt = centroid[seq[i + 1]] if i + 1 < len(seq) else None
+    if prev_pt is not None and next_pt is not None:
+        a = next_pt - prev_pt
+    elif next_pt is not None:
+        a = next_pt - centroid[v]
+    elif prev_pt is not None:
+        a = centroid[v] - prev_pt
+    else:
+        a = np.array([0.0, 0.0, 1.0])
+    na = np.linalg.norm(a)
+    return a / na if na > 0 else np.array([0.0, 0.0, 1.0])
+
+
+def _stem_slab(
+    p: np.ndarray,
+    sk: _Skeleton,
+    seq: list[int],
+    i: int,
+    a: np.ndarray,
+    extent: float,
+    h: float,
+    tree_all: Callable[[], cKDTree],
+    own: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A wide stem node's points for its circle fit: the slab of every point square to
+    the stem's axis around it (see :func:`_fit_nodes`); ``a`` is the node's own axis.
+
+    Returns (indices, plane coordinates, u, v): those of ``own`` (the node's own points,
+    their plane coordinates and the basis u, v) where the slab holds fewer than six
+    points, except the basis, which follows the axis over the slab's reach whenever
+    that axis is defined.
+    """
+    idx, q, u, vv = own
+    v = seq[i]
+    centroid = sk.centroid
+    sparse_node = len(idx) < STEM_SPARSE_POINTS and extent >= STEM_SLAB_M
+    half_t = 0.5 * (max(h, STEM_SLAB_M) if sparse_node else h)
+    reach = int(np.ceil((half_t + 2.0 * extent) / h))
+    # the axis over the slab's reach: tilted slices make consecutive
+    # centroids zig-zag, and a slab square to a tilted axis is an ellipse
+    a_long = centroid[seq[min(len(seq) - 1, i + reach)]] - centroid[seq[max(0, i - reach)]]
+    if np.linalg.norm(a_long) > 0:
+        a = a_long / np.linalg.norm(a_long)
+        u, vv = _basis(a)
+    r_near = STEM_SLAB_REACH * extent
+    cand = np.asarray(tree_all().query_ball_point(centroid[v], r_near + half_t), dtype=np.int64)
+    rel_c = p[cand] - centroid[v]
+    on_axis = rel_c @ a
+    slab = (np.abs(on_axis) <= half_t) & (np.sum(rel_c**2, axis=1) - on_axis**2 <= r_near**2)
+    if slab.sum() >= 6:
+        idx, rel = cand[slab], rel_c[slab]
+        q = np.stack([rel @ u, rel @ vv], axis=1)
+    return idx, q, u, vv
+
+
+def _accepted(
+    fit: CircleFit, q: np.ndarray, params: QSMParams, spacing_m: float, band_min: float
+) -> bool:
+    """Whether a circle fit passes the quality gates (all but the radius floor): a full
+    arc with a small residual or a partial arc with a smaller one, most points inliers,
+    and a radius the data's extent across the axis allows."""
+    full = (
+        fit.coverage_deg >= params.min_coverage_deg
+        and fit.rms <= params.max_rel_residual * fit.radius + 0.5 * spacing_m
+    )
+    partial = (
+        fit.coverage_deg >= params.partial_coverage_deg
+        and fit.rms <= params.partial_rel_residual * fit.radius + 0.25 * spacing_m
+    )
+    return bool(
+        (full or partial)
+        and fit.inlier_share >= 0.6
+        and fit.radius <= 0.6 * float(np.ptp(q, axis=0).max()) + band_min
+    )
+
+
+def _fit_nodes(
+    p: np.ndarray, w: np.ndarray, sk: _Skeleton, params: QSMParams, spacing_m: float, h: float
+) -> _Fits:
+    """Stage 5: a circle fit per node, in the plane normal to its local axis."""
+    m = len(sk.centroid)
+    f = _Fits(
+        pos=sk.centroid.copy(),
+        radius=np.full(m, np.nan),
+        quality=np.zeros(m),
+        good_fit=np.zeros(m, dtype=bool),
+        fit_centre=np.zeros((m, 3)),
+        scatter=np.full(m, np.nan),
+        coverage=np.full(m, np.nan),
+        axes=np.zeros((m, 3)),
+        extent=np.full(m, np.inf),
+    )
+    rng_base = params.seed * 1_000_003
+    band_min = max(1.0 * spacing_m, 0.001)
+    # a wide stem node's fit takes the slab of points square to the stem's axis around it:
+    # the geodesic slices are level sets of the path length from the base, which on a stem
+    # scanned from one side tilt and wind (the far side's paths run round the stem), so one
+    # slice, and the chain of nodes it belongs to, held half the ring and a parallel chain
+    # the other half (the real pine: 180-240 degrees per node against 240-350 in a
+    # horizontal slab), and half-ring circles read its DBH +4 %
+    tree_all = cache(lambda: cKDTree(p))  # every point, built for the first wide stem node
+    for bi, seq in enumerate(sk.branches):
+        for i, v in enumerate(seq):
+            a = _node_axis(sk, seq, i)
+            f.axes[v] = a
+            if not sk.keep[v]:
+                continue
+            idx = sk.members(v)
+            if len(idx) < 6:
+                continue
+            u, vv = _basis(a)
+            rel = p[idx] - sk.centroid[v]
+            q = np.stack([rel @ u, rel @ vv], axis=1)
+            f.extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
+            if bi == 0 and f.extent[v] >= STEM_SLAB_MIN_EXTENT_SLICES * h:
+                idx, q, u, vv = _stem_slab(
+                    p, sk, seq, i, a, f.extent[v], h, tree_all, (idx, q, u, vv)
+                )
+            fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
+            if fit is None:
+                continue
+            f.radius[v] = fit.radius
+            f.scatter[v], f.coverage[v] = fit.scatter, fit.coverage_deg
+            if _accepted(fit, q, params, spacing_m, band_min):
+                f.good_fit[v] = True
+                f.quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
+                f.fit_centre[v] = sk.centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
+    return f
+
+
+def _noise_floor(
+    f: _Fits, sk: _Skeleton, params: QSMParams, res: dict[str, Any], spacing_m: float
+) -> tuple[dict[str, Any], float, str]:
+    """Stage 5b: the noise of the points about the surface, from the stem's well-measured
+    fits, and the smallest radius the noise lets a circle fit resolve (k sigma); sets
+    ``f.measured`` (good fits at least that wide), which move their nodes to the circles'
+    centres. Returns (noise, min radius, its rule)."""
+    noise = estimate_noise(
+        f.scatter, f.good_fit, f.coverage, f.radius, sk.branch_of == 0, params, spacing_m
+    )
+    if params.min_radius_m is not None:
+        r_min, r_min_rule = params.min_radius_m, "given"
+    elif noise["sd_m"] is not None:
+        r_min = max(params.resolve_sigmas * noise["sd_m"], res["min_radius_floor_m"])
+        r_min_rule = f"max({params.resolve_sigmas:g} × noise σ, floor)"
+    else:
+        r_min = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m
+        r_min_rule = f"{NO_NOISE_MIN_RADIUS_SPACINGS:g} × spacing (no σ)"
+    f.measured = f.good_fit & (f.radius >= r_min)
+    f.quality[~f.measured] = 0.0
+    f.pos[f.measured] = f.fit_centre[f.measured]
+    return noise, r_min, r_min_rule
+
+
+def _weighted_a(
+    radius: np.ndarray,
+    quality: np.ndarray,
+    grow: np.ndarray,
+    r_tip: float,
+    e: float,
+    sel: np.ndarray,
+) -> float:
+    """The quality-weighted median over the nodes ``sel`` of the pipe model's
+    coefficient ``a = (r^e - r_tip^e) / S`` (``e = 1 / b``, S the growth length)."""
+    ratio = (radius[sel] ** e - r_tip**e) / grow[sel]
+    o = np.argsort(ratio)
+    cw = np.cumsum(quality[sel][o])
+    return float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def _radius_model(
+    p: np.ndarray, sk: _Skeleton, f: _Fits, params: QSMParams, h: float, spacing_m: float
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Stage 6, the model: the per-tree pipe model's radius at every node; returns (model radius,
+    growth length, the model's diagnostics)."""
+    # 6. radius model (S: growth length, the length of the subtree a node supports):
+    # r^(1/b) = r_tip^(1/b) + a * S; b = 0.5 is the pipe model, "cross-section area = tip
+    # area + area proportional to the length supported". a comes from the measured nodes
+    # (weighted median); without measurements, from the spread of the base's points.
+    # The stem and the branches get their own a: a stem grows girth that supports no
+    # length (below the crown, and its heartwood), so the stem's a is 2-4x the branches'
+    # (4.3x in the balsam-fir preset's own table; Shinozaki et al. 1964 for the pipe model
+    # inside the crown), and the stem's a on a conifer's branches gave them 2.5x their
+    # volume. The branches' a is the smaller of the stem's and their own measured nodes'
+    # (at least BRANCH_A_MIN_FITS of them): those are biased up (only radii above the
+    # noise floor are measured, and bark bumps on a stem read as short thick branches: the
+    # real pine's gave 6x its branch volume), so they may only lower it.
+    r_tip = params.twig_radius_m
+    b_fit = params.pipe_exponent
+    grow = sk.sub_len + 0.5 * h
+    e = 1.0 / b_fit
+    mm = f.measured & sk.keep & (f.radius > r_tip * 1.05)
+    on_stem = sk.branch_of == 0
+
+    def weighted_a(sel: np.ndarray) -> float:
+        return _weighted_a(f.radius, f.quality, grow, r_tip, e, sel)
+
+    if mm.sum() >= 3:
+        a_stem = weighted_a(mm & on_stem) if (mm & on_stem).sum() >= 3 else weighted_a(mm)
+        a_source = "measured nodes"
+        a_branch, a_branch_source = a_stem, "the stem's (too few measured branch nodes)"
+        if (mm & ~on_stem).sum() >= BRANCH_A_MIN_FITS:
+            a_own = weighted_a(mm & ~on_stem)
+            a_branch_source = "the stem's (lower than the measured branch nodes')"
+            if a_own < a_stem:
+                a_branch, a_branch_source = a_own, "measured branch nodes"
+    else:
+        idx = sk.members(sk.main_root)
+        spread = float(np.sqrt(np.mean(np.sum((p[idx, :2] - p[idx, :2].mean(0)) ** 2, 1))))
+        a_stem = a_branch = max(spread**e - r_tip**e, 0.0) / grow[sk.main_root]
+        a_source = a_branch_source = "base spread (no measured nodes)"
+    model = (r_tip**e + np.where(on_stem, a_stem, a_branch) * grow) ** b_fit
+    # never wider than the data around the node
+    model = np.minimum(model, np.where(np.isfinite(f.extent), f.extent + 0.25 * spacing_m, model))
+    info = {
+        "r_tip_m": r_tip,
+        "b": b_fit,
+        "a_stem": a_stem,
+        "a_stem_from": a_source,
+        "a_branch": a_branch,
+        "a_branch_from": a_branch_source,
+    }
+    return model, grow, info
+
+
+def _final_radii(
+    sk: _Skeleton,
+    f: _Fits,
+    model: np.ndarray,
+    noise_sd: float,
+    params: QSMParams,
+    spacing_m: float,
+    h: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Stage 6, per branch: each branch's radii (measured, interpolated or modelled, outliers
+    dropped from ``f.measured``, tapered), never wider than the parent at the junction
+    nor thinner than the twig prior. Returns (radius, tag, outliers)."""
+    r_tip = params.twig_radius_m
+    measured = f.measured
+    final_r = np.where(measured, f.radius, model)
+    tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
+    n_outliers = 0
+    for b, seq in enumerate(sk.branches):
+        s = np.asarray(seq)
+        final_r[s], tag[s], measured[s], dropped = _branch_radii(
+            f.radius[s],
+            model[s],
+            measured[s],
+            f.pos[s],
+            stem=b == 0,
+            noise_sd=noise_sd,
+            tol_m=2.0 * noise_sd + 0.25 * spacing_m,
+            r_tip=r_tip,
+            tip_m=0.5 * h,
+        )
+        n_outliers += dropped
+    # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
+    for b, seq in enumerate(sk.branches):
+        j = sk.branch_parent_node[b]
+        s = np.asarray(seq)
+        if j >= 0:
+            final_r[s] = np.minimum(final_r[s], final_r[j])
+        final_r[s] = np.maximum(final_r[s], r_tip)
+    return final_r, tag, n_outliers
+
+
+def _smooth_axes(
+    pos: np.ndarray, branches: list[list[int]], measured: np.ndarray, h: float
+) -> None:
+    """Stage 6b: smooth each branch's axis (``pos``, in place)."""
+    # fitted centres jitter by a few mm to cm (partial arcs, furcations, centroid
+    # fall-backs) and a zig-zag axis is longer than the branch, which inflates length and
+    # volume (+14 % stem length measured on a 30 m preset).
+    # A (1, 2, 3, 2, 1) moving average along the branch, ends kept, removes the jitter.
+    # The stem's unmeasured stretches (hidden in the crown, among needles or leaves) follow
+    # slice clusters of foliage that wander metres sideways; a stem goes up: there the
+    # axis is a moving average over ±STEM_SMOOTH_M.
+    stem = np.asarray(branches[0])
+    half = max(2, int(round(STEM_SMOOTH_M / h)))
+    if len(stem) > 2 * half:
+        csum = np.vstack([np.zeros(3), np.cumsum(pos[stem], axis=0)])
+        ii = np.arange(len(stem))
+        lo, hi = np.clip(ii - half, 0, None), np.clip(ii + half + 1, None, len(stem))
+        wide = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+        hidden = ~measured[stem]
+        hidden[0] = hidden[-1] = False
+        pos[stem[hidden]] = wide[hidden]
+    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0])
+    for seq in branches:
+        if len(seq) < 5:
+            continue
+        s_idx = np.asarray(seq)
+        xyz = pos[s_idx]
+        padded = np.concatenate([np.repeat(xyz[:1], 2, 0), xyz, np.repeat(xyz[-1:], 2, 0)])
+        sm = np.stack(
+            [np.convolve(padded[:, j], kernel / kernel.sum(), mode="valid") for j in range(3)],
+            axis=1,
+        )
+        sm[0], sm[-1] = xyz[0], xyz[-1]
+        pos[s_idx] = sm
+
+
+def _branch_polyline(
+    seq: list[int],
+    j: int,
+    pos: np.ndarray,
+    final_r: np.ndarray,
+    tag: np.ndarray,
+    axes: np.ndarray,
+    foot: StemFoot | None,
+    zmin: float,
+    h: float,
+) -> tuple[list[np.ndarray], list[float], list[int]]:
+    """A branch's cylinder ends (points, radii, tags), its nodes ``seq`` extended: the stem
+    (``j < 0``) down to the ground, a branch back to its parent node ``j``'s surface, and
+    the tip by half a slice."""
+    pts = [pos[v] for v in seq]
+    rads = [final_r[v] for v in seq]
+    tg = [tag[v] for v in seq]
+    if j < 0:  # stem: extend from the ground up to the first node
+        a = axes[seq[0]]
+        h0 = (
+            float(foot.height(pos[seq[0]][None, :])[0])
+            if foot is not None
+            else float(pos[seq[0]][2] - zmin)
+        )
+        base = pos[seq[0]] - a * max(h0 / max(a[2], 0.2), 0.0)
+        pts = [base, *pts]
+        rads = [rads[0], *rads]
+        tg = [tg[0], *tg]
+    else:  # start at the parent's surface
+        d0 = pts[0] - pos[j]
+        L0 = float(np.linalg.norm(d0))
+        if L0 > 0:
+            off = min(final_r[j], 0.5 * L0)
+            pts = [pos[j] + d0 / L0 * off, *pts]
+        else:
+            pts = [pos[j], *pts]
+        rads = [rads[0], *rads]
+        tg = [tg[0], *tg]
+    if len(pts) >= 2:  # tip: half a slice beyond the last node
+        d1 = pts[-1] - pts[-2]
+        L1 = float(np.linalg.norm(d1))
+        if L1 > 0:
+            pts[-1] = pts[-1] + d1 / L1 * 0.5 * h
+    return pts, rads, tg
+
+
+def _cylinders(
+    sk: _Skeleton,
+    f: _Fits,
+    final_r: np.ndarray,
+    tag: np.ndarray,
+    foot: StemFoot | None,
+    zmin: float,
+    h: float,
+) -> tuple[CylinderTable, list[str]]:
+    """Stage 7: cylinders (frusta) between consecutive nodes; returns (table, tag of each
+    cylinder)."""
+    starts, ends, r0, r1, par, bra, ordr, tags = [], [], [], [], [], [], [], []
+    end_row_of_node = np.full(len(sk.centroid), -1, dtype=np.int64)
+    for b, seq in enumerate(sk.branches):
+        j = sk.branch_parent_node[b]
+        pts, rads, tg = _branch_polyline(seq, j, f.pos, final_r, tag, f.axes, foot, zmin, h)
+        prev_row = -1
+        for i in range(len(pts) - 1):
+            node = seq[i]  # segment i ends at node seq[i]
+            if np.linalg.norm(pts[i + 1] - pts[i]) < 1e-6:
+                end_row_of_node[node] = (
+                    prev_row if prev_row >= 0 else (end_row_of_node[j] if j >= 0 else -1)
+                )
+                continue
+            row = len(starts)
+            starts.append(pts[i])
+            ends.append(pts[i + 1])
+            r0.append(rads[i])
+            r1.append(rads[i + 1])
+            if prev_row >= 0:
+                par.append(prev_row)
+            else:
+                par.append(int(end_row_of_node[j]) if j >= 0 else -1)
+            bra.append(b + 1)
+            ordr.append(sk.branch_order[b])
+            tags.append(_TAG_NAMES[tg[i + 1]])
+            prev_row = row
+            end_row_of_node[node] = row
+    if not starts:
+        raise ReconstructionError("no cylinders could be built (is the cloud a tree?)")
+    par_arr = np.asarray(par, dtype=np.int64)
+    table = CylinderTable.from_endpoints(
+        np.asarray(starts),
+        np.asarray(ends),
+        np.asarray(r0),
+        end_radius_m=np.asarray(r1),
+        parent=par_arr,
+        branch=np.asarray(bra),
+        branch_order=np.asarray(ordr),
+        tag=np.asarray(tags),
+    )
+    return table, tags
+
+
 # ---------------------------------------------------------------------------- main
 def fit_qsm(
     points: np.ndarray,
@@ -605,430 +1226,41 @@ def fit_qsm(
     if n < 50:
         raise ReconstructionError(f"only {n} points after preparation; a QSM needs hundreds")
 
-    # 1-2. graph, bridging, geodesic distance from the base
-    k_needed = min(max(params.neighbors + 1, BRIDGE_NEIGHBORS), n)
-    if neighbors is None or len(neighbors) != n or neighbors.shape[1] < k_needed:
-        neighbors, _ = nearest_neighbors(p, k_needed)
-    g = _knn_graph(p, neighbors, params.neighbors, link)
+    graph = _geodesic(p, params, link, band, neighbors, foot)  # 1-2. graph, distance
+    m, cl = _slice_clusters(graph, h)  # 3. slices -> clusters (nodes)
+    sk = _node_tree(p, w, graph, m, cl)
+    _trace_branches(sk)  # 4. branches
+    fits = _fit_nodes(p, w, sk, params, spacing_m, h)  # 5. circle fits per node
+    noise, r_min, r_min_rule = _noise_floor(fits, sk, params, res, spacing_m)  # 5b.
+    model, grow, radius_model = _radius_model(p, sk, fits, params, h, spacing_m)  # 6.
+    final_r, tag, n_outliers = _final_radii(
+        sk, fits, model, noise["sd_m"] or 0.0, params, spacing_m, h
+    )
+    _smooth_axes(fits.pos, sk.branches, fits.measured, h)  # 6b.
     zmin = float(p[:, 2].min())
-    sources = _sources(p, foot, band, link)
-    g, n_bridges = _bridge(p, g, neighbors, int(sources[0]))
-    del neighbors
-    # g is symmetric: as a directed graph it gives the same distances and predecessors
-    # as directed=False, without SciPy's transposed copy of the graph
-    dist, pred, _ = dijkstra(
-        g, directed=True, indices=sources, min_only=True, return_predecessors=True
-    )
-    if not np.isfinite(dist).all():
-        raise ReconstructionError("the point graph is not connected after gap bridging")
-
-    # 3. slices -> clusters (nodes)
-    sl = np.floor(dist / h).astype(np.int64)
-    # the graph's edges within a slice, a chunk of rows at a time (whole-graph row and
-    # slice arrays were 1.2 GB of temporaries at 3.9 M points)
-    same = np.empty(g.nnz, dtype=bool)
-    per_row = np.empty(n, dtype=g.indptr.dtype)
-    for lo in range(0, n, _CHUNK):
-        hi = min(lo + _CHUNK, n)
-        a, b = g.indptr[lo], g.indptr[hi]
-        count = np.diff(g.indptr[lo : hi + 1])
-        keep = np.repeat(sl[lo:hi], count) == sl[g.indices[a:b]]
-        same[a:b] = keep
-        per_row[lo:hi] = np.bincount(
-            np.repeat(np.arange(hi - lo), count), weights=keep, minlength=hi - lo
-        )
-    indptr = np.zeros(n + 1, dtype=g.indptr.dtype)
-    np.cumsum(per_row, out=indptr[1:])
-    data, indices = g.data[same], g.indices[same]
-    del g, same, per_row
-    gs = sparse.csr_matrix((data, indices, indptr), shape=(n, n))
-    m, cl = _components(gs)  # gs is symmetric too
-    del gs, data, indices
-    # parent cluster by predecessor votes
-    has_pred = pred >= 0
-    ci, cp = cl[has_pred], cl[pred[has_pred]]
-    cross = ci != cp
-    votes = sparse.coo_matrix((w[has_pred][cross], (ci[cross], cp[cross])), shape=(m, m)).tocsr()
-    node_parent = np.full(m, -1, dtype=np.int64)
-    nz = np.diff(votes.indptr) > 0
-    node_parent[nz] = np.asarray(votes[nz].argmax(axis=1)).ravel()
-    wsum = np.bincount(cl, weights=w, minlength=m)
-    centroid = np.stack([np.bincount(cl, weights=w * p[:, j], minlength=m) for j in range(3)], 1)
-    centroid /= wsum[:, None]
-    npts = np.bincount(cl, minlength=m)
-    roots = np.flatnonzero(node_parent < 0)
-    main_root = int(roots[np.argmax(wsum[roots])])
-    for r in roots:  # extra bases (e.g. buttresses, stray low points) hang off the main one
-        if r != main_root:
-            node_parent[r] = main_root
-
-    # children, subtree length (process nodes by decreasing geodesic distance)
-    node_dist = np.bincount(cl, weights=w * dist, minlength=m) / wsum
-    order = np.argsort(-node_dist, kind="stable")
-    edge_len = np.zeros(m)
-    has_par = node_parent >= 0
-    edge_len[has_par] = np.linalg.norm(centroid[has_par] - centroid[node_parent[has_par]], axis=1)
-    sub_len = edge_len.copy()
-    sub_top = centroid[:, 2].copy()  # the highest node a node's subtree reaches
-    for v in order:
-        pv = node_parent[v]
-        if pv >= 0:
-            sub_len[pv] += sub_len[v]
-            sub_top[pv] = max(sub_top[pv], sub_top[v])
-    children: list[list[int]] = [[] for _ in range(m)]
-    for v in np.argsort(node_dist, kind="stable"):
-        pv = node_parent[v]
-        if pv >= 0:
-            children[pv].append(int(v))
-
-    # prune spurs: leaf nodes with very few points hanging off a node that continues
-    keep = np.ones(m, dtype=bool)
-    for v in range(m):
-        if not children[v] and node_parent[v] >= 0 and npts[v] < 4:
-            if len(children[node_parent[v]]) > 1:
-                keep[v] = False
-    for v in range(m):
-        children[v] = [c for c in children[v] if keep[c]]
-
-    # 4. branches: a node continues its branch through the child with the longest subtree
-    # (alternatives tried on the procedural presets: weighting by straightness or by the
-    # child's cross-section picked fork limbs or whorl branches as the stem)
-    branch_of = np.full(m, -1, dtype=np.int64)
-    branches: list[list[int]] = []
-    branch_order: list[int] = []
-    branch_parent_node: list[int] = []
-    stack = [(main_root, 0, -1)]
-    while stack:
-        start, order_k, junction = stack.pop()
-        b = len(branches)
-        seq = []
-        v = start
-        while True:
-            seq.append(v)
-            branch_of[v] = b
-            kids = children[v]
-            if not kids:
-                break
-            main = _continuation(kids, sub_len, sub_top, stem=order_k == 0)
-            for c in sorted(kids, reverse=True):
-                if c != main:
-                    stack.append((c, order_k + 1, v))
-            v = main
-        branches.append(seq)
-        branch_order.append(order_k)
-        branch_parent_node.append(junction)
-
-    # 5. circle fits per node
-    pos = centroid.copy()
-    radius = np.full(m, np.nan)
-    quality = np.zeros(m)
-    good_fit = np.zeros(m, dtype=bool)  # passes every gate but the radius floor
-    fit_centre = np.zeros((m, 3))
-    scatter = np.full(m, np.nan)
-    coverage = np.full(m, np.nan)
-    members_sorted = np.argsort(cl, kind="stable")
-    bounds = np.concatenate([[0], np.cumsum(np.bincount(cl, minlength=m))])
-    rng_base = params.seed * 1_000_003
-    band_min = max(1.0 * spacing_m, 0.001)
-    axes = np.zeros((m, 3))
-    extent = np.full(m, np.inf)  # half the data's extent across the axis, per node
-    # a wide stem node's fit takes the slab of points square to the stem's axis around it:
-    # the geodesic slices are level sets of the path length from the base, which on a stem
-    # scanned from one side tilt and wind (the far side's paths run round the stem), so one
-    # slice, and the chain of nodes it belongs to, held half the ring and a parallel chain
-    # the other half (the real pine: 180-240 degrees per node against 240-350 in a
-    # horizontal slab), and half-ring circles read its DBH +4 %
-    tree_all = None  # a k-d tree of every point, built for the first wide stem node
-    for bi, seq in enumerate(branches):
-        for i, v in enumerate(seq):
-            prev_pt = (
-                centroid[seq[i - 1]]
-                if i > 0
-                else (centroid[node_parent[v]] if node_parent[v] >= 0 else None)
-            )
-            next_pt = centroid[seq[i + 1]] if i + 1 < len(seq) else None
-            if prev_pt is not None and next_pt is not None:
-                a = next_pt - prev_pt
-            elif next_pt is not None:
-                a = next_pt - centroid[v]
-            elif prev_pt is not None:
-                a = centroid[v] - prev_pt
-            else:
-                a = np.array([0.0, 0.0, 1.0])
-            na = np.linalg.norm(a)
-            a = a / na if na > 0 else np.array([0.0, 0.0, 1.0])
-            axes[v] = a
-            if not keep[v]:
-                continue
-            idx = members_sorted[bounds[v] : bounds[v + 1]]
-            if len(idx) < 6:
-                continue
-            u, vv = _basis(a)
-            rel = p[idx] - centroid[v]
-            q = np.stack([rel @ u, rel @ vv], axis=1)
-            extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
-            if bi == 0 and extent[v] >= STEM_SLAB_MIN_EXTENT_SLICES * h:
-                sparse_node = len(idx) < STEM_SPARSE_POINTS and extent[v] >= STEM_SLAB_M
-                half_t = 0.5 * (max(h, STEM_SLAB_M) if sparse_node else h)
-                reach = int(np.ceil((half_t + 2.0 * extent[v]) / h))
-                # the axis over the slab's reach: tilted slices make consecutive
-                # centroids zig-zag, and a slab square to a tilted axis is an ellipse
-                a_long = (
-                    centroid[seq[min(len(seq) - 1, i + reach)]] - centroid[seq[max(0, i - reach)]]
-                )
-                if np.linalg.norm(a_long) > 0:
-                    a = a_long / np.linalg.norm(a_long)
-                    u, vv = _basis(a)
-                if tree_all is None:
-                    tree_all = cKDTree(p)
-                r_near = STEM_SLAB_REACH * extent[v]
-                cand = np.asarray(
-                    tree_all.query_ball_point(centroid[v], r_near + half_t), dtype=np.int64
-                )
-                rel_c = p[cand] - centroid[v]
-                on_axis = rel_c @ a
-                slab = (np.abs(on_axis) <= half_t) & (
-                    np.sum(rel_c**2, axis=1) - on_axis**2 <= r_near**2
-                )
-                if slab.sum() >= 6:
-                    idx, rel = cand[slab], rel_c[slab]
-                    q = np.stack([rel @ u, rel @ vv], axis=1)
-            fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
-            if fit is None:
-                continue
-            radius[v] = fit.radius
-            scatter[v], coverage[v] = fit.scatter, fit.coverage_deg
-            full = (
-                fit.coverage_deg >= params.min_coverage_deg
-                and fit.rms <= params.max_rel_residual * fit.radius + 0.5 * spacing_m
-            )
-            partial = (
-                fit.coverage_deg >= params.partial_coverage_deg
-                and fit.rms <= params.partial_rel_residual * fit.radius + 0.25 * spacing_m
-            )
-            if (
-                (full or partial)
-                and fit.inlier_share >= 0.6
-                and fit.radius <= 0.6 * float(np.ptp(q, axis=0).max()) + band_min
-            ):
-                good_fit[v] = True
-                quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
-                fit_centre[v] = centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
-
-    # 5b. the noise of the points about the surface, from the stem's well-measured fits,
-    # and the smallest radius the noise lets a circle fit resolve (k sigma)
-    noise = estimate_noise(scatter, good_fit, coverage, radius, branch_of == 0, params, spacing_m)
-    if params.min_radius_m is not None:
-        r_min, r_min_rule = params.min_radius_m, "given"
-    elif noise["sd_m"] is not None:
-        r_min = max(params.resolve_sigmas * noise["sd_m"], res["min_radius_floor_m"])
-        r_min_rule = f"max({params.resolve_sigmas:g} × noise σ, floor)"
-    else:
-        r_min = NO_NOISE_MIN_RADIUS_SPACINGS * spacing_m
-        r_min_rule = f"{NO_NOISE_MIN_RADIUS_SPACINGS:g} × spacing (no σ)"
-    measured = good_fit & (radius >= r_min)
-    quality[~measured] = 0.0
-    pos[measured] = fit_centre[measured]
-
-    # 6. radius model (S: growth length, the length of the subtree a node supports):
-    # r^(1/b) = r_tip^(1/b) + a * S; b = 0.5 is the pipe model, "cross-section area = tip
-    # area + area proportional to the length supported". a comes from the measured nodes
-    # (weighted median); without measurements, from the spread of the base's points.
-    # The stem and the branches get their own a: a stem grows girth that supports no
-    # length (below the crown, and its heartwood), so the stem's a is 2-4x the branches'
-    # (4.3x in the balsam-fir preset's own table; Shinozaki et al. 1964 for the pipe model
-    # inside the crown), and the stem's a on a conifer's branches gave them 2.5x their
-    # volume. The branches' a is the smaller of the stem's and their own measured nodes'
-    # (at least BRANCH_A_MIN_FITS of them): those are biased up (only radii above the
-    # noise floor are measured, and bark bumps on a stem read as short thick branches: the
-    # real pine's gave 6x its branch volume), so they may only lower it.
-    r_tip = params.twig_radius_m
-    b_fit = params.pipe_exponent
-    grow = sub_len + 0.5 * h
-    e = 1.0 / b_fit
-    mm = measured & keep & (radius > r_tip * 1.05)
-    on_stem = branch_of == 0
-
-    def weighted_a(sel: np.ndarray) -> float:
-        ratio = (radius[sel] ** e - r_tip**e) / grow[sel]
-        o = np.argsort(ratio)
-        cw = np.cumsum(quality[sel][o])
-        return float(ratio[o][np.searchsorted(cw, 0.5 * cw[-1])])
-
-    if mm.sum() >= 3:
-        a_stem = weighted_a(mm & on_stem) if (mm & on_stem).sum() >= 3 else weighted_a(mm)
-        a_source = "measured nodes"
-        a_branch, a_branch_source = a_stem, "the stem's (too few measured branch nodes)"
-        if (mm & ~on_stem).sum() >= BRANCH_A_MIN_FITS:
-            a_own = weighted_a(mm & ~on_stem)
-            a_branch_source = "the stem's (lower than the measured branch nodes')"
-            if a_own < a_stem:
-                a_branch, a_branch_source = a_own, "measured branch nodes"
-    else:
-        idx = members_sorted[bounds[main_root] : bounds[main_root + 1]]
-        spread = float(np.sqrt(np.mean(np.sum((p[idx, :2] - p[idx, :2].mean(0)) ** 2, 1))))
-        a_stem = a_branch = max(spread**e - r_tip**e, 0.0) / grow[main_root]
-        a_source = a_branch_source = "base spread (no measured nodes)"
-    model = (r_tip**e + np.where(on_stem, a_stem, a_branch) * grow) ** b_fit
-    # never wider than the data around the node
-    model = np.minimum(model, np.where(np.isfinite(extent), extent + 0.25 * spacing_m, model))
-
-    final_r = np.where(measured, radius, model)
-    tag = np.where(measured, 0, 2)  # 0 measured, 1 interpolated, 2 modelled
-    noise_sd = noise["sd_m"] or 0.0
-    n_outliers = 0
-    for b, seq in enumerate(branches):
-        s = np.asarray(seq)
-        final_r[s], tag[s], measured[s], dropped = _branch_radii(
-            radius[s],
-            model[s],
-            measured[s],
-            pos[s],
-            stem=b == 0,
-            noise_sd=noise_sd,
-            tol_m=2.0 * noise_sd + 0.25 * spacing_m,
-            r_tip=r_tip,
-            tip_m=0.5 * h,
-        )
-        n_outliers += dropped
-    # parent >= child at junctions, twig prior; parents first (branches are in DFS order)
-    for b, seq in enumerate(branches):
-        j = branch_parent_node[b]
-        s = np.asarray(seq)
-        if j >= 0:
-            final_r[s] = np.minimum(final_r[s], final_r[j])
-        final_r[s] = np.maximum(final_r[s], r_tip)
-
-    # 6b. smooth each branch's axis: fitted centres jitter by a few mm to cm (partial
-    # arcs, furcations, centroid fall-backs) and a zig-zag axis is longer than the branch,
-    # which inflates length and volume (+14 % stem length measured on a 30 m preset).
-    # A (1, 2, 3, 2, 1) moving average along the branch, ends kept, removes the jitter.
-    # The stem's unmeasured stretches (hidden in the crown, among needles or leaves) follow
-    # slice clusters of foliage that wander metres sideways; a stem goes up: there the
-    # axis is a moving average over ±STEM_SMOOTH_M.
-    stem = np.asarray(branches[0])
-    half = max(2, int(round(STEM_SMOOTH_M / h)))
-    if len(stem) > 2 * half:
-        csum = np.vstack([np.zeros(3), np.cumsum(pos[stem], axis=0)])
-        ii = np.arange(len(stem))
-        lo, hi = np.clip(ii - half, 0, None), np.clip(ii + half + 1, None, len(stem))
-        wide = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
-        hidden = ~measured[stem]
-        hidden[0] = hidden[-1] = False
-        pos[stem[hidden]] = wide[hidden]
-    kernel = np.array([1.0, 2.0, 3.0, 2.0, 1.0])
-    for seq in branches:
-        if len(seq) < 5:
-            continue
-        s_idx = np.asarray(seq)
-        xyz = pos[s_idx]
-        padded = np.concatenate([np.repeat(xyz[:1], 2, 0), xyz, np.repeat(xyz[-1:], 2, 0)])
-        sm = np.stack(
-            [np.convolve(padded[:, j], kernel / kernel.sum(), mode="valid") for j in range(3)],
-            axis=1,
-        )
-        sm[0], sm[-1] = xyz[0], xyz[-1]
-        pos[s_idx] = sm
-
-    # 7. cylinders
-    starts, ends, r0, r1, par, bra, ordr, tags = [], [], [], [], [], [], [], []
-    end_row_of_node = np.full(m, -1, dtype=np.int64)
-    tag_names = np.array(["measured", "interpolated", "modelled"])
-    for b, seq in enumerate(branches):
-        j = branch_parent_node[b]
-        pts = [pos[v] for v in seq]
-        rads = [final_r[v] for v in seq]
-        tg = [tag[v] for v in seq]
-        if j < 0:  # stem: extend from the ground up to the first node
-            a = axes[seq[0]]
-            h0 = (
-                float(foot.height(pos[seq[0]][None, :])[0])
-                if foot is not None
-                else float(pos[seq[0]][2] - zmin)
-            )
-            base = pos[seq[0]] - a * max(h0 / max(a[2], 0.2), 0.0)
-            pts = [base, *pts]
-            rads = [rads[0], *rads]
-            tg = [tg[0], *tg]
-        else:  # start at the parent's surface
-            d0 = pts[0] - pos[j]
-            L0 = float(np.linalg.norm(d0))
-            if L0 > 0:
-                off = min(final_r[j], 0.5 * L0)
-                pts = [pos[j] + d0 / L0 * off, *pts]
-            else:
-                pts = [pos[j], *pts]
-            rads = [rads[0], *rads]
-            tg = [tg[0], *tg]
-        if len(pts) >= 2:  # tip: half a slice beyond the last node
-            d1 = pts[-1] - pts[-2]
-            L1 = float(np.linalg.norm(d1))
-            if L1 > 0:
-                pts[-1] = pts[-1] + d1 / L1 * 0.5 * h
-        prev_row = -1
-        for i in range(len(pts) - 1):
-            node = seq[i]  # segment i ends at node seq[i]
-            if np.linalg.norm(pts[i + 1] - pts[i]) < 1e-6:
-                end_row_of_node[node] = (
-                    prev_row if prev_row >= 0 else (end_row_of_node[j] if j >= 0 else -1)
-                )
-                continue
-            row = len(starts)
-            starts.append(pts[i])
-            ends.append(pts[i + 1])
-            r0.append(rads[i])
-            r1.append(rads[i + 1])
-            if prev_row >= 0:
-                par.append(prev_row)
-            else:
-                par.append(int(end_row_of_node[j]) if j >= 0 else -1)
-            bra.append(b + 1)
-            ordr.append(branch_order[b])
-            tags.append(tag_names[tg[i + 1]])
-            prev_row = row
-            end_row_of_node[node] = row
-    if not starts:
-        raise ReconstructionError("no cylinders could be built (is the cloud a tree?)")
-    par_arr = np.asarray(par, dtype=np.int64)
-    table = CylinderTable.from_endpoints(
-        np.asarray(starts),
-        np.asarray(ends),
-        np.asarray(r0),
-        end_radius_m=np.asarray(r1),
-        parent=par_arr,
-        branch=np.asarray(bra),
-        branch_order=np.asarray(ordr),
-        tag=np.asarray(tags),
-    )
+    table, tags = _cylinders(sk, fits, final_r, tag, foot, zmin, h)  # 7. cylinders
     diagnostics = {
         "params": {**asdict(params), **res, "min_radius_m": r_min},
         "points": n,
         "noise": {**noise, "min_radius_m": r_min, "min_radius_rule": r_min_rule},
-        "graph_bridges": n_bridges,
-        "nodes": int(keep.sum()),
-        "nodes_measured": int(measured.sum()),
+        "graph_bridges": graph.n_bridges,
+        "nodes": int(sk.keep.sum()),
+        "nodes_measured": int(fits.measured.sum()),
         "radius_outliers": n_outliers,
-        "branches": len(branches),
-        "radius_model": {
-            "r_tip_m": r_tip,
-            "b": b_fit,
-            "a_stem": a_stem,
-            "a_stem_from": a_source,
-            "a_branch": a_branch,
-            "a_branch_from": a_branch_source,
-        },
-        "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in tag_names},
+        "branches": len(sk.branches),
+        "radius_model": radius_model,
+        "cylinders_by_tag": {t: int((np.asarray(tags) == t).sum()) for t in _TAG_NAMES},
     }
     return QSMResult(
         table=table,
-        node_position=pos,
+        node_position=fits.pos,
         node_radius=final_r,
-        node_measured=measured,
+        node_measured=fits.measured,
         node_fit={
-            "radius_m": radius,
-            "scatter_m": scatter,
-            "coverage_deg": coverage,
-            "branch": branch_of,
+            "radius_m": fits.radius,
+            "scatter_m": fits.scatter,
+            "coverage_deg": fits.coverage,
+            "branch": sk.branch_of,
             "growth_m": grow,
         },
         diagnostics=diagnostics,
