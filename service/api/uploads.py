@@ -23,8 +23,6 @@ from .responses import PROBLEM_RESPONSES
 
 router = APIRouter(tags=["uploads"])
 
-CHUNK = 1 << 20
-
 
 def check_filename(name: str | None) -> str:
     """The upload's name, which is metadata only: a plain file name, never a path."""

@@ -21,10 +21,8 @@ workers'), stored as double precision.
 from __future__ import annotations
 
 import base64
-import fcntl
 import json
 import os
-import threading
 import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -32,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from filelock import FileLock
 from sqlalchemy import (
     JSON,
     BigInteger,
@@ -233,7 +232,9 @@ class Store:
             self._sqlite_path = ""
             self.engine = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=20)
             self.read_engine = self.engine
-        self._lock = threading.Lock()
+        # No in-process lock: every method is one database transaction, which the database
+        # serialises across threads and processes alike (BEGIN IMMEDIATE on SQLite, row
+        # locks on Postgres).
         if migrate:
             self.migrate()
 
@@ -282,9 +283,11 @@ class Store:
         cfg = Config()
         cfg.set_main_option("script_location", str(Path(__file__).parent / "migrations"))
         if self.is_sqlite and self._sqlite_path and self._sqlite_path != ":memory:":
+            # An exclusive lock file beside the database, waited for without a timeout
+            # (filelock: flock on POSIX, msvcrt on Windows; the OS frees it if its holder
+            # dies), so that processes starting together migrate once.
             lock_path = Path(self._sqlite_path).with_suffix(".migrate.lock")
-            with open(lock_path, "a+") as lock:
-                fcntl.flock(lock, fcntl.LOCK_EX)
+            with FileLock(lock_path):
                 with self.write() as conn:
                     cfg.attributes["connection"] = conn
                     command.upgrade(cfg, "head")

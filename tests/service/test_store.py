@@ -5,6 +5,9 @@ concurrently are each claimed exactly once."""
 from __future__ import annotations
 
 import multiprocessing
+import sqlite3
+import subprocess
+import sys
 import threading
 import time
 
@@ -28,6 +31,48 @@ def test_the_migrated_schema_is_the_tables_the_code_uses(store):
     with store.engine.connect() as conn:
         assert compare_metadata(MigrationContext.configure(conn), metadata) == []
     Store(store.url)  # a second open (another process starting) migrates nothing, fails nothing
+
+
+_HOLD_LOCK = """
+import sys
+from filelock import FileLock
+with FileLock(sys.argv[1]):
+    print("held", flush=True)
+    sys.stdin.read()
+"""
+
+
+def test_a_sqlite_store_migrates_only_once_another_process_frees_the_lock(tmp_path):
+    """Opening a SQLite store waits while another process holds the migration lock file
+    (as a second server starting at the same moment would), and migrates once it is freed:
+    a portable lock (filelock), no POSIX-only fcntl."""
+    db = tmp_path / "jobs.db"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLD_LOCK, str(db.with_suffix(".migrate.lock"))],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        opened = threading.Event()
+
+        def open_store() -> None:
+            Store(f"sqlite:///{db}").dispose()
+            opened.set()
+
+        threading.Thread(target=open_store, daemon=True).start()
+        assert not opened.wait(1.5), "the store migrated while another process held the lock"
+        assert not db.exists()  # nothing touched the database yet
+        holder.stdin.close()
+        assert holder.wait(10) == 0
+        assert opened.wait(60), "the store did not migrate after the lock was freed"
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+    with sqlite3.connect(db) as conn:
+        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert {"alembic_version", "jobs", "uploads"} <= tables
 
 
 def test_the_clock_is_the_databases(store):
