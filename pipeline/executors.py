@@ -29,14 +29,13 @@ import logging
 import multiprocessing
 import os
 import signal
-import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+from ._process import exit_with_parent
 from ._system import cpu_count
 from .errors import InvalidParameterError
 
@@ -211,24 +210,11 @@ class InlineExecutor(cf.Executor):
 
 
 # -- local --------------------------------------------------------------------------------
-_WORKER_THREADS = 0
-
-
-def _watch_parent(parent_pid: int) -> None:
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent_pid:
-            os._exit(70)  # the batch died: nothing will read our result
-
-
-def _init_local_worker(threads: int, parent_pid: int) -> None:
-    """Runs once in each local worker: fix its thread count, ignore Ctrl-C, die with the
-    parent."""
-    global _WORKER_THREADS
-    _WORKER_THREADS = int(threads)
-    os.environ["TREESIM_WORKER_THREADS"] = str(threads)
+def _init_local_worker(parent_pid: int) -> None:
+    """Runs once in each local worker: ignore Ctrl-C (the batch stops its workers), die
+    with the parent. (The thread count reaches each task with the task.)"""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    exit_with_parent(parent_pid, interval_s=1.0)  # exit status 70: nothing reads our result
 
 
 @contextmanager
@@ -246,7 +232,7 @@ def open_executor(plan: ExecutorPlan) -> Iterator[cf.Executor]:
             max_workers=plan.workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_local_worker,
-            initargs=(plan.threads, os.getpid()),
+            initargs=(os.getpid(),),
         )
         try:
             yield pool

@@ -8,8 +8,8 @@ which recurses in a script without an ``if __name__ == "__main__":`` guard). Arr
 and come back as ``.npy`` files in a private temporary folder, so no pipe can block
 either side. A signal or a non-zero exit, a timeout (the child is killed), or an exception
 in the child becomes a :class:`~treesim.errors.ReconstructionError` whose message says
-what happened and what to try. The child exits by itself if the parent dies (it watches
-its standard input, which only the parent holds open).
+what happened and what to try. The child exits by itself (status 70) if the parent dies
+(:func:`treesim._process.exit_with_parent`, given the parent's pid on its command line).
 
 Test hook: when the environment variable :data:`FAULT_ENV` is ``abort`` the child calls
 ``os.abort()`` before its task, ``segfault`` kills itself with SIGSEGV, ``hang`` sleeps
@@ -24,7 +24,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import traceback
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .._process import ORPHANED_EXIT, exit_with_parent
 from ..errors import ReconstructionError
 
 #: Environment variable the child honours to simulate failures (tests only).
@@ -40,7 +40,7 @@ FAULT_ENV = "TREESIM_TEST_PMLWORKER_FAULT"
 #: Exit code of a child whose task raised (it also writes the error to ``result.json``).
 _EXIT_TASK_ERROR = 3
 #: Exit code of a child that noticed its parent had gone.
-_EXIT_ORPHANED = 70
+_EXIT_ORPHANED = ORPHANED_EXIT
 
 #: What the child interpreter runs (``-c``, so that importing the package does not warn
 #: about this module being run as ``__main__`` after it was imported).
@@ -129,19 +129,9 @@ def _apply_test_fault() -> None:
         raise RuntimeError("simulated failure (test hook)")
 
 
-def _exit_when_orphaned() -> None:
-    """End this process when standard input closes (the parent is gone)."""
-    try:  # os.read, not sys.stdin: a buffered read would hold a lock at shutdown
-        while os.read(0, 4096):
-            pass
-    except OSError:
-        pass
-    os._exit(_EXIT_ORPHANED)
-
-
 def _child_main(argv: list[str]) -> int:
-    task, folder = argv[0], Path(argv[1])
-    threading.Thread(target=_exit_when_orphaned, daemon=True).start()
+    task, folder, parent_pid = argv[0], Path(argv[1]), int(argv[2])
+    exit_with_parent(parent_pid, interval_s=0.5, code=_EXIT_ORPHANED)
     result_path = folder / "result.json"
     try:
         params = json.loads((folder / "params.json").read_text())
@@ -240,8 +230,8 @@ def run_in_child(
         log = folder / "log.txt"
         with open(log, "wb") as log_file:
             proc = subprocess.Popen(
-                [sys.executable, "-c", _CHILD_COMMAND, task, str(folder)],
-                stdin=subprocess.PIPE,
+                [sys.executable, "-c", _CHILD_COMMAND, task, str(folder), str(os.getpid())],
+                stdin=subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=subprocess.STDOUT,
                 env=env,
@@ -255,9 +245,6 @@ def run_in_child(
                 raise ReconstructionError(
                     f"{what} did not finish within {timeout_s:g} s and was stopped.{tail}"
                 ) from None
-            finally:
-                if proc.stdin is not None:
-                    proc.stdin.close()
         result_path = folder / "result.json"
         result = json.loads(result_path.read_text()) if result_path.exists() else None
         if result is not None and result.get("status") == "error":

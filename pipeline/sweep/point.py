@@ -25,11 +25,12 @@ from __future__ import annotations
 import json
 import os
 import sys
-import threading
 import time
 import traceback
 from pathlib import Path
 from typing import Any
+
+from .._process import exit_with_parent
 
 __all__ = ["main", "peak_rss_mib", "rss_mib", "warm_up"]
 
@@ -89,13 +90,6 @@ def warm_up() -> None:
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(mesh)
     scene.cast_rays(o3d.core.Tensor(np.array([[0.5, 0.5, -1, 0, 0, 1]], dtype=np.float32)))
-
-
-def _watch_parent(parent: int) -> None:
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent:
-            os._exit(70)  # the sweep died: nothing will read our result
 
 
 def run_point(task: dict[str, Any]) -> dict[str, Any]:
@@ -168,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     into the task's ``outdir``; exit status 0 or 1."""
     args = sys.argv[1:] if argv is None else argv
     task = json.loads(Path(args[0]).read_text(encoding="utf-8"))
-    threading.Thread(target=_watch_parent, args=(int(task["parent_pid"]),), daemon=True).start()
+    exit_with_parent(int(task["parent_pid"]), interval_s=1.0)  # status 70: the sweep died
     out = Path(task["outdir"])
     out.mkdir(parents=True, exist_ok=True)
     from ..jsonio import write_json

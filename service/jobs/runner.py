@@ -15,12 +15,13 @@ import json
 import os
 import signal
 import sys
-import threading
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+from treesim._process import exit_with_parent
 
 __all__ = ["JobSpec", "ProgressFile", "child_main", "dask_main", "execute", "read_json"]
 
@@ -126,19 +127,12 @@ def _outcome(spec: JobSpec) -> dict[str, Any]:
         }
 
 
-def _watch_parent(parent_pid: int) -> None:
-    while True:
-        time.sleep(0.5)
-        if os.getppid() != parent_pid:
-            os._exit(70)  # the worker died: nobody will read our result
-
-
 def child_main(spec_dict: dict[str, Any], parent_pid: int) -> None:
     """Entry point of a job's spawned process: log to the job's log file, die with the
     worker, run, write the result file."""
     spec = JobSpec(**spec_dict)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the worker decides when to stop us
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    exit_with_parent(parent_pid, interval_s=0.5)  # status 70: nobody will read our result
     try:
         log = open(spec.log_path, "a", buffering=1)  # noqa: SIM115 - lives as long as we do
         os.dup2(log.fileno(), 1)
@@ -146,7 +140,6 @@ def child_main(spec_dict: dict[str, Any], parent_pid: int) -> None:
         sys.stdout = sys.stderr = log
     except OSError:
         pass
-    os.environ["TREESIM_WORKER_THREADS"] = str(spec.threads)
     result = _outcome(spec)
     _write_json(spec.result_path, result)
     sys.stdout.flush()

@@ -4,7 +4,7 @@ points down the layers.
 Reads every import of every module (function-local ones included) with ``ast``; nothing
 is imported. The layers, bottom to top (README, "Layout"):
 
-* the base: ``errors``, ``_version``, ``_system``, ``atomic``, ``jsonio``, ``frame``,
+* the base: ``errors``, ``_version``, ``_system``, ``_process``, ``atomic``, ``jsonio``, ``frame``,
   ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
   another, except ``reconstruct → models`` (cylinders to mesh);
@@ -29,6 +29,7 @@ BASE_ORDER = [
     "errors",
     "_version",
     "_system",
+    "_process",
     "atomic",
     "jsonio",
     "frame",
