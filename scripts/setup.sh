@@ -5,14 +5,17 @@
 #   scripts/setup.sh demo   the shared libraries open3d and pymeshlab load, a virtualenv in
 #                           $VENV (.venv) and treesim itself: what `make demo` needs, quietly
 #   scripts/setup.sh test   (the default) all of that, plus the dev extra (with the service,
-#                           dask, e57 and postgres extras) and
-#                           headless Chromium: what the test suite needs (`make test`)
+#                           dask, e57 and postgres extras), the docs extra (the manual's
+#                           pages are checked by the tests) and headless Chromium: what the
+#                           test suite needs (`make test`)
+#   scripts/setup.sh docs   what `demo` installs plus the docs extra (MkDocs): what
+#                           `make docs` needs to build the manual
 set -euo pipefail
 cd "$(dirname "$0")/.."
 MODE="${1:-test}"
 case "$MODE" in
-  demo|test) ;;
-  *) echo "usage: scripts/setup.sh [demo|test]" >&2; exit 2 ;;
+  demo|test|docs) ;;
+  *) echo "usage: scripts/setup.sh [demo|test|docs]" >&2; exit 2 ;;
 esac
 VENV="${VENV:-.venv}"
 PYTHON="${PYTHON:-python3}"
@@ -51,9 +54,12 @@ PIP=("$VENV/bin/python" -m pip install -q --disable-pip-version-check)
 if [ "$MODE" = demo ]; then
   echo "setup: installing treesim into $VENV (a minute on a fresh machine)"
   "${PIP[@]}" -q -e .  # -qq: errors only
+elif [ "$MODE" = docs ]; then
+  "${PIP[@]}" -e ".[docs]"
 else
   "${PIP[@]}" --upgrade pip
-  "${PIP[@]}" -e ".[dev]"  # dev pulls in the service, dask, e57 and postgres extras
+  # dev pulls in the service, dask, e57 and postgres extras; docs the site's builder
+  "${PIP[@]}" -e ".[dev,docs]"
 fi
 "$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh, pgeof" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
