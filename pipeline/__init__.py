@@ -3,10 +3,23 @@
 The facade: read and write clouds (``read_cloud``, ``write_cloud``), ``reconstruct`` a
 tree mesh, ``scan`` it with the virtual scanner, ``compare`` clouds with meshes or clouds,
 ``build_report``, and the whole loop for one tree (``run_tree``) or many (``run_batch``),
-or a grid of settings on trees, timed and scored (``run_sweep``).
+or a grid of settings on trees, timed and scored (``run_sweep``). Forest plots: a ``Plot``
+of ``PlotTree`` on a ``Terrain``, read and written as files (``read_plot``,
+``write_plot``) or generated as a stand (``generate_stand``), scanned station by station
+(``scan_plot``) and measured per tree (``tree_figures``); scan planning: where to stand and
+how often (``plan_scans``, ``write_plan``).
+
+Examples
+--------
+>>> import treesim as ts
+>>> ts.run_preset("draft").scan.scanner.horizontal_resolution_deg > 0
+True
 """
 
 from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
 from .batch import BatchResult, run_batch
@@ -31,27 +44,80 @@ from .scan import Station, ring_layout, scan
 from .scene import Scene
 from .sweep import SweepResult, run_sweep
 
+if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
+    from .plan import PlanParams, PlanResult, plan_scans
+    from .plan.outputs import write_plan
+    from .plot import Plot, PlotTree, Terrain
+    from .plot.generate import StandParams, generate_stand
+    from .plot.io import read_plot, write_plot
+    from .plot.scan import PlotScanResult, scan_plot, tree_figures
+
+#: The plot and plan verbs, imported on first use: every ``treesim`` command imports this
+#: package, and what only plots and plans need (their modules, the TOML reader) should not
+#: slow down the others (tests/sweep/test_import.py, tests/architecture/test_startup.py).
+_LAZY = {
+    "PlanParams": ".plan",
+    "PlanResult": ".plan",
+    "plan_scans": ".plan",
+    "write_plan": ".plan.outputs",
+    "Plot": ".plot",
+    "PlotTree": ".plot",
+    "Terrain": ".plot",
+    "StandParams": ".plot.generate",
+    "generate_stand": ".plot.generate",
+    "read_plot": ".plot.io",
+    "write_plot": ".plot.io",
+    "PlotScanResult": ".plot.scan",
+    "scan_plot": ".plot.scan",
+    "tree_figures": ".plot.scan",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Import a plot or plan verb when it is first used (PEP 562)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # found directly from now on
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
 __all__ = [
     "LABEL_CODES",
     "BatchResult",
     "Cloud",
     "CompareParams",
     "LocalFrame",
+    "PlanParams",
+    "PlanResult",
+    "Plot",
+    "PlotScanResult",
+    "PlotTree",
     "ReconstructParams",
     "RunParams",
     "RunResult",
     "ScanParams",
     "ScannerSpec",
     "Scene",
+    "StandParams",
     "Station",
     "SweepResult",
+    "Terrain",
     "TreesimError",
     "__version__",
     "build_report",
     "compare",
+    "generate_stand",
     "load_config",
     "load_scene",
+    "plan_scans",
     "read_cloud",
+    "read_plot",
     "reconstruct",
     "ring_layout",
     "run_batch",
@@ -59,5 +125,9 @@ __all__ = [
     "run_sweep",
     "run_tree",
     "scan",
+    "scan_plot",
+    "tree_figures",
     "write_cloud",
+    "write_plan",
+    "write_plot",
 ]
