@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +32,37 @@ def json_ready(value: Any) -> Any:
     return value
 
 
-def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON through a temporary file renamed into place, so a
-    half-written file is never seen."""
+def write_json(path: str | Path, data: Any, *, default: Callable[[Any], Any] | None = None) -> Path:
+    """Write ``data`` as indented JSON, atomically: the one JSON writer of treesim.
+
+    ``data`` goes through :func:`json_ready` (no NaN: ``null``), then
+    :func:`treesim.atomic.write_text` (a temporary file of its own, renamed into place),
+    so a half-written file is never seen and two writers of one path never mix.
+
+    Parameters
+    ----------
+    path : str or Path
+        The destination file; its folder must exist.
+    data : Any
+        Plain data (numpy values and paths are converted).
+    default : callable, optional
+        What :func:`json.dumps` calls for a value it cannot write (e.g. ``str``); by
+        default such a value is a ``TypeError``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputFormatError
+        If the file cannot be written (the OS error in the message).
+    """
     p = Path(path)
+    text = json.dumps(json_ready(data), indent=2, allow_nan=False, default=default) + "\n"
     try:
-        write_text(p, json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n")
+        write_text(p, text)
     except OSError as exc:
         raise InputFormatError(f"could not write {p}: {exc}") from exc
     return p

@@ -179,21 +179,6 @@ def decode_metadata(lines: list[str]) -> dict[str, Any]:
     return metadata
 
 
-@contextmanager
-def atomic_output(path: Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; move it onto ``path`` on success.
-
-    :func:`treesim.atomic.atomic_path` with OS errors mapped to
-    :class:`InputFormatError`: a failed write leaves no partial file behind (and an
-    existing file untouched).
-    """
-    try:
-        with atomic_path(path) as tmp:
-            yield tmp
-    except OSError as exc:
-        raise write_error(path, exc) from exc
-
-
 def write_error(path: Path, exc: OSError) -> InputFormatError:
     """The :class:`InputFormatError` that reports an OS error while writing ``path``."""
     return InputFormatError(
@@ -203,16 +188,17 @@ def write_error(path: Path, exc: OSError) -> InputFormatError:
 
 
 class _Discarded(Exception):
-    """Thrown into :func:`atomic_output` to make it drop the temporary file."""
+    """Thrown into :func:`~treesim.atomic.atomic_path` to make it drop the temporary file."""
 
 
 class AtomicFile:
-    """:func:`atomic_output` held open across calls: commit or discard later.
+    """:func:`treesim.atomic.atomic_path` held open across calls: commit or discard later.
 
     For writers whose output outlives one ``with`` block (streaming writers): the
     temporary path is chosen now; :meth:`commit` moves it onto the destination and
-    :meth:`discard` removes it, both exactly as :func:`atomic_output` does at the end of
-    its ``with`` block (OS errors become :class:`InputFormatError`).
+    :meth:`discard` removes it, both exactly as :func:`~treesim.atomic.atomic_path` does at
+    the end of its ``with`` block. OS errors become :class:`InputFormatError`: a failed
+    write leaves no partial file behind (and an existing file untouched).
 
     Parameters
     ----------
@@ -222,17 +208,33 @@ class AtomicFile:
     Attributes
     ----------
     tmp : Path
-        Where to write the content (``.<name>.tmp`` beside ``path``).
+        Where to write the content (``.<name>.<random>.tmp`` beside ``path``).
+
+    Raises
+    ------
+    InputFormatError
+        If the temporary file cannot be created.
     """
 
     def __init__(self, path: Path) -> None:
+        self._path = path
         self._stack = ExitStack()
-        self.tmp: Path = self._stack.enter_context(atomic_output(path))
+        with self._mapped_errors():
+            self.tmp: Path = self._stack.enter_context(atomic_path(path))
 
     def commit(self) -> None:
         """Move the temporary file onto the destination."""
-        self._stack.close()
+        with self._mapped_errors():
+            self._stack.close()
 
     def discard(self) -> None:
         """Remove the temporary file; the destination is left as it was."""
-        self._stack.__exit__(_Discarded, _Discarded(), None)
+        with self._mapped_errors():
+            self._stack.__exit__(_Discarded, _Discarded(), None)
+
+    @contextmanager
+    def _mapped_errors(self) -> Iterator[None]:
+        try:
+            yield
+        except OSError as exc:
+            raise write_error(self._path, exc) from exc

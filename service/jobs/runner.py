@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from treesim._process import exit_with_parent
+from treesim.errors import TreesimError
+from treesim.jsonio import write_json
 
 __all__ = ["JobSpec", "ProgressFile", "child_main", "dask_main", "execute", "read_json"]
 
@@ -58,9 +60,8 @@ class JobSpec:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, allow_nan=False, default=str))
-    os.replace(tmp, path)
+    """treesim's atomic JSON writer; a value JSON has no form for is written as its str."""
+    write_json(path, data, default=str)
 
 
 def read_json(path: Path) -> Any:
@@ -87,7 +88,7 @@ class ProgressFile:
         self._last = now
         try:
             _write_json(self.path, {"fraction": float(fraction), "stage": str(message)})
-        except OSError:
+        except (OSError, TreesimError):
             pass  # progress is best effort; the result is what counts
 
 
@@ -108,8 +109,6 @@ def execute(spec: JobSpec) -> dict[str, Any]:
 
 
 def _outcome(spec: JobSpec) -> dict[str, Any]:
-    from treesim.errors import TreesimError
-
     from ..problems import problem, problem_for
 
     try:
@@ -153,6 +152,6 @@ def dask_main(spec_dict: dict[str, Any]) -> dict[str, Any]:
     result = _outcome(spec)
     try:
         _write_json(spec.result_path, result)
-    except OSError:
+    except (OSError, TreesimError):
         pass
     return result

@@ -229,9 +229,12 @@ def test_sigint_to_a_scanning_process_leaves_nothing_and_exits_130(tmp_path):
     cmd += ["--station", "6,0,1.5", "--resolution-deg", "0.002", "--chunk-rays", "100000"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
-    tmp = out.with_name(f".{out.name}.tmp")
     deadline = time.monotonic() + 60
-    while not tmp.exists() and proc.poll() is None and time.monotonic() < deadline:
+    while (
+        not any(out.parent.glob(f".{out.name}.*.tmp"))  # the writer's temporary file
+        and proc.poll() is None
+        and time.monotonic() < deadline
+    ):
         time.sleep(0.02)  # until the scan writes
     assert proc.poll() is None, "the scan ended before it could be interrupted"
     time.sleep(0.3)
