@@ -156,4 +156,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from benchmarks import docs_part
+
+    # --docs: the printout also becomes its part of docs/validation.md
+    with docs_part.recording(docs_part.from_argv("bench-batch"), "bench_batch.py"):
+        rc = main()
+    sys.exit(rc)

@@ -188,4 +188,8 @@ def lille() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from benchmarks import docs_part
+
+    # --docs: the printout also becomes its part of docs/validation.md
+    with docs_part.recording(docs_part.from_argv("bench-leaves"), "bench_leaves.py"):
+        main()

@@ -16,8 +16,8 @@ RSS is the process's own ``ru_maxrss``; time includes building the trees):
 4. the whole plot as one scene scanned at once by :func:`treesim.scan.scan` (the
    baseline: every tree held and loaded), at the short range.
 
-Usage: ``python benchmarks/bench_plot.py [--quick] [--readme]`` (``--quick``: 16 facets
-and 0.2°, a smoke run; ``--readme``: write the table into the README between
+Usage: ``python benchmarks/bench_plot.py [--quick] [--docs]`` (``--quick``: 16 facets
+and 0.2°, a smoke run; ``--docs``: write the table into ``docs/validation.md`` between
 ``<!-- bench-plot:begin -->`` and ``<!-- bench-plot:end -->``). Prints measured figures
 only.
 """
@@ -38,9 +38,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks import readme as readme_part  # noqa: E402
+from benchmarks import docs_part  # noqa: E402
 
-README_PART = "bench-plot"
+DOCS_PART = "bench-plot"
 
 _CHILD = r"""
 import json, resource, sys, time
@@ -102,7 +102,7 @@ def run_case(case: str, plot_dir: Path, res: float, rng: float | None, threads: 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--readme", action="store_true")
+    ap.add_argument("--docs", "--readme", dest="docs", action="store_true")
     ap.add_argument("--facets", type=int, default=None)
     ap.add_argument("--resolution-deg", type=float, default=None)
     ap.add_argument("--short-range-m", type=float, default=10.0)
@@ -167,7 +167,7 @@ def main() -> None:
         f"{nocache['time_s'] - short['time_s']:+.1f} s)."
     )
     print(ratios)
-    if a.readme:
+    if a.docs:
         command = " ".join(["python benchmarks/bench_plot.py", *sys.argv[1:]])
         lines = [
             f"`{command}` measured these in one run: {machine} "
@@ -188,8 +188,8 @@ def main() -> None:
                 f"{loaded} of {r['triangles'] / 1e6:.1f} M |"
             )
         lines += ["", ratios]
-        readme_part.write_part(README_PART, "\n".join(lines))
-        print("wrote the README's table")
+        docs_part.write_part(DOCS_PART, "\n".join(lines))
+        print(f"wrote the table into {docs_part.VALIDATION.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":

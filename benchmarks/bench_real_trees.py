@@ -26,7 +26,7 @@ each folder with its PROVENANCE.md; none is fine), measured side by side in one 
 The 1.3 m slab of every tree is drawn to ``docs/img/real_trees/NAME.png``.
 
 Usage: ``python benchmarks/bench_real_trees.py [--trees coffee,pine] [--skip-pytlidar]
-[--readme] [--reuse]`` (``--readme`` writes the table into the README between
+[--docs] [--reuse]`` (``--docs`` writes the table into ``docs/validation.md`` between
 ``<!-- bench-real-trees:begin -->`` and ``<!-- bench-real-trees:end -->``; ``--reuse``
 keeps each (tree, tool) result already measured in ``--out`` and runs the rest).
 """
@@ -50,10 +50,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks import readme as readme_part  # noqa: E402
+from benchmarks import docs_part  # noqa: E402
 from tests.reconstruct import slab_reference as sr  # noqa: E402
 
-README_PART = "bench-real-trees"
+DOCS_PART = "bench-real-trees"
 SHARED_TREES = ROOT.parent / "shared" / "data" / "trees"
 REPO_TREES = ROOT / "tests" / "data" / "trees"
 IMG_DIR = ROOT / "docs" / "img" / "real_trees"
@@ -399,7 +399,13 @@ def main() -> None:
     ap.add_argument("--timeout-s", type=float, default=1800.0, help="per tree and tool")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_real_trees")
     ap.add_argument("--reuse", action="store_true", help="keep results already in --out")
-    ap.add_argument("--readme", action="store_true", help="write the table into README.md")
+    ap.add_argument(
+        "--docs",
+        "--readme",
+        dest="docs",
+        action="store_true",
+        help="write the table into docs/validation.md",
+    )
     a = ap.parse_args()
 
     from treesim.io import read_cloud
@@ -451,16 +457,16 @@ def main() -> None:
         all_rows += rows
     table = markdown(all_rows)
     print("\n" + table)
-    if a.readme:
+    if a.docs:
         command = " ".join(["python benchmarks/bench_real_trees.py", *sys.argv[1:]])
         head = (
             f"`{command}` measured these on {date.today()}, {platform.machine()} with "
             f"{os.cpu_count()} cores, Python {platform.python_version()} (a shared host: times "
             "±15 %); each tool in a fresh child process per tree; the 1.3 m slabs are drawn in "
-            "[docs/img/real_trees/](docs/img/real_trees/)."
+            "`docs/img/real_trees/` and shown below."
         )
-        readme_part.write_part(README_PART, head + "\n\n" + table)
-        print("wrote the README's table")
+        docs_part.write_part(DOCS_PART, head + "\n\n" + table)
+        print(f"wrote the table into {docs_part.VALIDATION.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":

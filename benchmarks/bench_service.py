@@ -264,4 +264,9 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from benchmarks import docs_part
+
+    # --docs: the printout also becomes its part of docs/validation.md
+    with docs_part.recording(docs_part.from_argv("bench-service"), "bench_service.py"):
+        rc = main()
+    raise SystemExit(rc)

@@ -3,7 +3,7 @@
 Reads ``benchmarks/sweeps/presets/sweep.json`` (written by ``benchmarks/bench_sweep.py``)
 and writes, with the sweep's date and machine:
 
-* the README's preset table, between ``<!-- preset-table:begin -->`` and
+* the manual's preset table (``docs/validation.md``), between ``<!-- preset-table:begin -->`` and
   ``<!-- preset-table:end -->``;
 * ``pipeline/data/preset_measurements.txt``, the text ``treesim run --help`` prints.
 
@@ -14,7 +14,7 @@ preset and tree, the points of the sweep that beat it (no slower and better in t
 figures), so that a poor choice shows.
 
 Usage: ``python benchmarks/preset_table.py [--sweep PATH] [--check]``; ``--check`` exits 1
-when the README or the text file differs from what the sweep gives (nothing written).
+when the page or the text file differs from what the sweep gives (nothing written).
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks import readme as readme_part  # noqa: E402
+from benchmarks import docs_part  # noqa: E402
 
 SWEEP = ROOT / "benchmarks" / "sweeps" / "presets" / "sweep.json"
-README = ROOT / "README.md"
+PAGE = docs_part.VALIDATION
 MEASUREMENTS = ROOT / "pipeline" / "data" / "preset_measurements.txt"
-PART = "preset-table"  # the README part between <!-- preset-table:begin/end -->
+PART = "preset-table"  # the part of docs/validation.md between <!-- preset-table:begin/end -->
 PRESETS = ("draft", "standard", "fine")
 
 
@@ -132,7 +132,7 @@ def settings_of(doc: dict[str, Any], name: str) -> dict[str, Any]:
 
 
 def markdown(doc: dict[str, Any]) -> str:
-    """The README's table, with its heading."""
+    """The manual's table, with its heading."""
     tol = doc["tolerance"]["tolerance_m"]
     lines = [
         f"Measured by `benchmarks/bench_sweep.py` ({_when(doc)}; one point at a time, each in "
@@ -227,7 +227,7 @@ def text(doc: dict[str, Any]) -> str:
 
 def replace_between(doc_text: str, body: str) -> str:
     """``doc_text`` with the preset table's part replaced by ``body``."""
-    return readme_part.replace_between(doc_text, PART, body)
+    return docs_part.replace_between(doc_text, PART, body, str(PAGE))
 
 
 def main() -> int:
@@ -236,20 +236,20 @@ def main() -> int:
     ap.add_argument("--check", action="store_true", help="compare, write nothing")
     args = ap.parse_args()
     doc = json.loads(Path(args.sweep).read_text(encoding="utf-8"))
-    readme = replace_between(README.read_text(encoding="utf-8"), markdown(doc))
+    page = replace_between(PAGE.read_text(encoding="utf-8"), markdown(doc))
     txt = text(doc)
     if args.check:
         stale = [
             p.name
-            for p, new in ((README, readme), (MEASUREMENTS, txt))
+            for p, new in ((PAGE, page), (MEASUREMENTS, txt))
             if p.read_text(encoding="utf-8") != new
         ]
         if stale:
             print(f"out of date: {', '.join(stale)}; run python benchmarks/preset_table.py")
             return 1
-        print("README.md and preset_measurements.txt match the sweep")
+        print(f"{PAGE.name} and preset_measurements.txt match the sweep")
         return 0
-    README.write_text(readme, encoding="utf-8")
+    PAGE.write_text(page, encoding="utf-8")
     MEASUREMENTS.write_text(txt, encoding="utf-8")
     print(markdown(doc))
     print()
@@ -261,7 +261,7 @@ def main() -> int:
             print(f"{name} on {tree['id']}: beaten (no slower, no worse, better in one) by {by}")
         else:
             print(f"{name} on {tree['id']}: no point of the sweep beats it")
-    where = f"{README.relative_to(ROOT)} (between the markers), {MEASUREMENTS.relative_to(ROOT)}"
+    where = f"{PAGE.relative_to(ROOT)} (between the markers), {MEASUREMENTS.relative_to(ROOT)}"
     print(f"wrote {where}")
     return 0
 

@@ -2,7 +2,7 @@
 points down the layers.
 
 Reads every import of every module (function-local ones included) with ``ast``; nothing
-is imported. The layers, bottom to top (README, "Layout"):
+is imported. The layers, bottom to top (docs/install.md, "The repository"):
 
 * the base: ``errors``, ``_version``, ``_system``, ``_process``, ``atomic``, ``jsonio``, ``frame``,
   ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;

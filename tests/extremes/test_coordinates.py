@@ -7,7 +7,7 @@ significant bits at most, of float64's 53) and the scanner's local frame, centre
 the bounding box, sees the very same numbers: the shifted cloud must be the cloud at the
 origin plus the shift, rounded once, bit for bit ("the precision of doubles there").
 
-Compared with the mesh, each point then lies on it to the scanner's bound (README:
+Compared with the mesh, each point then lies on it to the scanner's bound (docs/concepts.md:
 1e-9 m) plus the rounding of its shifted coordinates, half an ulp of each (ulp(1e7 m) =
 1.9e-9 m): the distance compare measures may be that much, and no more.
 """

@@ -1,6 +1,6 @@
 """Degenerate input: what the scanner does with meshes and stations that are not nice.
 
-Decisions (README "The scanner", ``treesim.scene.Scene``):
+Decisions (docs/commands/scan.md, "Degenerate input"; ``treesim.scene.Scene``):
 
 * zero-area triangles are dropped and counted; duplicate triangles (either orientation)
   and non-manifold edges are kept, and change nothing the rays can tell;

@@ -12,8 +12,8 @@ distance ``D`` plus the scene's size ``S``: each rounds by half an ulp (2**-53 r
 so a hit lies within ``ROUNDING_ULPS × 2**-52 × (D + S)`` of the surface (32 ulps: a
 slack of ~3 over the operation count), over the cosine of the incidence (an error along
 the ray moves a hit sideways by its tangent: near an edge, off the neighbour's plane).
-That is 1.4e-11 m at 2 km at normal incidence, well inside the README's 1e-9 m, which is
-asserted too.
+That is 1.4e-11 m at 2 km at normal incidence, well inside the manual's 1e-9 m (docs/concepts.md),
+which is asserted too.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The planner's acceptance set-ups, shared by its tests and ``benchmarks/bench_plan.py
---acceptance`` (which prints the figures the README quotes)."""
+--acceptance`` (which prints the figures docs/validation.md quotes)."""
 
 from __future__ import annotations
 

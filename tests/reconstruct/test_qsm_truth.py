@@ -19,18 +19,18 @@ from treesim.scan import ScannerSpec, ring_layout, scan
 from treesim.scene import MeshPart, Scene
 
 LEAF_OFF = [name for name, p in PRESETS.items() if not name.endswith("leafon")]
-README = Path(__file__).resolve().parents[2] / "README.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "reconstruction.md"
 README_COLUMNS = ("dbh_mm", "stem_pct", "total_pct", "height_pct", "noise_mm")
 #: The instrument whose noise the field clouds carry (range σ 3 mm, pointing 0.0005°).
 INSTRUMENT = instrument("riegl-vz400")
 
 
 def readme_qsm_table() -> dict[str, dict[str, tuple[float, float]]]:
-    """The README's QSM table (section "the cylinder QSM"): per preset, per column, the
+    """The manual's QSM table (docs/guides/reconstruction.md): per preset, per column, the
     printed figure and half its last printed digit (the figure's own rounding)."""
-    text = README.read_text(encoding="utf-8")
+    text = PAGE.read_text(encoding="utf-8")
     head = "| preset | DBH error | stem volume | total volume | height | noise σ (estimated) |"
-    assert head in text, "the README's QSM table header changed; update this test with it"
+    assert head in text, "the manual's QSM table header changed; update this test with it"
     rows = {}
     for line in text[text.index(head) :].splitlines()[2:]:
         if not line.startswith("|"):
@@ -40,7 +40,7 @@ def readme_qsm_table() -> dict[str, dict[str, tuple[float, float]]]:
         figures = {}
         for col, cell in zip(README_COLUMNS, cells[1:], strict=True):
             m = re.fullmatch(r"([+\u2212-]?)(\d+)(?:\.(\d+))? ?(mm|%)", cell)
-            assert m, f"unparsed README cell {cell!r} ({name}, {col})"
+            assert m, f"unparsed cell {cell!r} ({name}, {col})"
             sign = -1.0 if m.group(1) in ("-", "\u2212") else 1.0
             value = sign * float(m.group(2) + "." + (m.group(3) or "0"))
             half_digit = 0.5 * 10.0 ** -len(m.group(3) or "")
@@ -101,7 +101,7 @@ def test_readme_qsm_table_lists_every_leaf_off_preset():
 def test_qsm_on_noisy_scans_meets_the_targets_and_the_readme(name):
     """Issue 13's targets on the VZ-400-noisy scans (DBH within 5 mm, stem volume within
     5 %, total within 10 %; height within 2 %), the noise σ estimated from the data, and
-    the README's figures."""
+    the manual's figures."""
     truth, fig = rebuilt(name)
     got = measured(truth, fig)
     print(name, {k: round(v, 3) for k, v in got.items()})
@@ -114,7 +114,7 @@ def test_qsm_on_noisy_scans_meets_the_targets_and_the_readme(name):
     # noise projected on the surface normal (incidence 0-90°, so below the range σ) and
     # somewhat averaged by the 5 mm voxels; nowhere near a noiseless scan's ~0.3 mm
     assert 0.4 * INSTRUMENT.range_noise_sd_m <= fig["noise_sd_m"] <= INSTRUMENT.range_noise_sd_m
-    # deterministic code and seeded noise: each figure must round to what the README
+    # deterministic code and seeded noise: each figure must round to what the manual
     # prints, so the tolerance is half the printed last digit (0.05 mm, 0.05 %)
     printed = readme_qsm_table()[name]
     off = {
@@ -122,7 +122,7 @@ def test_qsm_on_noisy_scans_meets_the_targets_and_the_readme(name):
         for col, (value, half_digit) in printed.items()
         if abs(got[col] - value) > half_digit
     }
-    assert not off, f"{name}: measured vs README {off}"
+    assert not off, f"{name}: measured vs the manual {off}"
 
 
 def test_qsm_is_deterministic_on_a_preset():

@@ -21,18 +21,21 @@ TREES = [
 ]
 
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "reconstruction.md"
 
 
 def readme_coffee_figures() -> tuple[float, float, float]:
-    """(litres, DBH cm, noise σ mm) the README prints for treesim on the coffee tree."""
-    text = " ".join(README.read_text(encoding="utf-8").split())
+    """(litres, DBH cm, noise σ mm) the manual prints for treesim on the coffee tree."""
+    text = " ".join(PAGE.read_text(encoding="utf-8").split())
     m = re.search(
         r"On the real coffee tree: treesim ([0-9.]+) L, DBH ([0-9.]+) cm "
         r"\(noise σ estimated ([0-9.]+) mm\)",
         text,
     )
-    assert m, "the README's coffee-tree sentence changed; update this test with it"
+    assert m, (
+        "the manual's coffee-tree sentence (docs/guides/reconstruction.md) changed; "
+        "update this test with it"
+    )
     return float(m.group(1)), float(m.group(2)), float(m.group(3))
 
 
@@ -97,7 +100,7 @@ def test_coffee_tree_beside_the_published_qsms(capsys):
     # neighbourhood and the DBH near both tools' 7.35 cm
     assert 15.0 <= fig["volume_total_m3"] * 1000 <= 35.0
     assert abs(fig["dbh_m"] - 0.0735) < 0.005
-    # and, deterministic, exactly what the README prints: within half its last digit
+    # and, deterministic, exactly what the manual prints: within half its last digit
     # (19.6 L: 0.05 L; 7.21 cm: 0.005 cm; 1.4 mm: 0.05 mm)
     litres, dbh_cm, noise_mm = readme_coffee_figures()
     assert fig["volume_total_m3"] * 1000 == pytest.approx(litres, abs=0.05)

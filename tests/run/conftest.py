@@ -16,12 +16,12 @@ from treesim.report import ReportParams
 from treesim.scan import ScannerSpec, ring_layout, scan
 from treesim.scene import MeshPart, Scene
 
-# The sapling's true DBH as the README prints it ("the procedural `sapling` (DBH 3.06 cm"),
-# and half its last printed digit (0.01 cm)
+# The sapling's true DBH (3.06 cm: `tree.truth.json` of `treesim model generate --species
+# sapling`; the manual's preset table rounds it to 3.1 cm), and half its last digit (0.01 cm)
 README_SAPLING_DBH_M = 0.0306
 README_DBH_ROUNDING_M = 0.05e-3
 # The DBH the draft preset reconstructs from ``sapling0.ply`` (this fixture: 0.1°, 1 mm noise,
-# 16 facets), measured 2026-11 on this code: -0.59 mm against the truth. The README's
+# 16 facets), measured 2026-11 on this code: -0.59 mm against the truth. The manual's
 # draft figure (-0.3 mm) is for its own 0.02° cloud, so this one is pinned here instead.
 SAPLING0_DRAFT_DBH_M = 0.03003
 # pinned to 0.01 mm: half that digit is the whole tolerance

@@ -411,7 +411,9 @@ if __name__ == "__main__":
 def test_a_dying_worker_fails_only_its_tree_after_two_attempts(four_trees, tmp_path):
     from treesim.batch import _ATTEMPTS
 
-    assert _ATTEMPTS == 2  # the README: "fails only the trees it was running (tried twice)"
+    assert (
+        _ATTEMPTS == 2
+    )  # the manual (docs/commands/batch.md): "fails only the trees it was running (tried twice)"
     inputs, config = four_trees
     # the dying tree is the largest file, so it runs first and the others run after it
     die = inputs[0].parent / "die.ply"

@@ -1,7 +1,7 @@
-"""Adaptive beam sampling agrees with the brute-force beam model within the README's
-tolerance: the same number of returns for 99.9 % of pulses, ranges within 0.1 mm for
-95 % of returns and within 5 mm for all, intensities within 8 counts (of 65535) for
-99.9 % of returns."""
+"""Adaptive beam sampling agrees with the brute-force beam model within the manual's
+tolerance (docs/commands/scan.md): the same number of returns for 99.9 % of pulses,
+ranges within 0.1 mm for 95 % of returns and within 5 mm for all, intensities within 8
+counts (of 65535) for 99.9 % of returns."""
 
 from __future__ import annotations
 
@@ -138,7 +138,7 @@ def test_neighbours_found_by_table_or_by_search_alike(monkeypatch):
     # both must flag the same pulses
     import sys
 
-    trace = sys.modules["treesim.scan.trace"]
+    beam = sys.modules["treesim.scan.beam"]
     scene = pole_before_wall((8.0, -1.0, -1.0), (8.2, 1.0, 2.0), 0.04, 24, (5.0, 0.1, -0.5))
     spec = ScannerSpec(
         horizontal_resolution_deg=0.1,
@@ -149,7 +149,7 @@ def test_neighbours_found_by_table_or_by_search_alike(monkeypatch):
     )
     st = [Station(position_m=(0.0, 0.0, 0.5))]
     dense = scan(scene, st, spec)
-    monkeypatch.setattr(trace, "_DENSE_NEIGHBOUR_CELLS", 0)
+    monkeypatch.setattr(beam, "_DENSE_NEIGHBOUR_CELLS", 0)
     searched = scan(scene, st, spec)
     assert dense.lod["beam"]["reasons"] == searched.lod["beam"]["reasons"]
     assert dense.lod["beam"]["reasons"]["edge"] > 0

@@ -17,7 +17,7 @@ UTM = (500000.0, 5500000.0, 300.0)
 # The analytic facets differ from the mesh by the rounding of its vertices: half an ULP
 # of the largest coordinate (y = 5.5e6 m: 4.7e-10 m; 0 at the origin up to 1e-16 m).
 VERTEX_ROUNDING_M = float(np.spacing(5.5e6)) / 2
-# README "Precision": points lie within BOUND_M of the mesh, so of the analytic facets
+# docs/concepts.md, "Precision": points lie within BOUND_M of the mesh, so of the analytic facets
 # within BOUND_M + the vertices' rounding.
 ON_FACET_M = BOUND_M + VERTEX_ROUNDING_M
 
@@ -53,7 +53,7 @@ def test_point_count_and_float64_accuracy(base):
     n = len(res.cloud)
     assert abs(n - expected) <= 0.02 * expected, (n, expected)
     p = res.cloud.points - np.asarray(base)
-    # every point lies on the mesh surface within the README's bound: radially between the
+    # every point lies on the mesh surface within the manual's bound: radially between the
     # facet planes (r cos(pi/n)) and the vertices (r), and on the side wall in z
     rad = np.hypot(p[:, 0], p[:, 1])
     assert rad.max() <= R + ON_FACET_M

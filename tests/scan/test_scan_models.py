@@ -90,7 +90,7 @@ def test_labels_and_incidence_on_a_wall():
     res = scan(scene, [st], ScannerSpec(horizontal_resolution_deg=0.2, vertical_resolution_deg=0.2))
     p, lab = res.cloud.points, res.cloud.fields["label"]
     assert set(np.unique(lab)) == {1, 2}
-    # the README's scanner bound (points within 1e-9 m of the mesh), absolute
+    # the manual's scanner bound (docs/concepts.md: points within 1e-9 m of the mesh), absolute
     assert np.allclose(p[lab == 2, 0], 5.0, atol=BOUND_M, rtol=0)
     assert np.allclose(p[lab == 1, 0], 10.0, atol=BOUND_M, rtol=0)
     # incidence on the wall x = 10 (normal -x): cos(inc) = dx / |d|

@@ -1,4 +1,4 @@
-"""The README's scanner precision claim, asserted at UTM coordinates on analytic shapes."""
+"""The manual's scanner precision claim, asserted at UTM coordinates on analytic shapes."""
 
 from __future__ import annotations
 
@@ -10,17 +10,20 @@ import numpy as np
 from tests.conftest import box_arrays
 from treesim.scan import MeshPart, ScannerSpec, Scene, Station, scan
 
-README = Path(__file__).resolve().parents[2] / "README.md"
-# The coordinates the README names for the claim (x = 500 000, y = 5 500 000).
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "concepts.md"
+# The coordinates the manual names for the claim (x = 500 000, y = 5 500 000).
 UTM = np.array([500_000.0, 5_500_000.0, 300.0])
 SPEC = ScannerSpec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1)
 
 
 def readme_bound_m() -> float:
-    """The bound printed in the README's scanner section: 'points lie within X m of the mesh'."""
-    text = " ".join(README.read_text(encoding="utf-8").split())
+    """The bound docs/concepts.md prints: 'points lie within X m of the mesh'."""
+    text = " ".join(PAGE.read_text(encoding="utf-8").split())
     m = re.search(r"points lie within ([0-9.e+-]+) m of the mesh, also at UTM coordinates", text)
-    assert m, "the README's scanner precision sentence changed; update this test with it"
+    assert m, (
+        "the manual's scanner precision sentence (docs/concepts.md) changed; "
+        "update this test with it"
+    )
     return float(m.group(1))
 
 
@@ -65,7 +68,7 @@ def tilted_square():
 
 
 def distance_to_plane(p: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """Distance to the mesh's plane (its float64 vertices, as the README's "of the mesh");
+    """Distance to the mesh's plane (its float64 vertices, as the manual's "of the mesh");
     p - corner is exact (Sterbenz), so this measures the hit, not the test's arithmetic."""
     nm = np.cross(corners[1] - corners[0], corners[2] - corners[0])
     nm /= np.linalg.norm(nm)
