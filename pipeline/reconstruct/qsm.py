@@ -50,7 +50,7 @@ from ..errors import ReconstructionError
 from ..models import CylinderTable
 from ..params import QSMParams
 from .foot import StemFoot
-from .preprocess import _index_dtype, _lengths, nearest_neighbors
+from .neighbours import _index_dtype, _lengths, nearest_neighbors
 
 
 @dataclass

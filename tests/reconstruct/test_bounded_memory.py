@@ -24,8 +24,13 @@ from treesim.reconstruct.qsm import _bridge, _knn_graph, fit_qsm
 
 # `treesim.reconstruct` the package, not the function `treesim.reconstruct`
 _edge_watertight = importlib.import_module("treesim.reconstruct")._edge_watertight
-_preprocess = importlib.import_module("treesim.reconstruct.preprocess")
+_neighbours = importlib.import_module("treesim.reconstruct.neighbours")
 _qsm = importlib.import_module("treesim.reconstruct.qsm")
+#: The modules that read preparation's chunk size (each binds its own name).
+_PREPARE_CHUNKED = [
+    importlib.import_module(f"treesim.reconstruct.{name}")
+    for name in ("neighbours", "outliers", "normals", "leaf_measure")
+]
 
 
 @pytest.fixture(params=["one chunk", "chunks of 97"])
@@ -33,7 +38,8 @@ def chunks(request, monkeypatch):
     """Run a test with the default chunk size and with chunks small enough to split the
     test clouds, so the code that carries state across chunks is exercised too."""
     if request.param != "one chunk":
-        monkeypatch.setattr(_preprocess, "_CHUNK", 97)
+        for module in _PREPARE_CHUNKED:
+            monkeypatch.setattr(module, "_CHUNK", 97)
         monkeypatch.setattr(_qsm, "_CHUNK", 97)
     return request.param
 
@@ -196,7 +202,7 @@ def test_neighbours_of_the_kept_points_are_those_of_a_new_search(clumpy, kept_sh
     keep = np.random.default_rng(7).random(len(clumpy)) < kept_share
     tree = cKDTree(clumpy)
     nb, _ = nearest_neighbors(clumpy, 24, tree)
-    got = _preprocess._neighbors_of_kept(clumpy, nb, keep, 24, tree)
+    got = _neighbours._neighbors_of_kept(clumpy, nb, keep, 24, tree)
     _, plain = cKDTree(clumpy[keep]).query(clumpy[keep], k=24)
     assert np.array_equal(got, plain)
 
