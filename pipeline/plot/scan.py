@@ -403,7 +403,7 @@ def _metadata(stations: list[Station]) -> dict[str, Any]:
 
 
 def _empty_stats(k: int, st: Station, spec: Any) -> Any:
-    from ..scan.trace import StationStats
+    from ..scan.result import StationStats
 
     return StationStats(
         index=k,
@@ -422,7 +422,7 @@ def _empty_stats(k: int, st: Station, spec: Any) -> Any:
 def plot_fields() -> dict[str, np.dtype]:
     """The per-point fields of a plot's scan (what a streaming writer declares): a
     scan's, with ``tree_id``."""
-    from ..scan.trace import SCAN_FIELDS, TREE_ID_FIELD
+    from ..scan.result import SCAN_FIELDS, TREE_ID_FIELD
 
     return {**SCAN_FIELDS, **TREE_ID_FIELD}
 

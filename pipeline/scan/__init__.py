@@ -13,17 +13,10 @@ re-exported for convenience: what the scanner scans, and how it is read.
 from ..io.mesh import load_mesh, load_scene
 from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
 from ..scene import MeshPart, Scene, label_from_name
-from .estimate import ScanEstimate
+from .estimate import ScanEstimate, estimate_scan
+from .result import SCAN_FIELDS, ScanResult, StationStats, scan_fields, scan_metadata
 from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
-from .trace import (
-    SCAN_FIELDS,
-    ScanResult,
-    StationStats,
-    estimate_scan,
-    scan,
-    scan_fields,
-    scan_metadata,
-)
+from .trace import scan
 
 __all__ = [
     "INSTRUMENTS",

@@ -1,6 +1,6 @@
 """What a scan will cost, said before it runs: rays, points, file size and time.
 
-:func:`treesim.scan.estimate_scan` (and ``scan(..., estimate=callback)``, which calls
+:func:`estimate_scan` (and ``scan(..., estimate=callback)``, which calls
 back once before casting) plan the scan as it will run — each station's window, the
 cells some triangle can reach, the triangles loaded — and then cast a *sample* of the
 planned pulses (at most :data:`SAMPLE_PULSES` and 1/32 of them, in blocks spread over
@@ -25,8 +25,20 @@ most.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
+
+import numpy as np
+
+from ..params import ScannerSpec
+from ..scene import Scene
+from .beam import in_range
+from .caster import RayTables, cast_central
+from .humanize import human_bytes, human_time
+from .planning import Plan, plan_scan
+from .stations import Station
 
 __all__ = [
     "BYTES_PER_POINT",
@@ -34,8 +46,8 @@ __all__ = [
     "SAMPLE_PULSES",
     "SECONDS_PER_POINT",
     "ScanEstimate",
-    "human_bytes",
-    "human_time",
+    "estimate_plan",
+    "estimate_scan",
 ]
 
 #: Pulses cast to sample a scan (spread over every station's plan in blocks).
@@ -145,21 +157,120 @@ class ScanEstimate:
         return out
 
 
-def human_time(seconds: float) -> str:
-    """A duration as short text: ``"12 s"``, ``"7 min"``, ``"3.2 h"``, ``"2.1 days"``."""
-    if seconds < 120:
-        return f"{seconds:.0f} s" if seconds >= 1 else f"{seconds:.1f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    if seconds < 172800:
-        return f"{seconds / 3600:.1f} h"
-    return f"{seconds / 86400:.1f} days"
+def estimate_scan(
+    scene: Scene,
+    stations: Sequence[Station],
+    spec: ScannerSpec | None = None,
+    *,
+    window: bool = True,
+    cull: bool = True,
+    lod: str = "auto",
+    nthreads: int = 0,
+    max_rays: int | None = 1_000_000_000,
+    suffix: str = ".laz",
+) -> ScanEstimate:
+    """What :func:`~treesim.scan.scan` with these settings would cast, record, write and
+    take, without scanning: the scan is planned as it would run and a sample of its
+    pulses is cast here (see the notes of this module). Nothing is written.
+
+    Parameters
+    ----------
+    scene, stations, spec, window, cull, lod, nthreads
+        As for :func:`~treesim.scan.scan`.
+    max_rays : int, optional
+        The limit :func:`~treesim.scan.scan` would apply; the estimate says whether it is exceeded
+        (``over_limit``) instead of refusing.
+    suffix : str
+        The output's format, for the file size (``.laz``, ``.las``, ``.ply``, ``.xyz``).
+
+    Returns
+    -------
+    ScanEstimate
+    """
+    plan = plan_scan(
+        scene,
+        stations,
+        spec,
+        window=window,
+        cull=cull,
+        lod=lod,
+        nthreads=nthreads,
+        max_rays=None,
+        check_inside=False,
+    )
+    return estimate_plan(plan, suffix.lower(), max_rays)
 
 
-def human_bytes(n: float) -> str:
-    """A size as short text: ``"880 B"``, ``"1.2 MB"``, ``"35 GB"`` (powers of 1000)."""
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if n < 1000 or unit == "TB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.3g} {unit}"
-        n /= 1000
-    return f"{n:.3g} TB"  # pragma: no cover - the loop returns
+def estimate_plan(plan: Plan, suffix: str, max_rays: int | None) -> ScanEstimate:
+    """The size and time of a planned scan (:func:`~treesim.scan.planning.plan_scan`) from
+    a sample of its planned pulses, cast and refined here (see the notes of this module);
+    ``suffix``: the output's format, ``max_rays``: the limit to report."""
+    spec, stations = plan.spec, plan.stations
+    s = spec.rays_per_pulse
+    total = plan.pulses_cast
+    hits = sampled = 0
+    secs = 0.0
+    caster = plan.caster
+    # at most 1/32 of the scan (cast twice: a few % of a small scan's time)
+    budget = min(SAMPLE_PULSES, max(1024, total // 32))
+    for sp in plan.plans:
+        grid = sp.grid
+        m = min(grid.n_pulses, round(budget * grid.n_pulses / max(total, 1)))
+        if caster is None or m == 0:
+            continue
+        n_blocks = max(1, m // 256)
+        size = m // n_blocks
+        starts = np.arange(n_blocks) * (grid.n_pulses - size) // max(n_blocks - 1, 1)
+        picked = [grid.indices(int(a), int(a) + size) for a in starts]
+        lines = np.concatenate([p[0] for p in picked])
+        cols = np.concatenate([p[1] for p in picked])
+        tables = RayTables(spec, sp.station)
+        if not sampled:  # warm up (threads, the neighbour table): the scan pays it once
+            cast_central(caster, tables, lines, cols, sp.o, sp.t0)
+        t_start = time.perf_counter()
+        _, t, prim, _ = cast_central(caster, tables, lines, cols, sp.o, sp.t0)
+        secs += time.perf_counter() - t_start
+        hits += int((in_range(spec, t) & (prim >= 0)).sum())
+        sampled += len(lines)
+    rate = sampled / secs if secs > 0 else 0.0
+    fraction = hits / sampled if sampled else 0.0
+    points = int(round(fraction * total))
+    rays = total * s
+    seconds = plan.plan_s + (rays * OVERHEAD / rate if rate > 0 else 0.0)
+    seconds += points * SECONDS_PER_POINT
+    per_station = []
+    for k, sp in enumerate(plan.plans):
+        win = sp.window
+        per_station.append(
+            {
+                "index": k,
+                "position_m": list(sp.station.position_m),
+                "azimuth_window_deg": list(win.azimuth_deg) if win.azimuth_deg else None,
+                "elevation_window_deg": list(win.elevation_deg),
+                "pulses_window": sp.n_window,
+                "pulses_cast": sp.grid.n_pulses,
+            }
+        )
+    notes = []
+    if s > 1:
+        notes.append(
+            f"{s} sub-rays per pulse counted for every pulse"
+            + (": adaptive sampling casts fewer" if plan.adaptive else "")
+        )
+    return ScanEstimate(
+        stations=per_station,
+        pulses_full_fov=spec.n_azimuth * spec.n_elevation * len(stations),
+        pulses_window=sum(p.n_window for p in plan.plans),
+        pulses_cast=total,
+        rays=rays,
+        rays_exact=not plan.adaptive,
+        points=points,
+        hit_fraction=fraction,
+        sample_pulses=sampled,
+        rate_rays_per_s=rate,
+        plan_s=plan.plan_s,
+        seconds=seconds,
+        suffix=suffix,
+        max_rays=max_rays,
+        notes=notes,
+    )

@@ -214,7 +214,7 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     import treesim.scene as scene_module
 
     occupancy = importlib.import_module("treesim.scan.occupancy")
-    trace = importlib.import_module("treesim.scan.trace")
+    caster = importlib.import_module("treesim.scan.caster")
     from treesim.scan.rays import windowed_grid
 
     tree = generate_tree("sapling", seed=3)
@@ -242,7 +242,7 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     np.testing.assert_array_equal(
         given.indices(0, given.n_pulses), gathered.indices(0, given.n_pulses)
     )
-    monkeypatch.setattr(trace, "_BOUNDS_CHUNK", 1009)
+    monkeypatch.setattr(caster, "BOUNDS_CHUNK", 1009)
     monkeypatch.setattr(scene_module, "_CHECK_CHUNK", 101)
     small = Scene(parts)
     np.testing.assert_array_equal(small.faces, scene.faces)
