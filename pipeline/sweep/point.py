@@ -45,22 +45,70 @@ def _status_kib(key: str) -> float | None:
     return None
 
 
+def _windows_memory_mib(counter: str) -> float | None:
+    """A counter of ``GetProcessMemoryInfo`` for this process (MiB): ``PeakWorkingSetSize``
+    or ``WorkingSetSize``, Windows' names for the peak and current resident memory; None
+    if the call fails."""
+    import ctypes
+    from ctypes import wintypes
+
+    class Counters(ctypes.Structure):  # PROCESS_MEMORY_COUNTERS
+        _fields_ = [
+            ("cb", wintypes.DWORD),
+            ("PageFaultCount", wintypes.DWORD),
+            ("PeakWorkingSetSize", ctypes.c_size_t),
+            ("WorkingSetSize", ctypes.c_size_t),
+            ("QuotaPeakPagedPoolUsage", ctypes.c_size_t),
+            ("QuotaPagedPoolUsage", ctypes.c_size_t),
+            ("QuotaPeakNonPagedPoolUsage", ctypes.c_size_t),
+            ("QuotaNonPagedPoolUsage", ctypes.c_size_t),
+            ("PagefileUsage", ctypes.c_size_t),
+            ("PeakPagefileUsage", ctypes.c_size_t),
+        ]
+
+    try:
+        kernel32 = ctypes.WinDLL("kernel32")  # type: ignore[attr-defined]
+        psapi = ctypes.WinDLL("psapi")  # type: ignore[attr-defined]
+        kernel32.GetCurrentProcess.restype = wintypes.HANDLE
+        psapi.GetProcessMemoryInfo.argtypes = [
+            wintypes.HANDLE,
+            ctypes.POINTER(Counters),
+            wintypes.DWORD,
+        ]
+        counters = Counters()
+        counters.cb = ctypes.sizeof(Counters)
+        if not psapi.GetProcessMemoryInfo(
+            kernel32.GetCurrentProcess(), ctypes.byref(counters), counters.cb
+        ):
+            return None
+    except (AttributeError, OSError):
+        return None
+    return getattr(counters, counter) / (1024 * 1024)
+
+
 def peak_rss_mib() -> float:
     """This process's peak resident memory (MiB): ``VmHWM`` where Linux has it, else
     ``getrusage``'s ``ru_maxrss`` (which Linux carries from a parent across exec, hence
-    not the first choice)."""
+    not the first choice); on Windows, which has no :mod:`resource`, the peak working
+    set. NaN where none of them answers."""
     kib = _status_kib("VmHWM")
     if kib is not None:
         return kib / 1024
-    import resource
+    if sys.platform != "win32":
+        import resource  # POSIX only
 
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
+    peak_mib = _windows_memory_mib("PeakWorkingSetSize")
+    return float("nan") if peak_mib is None else peak_mib
 
 
 def rss_mib() -> float | None:
-    """This process's resident memory now (MiB), where the system says."""
+    """This process's resident memory now (MiB), where the system says (Linux's
+    ``VmRSS``, Windows' working set)."""
     kib = _status_kib("VmRSS")
+    if kib is None and sys.platform == "win32":
+        return _windows_memory_mib("WorkingSetSize")
     return None if kib is None else kib / 1024
 
 
