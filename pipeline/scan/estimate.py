@@ -1,11 +1,12 @@
 """What a scan will cost, said before it runs: rays, points, file size and time.
 
-:func:`estimate_scan` (and ``scan(..., estimate=callback)``, which calls
-back once before casting) plan the scan as it will run — each station's window, the
-cells some triangle can reach, the triangles loaded — and then cast a *sample* of the
-planned pulses (at most :data:`SAMPLE_PULSES` and 1/32 of them, in blocks spread over
-every station's plan; cast twice, the first warming Open3D's threads up) through the
-scan's own ray-casting scene, refined as the scan refines them:
+:func:`estimate_scan` (and ``scan(..., estimate=callback)``, which calls back once before
+casting) plan the scan as it will run (:func:`~treesim.scan.planning.plan_scan`: each
+station's window, the cells some triangle can reach, the triangles loaded) and then
+:func:`estimate_plan` casts a *sample* of the planned pulses (at most
+:data:`SAMPLE_PULSES` and 1/32 of them, in blocks spread over every station's plan; cast
+twice, the first warming Open3D's threads up) through the scan's own ray-casting scene,
+refined as the scan refines them:
 
 * **points** = the planned pulses × the sample's share of recorded hits;
 * **rate** = the sample's rays per second: measured on this machine, for this scene,
