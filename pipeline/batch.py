@@ -516,6 +516,14 @@ class BatchResult(RowCounts):
     elapsed_s : float
     interrupted : bool
     summary_csv, summary_json, index_html : Path
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> trees = ["tree1.laz", "tree2.laz"]
+    >>> result = ts.run_batch(trees, ts.run_preset("draft"), "out/batch")  # doctest: +SKIP
+    >>> result.n_ok, result.n_failed, result.summary_csv  # doctest: +SKIP
+    (2, 0, PosixPath('out/batch/summary.csv'))
     """
 
     outdir: Path
@@ -606,6 +614,14 @@ def run_batch(
         After writing the summary of what finished (the next run does only the rest).
     TreesimError
         For unusable inputs (a missing path, a bad manifest) before any tree runs.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> trees = ["tree1.laz", "tree2.laz"]
+    >>> result = ts.run_batch(trees, ts.run_preset("draft"), "out/batch")  # doctest: +SKIP
+    >>> result.summary_csv  # doctest: +SKIP
+    PosixPath('out/batch/summary.csv')
     """
     t_start = time.perf_counter()
     if isinstance(inputs, (str, Path)):

@@ -27,6 +27,14 @@ class Cloud:
         Per-point scalar fields (``intensity``, ``station``, ``range_m``, ...).
     metadata : dict
         Anything that describes the cloud as a whole (label names, scanner, source path).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import treesim as ts
+    >>> cloud = ts.Cloud(np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 2.0]]))
+    >>> len(cloud), cloud.points.dtype
+    (2, dtype('float64'))
     """
 
     points: np.ndarray

@@ -413,6 +413,13 @@ def compare(
         If either holds NaN or infinite coordinates.
     InvalidParameterError
         If a parameter is out of range.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> cloud = ts.read_cloud("scan.laz")  # doctest: +SKIP
+    >>> result = ts.compare(cloud, "tree.ply", tolerance_m=0.01)  # doctest: +SKIP
+    >>> result.to_dict()["coverage"]  # doctest: +SKIP
     """
 
     if params is None:

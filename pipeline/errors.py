@@ -9,7 +9,17 @@ from __future__ import annotations
 
 
 class TreesimError(Exception):
-    """Base class of every error treesim raises on purpose."""
+    """Base class of every error treesim raises on purpose.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> try:
+    ...     ts.run_preset("quick")
+    ... except ts.TreesimError as err:
+    ...     print(err)
+    unknown preset 'quick'; the run presets are draft, standard, fine
+    """
 
 
 class InputFormatError(TreesimError):

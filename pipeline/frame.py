@@ -24,6 +24,14 @@ class LocalFrame:
     ----------
     origin : (3,) float
         The point, in input coordinates (m), that becomes (0, 0, 0) locally.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import treesim as ts
+    >>> frame = ts.LocalFrame((500000.0, 4000000.0, 250.0))
+    >>> frame.to_local(np.array([[500001.0, 4000002.0, 251.5]]))
+    array([[1. , 2. , 1.5]])
     """
 
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)

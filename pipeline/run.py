@@ -91,6 +91,13 @@ class RunResult:
     run_json : Path
     summary : dict
         ``run.json``'s content.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> result = ts.run_tree("tree.laz", ts.run_preset("draft"), "out/run")  # doctest: +SKIP
+    >>> result.report_html  # doctest: +SKIP
+    PosixPath('out/run/report.html')
     """
 
     outdir: Path
@@ -305,6 +312,15 @@ def run_tree(
     TreesimError
         From any stage, with its message (e.g. ``InputFormatError`` for a corrupt file,
         ``ReconstructionError``, ``ScanError``).
+
+    Examples
+    --------
+    >>> from importlib.resources import files
+    >>> import treesim as ts
+    >>> cloud = files("treesim") / "data" / "coffee_tree" / "cloud.txt"
+    >>> result = ts.run_tree(cloud, ts.run_preset("draft"), "out/coffee")  # doctest: +SKIP
+    >>> result.report_html  # doctest: +SKIP
+    PosixPath('out/coffee/report.html')
     """
     from ._version import __version__
     from .compare import compare, write_comparison

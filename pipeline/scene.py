@@ -101,6 +101,12 @@ class Scene:
     (collapsed onto a line or a point) are dropped and counted. Duplicate triangles
     (either orientation) and non-manifold edges (shared by three or more triangles) are
     kept: the scanner meets the nearest surface along each ray whatever the topology.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> scene = ts.load_scene(["tree.ply", "ground.obj"])  # doctest: +SKIP
+    >>> scene.bounds  # doctest: +SKIP
     """
 
     parts: list[MeshPart]

@@ -171,6 +171,15 @@ def read_cloud(path: str | Path, *, columns: Sequence[str | None] | None = None)
         If the suffix is not supported, the file does not exist, or it cannot be parsed.
     InvalidParameterError
         If ``columns`` is given for a format that has no columns.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import treesim as ts
+    >>> _ = ts.write_cloud("two.ply", ts.Cloud(np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 2.0]])))
+    >>> ts.read_cloud("two.ply").points
+    array([[0. , 0. , 0. ],
+           [1. , 0.5, 2. ]])
     """
     path = Path(path)
     fmt = _format_for(path)
@@ -208,6 +217,14 @@ def write_cloud(path: str | Path, cloud: Cloud, *, las_scale_m: float = 1e-4) ->
         If the suffix is not supported or the file cannot be written.
     InvalidGeometryError
         If the cloud cannot be stored in that format (see the format modules).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import treesim as ts
+    >>> cloud = ts.Cloud(np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 2.0]]))
+    >>> ts.write_cloud("two.laz", cloud).name
+    'two.laz'
     """
     path = Path(path)
     fmt = _format_for(path)

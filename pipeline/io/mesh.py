@@ -202,6 +202,12 @@ def load_scene(
     Returns
     -------
     Scene
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> scene = ts.load_scene(["tree.obj"])  # doctest: +SKIP
+    >>> lo, hi = scene.bounds  # doctest: +SKIP
     """
     if isinstance(paths, (str, Path)):
         paths = [paths]

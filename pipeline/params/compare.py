@@ -40,6 +40,12 @@ class CompareParams:
         reported) or kept (``keep``).
     nthreads : int
         Threads for Open3D and the k-d tree queries (0: all cores).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.CompareParams(tolerance_m=0.01).tolerance_m
+    0.01
     """
 
     tolerance_m: float | None = param(

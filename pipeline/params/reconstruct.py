@@ -240,6 +240,12 @@ class ReconstructParams:
         to the mesh (:mod:`treesim.models.leaves`), so the model can be scanned leaf-on.
     leaf_side_m : float
         Side of a modelled leaf quad (m); 5 cm gives 25 cm², a typical broadleaf leaf.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.ReconstructParams(method="poisson").method
+    'poisson'
     """
 
     method: Method = param("qsm", help="reconstruction method", choices=METHODS)

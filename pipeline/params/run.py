@@ -59,6 +59,12 @@ class ScanParams:
         Rays cast per batch (bounds memory at ~200 B per ray; results do not depend on it).
     max_rays : int
         Refuse a scan needing more rays than this.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.ScanParams(n_stations=4, height_m=1.6).n_stations
+    4
     """
 
     n_stations: int = param(3, help="stations on the ring", flag="--stations", ge=1, le=64)
@@ -121,6 +127,13 @@ class RunParams:
         depend on it.
     preset : str, optional
         Name of the run preset these parameters started from (a label, for the record).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> params = ts.run_preset("draft")
+    >>> params.scan.n_stations
+    3
     """
 
     reconstruct: ReconstructParams = param(help="reconstruction", factory=ReconstructParams)
@@ -235,7 +248,28 @@ DEFAULT_RUN_PRESET = "standard"
 
 def run_preset(name: str = DEFAULT_RUN_PRESET) -> RunParams:
     """The run preset called ``name`` (``draft``, ``standard`` or ``fine``; default
-    :data:`DEFAULT_RUN_PRESET`)."""
+    :data:`DEFAULT_RUN_PRESET`).
+
+    Parameters
+    ----------
+    name : str, optional
+        ``draft``, ``standard`` or ``fine``.
+
+    Returns
+    -------
+    RunParams
+
+    Raises
+    ------
+    InvalidParameterError
+        If no run preset has that name.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.run_preset("fine").preset
+    'fine'
+    """
     try:
         return RUN_PRESETS[name]
     except KeyError:

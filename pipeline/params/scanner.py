@@ -80,6 +80,13 @@ class ScannerSpec:
         Seed of every random model; outputs are reproducible for a given seed.
     reflectance : dict of str -> float
         Reflectance per hit label, used by the intensity proxy only.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> spec = ts.ScannerSpec(horizontal_resolution_deg=0.02, vertical_resolution_deg=0.02)
+    >>> spec.max_range_m
+    400.0
     """
 
     horizontal_resolution_deg: float = param(

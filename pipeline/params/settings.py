@@ -230,12 +230,32 @@ def params_from_dict(
 def load_config(path: str | Path, *, base: RunParams | None = None) -> RunParams:
     """Read RunParams from a TOML file (see :func:`to_toml` for its shape).
 
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file: tables ``[scan]``, ``[reconstruct]``, ``[compare]``, ``[report]``
+        (and their sub-tables) whose keys are the parameters' names.
+    base : RunParams, optional
+        The parameters the file's keys change (default: the defaults).
+
+    Returns
+    -------
+    RunParams
+
     Raises
     ------
     InputFormatError
         If the file is missing or not valid TOML.
     InvalidParameterError
         If a key is unknown or a value is out of range.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> import treesim as ts
+    >>> _ = Path("run.toml").write_text("scan.n_stations = 4")
+    >>> ts.load_config("run.toml").scan.n_stations
+    4
     """
     p = Path(path)
     return params_from_dict(read_toml(p, "config file"), base=base, where=f"{p.name}: ")

@@ -196,7 +196,30 @@ def write_plan(
     inputs: dict[str, Any] | None = None,
     figures: bool = True,
 ) -> dict[str, Path]:
-    """Write the plan's files (:data:`PLAN_FILES`) into ``outdir`` (created)."""
+    """Write the plan's files (:data:`PLAN_FILES`) into ``outdir`` (created).
+
+    Parameters
+    ----------
+    result : PlanResult
+        What :func:`treesim.plan.plan_scans` returned.
+    outdir : str or Path
+        The folder to write into.
+    inputs : dict, optional
+        What the plan was made from (files, options), recorded in ``plan.json``.
+    figures : bool
+        Draw ``map.png`` and ``curve.png`` too.
+
+    Returns
+    -------
+    dict of str to Path
+        Each file written, by its name in :data:`PLAN_FILES`.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> result = ts.plan_scans(plot, spec=spec, instrument=vz400)  # doctest: +SKIP
+    >>> sorted(ts.write_plan(result, "plan/"))  # doctest: +SKIP
+    """
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     data = result.to_dict()

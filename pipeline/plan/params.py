@@ -29,6 +29,13 @@ class PlanParams:
     Budget: at most ``max_stations`` stations and at most ``max_field_time_min`` of field
     time (set-up plus scan per station, :meth:`treesim.params.InstrumentPreset.
     station_time_s`); whichever is tighter.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> params = ts.PlanParams(goal_coverage=0.9, dbh_arc_deg=270.0, max_stations=6)
+    >>> params.goal_coverage, params.max_stations
+    (0.9, 6)
     """
 
     goal_coverage: float = param(

@@ -61,6 +61,12 @@ class Terrain:
     valid cell's height; beyond the grid, the nearest edge's); a ``cloud`` is linear on
     the Delaunay triangles of its points in x, y (the nearest point's height beyond
     their hull). See :mod:`treesim.plot._surface`.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.Terrain(kind="slope", slope_deg=10.0, aspect_deg=90.0).kind
+    'slope'
     """
 
     kind: str = "flat"
@@ -166,6 +172,13 @@ class PlotTree:
         (:func:`treesim.plot._sources.fit_species`); the tree's exact figures are
         :meth:`Plot.truth`'s. Other sources ignore them (a stand file may carry the
         figures it measured).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> tree = ts.PlotTree(tree_id=3, x_m=2.0, y_m=-1.5, species="balsam-fir", dbh_m=0.2)
+    >>> tree.source
+    'species'
     """
 
     tree_id: int
@@ -249,6 +262,20 @@ class Plot:
     Trees are built when first asked for and kept (:meth:`tree_parts`);
     :meth:`release` drops them (their bounds and triangle counts stay known), which is
     how :func:`treesim.plot.scan.scan_plot` keeps memory bounded.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> plot = ts.Plot(
+    ...     [
+    ...         ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="aspen"),
+    ...         ts.PlotTree(tree_id=2, x_m=4.0, y_m=-3.0, species="balsam-fir", dbh_m=0.25),
+    ...     ],
+    ...     terrain=ts.Terrain(kind="slope", slope_deg=10.0, aspect_deg=90.0),
+    ...     radius_m=10.0,
+    ... )
+    >>> plot.tree_ids
+    [1, 2]
     """
 
     trees: Sequence[PlotTree]

@@ -233,7 +233,28 @@ def write_plot(
     """Write ``plot`` as a plot file (atomically), with its trees in ``trees_csv`` beside
     it (None: as ``[[trees]]`` tables in the file). ``stand`` is written as the free-form
     ``[stand]`` table (how the stand was made). Paths are rewritten relative to the new
-    file's folder. Returns the plot file's path."""
+    file's folder. Returns the plot file's path.
+
+    Parameters
+    ----------
+    path : str or Path
+        The plot file to write (``.toml``); its folder must exist.
+    plot : Plot
+        The plot.
+    trees_csv : str or None
+        The trees' CSV file, beside the plot file; None writes them into it.
+    stand : dict, optional
+        How a generated stand was made (``generate_stand``'s second result).
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> import treesim as ts
+    >>> plot = ts.Plot([ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="aspen")])
+    >>> Path("stand").mkdir()
+    >>> ts.write_plot("stand/plot.toml", plot).name
+    'plot.toml'
+    """
     p = Path(path)
     if p.suffix.lower() != ".toml":
         raise InvalidParameterError(f"{p}: a plot file is TOML; name it plot.toml")
@@ -276,7 +297,27 @@ def write_plot(
 
 
 def read_plot(path: str | Path) -> Plot:
-    """Read a plot file (or the ``plot.toml`` in a folder)."""
+    """Read a plot file (or the ``plot.toml`` in a folder).
+
+    Parameters
+    ----------
+    path : str or Path
+        The plot file, or a folder holding ``plot.toml``.
+
+    Returns
+    -------
+    Plot
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> import treesim as ts
+    >>> plot = ts.Plot([ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="aspen")])
+    >>> Path("plot").mkdir()
+    >>> _ = ts.write_plot("plot/plot.toml", plot)
+    >>> ts.read_plot("plot/plot.toml").tree_ids
+    [1]
+    """
     p = Path(path)
     if p.is_dir():
         p = p / PLOT_FILE

@@ -159,6 +159,13 @@ class PlotScanResult:
     points_written : int
         Points handed to the sink.
     total_s : float
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
+    >>> result = ts.scan_plot(plot, [(0.0, 0.0, 1.5), (7.0, -4.0, 1.6)])  # doctest: +SKIP
+    >>> result.cloud.fields["tree_id"]  # doctest: +SKIP
     """
 
     cloud: Cloud
@@ -239,6 +246,8 @@ def scan_plot(
         Cast only towards the scene (False: the full field of view).
     terrain : bool
         Include the terrain (over the plot's square plus ``margin_m``).
+    margin_m : float
+        How far the terrain reaches beyond the plot's square.
     cache_triangles : int
         Built trees kept between stations, in triangles (the current station's trees
         are held whatever their size); a tree dropped and needed again is rebuilt.
@@ -248,6 +257,13 @@ def scan_plot(
     Returns
     -------
     PlotScanResult
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
+    >>> result = ts.scan_plot(plot, [(0.0, 0.0, 1.5), (7.0, -4.0, 1.6)])  # doctest: +SKIP
+    >>> ts.write_cloud("plot_scan.laz", result.cloud)  # doctest: +SKIP
     """
     from ..steps import scale_progress, scan_scene
 
@@ -444,6 +460,23 @@ def tree_figures(
     ``completeness_mean_m``/``completeness_p95_m`` (mesh samples to points), the truth's
     ``dbh_m`` and ``height_m``, and ``note`` when it has too few points to measure
     (coverage 0 then). Each tree is built for it and dropped after, unless held before.
+
+    Parameters
+    ----------
+    plot : Plot
+        The plot that was scanned.
+    cloud : Cloud
+        Its scan, with the ``tree_id`` field (:func:`scan_plot`).
+    params : CompareParams, optional
+        The comparison's settings (τ, samples, hidden surface).
+    progress : callable(fraction, message), optional
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> result = ts.scan_plot(plot, stations)  # doctest: +SKIP
+    >>> rows = ts.tree_figures(plot, result.cloud)  # doctest: +SKIP
+    >>> [(row["tree_id"], row["coverage"]) for row in rows]  # doctest: +SKIP
     """
     from ..compare import compare
     from ..params import MIN_CLOUD_POINTS

@@ -212,6 +212,13 @@ def reconstruct(
     Returns
     -------
     TreeModel
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> cloud = ts.read_cloud("tree.laz")  # doctest: +SKIP
+    >>> model = ts.reconstruct(cloud, ts.ReconstructParams(method="qsm"))  # doctest: +SKIP
+    >>> model.write("out/tree")  # doctest: +SKIP
     """
     params = params or ReconstructParams()
     say = progress or (lambda f, m: None)

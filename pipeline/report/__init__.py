@@ -73,6 +73,12 @@ def build_report(
     -------
     dict of str -> Path
         ``report_json``, ``report_html`` and one entry per PNG (see :data:`PNG_FILES`).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> comparison = ts.compare(ts.read_cloud("scan.laz"), "tree.ply")  # doctest: +SKIP
+    >>> ts.build_report(comparison, "out/report")["html"]  # doctest: +SKIP
     """
     params = params or ReportParams()
     if isinstance(source, Comparison):

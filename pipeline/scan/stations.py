@@ -42,6 +42,12 @@ class Station:
         Rotation of the scanner frame about z (azimuth 0 points along it).
     pitch_deg, roll_deg : float
         Tilt of the scanner about its y and x axes (0 for a levelled instrument).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.Station(position_m=(0.0, -10.0, 1.5), heading_deg=90.0).position_m
+    (0.0, -10.0, 1.5)
     """
 
     position_m: tuple[float, float, float]
@@ -103,8 +109,17 @@ def ring_layout(
         Instrument height above ``base_z_m`` (the scene's ground or stem base).
     centre_xy : (2,) float
         Centre of the ring, in scene coordinates.
+    base_z_m : float
+        Height of the ground (or stem base) the instrument stands on.
     start_angle_deg : float
         Polar angle of the first station, counter-clockwise from +x.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> stations = ts.ring_layout(3, distance_m=10.0, height_m=1.5, centre_xy=(0.0, 0.0))
+    >>> [tuple(round(v, 2) for v in s.position_m) for s in stations]
+    [(10.0, 0.0, 1.5), (-5.0, 8.66, 1.5), (-5.0, -8.66, 1.5)]
     """
     if int(n) != n or n < 1:
         raise InvalidParameterError(f"the number of stations must be a positive integer, got {n}")

@@ -131,6 +131,15 @@ def scan(
     -------
     ScanResult
         ``result.cloud`` in the scene's coordinates (float64), with per-point fields.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> scene = ts.load_scene(["tree.obj"])  # doctest: +SKIP
+    >>> stations = ts.ring_layout(3, distance_m=10.0, height_m=1.5, centre_xy=(0.0, 0.0))
+    >>> spec = ts.ScannerSpec(horizontal_resolution_deg=0.04, vertical_resolution_deg=0.04)
+    >>> result = ts.scan(scene, stations, spec)  # doctest: +SKIP
+    >>> ts.write_cloud("scan.laz", result.cloud)  # doctest: +SKIP
     """
     station_offset = _checked(chunk_rays, station_offset)
     t_all = time.perf_counter()

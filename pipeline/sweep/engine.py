@@ -505,6 +505,13 @@ class SweepResult(RowCounts):
         whose finished points it reused or timed again.
     interrupted : bool
     csv, json, html : Path
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> result = ts.run_sweep("sweep.toml", "out/sweep")  # doctest: +SKIP
+    >>> result.csv, result.html  # doctest: +SKIP
+    (PosixPath('out/sweep/sweep.csv'), PosixPath('out/sweep/sweep.html'))
     """
 
     outdir: Path
@@ -590,6 +597,13 @@ def run_sweep(
         After writing the outputs of what finished (the next run does only the rest).
     TreesimError
         For an unusable configuration or output folder, before any point runs.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> result = ts.run_sweep("sweep.toml", "out/sweep")  # doctest: +SKIP
+    >>> result.html  # doctest: +SKIP
+    PosixPath('out/sweep/sweep.html')
     """
     t_start = time.perf_counter()
     cfg = config if isinstance(config, SweepConfig) else load_sweep(config)
