@@ -65,7 +65,7 @@ class ScannerSpec:
     beam_sampling : {"adaptive", "full"}
         ``"adaptive"`` (default) casts each pulse's central ray and gives the sub-rays
         only to pulses whose footprint can straddle an edge; ``"full"`` casts every
-        sub-ray of every pulse (brute force). See :mod:`treesim.scan.trace`.
+        sub-ray of every pulse (brute force). See :mod:`treesim.scan.beam`.
     range_resolution_m : float
         Two echoes of one pulse closer than this merge into one return (beam model only).
     range_noise_sd_m : float
