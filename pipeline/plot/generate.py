@@ -57,7 +57,14 @@ MAX_TREES = 5000
 @dataclass(frozen=True, kw_only=True)
 class StandParams:
     """A synthetic stand (``treesim plot generate``, the service's ``stand`` parameter):
-    the arguments of :func:`generate_stand`, with their ranges."""
+    the arguments of :func:`generate_stand`, with their ranges.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.StandParams(species="aspen:0.6,balsam-fir:0.4", stems_per_ha=800.0).count
+    'exact'
+    """
 
     species: str = param(
         "aspen",
@@ -204,6 +211,40 @@ def generate_stand(
 ) -> tuple[Plot, dict[str, Any]]:
     """A synthetic stand (the rules are the module's).
 
+    Parameters
+    ----------
+    species : str or mapping of str to float
+        One species, or shares of several (``"aspen:0.6,balsam-fir:0.4"`` or a mapping); the
+        names are :data:`treesim.models.SPECIES`.
+    stems_per_ha : float
+        The stand's density.
+    radius_m : float
+        The plot's radius.
+    seed : int, optional
+        Seeds the one random generator that draws everything.
+    terrain : Terrain, optional
+        The ground (flat at 0 m by default).
+    facets : int, optional
+        Facets round each tube of the trees' meshes.
+    count : {"exact", "poisson"}, optional
+        ``exact``: the expected number of trees, rounded; ``poisson``: a Poisson draw.
+    mean_dbh_m : float, optional
+        The mean DBH of every species (default: each preset tree's own DBH).
+    weibull_shape : float, optional
+        The DBH distribution's shape.
+    dbh_min_m : float, optional
+        The DBH distribution's location.
+    naslund_b : float, optional
+        The height curve's ``b``.
+    height_sd : float, optional
+        The lognormal noise on heights.
+    spacing_fraction : float, optional
+        The minimum distance between stems as a fraction of the mean spacing.
+    dbh_spacing_factor : float, optional
+        The minimum distance between stems as a multiple of their DBHs' sum.
+    leaves : bool, optional
+        Leaves on or off (default: each species' own).
+
     Returns
     -------
     plot : Plot
@@ -212,6 +253,13 @@ def generate_stand(
     stand : dict
         The rules and figures used (JSON/TOML-ready): what ``plot.toml``'s ``[stand]``
         holds.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> plot, stand = ts.generate_stand("aspen:0.6,balsam-fir:0.4", 600.0, 8.0, seed=1)
+    >>> len(plot.tree_ids) == stand["trees"] == round(600.0 * 3.141592653589793 * 8.0**2 / 1e4)
+    True
     """
     shares = parse_shares(species)
     for name, v, lo in (
