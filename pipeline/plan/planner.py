@@ -55,7 +55,18 @@ def tree_targets(plot: Any, tree_ids: Sequence[int] | None = None) -> list[TreeT
 
 @dataclass
 class PlanResult:
-    """Everything ``treesim plan`` writes (see :meth:`to_dict`), and what its figures need."""
+    """Everything ``treesim plan`` writes (see :meth:`to_dict`), and what its figures need.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.params import instrument
+    >>> vz400 = instrument("riegl-vz400")
+    >>> result = ts.plan_scans(ts.read_plot("plot/plot.toml"), spec=vz400.spec(), instrument=vz400)  # doctest: +SKIP
+    >>> result.goal_met, len(result.stations)  # doctest: +SKIP
+    (True, 4)
+    >>> ts.write_plan(result, "plan/")  # doctest: +SKIP
+    """
 
     params: PlanParams
     instrument: InstrumentPreset
@@ -376,6 +387,16 @@ def plan_scans(
     Returns
     -------
     PlanResult
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.params import instrument
+    >>> vz400 = instrument("riegl-vz400")
+    >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
+    >>> params = ts.PlanParams(goal_coverage=0.8, max_field_time_min=60.0)
+    >>> result = ts.plan_scans(plot, spec=vz400.spec(), instrument=vz400, params=params)  # doctest: +SKIP
+    >>> ts.write_plan(result, "plan/")  # doctest: +SKIP
     """
     p = params or PlanParams()
     say = progress or (lambda f, m: None)
