@@ -666,15 +666,49 @@ def tubes_to_mesh(
     n = table.n_cylinders
     per_row = _facets_per_row(checked, n)
     axis = table.unit_axis
-    start, end = table.start, table.end
-    r0, r1 = table.radius_m, table.end_radius_m
-
-    tubes = _tube_structure(table, axis, end, max_bend_deg, max_gap_ratio)
-    pred, row_j, par_j, succ = tubes.pred, tubes.row_j, tubes.par_j, tubes.succ
-    depth, head, tube_of_row = tubes.depth, tubes.head, tubes.tube_of_row
-    joined = pred >= 0
+    tubes = _tube_structure(table, axis, table.end, max_bend_deg, max_gap_ratio)
     tube_facets = _tube_facets(per_row, tubes)
-    row_facets = tube_facets[tube_of_row]
+    rings = _ring_geometry(table, axis, tubes)
+    vertices, faces, face_cylinder = _mesh_tubes(table, tubes, tube_facets, rings)
+
+    # Drop the start rings that were merged into their predecessors' end rings.
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.reshape(-1)] = True
+    remap = np.cumsum(used) - 1
+    return TubeMesh(
+        vertices=vertices[used],
+        faces=remap[faces],
+        face_cylinder=face_cylinder,
+        face_tube=tubes.tube_of_row[face_cylinder],
+        tube_of_row=tubes.tube_of_row,
+        joined=tubes.pred >= 0,
+        tube_facets=tube_facets,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Rings:
+    """Where each row's two rings lie (per row, (n, 3) unless noted): the circle's frame
+    ``e1, e2`` around the unit ``axis``, and each ring's plane (a point and a normal) and
+    radius, for the start ring (``_s``) and the end ring (``_e``)."""
+
+    axis: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    centre_s: np.ndarray
+    normal_s: np.ndarray
+    radius_s: np.ndarray  # (n,)
+    centre_e: np.ndarray
+    normal_e: np.ndarray
+    radius_e: np.ndarray  # (n,)
+
+
+def _ring_geometry(table: CylinderTable, axis: np.ndarray, tubes: _Tubes) -> _Rings:
+    """The rings of :func:`tubes_to_mesh`: frames parallel-transported along each tube
+    (so tubes do not twist) and planes perpendicular at tube ends, bisecting at joints."""
+    n = table.n_cylinders
+    start, end = table.start, table.end
+    row_j, par_j = tubes.row_j, tubes.par_j
 
     # Parallel-transported ring frames: psi is each row's frame angle relative to the
     # reference basis of its axis, summed along the chain from its first row.
@@ -689,6 +723,7 @@ def tubes_to_mesh(
     delta[row_j] = np.arctan2(
         np.einsum("ij,ij->i", moved, v[row_j]), np.einsum("ij,ij->i", moved, u[row_j])
     )
+    depth, head = tubes.depth, tubes.head
     order = np.lexsort((depth, head))
     position = np.empty(n, dtype=np.int64)
     position[order] = np.arange(n)
@@ -705,18 +740,53 @@ def tubes_to_mesh(
     bisector /= np.linalg.norm(bisector, axis=1, keepdims=True)
     centre_s[row_j], normal_s[row_j] = joint, bisector
     centre_e[par_j], normal_e[par_j] = joint, bisector
+    return _Rings(
+        axis=axis,
+        e1=e1,
+        e2=e2,
+        centre_s=centre_s,
+        normal_s=normal_s,
+        radius_s=table.radius_m,
+        centre_e=centre_e,
+        normal_e=normal_e,
+        radius_e=table.end_radius_m,
+    )
 
-    # Vertices: per facet count (increasing), its rows' start rings then their end rings;
-    # then the centres of the first caps, then those of the last caps.
-    is_head = ~joined
-    is_tail = succ < 0
+
+@dataclass(frozen=True, eq=False)
+class _Ends:
+    """Each tube's two caps: whether a row starts (``is_head``) or ends (``is_tail``)
+    its tube, and the index of the cap's centre vertex by row (valid where it does)."""
+
+    is_head: np.ndarray
+    is_tail: np.ndarray
+    head_vertex: np.ndarray
+    tail_vertex: np.ndarray
+
+
+def _mesh_tubes(
+    table: CylinderTable, tubes: _Tubes, tube_facets: np.ndarray, rings: _Rings
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, faces and each face's row, before unused vertices are dropped.
+
+    Vertices: per facet count (increasing), its rows' start rings then their end rings;
+    then the centres of the first caps, then those of the last caps."""
+    n = table.n_cylinders
+    start, end = table.start, table.end
+    row_facets = tube_facets[tubes.tube_of_row]
+    is_head = tubes.pred < 0
+    is_tail = tubes.succ < 0
     n_heads, n_tails = int(is_head.sum()), int(is_tail.sum())
     n_ring = int(row_facets.sum())
     vertices = np.empty((2 * n_ring + n_heads + n_tails, 3), dtype=np.float64)
     vertices[2 * n_ring : 2 * n_ring + n_heads] = start[is_head]
     vertices[2 * n_ring + n_heads :] = end[is_tail]
-    head_vertex = 2 * n_ring + np.cumsum(is_head) - 1
-    tail_vertex = 2 * n_ring + n_heads + np.cumsum(is_tail) - 1
+    ends = _Ends(
+        is_head=is_head,
+        is_tail=is_tail,
+        head_vertex=2 * n_ring + np.cumsum(is_head) - 1,
+        tail_vertex=2 * n_ring + n_heads + np.cumsum(is_tail) - 1,
+    )
     local = np.empty(n, dtype=np.int64)  # position of each row within its facet group
     parts: list[tuple[np.ndarray, np.ndarray, int]] = []
     first = 0
@@ -726,76 +796,93 @@ def tubes_to_mesh(
         local[rows] = np.arange(m)
         ring_s = vertices[first : first + m * f].reshape(m, f, 3)
         ring_e = vertices[first + m * f : first + 2 * m * f].reshape(m, f, 3)
-        angle = 2.0 * np.pi * np.arange(f) / f
-        cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
-        for lo in range(0, m, _MESH_BLOCK):
-            hi = min(lo + _MESH_BLOCK, m)
-            sel = slice(lo, hi) if m == n else rows[lo:hi]
-            a = axis[sel]
-            d = cos * e1[sel][:, None, :] + sin * e2[sel][:, None, :]  # unit, perpendicular to a
-            for out, centre, normal, radius in (
-                (ring_s, centre_s, normal_s, r0),
-                (ring_e, centre_e, normal_e, r1),
-            ):
-                nrm = normal[sel]
-                # Slide each circle point along the axis onto the ring's plane.
-                lam = np.einsum("kfj,kj->kf", d, nrm) / np.einsum("kj,kj->k", nrm, a)[:, None]
-                offset = d - lam[:, :, None] * a[:, None, :]
-                np.multiply(offset, radius[sel][:, None, None], out=out[lo:hi])
-                out[lo:hi] += centre[sel][:, None, :]
-
-        idx_s = first + np.arange(m * f, dtype=np.int64).reshape(m, f)
-        idx_e = idx_s + m * f
-        in_group = row_facets[row_j] == f
-        g_row, g_par, g_same = row_j[in_group], par_j[in_group], tubes.same[in_group]
-        idx_s[local[g_row[g_same]]] = idx_e[local[g_par[g_same]]]
-        step_rows, step_pars = g_row[~g_same], g_par[~g_same]
-
-        k = np.arange(f, dtype=np.int64)
-        k1 = (k + 1) % f
-        s, e = idx_s, idx_e
-        head_local = np.flatnonzero(is_head[rows])
-        tail_local = np.flatnonzero(is_tail[rows])
-        c_s = head_vertex[rows[head_local]][:, None]
-        c_e = tail_vertex[rows[tail_local]][:, None]
-        n_h, n_t = len(head_local), len(tail_local)
-        sa, sb = e[local[step_pars]], s[local[step_rows]]  # ring before and after a step
-        parts += [
-            (np.stack([s[:, k], s[:, k1], e[:, k1]], axis=2), rows, f),
-            (np.stack([s[:, k], e[:, k1], e[:, k]], axis=2), rows, f),
-            (
-                np.stack(
-                    [np.broadcast_to(c_s, (n_h, f)), s[head_local][:, k1], s[head_local][:, k]],
-                    axis=2,
-                ),
-                rows[head_local],
-                f,
-            ),
-            (
-                np.stack(
-                    [np.broadcast_to(c_e, (n_t, f)), e[tail_local][:, k], e[tail_local][:, k1]],
-                    axis=2,
-                ),
-                rows[tail_local],
-                f,
-            ),
-            (np.stack([sa[:, k], sa[:, k1], sb[:, k1]], axis=2), step_rows, f),
-            (np.stack([sa[:, k], sb[:, k1], sb[:, k]], axis=2), step_rows, f),
-        ]
+        _place_rings(ring_s, ring_e, rows, f, m == n, rings)
+        parts += _group_faces(f, rows, first, local, row_facets, tubes, ends)
         first += 2 * m * f
     faces = np.concatenate([p.reshape(-1, 3) for p, _, _ in parts])
     face_cylinder = np.concatenate([np.repeat(r, f) for _, r, f in parts])
+    return vertices, faces, face_cylinder
 
-    # Drop the start rings that were merged into their predecessors' end rings.
-    used = np.zeros(len(vertices), dtype=bool)
-    used[faces.reshape(-1)] = True
-    remap = np.cumsum(used) - 1
-    return TubeMesh(
-        vertices=vertices[used],
-        faces=remap[faces],
-        face_cylinder=face_cylinder,
-        face_tube=tube_of_row[face_cylinder],
-        tube_of_row=tube_of_row,
-        joined=joined,
-        tube_facets=tube_facets,
-    )
+
+def _place_rings(
+    ring_s: np.ndarray,
+    ring_e: np.ndarray,
+    rows: np.ndarray,
+    f: int,
+    every_row: bool,
+    rings: _Rings,
+) -> None:
+    """Write the start and end rings (``(m, f, 3)`` views into the vertices) of ``rows``,
+    a block of rows at a time; ``every_row``: ``rows`` is every row, in order."""
+    m = len(rows)
+    angle = 2.0 * np.pi * np.arange(f) / f
+    cos, sin = np.cos(angle)[None, :, None], np.sin(angle)[None, :, None]
+    for lo in range(0, m, _MESH_BLOCK):
+        hi = min(lo + _MESH_BLOCK, m)
+        sel = slice(lo, hi) if every_row else rows[lo:hi]
+        a = rings.axis[sel]
+        # unit, perpendicular to a
+        d = cos * rings.e1[sel][:, None, :] + sin * rings.e2[sel][:, None, :]
+        for out, centre, normal, radius in (
+            (ring_s, rings.centre_s, rings.normal_s, rings.radius_s),
+            (ring_e, rings.centre_e, rings.normal_e, rings.radius_e),
+        ):
+            nrm = normal[sel]
+            # Slide each circle point along the axis onto the ring's plane.
+            lam = np.einsum("kfj,kj->kf", d, nrm) / np.einsum("kj,kj->k", nrm, a)[:, None]
+            offset = d - lam[:, :, None] * a[:, None, :]
+            np.multiply(offset, radius[sel][:, None, None], out=out[lo:hi])
+            out[lo:hi] += centre[sel][:, None, :]
+
+
+def _group_faces(
+    f: int,
+    rows: np.ndarray,
+    first: int,
+    local: np.ndarray,
+    row_facets: np.ndarray,
+    tubes: _Tubes,
+    ends: _Ends,
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """The triangles of the rows of one facet count ``f``, whose rings start at vertex
+    ``first``: sides, caps and radius-step annuli, each as (faces, their rows, f). A start
+    ring shared with its predecessor's end ring (equal radii) is that end ring."""
+    m = len(rows)
+    idx_s = first + np.arange(m * f, dtype=np.int64).reshape(m, f)
+    idx_e = idx_s + m * f
+    in_group = row_facets[tubes.row_j] == f
+    g_row, g_par, g_same = tubes.row_j[in_group], tubes.par_j[in_group], tubes.same[in_group]
+    idx_s[local[g_row[g_same]]] = idx_e[local[g_par[g_same]]]
+    step_rows, step_pars = g_row[~g_same], g_par[~g_same]
+
+    k = np.arange(f, dtype=np.int64)
+    k1 = (k + 1) % f
+    s, e = idx_s, idx_e
+    head_local = np.flatnonzero(ends.is_head[rows])
+    tail_local = np.flatnonzero(ends.is_tail[rows])
+    c_s = ends.head_vertex[rows[head_local]][:, None]
+    c_e = ends.tail_vertex[rows[tail_local]][:, None]
+    n_h, n_t = len(head_local), len(tail_local)
+    sa, sb = e[local[step_pars]], s[local[step_rows]]  # ring before and after a step
+    return [
+        (np.stack([s[:, k], s[:, k1], e[:, k1]], axis=2), rows, f),
+        (np.stack([s[:, k], e[:, k1], e[:, k]], axis=2), rows, f),
+        (
+            np.stack(
+                [np.broadcast_to(c_s, (n_h, f)), s[head_local][:, k1], s[head_local][:, k]],
+                axis=2,
+            ),
+            rows[head_local],
+            f,
+        ),
+        (
+            np.stack(
+                [np.broadcast_to(c_e, (n_t, f)), e[tail_local][:, k], e[tail_local][:, k1]],
+                axis=2,
+            ),
+            rows[tail_local],
+            f,
+        ),
+        (np.stack([sa[:, k], sa[:, k1], sb[:, k1]], axis=2), step_rows, f),
+        (np.stack([sa[:, k], sb[:, k1], sb[:, k]], axis=2), step_rows, f),
+    ]
