@@ -13,8 +13,8 @@ Each scanned cloud is compared with its mesh keeping every bit of surface
 (``--hidden-surface keep``) and leaving out the surface inside other closed parts
 (``drop``, the default now). Prints per mesh: area, triangles, closed parts, the share
 of area inside other parts, coverage and completeness p95 both ways, and the time of the
-hidden-surface test. The figures in the README's reconstruction and comparison sections
-come from this script.
+hidden-surface test. The figures on the manual's validation page (docs/validation.md) come
+from this script (``--docs`` writes them there).
 
 Usage: ``python benchmarks/bench_hidden.py [--preset standard]``. Prints measured figures
 only.

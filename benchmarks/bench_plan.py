@@ -55,7 +55,7 @@ def stand(n: int, radius_m: float, facets: int, seed: int = 3) -> Plot:
 
 def acceptance() -> None:
     """Issue 14's acceptance cases (``tests/plan/setups.py``), with the figures the
-    README quotes."""
+    manual quotes (docs/validation.md; --docs writes them)."""
     t0 = time.perf_counter()
     r = acceptance_plan()
     d = r.to_dict()

@@ -8,7 +8,7 @@ version string does not change). Prints the sweep's wall time, point count and w
 page is; ``sweep.csv``, ``sweep.json`` and ``sweep.html`` are committed, the per-point
 artefacts (``points/``, ``trees/``) are not.
 
-Then ``python benchmarks/preset_table.py`` writes the README's preset table and
+Then ``python benchmarks/preset_table.py`` writes the manual's preset table (docs/validation.md) and
 ``pipeline/data/preset_measurements.txt`` (``treesim run --help``) from ``sweep.json``.
 
 Usage: ``python benchmarks/bench_sweep.py [--fresh] [--repeat N] [--config F] [--out D]``
