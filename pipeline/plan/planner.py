@@ -62,7 +62,8 @@ class PlanResult:
     >>> import treesim as ts
     >>> from treesim.params import instrument
     >>> vz400 = instrument("riegl-vz400")
-    >>> result = ts.plan_scans(ts.read_plot("plot/plot.toml"), spec=vz400.spec(), instrument=vz400)  # doctest: +SKIP
+    >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
+    >>> result = ts.plan_scans(plot, spec=vz400.spec(), instrument=vz400)  # doctest: +SKIP
     >>> result.goal_met, len(result.stations)  # doctest: +SKIP
     (True, 4)
     >>> ts.write_plan(result, "plan/")  # doctest: +SKIP
@@ -395,7 +396,8 @@ def plan_scans(
     >>> vz400 = instrument("riegl-vz400")
     >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
     >>> params = ts.PlanParams(goal_coverage=0.8, max_field_time_min=60.0)
-    >>> result = ts.plan_scans(plot, spec=vz400.spec(), instrument=vz400, params=params)  # doctest: +SKIP
+    >>> spec = vz400.spec()
+    >>> result = ts.plan_scans(plot, spec=spec, instrument=vz400, params=params)  # doctest: +SKIP
     >>> ts.write_plan(result, "plan/")  # doctest: +SKIP
     """
     p = params or PlanParams()
