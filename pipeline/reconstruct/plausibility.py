@@ -549,13 +549,30 @@ def _assess_stem(
     points: np.ndarray | None,
     points_origin: np.ndarray | None,
 ) -> None:
+    """The stem's checks (its cylinder ``rows``, base to top): its form factor, taper and
+    radius profile, measured share, and foot; figures into ``out``, warnings appended to
+    ``warns``."""
     z, r = _profile(table, rows)
     h_stem = float(z.max())
     out["stem_height_m"] = h_stem
     vol = float(table.volume_m3[table.branch_order == 0].sum())
     noise = float(figures.get("noise_sd_m") or 0.0)
+    _stem_form(dbh, vol, h_stem, out, warns, ground_fix)
+    _stem_radii(z, r, dbh, h_stem, noise, out, warns)
+    _stem_hidden(table, rows, out, warns)
+    _stem_foot(table, rows, dbh, out, warns, ground_fix, points, points_origin)
 
-    # form factor
+
+def _stem_form(
+    dbh: float | None,
+    vol: float,
+    h_stem: float,
+    out: dict[str, Any],
+    warns: list[dict[str, Any]],
+    ground_fix: str,
+) -> None:
+    """The stem's form factor (volume over a cylinder of its DBH and height) against the
+    range expected for its height."""
     if dbh and h_stem >= MIN_HEIGHT_FOR_FORM_M:
         f = vol / (math.pi / 4.0 * dbh * dbh * h_stem)
         lo, hi = form_factor_range(h_stem)
@@ -585,7 +602,18 @@ def _assess_stem(
             ),
         )
 
-    # taper
+
+def _stem_radii(
+    z: np.ndarray,
+    r: np.ndarray,
+    dbh: float | None,
+    h_stem: float,
+    noise: float,
+    out: dict[str, Any],
+    warns: list[dict[str, Any]],
+) -> None:
+    """The stem's radius profile (``r`` at heights ``z``): its taper, the largest rise
+    upwards, and the longest stretch over which it is held constant."""
     if dbh and h_stem > BREAST_HEIGHT_M:
         top = z >= h_stem - 1e-9
         r_top = float(r[top].min())
@@ -621,7 +649,11 @@ def _assess_stem(
             )
         )
 
-    # stem hidden
+
+def _stem_hidden(
+    table: CylinderTable, rows: np.ndarray, out: dict[str, Any], warns: list[dict[str, Any]]
+) -> None:
+    """The share of the stem's length with measured radii."""
     tags = table.tag
     if (tags == "measured").any():
         length = table.length_m[rows]
@@ -641,7 +673,19 @@ def _assess_stem(
                 )
             )
 
-    # the foot
+
+def _stem_foot(
+    table: CylinderTable,
+    rows: np.ndarray,
+    dbh: float | None,
+    out: dict[str, Any],
+    warns: list[dict[str, Any]],
+    ground_fix: str,
+    points: np.ndarray | None,
+    points_origin: np.ndarray | None,
+) -> None:
+    """The stem's foot: its inclination, its height above the lowest points and the
+    spread of the lowest points around it (ground or understory left in)."""
     start, end = table.start[rows], table.end[rows]
     along = np.cumsum(table.length_m[rows])
     run = min(BASE_RUN_M, 0.5 * float(along[-1]))
