@@ -392,6 +392,40 @@ def _check_common(timeout_s: float, min_component_fraction: float) -> None:
 # --------------------------------------------------------------------------- Poisson
 
 
+def _check_poisson(
+    depth: int,
+    trim_density_quantile: float | None,
+    threads: int,
+    samples_per_node: float,
+    point_weight: float,
+    trim_distance_m: float | None,
+    timeout_s: float,
+    min_component_fraction: float,
+) -> float:
+    """Raise :class:`InvalidParameterError` for a :func:`poisson` parameter out of range;
+    returns the density trim's quantile (0: no trim)."""
+    if int(depth) != depth or not 4 <= depth <= 16:
+        raise InvalidParameterError(f"depth must be an integer in 4..16, got {depth}")
+    q = 0.0 if trim_density_quantile is None else float(trim_density_quantile)
+    if not 0.0 <= q < 1.0:
+        raise InvalidParameterError(
+            f"trim_density_quantile must be in [0, 1) or None, got {trim_density_quantile}"
+        )
+    if int(threads) != threads or threads < 1:
+        raise InvalidParameterError(f"threads must be a positive integer, got {threads}")
+    if not (samples_per_node > 0 and point_weight >= 0):
+        raise InvalidParameterError(
+            "samples_per_node must be positive and point_weight non-negative, got "
+            f"{samples_per_node} and {point_weight}"
+        )
+    _check_common(timeout_s, min_component_fraction)
+    if trim_distance_m is not None and not (math.isfinite(trim_distance_m) and trim_distance_m > 0):
+        raise InvalidParameterError(
+            f"trim_distance_m must be a positive length in metres or None, got {trim_distance_m}"
+        )
+    return q
+
+
 def poisson(
     prepared: PreparedCloud | Cloud | np.ndarray,
     *,
@@ -453,25 +487,16 @@ def poisson(
         pymeshlab crashed, timed out, raised, or returned no surface.
     """
     t_start = time.perf_counter()
-    if int(depth) != depth or not 4 <= depth <= 16:
-        raise InvalidParameterError(f"depth must be an integer in 4..16, got {depth}")
-    q = 0.0 if trim_density_quantile is None else float(trim_density_quantile)
-    if not 0.0 <= q < 1.0:
-        raise InvalidParameterError(
-            f"trim_density_quantile must be in [0, 1) or None, got {trim_density_quantile}"
-        )
-    if int(threads) != threads or threads < 1:
-        raise InvalidParameterError(f"threads must be a positive integer, got {threads}")
-    if not (samples_per_node > 0 and point_weight >= 0):
-        raise InvalidParameterError(
-            "samples_per_node must be positive and point_weight non-negative, got "
-            f"{samples_per_node} and {point_weight}"
-        )
-    _check_common(timeout_s, min_component_fraction)
-    if trim_distance_m is not None and not (math.isfinite(trim_distance_m) and trim_distance_m > 0):
-        raise InvalidParameterError(
-            f"trim_distance_m must be a positive length in metres or None, got {trim_distance_m}"
-        )
+    q = _check_poisson(
+        depth,
+        trim_density_quantile,
+        threads,
+        samples_per_node,
+        point_weight,
+        trim_distance_m,
+        timeout_s,
+        min_component_fraction,
+    )
     prep = _prepared(prepared)
     normals = _normals_for(prep)
     n = len(prep.points)
