@@ -358,6 +358,279 @@ def _judge_verified(
     return out
 
 
+def _stations_allowed(
+    p: PlanParams, spec: ScannerSpec, instrument: InstrumentPreset
+) -> tuple[float, int]:
+    """One station's field time (s) and the most stations the budget allows."""
+    station_s = instrument.station_time_s(spec)
+    max_st = p.max_stations if p.max_stations is not None else 10_000
+    if p.max_field_time_min is not None:
+        by_time = int(math.floor(60.0 * p.max_field_time_min / station_s + 1e-9))
+        if by_time < 1:
+            raise InvalidParameterError(
+                f"max_field_time_min {p.max_field_time_min:g} is less than one station "
+                f"({station_s / 60:.1f} min with {instrument.name} at "
+                f"{spec.horizontal_resolution_deg:g}°)"
+            )
+        max_st = min(max_st, by_time)
+    return station_s, max_st
+
+
+def _sample(
+    plot: Any, p: PlanParams, say: Any, timings: dict[str, float]
+) -> tuple[list[TreeTarget], SampleSet]:
+    """Every plot tree as a target, and its surface and DBH-band samples."""
+    t0 = time.perf_counter()
+    targets = tree_targets(plot)
+    samples = sample_trees(
+        targets,
+        samples_per_tree=p.samples_per_tree,
+        band_samples=p.band_samples,
+        band_m=p.dbh_band_m,
+        arc_bin_deg=p.arc_bin_deg,
+        seed=p.sample_seed,
+        nthreads=p.threads,
+        progress=lambda f, m: say(0.1 * f, m),
+    )
+    timings["sampling"] = time.perf_counter() - t0
+    return targets, samples
+
+
+def _candidates(
+    plot: Any, targets: list[TreeTarget], p: PlanParams, timings: dict[str, float]
+) -> tuple[TreeClearance, np.ndarray, dict[str, Any]]:
+    """The trees' clearance, the candidate grid and its account."""
+    t0 = time.perf_counter()
+    clearance = TreeClearance([q for t in targets for q in t.parts], nthreads=p.threads)
+    cands, cinfo = candidate_grid(
+        plot.terrain,
+        plot.centre_xy,
+        plot.radius_m,
+        spacing_m=p.candidate_spacing_m,
+        height_m=p.height_m,
+        clearance=clearance,
+        clearance_m=p.clearance_m,
+    )
+    cinfo.update(spacing_m=p.candidate_spacing_m, height_m=p.height_m, clearance_m=p.clearance_m)
+    timings["candidates"] = time.perf_counter() - t0
+    return clearance, cands, cinfo
+
+
+def _choose_stations(
+    samples: SampleSet, vis: Visibility, p: PlanParams, max_st: int, timings: dict[str, float]
+) -> tuple[Objective, np.ndarray, dict[str, np.ndarray], Selection, Selection]:
+    """The goal's objective, the trees it can reach, the best of all candidates together,
+    the greedy choice and the choice after swaps."""
+    t0 = time.perf_counter()
+    obj = Objective(samples, p.goal_coverage, p.dbh_arc_deg)
+    lam, qual = vis.intensity, vis.quality
+    reachable = reachable_trees(obj, lam, qual)
+    ach = obj.figures(*state(lam, qual, range(len(lam))))
+    # the stations aim above the goal by the margin, as far as each tree can reach
+    aim_cov = np.where(
+        p.goal_coverage > 0,
+        np.maximum(
+            p.goal_coverage,
+            np.minimum(p.goal_coverage + p.goal_margin, ach["coverage"][0] - COVERAGE_SLACK),
+        ),
+        0.0,
+    )
+    aim = Objective(samples, aim_cov, p.dbh_arc_deg)
+    greedy = lazy_greedy(aim, lam, max_st, quality=qual, reachable=reachable)
+    timings["greedy"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sel = improve(aim, lam, greedy, quality=qual, reachable=reachable) if p.local_search else greedy
+    timings["swap_search"] = time.perf_counter() - t0
+    return obj, reachable, ach, greedy, sel
+
+
+def _curve(
+    obj: Objective, vis: Visibility, sel: Selection, reachable: np.ndarray, station_s: float
+) -> list[dict[str, Any]]:
+    """The predicted figures after each station of the plan, in its order."""
+    lam, qual = vis.intensity, vis.quality
+    curve = []
+    for k in range(len(sel.chosen)):
+        curve.append(
+            {
+                "stations": k + 1,
+                "field_time_min": (k + 1) * station_s / 60.0,
+                **_summary(obj, state(lam, qual, sel.chosen[: k + 1]), reachable),
+            }
+        )
+    return curve
+
+
+def _classic_layouts(
+    plot: Any,
+    targets: list[TreeTarget],
+    p: PlanParams,
+    clearance: TreeClearance,
+    single_tree: bool,
+) -> list[Layout]:
+    """The ring and grids a plan is compared with."""
+    ring_d = p.ring_distance_m
+    if ring_d is None:
+        if single_tree:
+            v = np.concatenate([np.asarray(q.vertices) for t in targets for q in t.parts])
+            ring_d = rule_distance_m(v)
+        else:
+            ring_d = 0.5 * plot.radius_m
+    spacings = p.grid_spacings_m or tuple(
+        round(plot.radius_m * f, 1) for f in (1 / 3, 1 / 2, 2 / 3)
+    )
+    return classic_layouts(
+        plot.terrain,
+        plot.centre_xy,
+        plot.radius_m,
+        ring_distance_m=ring_d,
+        grid_spacings_m=spacings,
+        height_m=p.height_m,
+        clearance=clearance,
+        clearance_m=p.clearance_m,
+    )
+
+
+def _evaluate_layouts(
+    layouts: list[Layout],
+    caster: VisibilityCaster,
+    spec: ScannerSpec,
+    p: PlanParams,
+    obj: Objective,
+    targets: list[TreeTarget],
+    reachable: np.ndarray,
+    station_s: float,
+) -> list[dict[str, Any]]:
+    """Each classic layout's predicted figures, by the plan's own visibility model."""
+    baselines = []
+    for lay in layouts:
+        bv = visibility(caster, lay.positions, spec, p.tolerance_m)
+        bst = state(bv.intensity, bv.quality, range(len(lay.positions)))
+        bfig = obj.figures(*bst)
+        baselines.append(
+            {
+                "name": lay.name,
+                "description": lay.description,
+                "n_stations": int(len(lay.positions)),
+                "field_time_min": len(lay.positions) * station_s / 60.0,
+                "positions_m": lay.positions.tolist(),
+                "moved_m": lay.moved_m,
+                **_summary(obj, bst, reachable),
+                "per_tree": {
+                    int(t.tree_id): {
+                        "coverage": float(bfig["coverage"][0, i]),
+                        "arc_deg": float(bfig["arc_deg"][0, i]),
+                    }
+                    for i, t in enumerate(targets)
+                },
+            }
+        )
+    return baselines
+
+
+def _predicted_comparison(
+    sel: Selection,
+    station_s: float,
+    met: np.ndarray,
+    reachable: np.ndarray,
+    baselines: list[dict[str, Any]],
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The plan's summary and its predicted comparison with the classic layouts."""
+    plan_summary = {
+        "n_stations": len(sel.chosen),
+        "field_time_min": len(sel.chosen) * station_s / 60.0,
+        "goal_met": bool(reachable.any() and met[reachable].all()),
+    }
+    comparison = _compare(plan_summary, baselines)
+    # the predicted verdict stays, labelled; a verification below replaces the headline
+    comparison["predicted"] = {
+        "verdict": comparison["verdict"],
+        "statement": comparison["statement"],
+    }
+    comparison["basis"] = "predicted"
+    return plan_summary, comparison
+
+
+@dataclass
+class _Verifier:
+    """What a verification scan needs besides its stations."""
+
+    plot: Any
+    spec: ScannerSpec
+    targets: list[TreeTarget]
+    samples: SampleSet
+    obj: Objective
+    p: PlanParams
+
+    def __call__(self, positions: Any) -> dict[str, Any]:
+        """Scan ``positions`` at full resolution and measure each tree."""
+        return verify_plan(
+            self.plot,
+            [Station(position_m=tuple(q)) for q in positions],
+            self.spec,
+            self.targets,
+            self.samples,
+            self.obj,
+            tolerance_m=self.p.tolerance_m,
+            seed=self.p.sample_seed,
+            nthreads=self.p.threads,
+        )
+
+
+def _verify(
+    verifier: _Verifier,
+    positions: np.ndarray,
+    layouts: list[Layout],
+    comparison: dict[str, Any],
+    plan_summary: dict[str, Any],
+    reachable: np.ndarray,
+    say: Any,
+    timings: dict[str, float],
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Scan the plan (its stations' ``positions``) and the predicted best classic layout,
+    measure each tree, and make the verified verdict the comparison's headline."""
+    ntrees = len(verifier.targets)
+    say(0.7, "verifying the plan")
+    t0 = time.perf_counter()
+    verification = verifier(positions)
+    timings["verify_plan"] = time.perf_counter() - t0
+    say(
+        0.85,
+        f"verified the plan ({len(positions)} stations) in {timings['verify_plan']:.1f} s: "
+        f"{verification['trees_meeting_goal']}/{ntrees} trees meet the goal",
+    )
+    baseline_verification = None
+    name = comparison.get("best_baseline")
+    lay = next((x for x in layouts if x.name == name), None)
+    if lay is not None:
+        say(0.85, f"verifying the classic layout {name} ({len(lay.positions)} stations)")
+        t0 = time.perf_counter()
+        bver = verifier(lay.positions)
+        baseline_verification = {"name": name, **bver}
+        timings["verify_baseline"] = time.perf_counter() - t0
+        say(
+            0.99,
+            f"verified {name} ({len(lay.positions)} stations) in "
+            f"{timings['verify_baseline']:.1f} s: {bver['trees_meeting_goal']}/"
+            f"{ntrees} trees meet the goal",
+        )
+    ver = _judge_verified(
+        comparison,
+        plan_summary,
+        verification["trees_meeting_goal"],
+        None if baseline_verification is None else baseline_verification["trees_meeting_goal"],
+        int(reachable.sum()) if reachable.any() else ntrees,
+        ntrees,
+    )
+    ver["seconds"] = {
+        "plan": timings["verify_plan"],
+        "baseline": timings.get("verify_baseline"),
+    }
+    comparison["verified"] = ver
+    comparison.update(basis="verified", verdict=ver["verdict"], statement=ver["statement"])
+    return verification, baseline_verification
+
+
 def plan_scans(
     plot: Any,
     *,
@@ -404,49 +677,14 @@ def plan_scans(
     say = progress or (lambda f, m: None)
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
-    station_s = instrument.station_time_s(spec)
-    max_st = p.max_stations if p.max_stations is not None else 10_000
-    if p.max_field_time_min is not None:
-        by_time = int(math.floor(60.0 * p.max_field_time_min / station_s + 1e-9))
-        if by_time < 1:
-            raise InvalidParameterError(
-                f"max_field_time_min {p.max_field_time_min:g} is less than one station "
-                f"({station_s / 60:.1f} min with {instrument.name} at "
-                f"{spec.horizontal_resolution_deg:g}°)"
-            )
-        max_st = min(max_st, by_time)
-
-    t0 = time.perf_counter()
-    targets = tree_targets(plot)
-    samples = sample_trees(
-        targets,
-        samples_per_tree=p.samples_per_tree,
-        band_samples=p.band_samples,
-        band_m=p.dbh_band_m,
-        arc_bin_deg=p.arc_bin_deg,
-        seed=p.sample_seed,
-        nthreads=p.threads,
-        progress=lambda f, m: say(0.1 * f, m),
-    )
-    timings["sampling"] = time.perf_counter() - t0
+    station_s, max_st = _stations_allowed(p, spec, instrument)
+    targets, samples = _sample(plot, p, say, timings)
 
     say(0.1, "building the plot's ray-casting scene")
     scene = plot.scene()
     caster = VisibilityCaster(scene, samples, nthreads=p.threads)
     timings["scene_build"] = caster.build_s
-    t0 = time.perf_counter()
-    clearance = TreeClearance([q for t in targets for q in t.parts], nthreads=p.threads)
-    cands, cinfo = candidate_grid(
-        plot.terrain,
-        plot.centre_xy,
-        plot.radius_m,
-        spacing_m=p.candidate_spacing_m,
-        height_m=p.height_m,
-        clearance=clearance,
-        clearance_m=p.clearance_m,
-    )
-    cinfo.update(spacing_m=p.candidate_spacing_m, height_m=p.height_m, clearance_m=p.clearance_m)
-    timings["candidates"] = time.perf_counter() - t0
+    clearance, cands, cinfo = _candidates(plot, targets, p, timings)
 
     vis = visibility(
         caster, cands, spec, p.tolerance_m, progress=lambda f, m: say(0.1 + 0.4 * f, m)
@@ -456,157 +694,30 @@ def plan_scans(
     cinfo["mean_trees_tested"] = float(vis.trees_tested.mean()) if len(cands) else 0.0
 
     say(0.5, "choosing stations")
-    t0 = time.perf_counter()
-    obj = Objective(samples, p.goal_coverage, p.dbh_arc_deg)
-    lam, qual = vis.intensity, vis.quality
-    reachable = reachable_trees(obj, lam, qual)
-    ach = obj.figures(*state(lam, qual, range(len(lam))))
-    # the stations aim above the goal by the margin, as far as each tree can reach
-    aim_cov = np.where(
-        p.goal_coverage > 0,
-        np.maximum(
-            p.goal_coverage,
-            np.minimum(p.goal_coverage + p.goal_margin, ach["coverage"][0] - COVERAGE_SLACK),
-        ),
-        0.0,
-    )
-    aim = Objective(samples, aim_cov, p.dbh_arc_deg)
-    greedy = lazy_greedy(aim, lam, max_st, quality=qual, reachable=reachable)
-    timings["greedy"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    sel = improve(aim, lam, greedy, quality=qual, reachable=reachable) if p.local_search else greedy
-    timings["swap_search"] = time.perf_counter() - t0
-
-    figs = obj.figures(*state(lam, qual, sel.chosen))
+    obj, reachable, ach, greedy, sel = _choose_stations(samples, vis, p, max_st, timings)
+    figs = obj.figures(*state(vis.intensity, vis.quality, sel.chosen))
     met = obj.met(figs)[0]
-    curve = []
-    for k in range(len(sel.chosen)):
-        curve.append(
-            {
-                "stations": k + 1,
-                "field_time_min": (k + 1) * station_s / 60.0,
-                **_summary(obj, state(lam, qual, sel.chosen[: k + 1]), reachable),
-            }
-        )
+    curve = _curve(obj, vis, sel, reachable, station_s)
 
     say(0.6, "classic layouts")
     t0 = time.perf_counter()
-    ring_d = p.ring_distance_m
-    if ring_d is None:
-        if single_tree:
-            v = np.concatenate([np.asarray(q.vertices) for t in targets for q in t.parts])
-            ring_d = rule_distance_m(v)
-        else:
-            ring_d = 0.5 * plot.radius_m
-    spacings = p.grid_spacings_m or tuple(
-        round(plot.radius_m * f, 1) for f in (1 / 3, 1 / 2, 2 / 3)
-    )
-    layouts = classic_layouts(
-        plot.terrain,
-        plot.centre_xy,
-        plot.radius_m,
-        ring_distance_m=ring_d,
-        grid_spacings_m=spacings,
-        height_m=p.height_m,
-        clearance=clearance,
-        clearance_m=p.clearance_m,
-    )
-    baselines = []
-    for lay in layouts:
-        bv = visibility(caster, lay.positions, spec, p.tolerance_m)
-        bst = state(bv.intensity, bv.quality, range(len(lay.positions)))
-        bfig = obj.figures(*bst)
-        baselines.append(
-            {
-                "name": lay.name,
-                "description": lay.description,
-                "n_stations": int(len(lay.positions)),
-                "field_time_min": len(lay.positions) * station_s / 60.0,
-                "positions_m": lay.positions.tolist(),
-                "moved_m": lay.moved_m,
-                **_summary(obj, bst, reachable),
-                "per_tree": {
-                    int(t.tree_id): {
-                        "coverage": float(bfig["coverage"][0, i]),
-                        "arc_deg": float(bfig["arc_deg"][0, i]),
-                    }
-                    for i, t in enumerate(targets)
-                },
-            }
-        )
+    layouts = _classic_layouts(plot, targets, p, clearance, single_tree)
+    baselines = _evaluate_layouts(layouts, caster, spec, p, obj, targets, reachable, station_s)
     timings["baselines"] = time.perf_counter() - t0
-    plan_summary = {
-        "n_stations": len(sel.chosen),
-        "field_time_min": len(sel.chosen) * station_s / 60.0,
-        "goal_met": bool(reachable.any() and met[reachable].all()),
-    }
-    comparison = _compare(plan_summary, baselines)
-    # the predicted verdict stays, labelled; a verification below replaces the headline
-    comparison["predicted"] = {
-        "verdict": comparison["verdict"],
-        "statement": comparison["statement"],
-    }
-    comparison["basis"] = "predicted"
+    plan_summary, comparison = _predicted_comparison(sel, station_s, met, reachable, baselines)
 
     verification = baseline_verification = None
     if p.verify and sel.chosen:
-        say(0.7, "verifying the plan")
-        t0 = time.perf_counter()
-        verification = verify_plan(
-            plot,
-            [Station(position_m=tuple(cands[j])) for j in sel.chosen],
-            spec,
-            targets,
-            samples,
-            obj,
-            tolerance_m=p.tolerance_m,
-            seed=p.sample_seed,
-            nthreads=p.threads,
-        )
-        timings["verify_plan"] = time.perf_counter() - t0
-        say(
-            0.85,
-            f"verified the plan ({len(sel.chosen)} stations) in {timings['verify_plan']:.1f} s: "
-            f"{verification['trees_meeting_goal']}/{len(targets)} trees meet the goal",
-        )
-        name = comparison.get("best_baseline")
-        lay = next((x for x in layouts if x.name == name), None)
-        if lay is not None:
-            say(0.85, f"verifying the classic layout {name} ({len(lay.positions)} stations)")
-            t0 = time.perf_counter()
-            bver = verify_plan(
-                plot,
-                [Station(position_m=tuple(q)) for q in lay.positions],
-                spec,
-                targets,
-                samples,
-                obj,
-                tolerance_m=p.tolerance_m,
-                seed=p.sample_seed,
-                nthreads=p.threads,
-            )
-            baseline_verification = {"name": name, **bver}
-            timings["verify_baseline"] = time.perf_counter() - t0
-            say(
-                0.99,
-                f"verified {name} ({len(lay.positions)} stations) in "
-                f"{timings['verify_baseline']:.1f} s: {bver['trees_meeting_goal']}/"
-                f"{len(targets)} trees meet the goal",
-            )
-        ver = _judge_verified(
+        verification, baseline_verification = _verify(
+            _Verifier(plot, spec, targets, samples, obj, p),
+            cands[sel.chosen],
+            layouts,
             comparison,
             plan_summary,
-            verification["trees_meeting_goal"],
-            None if baseline_verification is None else baseline_verification["trees_meeting_goal"],
-            int(reachable.sum()) if reachable.any() else len(targets),
-            len(targets),
+            reachable,
+            say,
+            timings,
         )
-        ver["seconds"] = {
-            "plan": timings["verify_plan"],
-            "baseline": timings.get("verify_baseline"),
-        }
-        comparison["verified"] = ver
-        comparison.update(basis="verified", verdict=ver["verdict"], statement=ver["statement"])
     timings["total"] = time.perf_counter() - t_all
     say(1.0, "done")
     return PlanResult(
