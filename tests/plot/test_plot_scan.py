@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from treesim.models import generate_tree
 from treesim.params import ScanParams
 from treesim.plot import Plot, PlotTree, Terrain
 from treesim.plot.scan import box_reachable, scan_plot, station_trees, tree_figures
@@ -144,8 +145,28 @@ def test_tree_figures_measure_each_tree_on_its_own_mesh():
         assert 0.05 < row["coverage"] < 1.0
     # beyond range: no points, nothing to measure, said so
     assert rows[2]["points"] == 0 and rows[2]["coverage"] == 0.0 and "too few" in rows[2]["note"]
-    truth = plot.truth(1)
-    assert rows[0]["dbh_m"] == truth["dbh_m"] and rows[0]["height_m"] == truth["height_m"]
+    # each row carries its own tree's reference figures, checked against what the test
+    # builds itself rather than plot.truth (which the rows copy): the height against the
+    # tree's own mesh, what was scanned (its tip cap rises ~0.2 mm above the table's top),
+    # the DBH against the stem of the generator's table for that tree's seed
+    for row, tree in zip(rows[:2], plot.trees[:2], strict=True):
+        z = np.concatenate([p.vertices[:, 2] for p in plot.tree_parts(tree.tree_id)])
+        assert row["height_m"] == pytest.approx(np.ptp(z), abs=1e-3)
+        table = generate_tree("sapling", seed=tree.seed).cylinders
+        assert row["dbh_m"] == pytest.approx(_stem_diameter_m(table, 1.3), rel=1e-12)
+    assert abs(rows[0]["dbh_m"] - rows[1]["dbh_m"]) > 1e-3  # two trees, told apart
+
+
+def _stem_diameter_m(table, height_m: float) -> float:
+    """The stem's diameter ``height_m`` above its lowest point, read off the table's stem
+    rows (branch order 0) by interpolating the radius along the row that spans it."""
+    stem = table.branch_order == 0
+    z0, z1 = table.start[stem, 2], (table.start + table.axis * table.length_m[:, None])[stem, 2]
+    target = z0.min() + height_m
+    (k,) = np.flatnonzero((np.minimum(z0, z1) <= target) & (target <= np.maximum(z0, z1)))[:1]
+    t = (target - z0[k]) / (z1[k] - z0[k])
+    r0, r1 = table.radius_m[stem][k], table.end_radius_m[stem][k]
+    return float(2 * (r0 + t * (r1 - r0)))
 
 
 @pytest.mark.parametrize("when", ["station 2/2", "tree 2"])
