@@ -373,6 +373,99 @@ class Comparison:
         return Cloud(self.reference_points, fields, meta)
 
 
+def _spacing_and_tolerance(
+    cloud_local: np.ndarray, cloud_tree: Any, ref: _Reference, params: CompareParams, workers: int
+) -> tuple[float, float]:
+    """The cloud's median point spacing and the coverage tolerance τ."""
+    try:
+        spacing = point_spacing(
+            cloud_local,
+            subsample=params.spacing_subsample,
+            seed=params.seed,
+            tree=cloud_tree,
+            workers=workers,
+        )
+    except InvalidGeometryError:
+        needed = params.tolerance_m is None or (
+            ref.kind == "mesh" and params.sample_spacing_m is None
+        )
+        if needed:
+            raise
+        spacing = math.nan  # every point coincides, but nothing derives from the spacing
+    tau = (
+        float(params.tolerance_m) if params.tolerance_m is not None else TOLERANCE_FACTOR * spacing
+    )
+    return spacing, tau
+
+
+@dataclass
+class _Measured:
+    """The cloud's accuracy against a reference, and the reference's samples (local
+    frame) whose completeness is measured next."""
+
+    acc: np.ndarray
+    ref_local: np.ndarray
+    ref_label: np.ndarray | None
+    ref_face: np.ndarray | None = None
+    sample_spacing: float | None = None
+
+
+def _against_mesh(
+    cloud_local: np.ndarray,
+    ref: _Reference,
+    frame: LocalFrame,
+    spacing: float,
+    params: CompareParams,
+    info: dict[str, Any],
+    timings: dict[str, float],
+) -> _Measured:
+    """Accuracy to a mesh (point to triangle), then its surface samples (the visible ones
+    unless ``hidden_surface="keep"``); adds the area and the samples to ``info``."""
+    t0 = time.perf_counter()
+    assert ref.faces is not None
+    verts_local = frame.to_local(ref.points)
+    acc = point_to_mesh_distances(cloud_local, verts_local, ref.faces, params.nthreads)
+    timings["accuracy"] = time.perf_counter() - t0
+    # completeness: surface samples -> cloud
+    t0 = time.perf_counter()
+    tri = verts_local[ref.faces]
+    area = float(
+        0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    )
+    s_asked = float(params.sample_spacing_m) if params.sample_spacing_m is not None else spacing
+    n_samples = int(np.clip(math.ceil(area / s_asked**2), params.min_samples, params.max_samples))
+    sample_spacing = math.sqrt(area / n_samples)
+    samples_local, ref_face = sample_surface(verts_local, ref.faces, n_samples, seed=params.seed)
+    timings["sampling"] = time.perf_counter() - t0
+    info.update(area_m2=area, samples=n_samples)
+    if params.hidden_surface == "drop":
+        t0 = time.perf_counter()
+        visible, hidden_info = _visible_samples(
+            samples_local, ref_face, verts_local, ref.faces, area, params
+        )
+        samples_local, ref_face = samples_local[visible], ref_face[visible]
+        info.update(samples=int(visible.sum()), hidden_surface=hidden_info)
+        timings["hidden_surface"] = time.perf_counter() - t0
+    ref_label = ref.face_label[ref_face] if ref.face_label is not None else None
+    return _Measured(acc, samples_local, ref_label, ref_face, sample_spacing)
+
+
+def _against_cloud(
+    cloud_local: np.ndarray,
+    ref: _Reference,
+    frame: LocalFrame,
+    workers: int,
+    timings: dict[str, float],
+) -> _Measured:
+    """Accuracy to a reference cloud (nearest neighbour); its points are the samples."""
+    t0 = time.perf_counter()
+    ref_local = frame.to_local(ref.points)
+    ref_tree = kdtree(ref_local)
+    acc, _ = ref_tree.query(cloud_local, k=1, workers=workers)
+    timings["accuracy"] = time.perf_counter() - t0
+    return _Measured(acc, ref_local, ref.point_label)
+
+
 def compare(
     cloud: Cloud,
     reference: Any,
@@ -437,73 +530,20 @@ def compare(
 
     t0 = time.perf_counter()
     cloud_tree = kdtree(cloud_local)
-    try:
-        spacing = point_spacing(
-            cloud_local,
-            subsample=params.spacing_subsample,
-            seed=params.seed,
-            tree=cloud_tree,
-            workers=workers,
-        )
-    except InvalidGeometryError:
-        needed = params.tolerance_m is None or (
-            ref.kind == "mesh" and params.sample_spacing_m is None
-        )
-        if needed:
-            raise
-        spacing = math.nan  # every point coincides, but nothing derives from the spacing
-    tau = (
-        float(params.tolerance_m) if params.tolerance_m is not None else TOLERANCE_FACTOR * spacing
-    )
+    spacing, tau = _spacing_and_tolerance(cloud_local, cloud_tree, ref, params, workers)
     timings["cloud_index"] = time.perf_counter() - t0
 
-    # accuracy: cloud -> reference
-    t0 = time.perf_counter()
-    ref_face: np.ndarray | None = None
-    sample_spacing: float | None = None
+    # accuracy: cloud -> reference (and the reference's samples)
     info = dict(ref.info)
     if ref.kind == "mesh":
-        assert ref.faces is not None
-        verts_local = frame.to_local(ref.points)
-        acc = point_to_mesh_distances(cloud_local, verts_local, ref.faces, params.nthreads)
-        timings["accuracy"] = time.perf_counter() - t0
-        # completeness: surface samples -> cloud
-        t0 = time.perf_counter()
-        tri = verts_local[ref.faces]
-        area = float(
-            0.5
-            * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
-        )
-        s_asked = float(params.sample_spacing_m) if params.sample_spacing_m is not None else spacing
-        n_samples = int(
-            np.clip(math.ceil(area / s_asked**2), params.min_samples, params.max_samples)
-        )
-        sample_spacing = math.sqrt(area / n_samples)
-        samples_local, ref_face = sample_surface(
-            verts_local, ref.faces, n_samples, seed=params.seed
-        )
-        timings["sampling"] = time.perf_counter() - t0
-        info.update(area_m2=area, samples=n_samples)
-        if params.hidden_surface == "drop":
-            t0 = time.perf_counter()
-            visible, hidden_info = _visible_samples(
-                samples_local, ref_face, verts_local, ref.faces, area, params
-            )
-            samples_local, ref_face = samples_local[visible], ref_face[visible]
-            info.update(samples=int(visible.sum()), hidden_surface=hidden_info)
-            timings["hidden_surface"] = time.perf_counter() - t0
-        ref_local = samples_local
-        ref_label = ref.face_label[ref_face] if ref.face_label is not None else None
+        m = _against_mesh(cloud_local, ref, frame, spacing, params, info, timings)
     else:
-        ref_local = frame.to_local(ref.points)
-        ref_tree = kdtree(ref_local)
-        acc, _ = ref_tree.query(cloud_local, k=1, workers=workers)
-        ref_label = ref.point_label
-        timings["accuracy"] = time.perf_counter() - t0
+        m = _against_cloud(cloud_local, ref, frame, workers, timings)
+    ref_local, ref_label = m.ref_local, m.ref_label
     t0 = time.perf_counter()
     comp, _ = cloud_tree.query(ref_local, k=1, workers=workers)
     timings["completeness"] = time.perf_counter() - t0
-    acc = np.asarray(acc, dtype=np.float64)
+    acc = np.asarray(m.acc, dtype=np.float64)
     comp = np.asarray(comp, dtype=np.float64)
 
     acc_stats = DistanceStats.of(acc)
@@ -531,13 +571,13 @@ def compare(
         tolerance_m=tau,
         coverage=coverage,
         point_spacing_m=spacing,
-        sample_spacing_m=sample_spacing,
+        sample_spacing_m=m.sample_spacing,
         cloud=cloud,
         accuracy_m=acc,
         reference_points=frame.to_global(ref_local),
         completeness_m=comp,
         reference_label=None if ref_label is None else np.asarray(ref_label, dtype=np.int64),
-        reference_face=ref_face,
+        reference_face=m.ref_face,
         label_names=names,
         by_label=by_label,
         by_station=by_station,
