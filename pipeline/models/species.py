@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, replace
+from functools import cached_property
 from importlib import resources
 from typing import Any
 
@@ -415,6 +416,8 @@ def read_species_toml(text: str, *, source: str = "species.toml") -> dict[str, T
         Not TOML, an unknown field, a value out of its range, a ``based_on`` naming no
         species above it, or a name given twice: the message names the species.
     """
+    import tomllib  # loaded only when a species file is read
+
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -450,9 +453,30 @@ def _load_presets() -> dict[str, TreeParams]:
     return read_species_toml(text, source=f"treesim/{SPECIES_RESOURCE}")
 
 
+class _Presets(Mapping[str, TreeParams]):
+    """The species presets, read from the package's TOML file on first use (every treesim
+    command imports this module; only those that build a tree need the file parsed)."""
+
+    @cached_property
+    def _presets(self) -> dict[str, TreeParams]:
+        return _load_presets()
+
+    def __getitem__(self, name: str) -> TreeParams:
+        return self._presets[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._presets)
+
+    def __len__(self) -> int:
+        return len(self._presets)
+
+    def __repr__(self) -> str:
+        return f"SPECIES({', '.join(self)})"
+
+
 #: The species presets by name (what ``--species`` takes), in the order of
-#: ``treesim/data/species.toml``, read once at import.
-SPECIES: dict[str, TreeParams] = _load_presets()
+#: ``treesim/data/species.toml``, read once, on first use (a read-only mapping).
+SPECIES: Mapping[str, TreeParams] = _Presets()
 
 
 def species_preset(name: str) -> TreeParams:
