@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
+from collections.abc import Callable
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -349,28 +350,12 @@ def _parameter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
-def build_html(
-    data: ReportData,
-    pngs: dict[str, Path],
-    paragraph: str,
-    *,
-    generated: str,
-    max_view_points: int = 40_000,
-    seed: int = 0,
-    dpi: int = 130,
-    profile: dict[str, Any] | None = None,
-) -> str:
-    """The page as one string (every image and the viewer's data inline); a plot missing
-    from ``pngs`` (``report.plots = false``) is said, not drawn."""
+#: Draws one plot's ``<img>`` (or says it was not drawn): key, alt text.
+ImageTag = Callable[[str, str], str]
 
-    def img(key: str, alt: str) -> str:
-        return _img(pngs.get(key), alt, dpi)
 
-    s = data.summary
-    ref_word = figures._ref_word(s)
-    inputs = s.get("inputs", {})
-    cloud_name = Path(str(inputs.get("cloud", "cloud"))).name
-    ref_name = Path(str(inputs.get("reference", ref_word))).name
+def _header_meta(s: dict[str, Any], generated: str) -> str:
+    """The line under the title: points, the reference's size, when."""
     acc = s["accuracy"]
     ref = s.get("reference", {})
     meta = f"{s.get('cloud', {}).get('points', acc['n']):,} points"
@@ -379,11 +364,31 @@ def build_html(
     else:
         meta += f" · reference cloud of {ref.get('points', 0):,} points"
     meta += f" · generated {escape(generated)}"
-    stations_pos = {}
-    for st in (inputs.get("scan") or {}).get("stations", []) or []:
-        if "index" in st and "position_m" in st:
-            stations_pos[str(st["index"])] = st["position_m"]
+    return meta
 
+
+def _page_head(cloud_name: str, ref_name: str, meta: str) -> str:
+    """From the doctype to the page's header."""
+    return f"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>treesim comparison: {escape(cloud_name)} vs {escape(ref_name)}</title>
+<script>{assets.ERROR_HOOK_JS}</script>
+<style>{assets.CSS}</style>
+</head>
+<body>
+<header class="top"><div class="wrap">
+  <div class="eyebrow">treesim · AVOHD comparison report</div>
+  <h1>{escape(cloud_name)}<span class="vs">vs</span>{escape(ref_name)}</h1>
+  <p class="meta">{meta}</p>
+</div></header>"""
+
+
+def _cards_html(s: dict[str, Any], ref_word: str) -> str:
+    """The headline figures as cards."""
+    acc = s["accuracy"]
     cards = [
         (
             "acc",
@@ -401,43 +406,20 @@ def build_html(
         ("", "Hausdorff", length(s["hausdorff_m"]), "symmetric maximum"),
         ("", "Chamfer", length(s["chamfer_m"]), "mean of both directions' means"),
     ]
-    cards_html = "".join(
+    return "".join(
         f'<div class="card {c}"><div class="k">{escape(k)}</div><div class="v">{v}</div>'
         f'<div class="s">{sub}</div></div>'
         for c, k, v, sub in cards
     )
-    payload = viewer_payload(data, max_points=max_view_points, seed=seed)
-    defs = s.get("definitions", {})
-    defs_html = "".join(f"<dt>{escape(k)}</dt><dd>{escape(v)}</dd>" for k, v in defs.items())
-    versions = {**s.get("software", {}), **s.get("report_software", {})}
-    versions_html = "".join(
-        f"<span>{escape(k)} <b>{escape(str(v))}</b></span>" for k, v in versions.items()
-    )
-    tau_txt = length(s["tolerance_m"])
 
-    return f"""<!doctype html>
-<html lang="en">
-<head>
-<meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>treesim comparison: {escape(cloud_name)} vs {escape(ref_name)}</title>
-<script>{assets.ERROR_HOOK_JS}</script>
-<style>{assets.CSS}</style>
-</head>
-<body>
-<header class="top"><div class="wrap">
-  <div class="eyebrow">treesim · AVOHD comparison report</div>
-  <h1>{escape(cloud_name)}<span class="vs">vs</span>{escape(ref_name)}</h1>
-  <p class="meta">{meta}</p>
-</div></header>
-<main class="wrap">
-<div id="page-errors" hidden></div>
-<section class="panel summary"><p>{escape(paragraph)}</p></section>
-{_note_html(exactness_note(s))}
 
-<section class="cards">{cards_html}</section>
-
-<section class="panel">
+def _distances_section(s: dict[str, Any], ref_word: str) -> str:
+    """Both directions' statistics, by hit label and by station."""
+    stations_pos = {}
+    for st in (s.get("inputs", {}).get("scan") or {}).get("stations", []) or []:
+        if "index" in st and "position_m" in st:
+            stations_pos[str(st["index"])] = st["position_m"]
+    return f"""<section class="panel">
   <h2>Distances</h2>
   <p class="lead">Absolute distances in millimetres. Accuracy: every cloud point to the
   {ref_word}. Completeness: every {ref_word} sample to the nearest cloud point; it shows what
@@ -447,11 +429,12 @@ def build_html(
   </tbody></table></div>
   {_label_table(s)}
   {_station_table(s, stations_pos)}
-</section>
+</section>"""
 
-{viewer_section(payload)}
 
-<section class="panel">
+def _plot_sections(img: ImageTag, s: dict[str, Any], ref_word: str, tau_txt: str) -> str:
+    """The distributions, where the differences are, and coverage by station."""
+    return f"""<section class="panel">
   <h2>Distributions</h2>
   <p class="lead">How far the points are, as shares of each direction's points.
   The red line is the coverage tolerance τ = {tau_txt}.</p>
@@ -479,9 +462,14 @@ def build_html(
   <figure>{img("coverage", "Coverage of the reference by station")}
     <figcaption>Share of the {ref_word} within τ = {tau_txt} of the cloud, by all stations
     together and by each station alone.</figcaption></figure>
-</section>
+</section>"""
 
-<section class="panel" id="occlusion">
+
+def _occlusion_section(
+    img: ImageTag, profile: dict[str, Any] | None, ref_word: str, tau_txt: str
+) -> str:
+    """Coverage and point density by height slice: the plot and its numbers."""
+    return f"""<section class="panel" id="occlusion">
   <h2>Occlusion by height</h2>
   <p class="lead">The {ref_word} cut into {length(profile["bin_m"]) if profile else ""} slices
   from its lowest point up: the share of each slice within τ = {tau_txt} of the cloud, for
@@ -495,16 +483,69 @@ def build_html(
         else "beside the reference's"
     }.</figcaption></figure>
   {_profile_table(profile, ref_word)}
-</section>
+</section>"""
 
-<section class="two">
+
+def _about_section(s: dict[str, Any]) -> str:
+    """The parameters that produced the figures, and the figures' definitions."""
+    defs = s.get("definitions", {})
+    defs_html = "".join(f"<dt>{escape(k)}</dt><dd>{escape(v)}</dd>" for k, v in defs.items())
+    return f"""<section class="two">
   <div class="panel"><h2>Parameters</h2>
     <p class="lead">What produced these figures.</p>
     {_kv_table(_parameter_rows(s))}</div>
   <div class="panel"><h2>Definitions</h2>
     <p class="lead">The figures' names as in <code>comparison.json</code>.</p>
     <dl class="defs">{defs_html}</dl></div>
-</section>
+</section>"""
+
+
+def build_html(
+    data: ReportData,
+    pngs: dict[str, Path],
+    paragraph: str,
+    *,
+    generated: str,
+    max_view_points: int = 40_000,
+    seed: int = 0,
+    dpi: int = 130,
+    profile: dict[str, Any] | None = None,
+) -> str:
+    """The page as one string (every image and the viewer's data inline); a plot missing
+    from ``pngs`` (``report.plots = false``) is said, not drawn."""
+
+    def img(key: str, alt: str) -> str:
+        return _img(pngs.get(key), alt, dpi)
+
+    s = data.summary
+    ref_word = figures._ref_word(s)
+    inputs = s.get("inputs", {})
+    cloud_name = Path(str(inputs.get("cloud", "cloud"))).name
+    ref_name = Path(str(inputs.get("reference", ref_word))).name
+    payload = viewer_payload(data, max_points=max_view_points, seed=seed)
+    versions = {**s.get("software", {}), **s.get("report_software", {})}
+    versions_html = "".join(
+        f"<span>{escape(k)} <b>{escape(str(v))}</b></span>" for k, v in versions.items()
+    )
+    tau_txt = length(s["tolerance_m"])
+
+    return f"""{_page_head(cloud_name, ref_name, _header_meta(s, generated))}
+<main class="wrap">
+<div id="page-errors" hidden></div>
+<section class="panel summary"><p>{escape(paragraph)}</p></section>
+{_note_html(exactness_note(s))}
+
+<section class="cards">{_cards_html(s, ref_word)}</section>
+
+{_distances_section(s, ref_word)}
+
+{viewer_section(payload)}
+
+{_plot_sections(img, s, ref_word, tau_txt)}
+
+{_occlusion_section(img, profile, ref_word, tau_txt)}
+
+{_about_section(s)}
 </main>
 <footer class="wrap"><div class="versions">{versions_html}</div></footer>
 <script>{assets.VIEWER_JS}</script>
