@@ -181,23 +181,11 @@ def plausibility_note(rec: dict[str, Any]) -> str:
     )
 
 
-def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:
-    """A small self-contained page: the tree, the scan, both comparisons, links.
-
-    Parameters
-    ----------
-    s : dict
-        ``run.json``'s content (:func:`treesim.run.run_tree` builds it).
-    version : str
-        treesim's version, shown in the page's byline.
-    viewer : dict, optional
-        The 3D view's data (:func:`run_viewer_payload`); no 3D view without it.
-    """
+def _tree_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
+    """The reconstruction's figures."""
     esc = html.escape
     rec = s["reconstruction"]
-    sc = s["scan"]
-    rule = sc["station_rule"]
-    rows_tree = [
+    return [
         ("method", esc(str(s["parameters"]["reconstruct"]["method"]))),
         ("DBH", cell(rec.get("dbh_m"), " cm", 100)),
         ("height", cell(rec.get("height_m"), " m")),
@@ -216,6 +204,13 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
             f"{cell(rec.get('points_input'))} ({cell(rec.get('points_used'))})",
         ),
     ]
+
+
+def _scan_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
+    """The virtual scan's design and yield, and the coverage tolerance."""
+    esc = html.escape
+    sc = s["scan"]
+    rule = sc["station_rule"]
     spec = s["parameters"]["scan"]["scanner"]
     rows_scan = [
         (
@@ -237,31 +232,35 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
         rows_scan.append(
             ("coverage tolerance τ", f"{_len(tol.get('tolerance_m'))}: {esc(str(tol.get('rule')))}")
         )
-    t = s["timings_s"]
-    rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]
+    return rows_scan
 
-    def cmp_rows(c: dict[str, Any]) -> str:
-        a, m = c["accuracy"], c["completeness"]
-        rows = [
-            (
-                "accuracy: mean / p95 / max",
-                f"{_len(a['mean_m'])} / {_len(a['p95_m'])} / {_len(a['max_m'])}",
-            ),
-            (
-                "completeness: mean / p95 / max",
-                f"{_len(m['mean_m'])} / {_len(m['p95_m'])} / {_len(m['max_m'])}",
-            ),
-            ("coverage within τ", f"{_pct(c['coverage'])} (τ = {_len(c['tolerance_m'])})"),
-            ("Hausdorff", _len(c["hausdorff_m"])),
-            ("Chamfer", _len(c["chamfer_m"])),
-        ]
-        return "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
 
-    def table(rows: list[tuple[str, str]]) -> str:
-        return (
-            "<table>" + "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows) + "</table>"
-        )
+def _cmp_rows(c: dict[str, Any]) -> str:
+    """One comparison's figures as table rows."""
+    a, m = c["accuracy"], c["completeness"]
+    rows = [
+        (
+            "accuracy: mean / p95 / max",
+            f"{_len(a['mean_m'])} / {_len(a['p95_m'])} / {_len(a['max_m'])}",
+        ),
+        (
+            "completeness: mean / p95 / max",
+            f"{_len(m['mean_m'])} / {_len(m['p95_m'])} / {_len(m['max_m'])}",
+        ),
+        ("coverage within τ", f"{_pct(c['coverage'])} (τ = {_len(c['tolerance_m'])})"),
+        ("Hausdorff", _len(c["hausdorff_m"])),
+        ("Chamfer", _len(c["chamfer_m"])),
+    ]
+    return "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
 
+
+def _table(rows: list[tuple[str, str]]) -> str:
+    return "<table>" + "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows) + "</table>"
+
+
+def _comparison_cards(s: dict[str, Any]) -> str:
+    """Both comparisons side by side: summary, figures, links and a view each."""
+    esc = html.escape
     plotted = s["parameters"]["report"].get("plots", True)
     cards = []
     for key, title, what, view in (
@@ -288,7 +287,7 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
                 if trivially_exact(s[key])
                 else ""
             )
-            + f"<table>{cmp_rows(s[key])}</table>"
+            + f"<table>{_cmp_rows(s[key])}</table>"
             f'<p><a href="{key}/report.html">full report</a> · '
             f'<a href="{key}/comparison.json">comparison.json</a></p>'
             + (
@@ -298,6 +297,24 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
             )
             + "</div>"
         )
+    return "".join(cards)
+
+
+def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:
+    """A small self-contained page: the tree, the scan, both comparisons, links.
+
+    Parameters
+    ----------
+    s : dict
+        ``run.json``'s content (:func:`treesim.run.run_tree` builds it).
+    version : str
+        treesim's version, shown in the page's byline.
+    viewer : dict, optional
+        The 3D view's data (:func:`run_viewer_payload`); no 3D view without it.
+    """
+    esc = html.escape
+    t = s["timings_s"]
+    rows_time = [(k.replace("_", " "), f"{t[k]:.2f} s") for k in (*STAGES, "total") if k in t]
     files = "".join(
         f'<li><a href="{esc(v)}">{esc(v)}</a></li>' for v in dict.fromkeys(s["files"].values())
     )
@@ -318,14 +335,14 @@ def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = No
 <h1>treesim run: {esc(s["name"])}</h1><div id="page-errors" hidden></div>
 <p class="muted">field cloud {esc(str(s["inputs"].get("cloud") or "in memory"))} ·
 preset {esc(str(s["parameters"].get("preset") or "custom"))} · treesim {esc(version)}</p>
-<div class="cards"><div class="card"><h2>Reconstruction</h2>{table(rows_tree)}
-{plausibility_note(rec)}</div>
-<div class="card"><h2>Virtual scan</h2>{table(rows_scan)}</div></div>
+<div class="cards"><div class="card"><h2>Reconstruction</h2>{_table(_tree_rows(s))}
+{plausibility_note(s["reconstruction"])}</div>
+<div class="card"><h2>Virtual scan</h2>{_table(_scan_rows(s))}</div></div>
 {reference_qsm_section(s)}
 {clouds_section(s)}
-<div class="cards">{"".join(cards)}</div>
+<div class="cards">{_comparison_cards(s)}</div>
 {viewer_html}
-<h2>Time per stage</h2>{table(rows_time)}
+<h2>Time per stage</h2>{_table(rows_time)}
 <h2>Files</h2><ul>{files}<li><a href="run.json">run.json</a> (parameters, versions,
 timings, every figure)</li></ul>{viewer_js}</body></html>
 """
