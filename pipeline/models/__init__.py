@@ -8,8 +8,9 @@
   starting inside its parent (:func:`branch_tubes`, :func:`sink_branches`);
 * :mod:`.lod`: level of detail, facets per cylinder from the point spacing a scanner
   gets at it (:func:`lod_facets`, :func:`plan_lod`);
-* :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`, :data:`SPECIES`) whose
-  cylinder table is the exact truth of their mesh.
+* :mod:`.procedural`: Weber & Penn trees (:func:`generate_tree`) whose cylinder table is
+  the exact truth of their mesh, grown by :mod:`.builder` from the species presets of
+  :mod:`.species` (:data:`SPECIES`, read from ``data/species.toml``).
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ radius).
 
 **Why at least 8 facets** (:data:`LOD_MIN_FACETS`). Procedural trees put every child's
 base disc inside the parent's inscribed polygon at
-:data:`~treesim.models.procedural.MIN_JUNCTION_FACETS` (8) facets, so their junctions
+:data:`~treesim.models.builder.MIN_JUNCTION_FACETS` (8) facets, so their junctions
 stay closed at any level of detail; an octagon also keeps 90 % of the disc's area and its
 width stays within 92.4 % (cos 22.5 degrees) of the diameter, where a triangle keeps 41 %
 and 75 %: thin twigs still occlude about as much as the cylinders they stand for.
@@ -69,6 +69,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from .builder import MIN_JUNCTION_FACETS
 from .cylinders import CylinderTable, _check_facets
 from .mesh import (
     MAX_JOINT_GAP_RATIO,
@@ -76,7 +77,6 @@ from .mesh import (
     mesh_triangle_count,
     meshed_facets,
 )
-from .procedural import MIN_JUNCTION_FACETS
 
 __all__ = [
     "LOD_MIN_FACETS",
