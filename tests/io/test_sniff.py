@@ -7,7 +7,10 @@ another exception."""
 from __future__ import annotations
 
 import json
+import os
 import struct
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +24,7 @@ from treesim.errors import (
     TreesimError,
     UnsupportedFormatError,
 )
-from treesim.io import inspect_file, sniff_format, write_cloud, write_mesh
+from treesim.io import FileInfo, inspect_file, sniff_format, write_cloud, write_mesh
 
 from .conftest import GEO_ORIGIN
 
@@ -189,24 +192,119 @@ def test_an_stl_header_with_a_wrong_count_is_not_stl(tmp_path):
 
 
 # -- property: nothing but a FileInfo or a TreesimError ---------------------------------------
+# Each example's outcome is checked against what the test knows of the bytes: the magic
+# numbers of the formats, the counts and bounds of the rows it wrote, whether it cut a
+# binary file short.
 hypothesis = pytest.importorskip("hypothesis")
 st = hypothesis.strategies
 
+#: The first bytes of each binary format, as the formats' specifications give them.
+MAGIC = {"las": b"LASF", "laz": b"LASF", "ply": b"ply", "glb": b"glTF", "e57": b"ASTM-E57"}
 
-def _outcome(path: Path) -> str:
+
+def _outcome(path: Path) -> FileInfo | TreesimError:
     try:
-        inspect_file(path)
-    except TreesimError:
-        return "refused"
-    return "read"
+        return inspect_file(path)
+    except TreesimError as exc:
+        return exc
+
+
+def _could_come_from(info: FileInfo, data: bytes) -> None:
+    """A FileInfo read from ``data`` names a format those bytes can be, and sane figures."""
+    if info.format in MAGIC:
+        assert data.startswith(MAGIC[info.format]), (info.format, data[:8])
+    elif info.format == "stl" and not data[:5].lower() == b"solid":
+        assert len(data) == 84 + 50 * struct.unpack_from("<I", data, 80)[0]
+    else:  # the text formats
+        assert b"\x00" not in data, info.format
+    lo, hi = np.asarray(info.bounds[0]), np.asarray(info.bounds[1])
+    assert info.n_points >= 1 and np.isfinite(lo).all() and (lo <= hi).all(), info
 
 
 @hypothesis.settings(max_examples=60, deadline=None, derandomize=True)
-@hypothesis.given(data=st.binary(max_size=2000))
+@hypothesis.given(
+    data=st.one_of(
+        st.binary(max_size=2000),
+        # text of numbers, some of it XYZ rows: what a sniffer may take for a cloud
+        st.text(alphabet="0123456789 .-e,\n", max_size=400).map(str.encode),
+    )
+)
 def test_any_bytes_are_read_or_refused(tmp_path_factory, data):
     p = tmp_path_factory.mktemp("any") / "x"
     p.write_bytes(data)
-    _outcome(p)
+    got = _outcome(p)
+    if not data:
+        assert isinstance(got, EmptyInputError)
+    elif isinstance(got, FileInfo):
+        _could_come_from(got, data)
+
+
+_coord = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+
+
+@hypothesis.settings(max_examples=40, deadline=None, derandomize=True)
+@hypothesis.given(
+    rows=st.lists(st.tuples(_coord, _coord, _coord), min_size=1, max_size=40),
+    sep=st.sampled_from([" ", ",", "\t", ", "]),
+    newline=st.sampled_from(["\n", "\r\n"]),
+)
+def test_any_xyz_rows_are_read_exactly(tmp_path_factory, rows, sep, newline):
+    # the rows written with repr (which round-trips a float64): every row read, the
+    # bounds the rows' own minimum and maximum, exactly
+    p = tmp_path_factory.mktemp("xyz") / "x"
+    p.write_text("".join(sep.join(map(repr, r)) + newline for r in rows), encoding="utf-8")
+    got = _outcome(p)
+    assert isinstance(got, FileInfo), got
+    assert (got.format, got.kind, got.n_points) == ("xyz", "cloud", len(rows))
+    xyz = np.array(rows, dtype=np.float64)
+    np.testing.assert_array_equal(got.bounds[0], xyz.min(axis=0))
+    np.testing.assert_array_equal(got.bounds[1], xyz.max(axis=0))
+
+
+#: Flip each byte of a LAS/LAZ file's header and VLRs, the first 8 bytes after them (a
+#: LAZ's chunk table offset) and its last 8 (the chunk table), one at a time, and inspect.
+_FLIP_HEADER_BYTES = """
+import struct, sys
+from pathlib import Path
+from treesim.errors import TreesimError
+from treesim.io import inspect_file
+src, dst = Path(sys.argv[1]), Path(sys.argv[2])
+data = src.read_bytes()
+(offset,) = struct.unpack_from("<I", data, 96)
+for i in [*range(offset + 8), *range(len(data) - 8, len(data))]:
+    b = bytearray(data)
+    b[i] ^= 0xFF
+    dst.write_bytes(bytes(b))
+    try:
+        inspect_file(dst)
+    except TreesimError:
+        pass
+    except BaseException as exc:
+        sys.exit(f"byte {i} flipped: {type(exc).__name__}: {exc}")
+"""
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="a known bug, found by this test (2026-11-26): a flipped byte in a LAS 1.4 "
+    "header's EVLR start (bytes 243-246) raises MemoryError from laspy, and in a LAZ's "
+    "laszip VLR or chunk table it aborts the interpreter (lazrs: 'memory allocation of "
+    "128347193400 bytes failed'); treesim.io.las should check the header against the "
+    "file's size before reading",
+)
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_every_las_header_byte_flipped_is_read_or_refused(tmp_path, suffix):
+    # deterministic where the property below samples: every byte of the part of the file
+    # that says how much to read. In a child process: a corrupt LAZ can abort the process
+    src = write_cloud(tmp_path / f"c{suffix}", _cloud(300))
+    done = subprocess.run(
+        [sys.executable, "-c", _FLIP_HEADER_BYTES, str(src), str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "RUST_BACKTRACE": "0"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
 
 
 @pytest.fixture(scope="module")
@@ -218,17 +316,48 @@ def valid_files(tmp_path_factory) -> dict[str, bytes]:
     return out
 
 
+def _obj_faces(data: bytes) -> list[list[int]]:
+    """The faces a (possibly cut) OBJ holds: its ``f`` lines with at least three vertex
+    indices, the last, cut line included when it still has three."""
+    lines = data.decode("utf-8").split("\n")
+    return [[int(x) for x in ln.split()[1:]] for ln in lines if ln.startswith("f ")
+            and len(ln.split()) >= 4]  # fmt: skip
+
+
 @hypothesis.settings(max_examples=80, deadline=None, derandomize=True)
 @hypothesis.given(
     which=st.sampled_from([".laz", ".las", ".ply", ".obj"]),
-    keep=st.floats(0.0, 1.0),
-    flip=st.integers(0, 10**6),
+    keep=st.one_of(st.just(1.0), st.floats(0.0, 1.0)),  # whole files too, cut or flipped
+    flip=st.one_of(st.none(), st.integers(0, 10**6)),
 )
 def test_any_truncation_or_bit_flip_is_read_or_refused(tmp_path_factory, valid_files, which,
                                                        keep, flip):  # fmt: skip
-    data = bytearray(valid_files[which][: int(len(valid_files[which]) * keep)])
-    if data and flip % 3 == 0:
+    whole = valid_files[which]
+    data = bytearray(whole[: int(len(whole) * keep)])
+    flipped = bool(data) and flip is not None
+    if flipped:
         data[flip % len(data)] ^= 0xFF
     p = tmp_path_factory.mktemp("cut") / "x"
     p.write_bytes(bytes(data))
-    _outcome(p)
+    got = _outcome(p)
+    n_points, n_triangles = (8, 12) if which == ".obj" else (300, None)
+    if isinstance(got, FileInfo):
+        _could_come_from(got, bytes(data))
+        # nothing read that the file did not hold
+        assert got.kind == ("mesh" if which == ".obj" else "cloud")
+        assert got.n_points <= n_points and (got.n_triangles or 0) <= (n_triangles or 0)
+    if flipped:
+        return
+    if len(data) == len(whole):  # untouched: read whole
+        assert isinstance(got, FileInfo), got
+        assert (got.n_points, got.n_triangles) == (n_points, n_triangles)
+    elif which != ".obj":  # a binary cloud cut short says so
+        assert isinstance(got, TreesimError), got
+    else:  # a cut OBJ is read up to its last whole face (vertices all come first)
+        faces = _obj_faces(bytes(data))
+        if faces:
+            assert isinstance(got, FileInfo), got
+            assert got.n_triangles == len(faces)
+            assert got.n_points == len({i for f in faces for i in f})
+        else:
+            assert isinstance(got, TreesimError), got
