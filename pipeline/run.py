@@ -323,11 +323,6 @@ def run_tree(
     PosixPath('out/coffee/report.html')
     """
     from ._version import __version__
-    from .compare import compare, write_comparison
-    from .io import read_cloud, write_cloud, write_mesh
-    from .reconstruct import reconstruct
-    from .report import build_report
-    from .scan import stations_for
 
     params = params or run_preset()
     if not isinstance(params, RunParams):
@@ -340,17 +335,80 @@ def run_tree(
     t_all = time.perf_counter()
 
     # -- read ------------------------------------------------------------------------------
-    if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
-        raise InputFormatError(f"{cloud} not found; check the path")
-    ref_table = None
-    if reference_qsm is not None:
-        from .models import read_cylinders
-
-        if not Path(reference_qsm).is_file():
-            raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
-        ref_table = read_cylinders(reference_qsm)  # a bad table fails now, not after the run
+    ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
     say(0.0, "reading")
     t0 = time.perf_counter()
+    field_cloud, inputs, name = _read_field_cloud(cloud, out, name)
+    timings["read"] = time.perf_counter() - t0
+
+    # -- reconstruct -----------------------------------------------------------------------
+    t0 = time.perf_counter()
+    model, written = _reconstruct_stage(field_cloud, params, threads, out, say)
+    timings["reconstruct"] = time.perf_counter() - t0
+
+    # -- scan ------------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    scanned = _scan_stage(model, written, params, threads, out, say)
+    timings["scan"] = time.perf_counter() - t0
+
+    # -- compare ---------------------------------------------------------------------------
+    tolerance, vs_mesh, vs_field = _compare_stage(
+        cloud, field_cloud, inputs, scanned, params, threads, out, say, timings
+    )
+
+    # -- report ----------------------------------------------------------------------------
+    say(0.72, "drawing the reports")
+    t0 = time.perf_counter()
+    clouds, viewer = _draw_reports(
+        field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say
+    )
+    summary = _run_summary(
+        name, inputs, params, threads, model, written, tolerance, clouds, scanned, vs_mesh, vs_field
+    )
+    summary["summary_text"] = _summary_texts(out)
+    timings["report"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_all
+    summary["timings_s"] = timings
+    if ref_table is not None:
+        summary["reference_qsm"] = {
+            "path": _relative(reference_qsm, out),
+            **reference_qsm_figures(ref_table, model.figures),
+            "sha256": file_sha256(reference_qsm),
+        }
+    write_text(out / "report.html", run_page(summary, __version__, viewer))
+    _write_json(out / "run.json", summary)
+    say(1.0, "done")
+    return RunResult(
+        outdir=out,
+        report_html=out / "report.html",
+        run_json=out / "run.json",
+        summary=_jsonable(summary),
+    )
+
+
+def _check_inputs(
+    cloud: Cloud | np.ndarray | str | Path, reference_qsm: str | Path | None
+) -> CylinderTable | None:
+    """Fail before any work on a missing cloud file or a missing or unreadable reference
+    QSM; return the reference's table (None without one)."""
+    if isinstance(cloud, (str, Path)) and not Path(cloud).is_file():
+        raise InputFormatError(f"{cloud} not found; check the path")
+    if reference_qsm is None:
+        return None
+    from .models import read_cylinders
+
+    if not Path(reference_qsm).is_file():
+        raise InputFormatError(f"reference QSM {reference_qsm} not found; check the path")
+    return read_cylinders(reference_qsm)  # a bad table fails now, not after the run
+
+
+def _read_field_cloud(
+    cloud: Cloud | np.ndarray | str | Path, out: Path, name: str | None
+) -> tuple[Cloud, dict[str, Any], str]:
+    """The read stage: the field cloud (validated), ``run.json``'s ``inputs`` and the
+    tree's name (given, else the file's stem, else ``"tree"``)."""
+    from .io import read_cloud
+
     inputs: dict[str, Any]
     if isinstance(cloud, (str, Path)):
         path = Path(cloud)
@@ -369,18 +427,47 @@ def run_tree(
         inputs = {"cloud": None}
     field_cloud.validate()
     inputs["points"] = len(field_cloud)
-    name = name or "tree"
-    timings["read"] = time.perf_counter() - t0
+    return field_cloud, inputs, name or "tree"
 
-    # -- reconstruct -----------------------------------------------------------------------
-    t0 = time.perf_counter()
+
+def _reconstruct_stage(
+    field_cloud: Cloud, params: RunParams, threads: int, out: Path, say: Progress
+) -> tuple[Any, dict[str, Path]]:
+    """The reconstruct stage: the model, and the files it wrote (``model.write``)."""
+    from .reconstruct import reconstruct
+
     rp = replace(params.reconstruct, prepare=replace(params.reconstruct.prepare, threads=threads))
     model = reconstruct(field_cloud, rp, progress=scale_progress(say, 0.02, 0.35))
-    written = model.write(out)
-    timings["reconstruct"] = time.perf_counter() - t0
+    return model, model.write(out)
 
-    # -- scan ------------------------------------------------------------------------------
-    t0 = time.perf_counter()
+
+@dataclass(frozen=True)
+class _Scanned:
+    """What the scan stage made and wrote, for the comparisons and the summary."""
+
+    scene: Scene
+    #: The mesh file scanned (the reconstruction's, or ``scan_mesh.ply`` at its own detail).
+    mesh_name: str
+    result: Any  # treesim.scan.ScanResult
+    scan_path: Path
+    scan_ply: Path
+    summary: dict[str, Any]
+    #: The scan's record in each comparison's ``inputs``.
+    inputs: dict[str, Any]
+
+    @property
+    def cloud(self) -> Cloud:
+        return self.result.cloud
+
+
+def _scan_stage(
+    model: Any, written: dict[str, Path], params: RunParams, threads: int, out: Path, say: Progress
+) -> _Scanned:
+    """The scan stage: the model's mesh (at the run's level of detail) scanned from the
+    station rule's stations; ``scan.laz``, ``scan.ply`` and ``scan.json`` written."""
+    from .io import write_cloud, write_mesh
+    from .scan import stations_for
+
     scene = Scene.from_labelled_mesh(
         model.vertices, model.faces, model.face_label, name_prefix="reconstruction:"
     )
@@ -413,7 +500,6 @@ def run_tree(
         **result.summary(),
     }
     _write_json(out / "scan.json", scan_summary)
-    timings["scan"] = time.perf_counter() - t0
     scan_inputs = {
         "source": "scan.json",
         "scanner": sp.scanner.to_dict(),
@@ -424,54 +510,103 @@ def run_tree(
             for s in result.station_stats
         ],
     }
+    return _Scanned(scene, scanned_mesh, result, scan_path, scan_ply, scan_summary, scan_inputs)
 
-    # -- compare ---------------------------------------------------------------------------
+
+def _compare_stage(
+    cloud: Cloud | np.ndarray | str | Path,
+    field_cloud: Cloud,
+    inputs: dict[str, Any],
+    scanned: _Scanned,
+    params: RunParams,
+    threads: int,
+    out: Path,
+    say: Progress,
+    timings: dict[str, float],
+) -> tuple[dict[str, Any], Any, Any]:
+    """The compare stage: the run's τ, then the simulated cloud against the mesh it was
+    scanned from (``vs_mesh/``) and against the field cloud (``vs_field/``); each one's
+    time goes into ``timings``. Returns τ's record and the two comparisons."""
+    from .compare import compare, write_comparison
+
     say(0.5, "comparing with the mesh")
     t0 = time.perf_counter()
     tolerance = run_tolerance(field_cloud, params)
     cp = replace(params.compare, nthreads=threads, tolerance_m=tolerance["tolerance_m"])
-    vs_mesh = compare(sim, scene, params=cp)
+    vs_mesh = compare(scanned.cloud, scanned.scene, params=cp)
     vs_mesh.tolerance_rule = tolerance["rule"]
     in_mesh = {
-        "cloud": f"../{scan_ply.name}",
-        "reference": f"../{scanned_mesh}",
-        "scan": scan_inputs,
+        "cloud": f"../{scanned.scan_ply.name}",
+        "reference": f"../{scanned.mesh_name}",
+        "scan": scanned.inputs,
     }
     write_comparison(vs_mesh, out / "vs_mesh", inputs=in_mesh, formats=(".laz",))
     timings["compare_mesh"] = time.perf_counter() - t0
     say(0.62, "comparing with the field cloud")
     t0 = time.perf_counter()
-    vs_field = compare(sim, field_cloud, params=cp)
+    vs_field = compare(scanned.cloud, field_cloud, params=cp)
     vs_field.tolerance_rule = tolerance["rule"]
     in_field = {
-        "cloud": f"../{scan_ply.name}",
+        "cloud": f"../{scanned.scan_ply.name}",
         "reference": _relative(cloud, out / "vs_field")
         if isinstance(cloud, (str, Path))
         else "field cloud (memory)",
         "reference_sha256": inputs.get("sha256"),
-        "scan": scan_inputs,
+        "scan": scanned.inputs,
     }
     write_comparison(vs_field, out / "vs_field", inputs=in_field, formats=(".laz",))
     timings["compare_field"] = time.perf_counter() - t0
+    return tolerance, vs_mesh, vs_field
 
-    # -- report ----------------------------------------------------------------------------
-    say(0.72, "drawing the reports")
-    t0 = time.perf_counter()
-    # drawn from the written files, so that drawing them again gives the same report
+
+def _draw_reports(
+    field_cloud: Cloud,
+    scanned: _Scanned,
+    vs_mesh: Any,
+    vs_field: Any,
+    tolerance: dict[str, Any],
+    out: Path,
+    params: RunParams,
+    say: Progress,
+) -> tuple[dict[str, Any], Any]:
+    """Each comparison's report (drawn from the written files, so that drawing them
+    again gives the same report), the clouds side by side, and the run page's viewer
+    payload. Returns the clouds' record and the payload."""
+    from .report import build_report
+
     build_report(out / "vs_mesh", params=params.report)
     say(0.86, "drawing the reports")
     build_report(out / "vs_field", params=params.report)
     mesh_data = ReportData.from_comparison(vs_mesh)
-    clouds = _clouds_side_by_side(field_cloud, sim, mesh_data, tolerance, out, params)
+    clouds = _clouds_side_by_side(field_cloud, scanned.cloud, mesh_data, tolerance, out, params)
     viewer = run_viewer_payload(
         mesh_data,
         ReportData.from_comparison(vs_field),
         max_points=params.report.max_view_points,
         seed=params.report.seed,
     )
+    return clouds, viewer
+
+
+def _run_summary(
+    name: str,
+    inputs: dict[str, Any],
+    params: RunParams,
+    threads: int,
+    model: Any,
+    written: dict[str, Path],
+    tolerance: dict[str, Any],
+    clouds: dict[str, Any],
+    scanned: _Scanned,
+    vs_mesh: Any,
+    vs_field: Any,
+) -> dict[str, Any]:
+    """``run.json``'s content, less what the report stage adds after it (the summary
+    texts, the timings and the reference QSM)."""
+    result = scanned.result
     mesh_fig = {k: v for k, v in vs_mesh.to_dict().items() if k in COMPARISON_FIGURES}
     field_fig = {k: v for k, v in vs_field.to_dict().items() if k in COMPARISON_FIGURES}
-    summary: dict[str, Any] = {
+    return {
         "kind": "treesim.run",
         "name": name,
         "inputs": inputs,
@@ -483,10 +618,10 @@ def run_tree(
         "tolerance": tolerance,
         "clouds": clouds,
         "scan": {
-            "points": len(sim),
+            "points": len(scanned.cloud),
             "rays_cast": result.rays_cast,
             "stations": [s.to_dict() for s in result.station_stats],
-            "station_rule": scan_summary["station_rule"],
+            "station_rule": scanned.summary["station_rule"],
             "models_active": result.models,
             "lod": result.lod,
             "warnings": result.warnings,
@@ -497,8 +632,8 @@ def run_tree(
             "mesh": written["mesh"].name,
             **({"cylinders": written["cylinders"].name} if "cylinders" in written else {}),
             "tree_json": written["json"].name,
-            "scan": scan_path.name,
-            "scan_float64": scan_ply.name,
+            "scan": scanned.scan_path.name,
+            "scan_float64": scanned.scan_ply.name,
             "scan_json": "scan.json",
             **({"clouds": clouds["figure"]} if clouds["figure"] else {}),
             "vs_mesh": "vs_mesh/comparison.json",
@@ -508,25 +643,6 @@ def run_tree(
             "report": "report.html",
         },
     }
-    summary["summary_text"] = _summary_texts(out)
-    timings["report"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_all
-    summary["timings_s"] = timings
-    if ref_table is not None:
-        summary["reference_qsm"] = {
-            "path": _relative(reference_qsm, out),
-            **reference_qsm_figures(ref_table, model.figures),
-            "sha256": file_sha256(reference_qsm),
-        }
-    write_text(out / "report.html", run_page(summary, __version__, viewer))
-    _write_json(out / "run.json", summary)
-    say(1.0, "done")
-    return RunResult(
-        outdir=out,
-        report_html=out / "report.html",
-        run_json=out / "run.json",
-        summary=_jsonable(summary),
-    )
 
 
 def _clouds_side_by_side(
