@@ -212,6 +212,128 @@ def _as_station(s: Any) -> Station:
     return Station(position_m=xyz)
 
 
+def _station_needs(
+    plot: Plot, placed: list[Station], spec: Any, origin: np.ndarray, cache_triangles: int
+) -> tuple[dict[int, list[int]], list[dict[str, list[int]]]]:
+    """Which station needs which tree (``loaded`` by :func:`_box_verdict`), and why each
+    of the others is left out, per station."""
+    # which station needs which tree: every tree is built once for its bounds (kept
+    # within the budget, oldest dropped first)
+    needs: dict[int, list[int]] = {}
+    why: list[dict[str, list[int]]] = [{"beyond_range": [], "outside_fov": []} for _ in placed]
+    for tid in plot.tree_ids:
+        was = tid in plot.loaded
+        bounds = plot.tree_bounds(tid)
+        for k, st in enumerate(placed):
+            verdict = _box_verdict(bounds, st, spec, origin)
+            if verdict == "loaded":
+                needs.setdefault(k, []).append(tid)
+            else:
+                why[k][verdict].append(tid)
+        if not was:
+            _trim(plot, set(needs.get(0, [])), int(cache_triangles), keep_last=tid)
+    return needs, why
+
+
+@dataclass
+class _Gathered:
+    """What the stations' scans give, in station order."""
+
+    pts: list[np.ndarray] = field(default_factory=list)
+    flds: list[dict[str, np.ndarray]] = field(default_factory=list)
+    stats: list[Any] = field(default_factory=list)
+    loading: list[dict[str, Any]] = field(default_factory=list)
+    lods: list[dict[str, Any]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    written: int = 0
+    models: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _StationScan:
+    """How each station is scanned (:func:`scan_plot`'s settings)."""
+
+    params: ScanParams
+    frame: Any
+    n: int
+    say: Progress
+    threads: int
+    window: bool
+    sink: Callable[[np.ndarray, dict[str, np.ndarray]], None] | None
+    check_inside: bool
+
+    def __call__(
+        self,
+        plot: Plot,
+        k: int,
+        st: Station,
+        ids: list[int],
+        ground: MeshPart | None,
+        out: _Gathered,
+    ) -> int:
+        """Scan station ``k`` over the trees ``ids`` and the terrain within its range into
+        ``out``; returns the triangles it loaded."""
+        from ..steps import scale_progress, scan_scene
+
+        spec, n, say = self.params.scanner, self.n, self.say
+        parts: list[MeshPart] = []
+        for tid in ids:
+            parts += plot.tree_parts(tid)
+        patch = _terrain_within(ground, st.position, spec.max_range_m) if ground else None
+        if patch is not None:
+            parts.append(patch)
+        loaded_tri = sum(plot.tree_triangles(t) for t in ids) + (
+            len(patch.faces) if patch is not None else 0
+        )
+        say(k / n, f"station {k + 1}/{n}: {len(ids)} trees")
+        if not parts:
+            out.stats.append(_empty_stats(k, st, spec))
+            out.lods.append({"mode": self.params.lod, "note": "nothing within range or view"})
+            return loaded_tri
+        # a station that sees only the terrain still labels its points (tree_id 0)
+        scene = Scene(parts, keep_tree_ids=True)
+        res = scan_scene(
+            scene,
+            [st],
+            self.params,
+            threads=self.threads,
+            window=self.window,
+            sink=self.sink,
+            progress=scale_progress(
+                (lambda f, m, k=k: say(f, f"station {k + 1}/{n}")), k / n, (k + 1) / n
+            ),
+            frame=self.frame,
+            station_offset=k,
+            check_inside=self.check_inside,
+        )
+        del scene
+        out.stats.append(res.station_stats[0])
+        out.lods.append(res.lod)
+        out.warnings += res.warnings
+        out.models = res.models
+        out.written += res.points_written
+        if self.sink is None and len(res.cloud):
+            out.pts.append(res.cloud.points)
+            out.flds.append(res.cloud.fields)
+        return loaded_tri
+
+
+def _plot_cloud(out: _Gathered, placed: list[Station]) -> Cloud:
+    """The stations' points in one cloud (empty, with the plot's fields, when none)."""
+    pts, flds = out.pts, out.flds
+    if pts:
+        return Cloud(
+            np.concatenate(pts),
+            {name: np.concatenate([f[name] for f in flds]) for name in flds[0]},
+            _metadata(placed),
+        )
+    return Cloud(
+        np.empty((0, 3)),
+        {k: np.empty(0, dtype=v) for k, v in plot_fields().items()},
+        _metadata(placed),
+    )
+
+
 def scan_plot(
     plot: Plot,
     stations: Sequence[Any],
@@ -265,8 +387,6 @@ def scan_plot(
     >>> result = ts.scan_plot(plot, [(0.0, 0.0, 1.5), (7.0, -4.0, 1.6)])  # doctest: +SKIP
     >>> ts.write_cloud("plot_scan.laz", result.cloud)  # doctest: +SKIP
     """
-    from ..steps import scale_progress, scan_scene
-
     params = params or ScanParams()
     spec = params.scanner
     placed = [_as_station(s) for s in stations]
@@ -277,24 +397,9 @@ def scan_plot(
     t_all = time.perf_counter()
     say = progress or (lambda f, m: None)
     frame = plot.frame()
-    origin = frame.origin_array
     n = len(placed)
     say(0.0, "placing the trees")
-    # which station needs which tree: every tree is built once for its bounds (kept
-    # within the budget, oldest dropped first)
-    needs: dict[int, list[int]] = {}
-    why: list[dict[str, list[int]]] = [{"beyond_range": [], "outside_fov": []} for _ in placed]
-    for tid in plot.tree_ids:
-        was = tid in plot.loaded
-        bounds = plot.tree_bounds(tid)
-        for k, st in enumerate(placed):
-            verdict = _box_verdict(bounds, st, spec, origin)
-            if verdict == "loaded":
-                needs.setdefault(k, []).append(tid)
-            else:
-                why[k][verdict].append(tid)
-        if not was:
-            _trim(plot, set(needs.get(0, [])), int(cache_triangles), keep_last=tid)
+    needs, why = _station_needs(plot, placed, spec, frame.origin_array, cache_triangles)
     ground = plot.terrain_part(margin_m) if terrain else None
     total_tri = sum(plot.tree_triangles(t) for t in plot.tree_ids) + (
         len(ground.faces) if ground is not None else 0
@@ -303,57 +408,14 @@ def scan_plot(
         tid: max(k for k in range(n) if tid in needs.get(k, []))
         for tid in {t for ids in needs.values() for t in ids}
     }
-    pts: list[np.ndarray] = []
-    flds: list[dict[str, np.ndarray]] = []
-    stats, loading, lods, warnings = [], [], [], []
-    written = 0
-    models: list[str] = []
-
+    scan_station = _StationScan(params, frame, n, say, threads, window, sink, check_inside)
+    out = _Gathered()
     for k, st in enumerate(placed):
         t_st = time.perf_counter()
         ids = needs.get(k, [])
         built = [t for t in ids if t not in plot.loaded]
-        parts: list[MeshPart] = []
-        for tid in ids:
-            parts += plot.tree_parts(tid)
-        patch = _terrain_within(ground, st.position, spec.max_range_m) if ground else None
-        if patch is not None:
-            parts.append(patch)
-        loaded_tri = sum(plot.tree_triangles(t) for t in ids) + (
-            len(patch.faces) if patch is not None else 0
-        )
-        say(k / n, f"station {k + 1}/{n}: {len(ids)} trees")
-        if parts:
-            # a station that sees only the terrain still labels its points (tree_id 0)
-            scene = Scene(parts, keep_tree_ids=True)
-            res = scan_scene(
-                scene,
-                [st],
-                params,
-                threads=threads,
-                window=window,
-                sink=sink,
-                progress=scale_progress(
-                    (lambda f, m, k=k: say(f, f"station {k + 1}/{n}")), k / n, (k + 1) / n
-                ),
-                frame=frame,
-                station_offset=k,
-                check_inside=check_inside,
-            )
-            del scene
-            stats.append(res.station_stats[0])
-            lods.append(res.lod)
-            warnings += res.warnings
-            models = res.models
-            written += res.points_written
-            if sink is None and len(res.cloud):
-                pts.append(res.cloud.points)
-                flds.append(res.cloud.fields)
-            del res
-        else:
-            stats.append(_empty_stats(k, st, spec))
-            lods.append({"mode": params.lod, "note": "nothing within range or view"})
-        loading.append(
+        loaded_tri = scan_station(plot, k, st, ids, ground, out)
+        out.loading.append(
             {
                 "trees_loaded": list(ids),
                 "trees_beyond_range": why[k]["beyond_range"],
@@ -368,30 +430,19 @@ def scan_plot(
         plot.release([t for t in plot.loaded if last_use.get(t, -1) <= k])
         _trim(plot, set(needs.get(k + 1, [])), int(cache_triangles))
     plot.release()
-    if pts:
-        cloud = Cloud(
-            np.concatenate(pts),
-            {name: np.concatenate([f[name] for f in flds]) for name in flds[0]},
-            _metadata(placed),
-        )
-    else:
-        cloud = Cloud(
-            np.empty((0, 3)),
-            {k: np.empty(0, dtype=v) for k, v in plot_fields().items()},
-            _metadata(placed),
-        )
+    cloud = _plot_cloud(out, placed)
     say(1.0, "done")
     return PlotScanResult(
         cloud=cloud,
         stations=placed,
-        station_stats=stats,
-        loading=loading,
-        lod=lods,
-        warnings=warnings,
-        points_written=written,
+        station_stats=out.stats,
+        loading=out.loading,
+        lod=out.lods,
+        warnings=out.warnings,
+        points_written=out.written,
         total_s=time.perf_counter() - t_all,
         spec=spec,
-        models=models,
+        models=out.models,
     )
 
 
