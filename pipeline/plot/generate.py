@@ -191,6 +191,138 @@ def _counts(shares: dict[str, float], n: int) -> dict[str, int]:
     return out
 
 
+def _check_stand(
+    stems_per_ha: float,
+    radius_m: float,
+    seed: int,
+    count: str,
+    mean_dbh_m: float | None,
+    weibull_shape: float,
+    dbh_min_m: float,
+    naslund_b: float,
+    height_sd: float,
+    spacing_fraction: float,
+    dbh_spacing_factor: float,
+) -> None:
+    """Refuse arguments out of range (an :class:`InvalidParameterError` naming each)."""
+    for name, v, lo in (
+        ("stems_per_ha", stems_per_ha, 0.0),
+        ("radius_m", radius_m, 0.0),
+        ("weibull_shape", weibull_shape, 0.0),
+        ("naslund_b", naslund_b, 0.0),
+        ("spacing_fraction", spacing_fraction, -1e-300),
+        ("dbh_spacing_factor", dbh_spacing_factor, -1e-300),
+        ("height_sd", height_sd, -1e-300),
+        ("dbh_min_m", dbh_min_m, -1e-300),
+    ):
+        if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v) and v > lo):
+            raise InvalidParameterError(f"{name} must be {'>= 0' if lo < 0 else '> 0'}, got {v!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
+    if count not in COUNT_RULES:
+        raise InvalidParameterError(f"count must be one of {', '.join(COUNT_RULES)}, got {count!r}")
+    if mean_dbh_m is not None and not (math.isfinite(mean_dbh_m) and mean_dbh_m > 0):
+        raise InvalidParameterError(f"mean_dbh_m must be > 0, got {mean_dbh_m!r}")
+
+
+def _species_rules(
+    shares: dict[str, float],
+    counts: dict[str, int],
+    mean_dbh_m: float | None,
+    weibull_shape: float,
+    dbh_min_m: float,
+    naslund_b: float,
+) -> dict[str, dict[str, Any]]:
+    """Each species' DBH distribution (Weibull location and scale) and height curve
+    (Näslund's a and b), from its preset tree's own size."""
+    g = math.gamma(1.0 + 1.0 / weibull_shape)
+    rules: dict[str, Any] = {}
+    for name in shares:
+        d0, h0 = _preset_size(name)
+        mean = float(mean_dbh_m) if mean_dbh_m is not None else d0
+        # a species smaller than the location (a sapling) starts at half its mean
+        loc = min(float(dbh_min_m), 0.5 * mean)
+        scale = (mean - loc) / g
+        a = _naslund_a(d0, h0, naslund_b)
+        rules[name] = {
+            "share": shares[name],
+            "trees": counts[name],
+            "mean_dbh_m": mean,
+            "weibull_location_m": loc,
+            "weibull_scale_m": scale,
+            "naslund_a": a,
+            "naslund_b": naslund_b,
+            "preset_dbh_m": d0,
+            "preset_height_m": h0,
+        }
+    return rules
+
+
+def _draw_sizes(
+    names: list[str],
+    rules: dict[str, dict[str, Any]],
+    rng: np.random.Generator,
+    weibull_shape: float,
+    height_sd: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each tree's DBH (Weibull, drawn again beyond 2.5 × the mean) and height (its
+    species' curve times lognormal noise)."""
+    n = len(names)
+    dbh = np.empty(n)
+    height = np.empty(n)
+    for i, name in enumerate(names):
+        r = rules[name]
+        while True:
+            d = r["weibull_location_m"] + r["weibull_scale_m"] * rng.weibull(weibull_shape)
+            if d <= 2.5 * r["mean_dbh_m"]:
+                break
+        dbh[i] = d
+        h = float(naslund_height_m(d, r["naslund_a"], r["naslund_b"]))
+        height[i] = 1.3 + (h - 1.3) * math.exp(height_sd * rng.standard_normal())
+    return dbh, height
+
+
+def _place(
+    dbh: np.ndarray,
+    radius_m: float,
+    spacing: float,
+    spacing_fraction: float,
+    dbh_spacing_factor: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, int]:
+    """Positions by sequential inhibition, biggest first (the module's rule), and how
+    often the distance was relaxed."""
+    n = len(dbh)
+    xy = np.empty((n, 2))
+    relaxed = 0
+    placed = 0
+    order_done = np.empty(n, dtype=np.int64)
+    for i in np.argsort(-dbh, kind="stable"):
+        factor = 1.0
+        tries = 0
+        while True:
+            rr = radius_m * math.sqrt(rng.random())
+            th = 2.0 * math.pi * rng.random()
+            p = np.array([rr * math.cos(th), rr * math.sin(th)])
+            if placed == 0:
+                break
+            done = order_done[:placed]
+            need = factor * np.maximum(
+                spacing_fraction * spacing, dbh_spacing_factor * (dbh[i] + dbh[done])
+            )
+            if np.all(np.hypot(*(xy[done] - p).T) >= need):
+                break
+            tries += 1
+            if tries >= TRIES:
+                factor *= 0.9
+                tries = 0
+                relaxed += 1
+        xy[i] = p
+        order_done[placed] = i
+        placed += 1
+    return xy, relaxed
+
+
 def generate_stand(
     species: str | Mapping[str, float],
     stems_per_ha: float,
@@ -262,24 +394,19 @@ def generate_stand(
     True
     """
     shares = parse_shares(species)
-    for name, v, lo in (
-        ("stems_per_ha", stems_per_ha, 0.0),
-        ("radius_m", radius_m, 0.0),
-        ("weibull_shape", weibull_shape, 0.0),
-        ("naslund_b", naslund_b, 0.0),
-        ("spacing_fraction", spacing_fraction, -1e-300),
-        ("dbh_spacing_factor", dbh_spacing_factor, -1e-300),
-        ("height_sd", height_sd, -1e-300),
-        ("dbh_min_m", dbh_min_m, -1e-300),
-    ):
-        if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v) and v > lo):
-            raise InvalidParameterError(f"{name} must be {'>= 0' if lo < 0 else '> 0'}, got {v!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
-    if count not in COUNT_RULES:
-        raise InvalidParameterError(f"count must be one of {', '.join(COUNT_RULES)}, got {count!r}")
-    if mean_dbh_m is not None and not (math.isfinite(mean_dbh_m) and mean_dbh_m > 0):
-        raise InvalidParameterError(f"mean_dbh_m must be > 0, got {mean_dbh_m!r}")
+    _check_stand(
+        stems_per_ha,
+        radius_m,
+        seed,
+        count,
+        mean_dbh_m,
+        weibull_shape,
+        dbh_min_m,
+        naslund_b,
+        height_sd,
+        spacing_fraction,
+        dbh_spacing_factor,
+    )
     area_ha = math.pi * radius_m**2 / 1e4
     expected = stems_per_ha * area_ha
     rng = np.random.default_rng(seed)
@@ -292,66 +419,11 @@ def generate_stand(
     names = [k for k in shares for _ in range(counts[k])]
     names = [names[i] for i in rng.permutation(n)]
     # DBH and height per species' curve
-    g = math.gamma(1.0 + 1.0 / weibull_shape)
-    rules: dict[str, Any] = {}
-    dbh = np.empty(n)
-    height = np.empty(n)
-    for name in shares:
-        d0, h0 = _preset_size(name)
-        mean = float(mean_dbh_m) if mean_dbh_m is not None else d0
-        # a species smaller than the location (a sapling) starts at half its mean
-        loc = min(float(dbh_min_m), 0.5 * mean)
-        scale = (mean - loc) / g
-        a = _naslund_a(d0, h0, naslund_b)
-        rules[name] = {
-            "share": shares[name],
-            "trees": counts[name],
-            "mean_dbh_m": mean,
-            "weibull_location_m": loc,
-            "weibull_scale_m": scale,
-            "naslund_a": a,
-            "naslund_b": naslund_b,
-            "preset_dbh_m": d0,
-            "preset_height_m": h0,
-        }
-    for i, name in enumerate(names):
-        r = rules[name]
-        while True:
-            d = r["weibull_location_m"] + r["weibull_scale_m"] * rng.weibull(weibull_shape)
-            if d <= 2.5 * r["mean_dbh_m"]:
-                break
-        dbh[i] = d
-        h = float(naslund_height_m(d, r["naslund_a"], r["naslund_b"]))
-        height[i] = 1.3 + (h - 1.3) * math.exp(height_sd * rng.standard_normal())
+    rules = _species_rules(shares, counts, mean_dbh_m, weibull_shape, dbh_min_m, naslund_b)
+    dbh, height = _draw_sizes(names, rules, rng, weibull_shape, height_sd)
     # positions: sequential inhibition, biggest first
     spacing = math.sqrt(1e4 / stems_per_ha)
-    xy = np.empty((n, 2))
-    relaxed = 0
-    placed = 0
-    order_done = np.empty(n, dtype=np.int64)
-    for i in np.argsort(-dbh, kind="stable"):
-        factor = 1.0
-        tries = 0
-        while True:
-            rr = radius_m * math.sqrt(rng.random())
-            th = 2.0 * math.pi * rng.random()
-            p = np.array([rr * math.cos(th), rr * math.sin(th)])
-            if placed == 0:
-                break
-            done = order_done[:placed]
-            need = factor * np.maximum(
-                spacing_fraction * spacing, dbh_spacing_factor * (dbh[i] + dbh[done])
-            )
-            if np.all(np.hypot(*(xy[done] - p).T) >= need):
-                break
-            tries += 1
-            if tries >= TRIES:
-                factor *= 0.9
-                tries = 0
-                relaxed += 1
-        xy[i] = p
-        order_done[placed] = i
-        placed += 1
+    xy, relaxed = _place(dbh, radius_m, spacing, spacing_fraction, dbh_spacing_factor, rng)
     rot = rng.uniform(0.0, 360.0, n)
     seeds = rng.integers(0, 2**31 - 1, n)
     trees = [
