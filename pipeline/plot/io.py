@@ -73,7 +73,6 @@ _PLOT_KEYS = {"radius_m", "centre_xy", "facets", "terrain_cell_m", "trees", "ter
 _TERRAIN_KEYS = {"kind", "z0_m", "slope_deg", "aspect_deg", "path"}
 _INT = {"tree_id", "seed"}
 _FLOAT = {"x_m", "y_m", "rotation_deg", "scale", "dbh_m", "height_m"}
-_STR = {"source", "species", "path"}
 
 
 def _tree_from_row(row: dict[str, Any], where: str) -> PlotTree:
