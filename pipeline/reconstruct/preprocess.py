@@ -354,8 +354,8 @@ def prepare(
     cloud : Cloud or (n, 3) float
         Points in the input's coordinates (georeferenced or not).
     params : PrepareParams, optional
-        Defaults: 5 mm voxels, outlier removal (16 neighbours, 2.5 σ), no ground
-        removal, normals from 24 neighbours.
+        Defaults: 5 mm voxels, outlier removal (16 neighbours, 2.5 σ), ground and
+        understory removal, normals from 24 neighbours.
     normals : bool
         Orient normals (``params.normals_neighbors``); ``False`` leaves
         :attr:`PreparedCloud.normals` ``None`` for a method that does not use them (the
