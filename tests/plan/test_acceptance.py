@@ -66,11 +66,17 @@ def test_plot_plan_against_the_classic_layouts(plot_plan):
     # the acceptance, judged on the scans: fewer stations than the best classic
     # layout that reaches the goal, or honestly as good
     assert cmp_["verdict"] in ("plan better (verified)", "as good (verified)"), cmp_
-    err = [
-        r.predicted["coverage"][i] - ver["trees"][t.tree_id]["coverage"]
-        for i, t in enumerate(r.targets)
-    ]
-    assert abs(np.mean(err)) < 0.05 and np.max(np.abs(err)) < 0.15, err
+    err = np.array(
+        [
+            r.predicted["coverage"][i] - ver["trees"][t.tree_id]["coverage"]
+            for i, t in enumerate(r.targets)
+        ]
+    )
+    # the plan's per-tree error as an absolute error (a signed mean lets errors of either
+    # sign cancel): measured 4.7 points on average and at most 10.0 (2026-11-26; every
+    # tree predicted below its scan, the goal margin's doing), bounded at 5 and 11
+    assert np.mean(np.abs(err)) < 0.05, err
+    assert np.max(np.abs(err)) < 0.11, err
 
 
 def test_plan_files(plot_plan, tmp_path):

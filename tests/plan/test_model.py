@@ -17,8 +17,13 @@ def test_predicted_coverage_matches_a_full_scan_on_saplings_and_firs():
     r, plot, err = model_check()
     species = {plot.tree(t.tree_id).species for t in r.targets}
     assert species == {"sapling", "balsam-fir"}
-    assert np.mean(np.abs(err)) < 0.08, err  # the old rule: 0.20
-    assert np.max(np.abs(err)) < 0.15, err  # the old rule: 0.25
+    # what the docs print (validation, scan planning): "within 2.9 points of the scan per
+    # tree on average (at most 5.2)"; held to the figures as printed, in points to one
+    # decimal (measured 2.94 and 5.19; the old rule: 20.1 and 25.4, the disc share cast
+    # per candidate: 4.5 and 9.1)
+    points = 100 * np.abs(err)
+    assert round(float(np.mean(points)), 1) <= 2.9, err
+    assert round(float(np.max(points)), 1) <= 5.2, err
 
 
 def _cmp(plan_stations: int, base_stations: int) -> dict:
