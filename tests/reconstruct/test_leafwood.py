@@ -39,6 +39,33 @@ def test_separation_finds_the_wood_of_the_leaf_on_aspen(leafon_scan):
     assert recall >= 0.95
 
 
+#: The README's headline (feature table: "wood precision 0.99, recall 0.98 on the
+#: aspen-leafon preset at 0.04°") and the figures of its bench_leaves block behind it
+#: (2026-11-25: "wood precision 0.992, recall 0.977"), measured as that block says:
+#: ``benchmarks/bench_leaves.py --step-deg 0.04``, i.e. seed 0, VZ-400 noise, three
+#: stations, 5 mm voxels, scored against the scanner's labels.
+HEADLINE_STEP_DEG = 0.04
+HEADLINE = {"precision": 0.99, "recall": 0.98}
+MEASURED = {"precision": 0.992, "recall": 0.977}
+
+
+@pytest.mark.slow
+def test_separation_reaches_the_readme_headline_at_the_field_step():
+    # ~0.9 M voxels: the field standard the README quotes, not the suite's cheaper 0.08°
+    _, cloud = scan_preset("aspen-leafon", HEADLINE_STEP_DEG)
+    is_wood = cloud.fields["label"] == LABEL_CODES["wood"]
+    pts, truth = labelled_voxels(cloud.points, is_wood, 0.005)
+    precision, recall = wood_scores(separate_leaves(pts).wood, truth)
+    got = {"precision": precision, "recall": recall}
+    print(f"\naspen-leafon at {HEADLINE_STEP_DEG} deg: wood precision {precision:.4f}, "
+          f"recall {recall:.4f}")  # fmt: skip
+    for key in HEADLINE:
+        # each figure as the README prints it: the headline to 2 decimals (recall 0.977
+        # is printed 0.98), the measured block to 3; a worse classifier falls below either
+        assert round(got[key], 2) >= HEADLINE[key], (key, got[key])
+        assert round(got[key], 3) >= MEASURED[key], (key, got[key])
+
+
 def test_separation_refuses_a_tiny_cloud():
     with pytest.raises(ReconstructionError, match="at least"):
         separate_leaves(np.random.default_rng(0).random((20, 3)))
