@@ -804,15 +804,14 @@ def _stem_slab(
     """A wide stem node's points for its circle fit: the slab of every point square to
     the stem's axis around it (see :func:`_fit_nodes`); ``a`` is the node's own axis.
 
-    Returns (indices, plane coordinates, u, v): those of ``own`` (the node's own points,
-    their plane coordinates and the basis u, v) where the slab holds fewer than six
-    points, except the basis, which follows the axis over the slab's reach whenever
-    that axis is defined.
+    Returns (indices, plane coordinates, u, v): the slab's, in the plane square to the
+    axis over the slab's reach, or ``own`` (the node's own points, their plane coordinates
+    and basis) unchanged where the slab holds fewer than six points: a fit's centre is
+    mapped back with the basis its coordinates were taken in.
     """
-    idx, q, u, vv = own
     v = seq[i]
     centroid = sk.centroid
-    sparse_node = len(idx) < STEM_SPARSE_POINTS and extent >= STEM_SLAB_M
+    sparse_node = len(own[0]) < STEM_SPARSE_POINTS and extent >= STEM_SLAB_M
     half_t = 0.5 * (max(h, STEM_SLAB_M) if sparse_node else h)
     reach = int(np.ceil((half_t + 2.0 * extent) / h))
     # the axis over the slab's reach: tilted slices make consecutive
@@ -820,16 +819,16 @@ def _stem_slab(
     a_long = centroid[seq[min(len(seq) - 1, i + reach)]] - centroid[seq[max(0, i - reach)]]
     if np.linalg.norm(a_long) > 0:
         a = a_long / np.linalg.norm(a_long)
-        u, vv = _basis(a)
     r_near = STEM_SLAB_REACH * extent
     cand = np.asarray(tree_all().query_ball_point(centroid[v], r_near + half_t), dtype=np.int64)
     rel_c = p[cand] - centroid[v]
     on_axis = rel_c @ a
     slab = (np.abs(on_axis) <= half_t) & (np.sum(rel_c**2, axis=1) - on_axis**2 <= r_near**2)
-    if slab.sum() >= 6:
-        idx, rel = cand[slab], rel_c[slab]
-        q = np.stack([rel @ u, rel @ vv], axis=1)
-    return idx, q, u, vv
+    if slab.sum() < 6:
+        return own
+    u, vv = _basis(a)
+    rel = rel_c[slab]
+    return cand[slab], np.stack([rel @ u, rel @ vv], axis=1), u, vv
 
 
 def _accepted(

@@ -216,3 +216,46 @@ def test_a_stem_fit_wider_than_the_stem_below_is_no_anchor():
     expected = 0.0015 + (0.10 - 0.0015) * (9.95 - z[mid]) / (9.95 - 3.9)
     assert r[mid] == pytest.approx(expected, rel=0.05)
     assert (np.diff(r[z >= 3.9]) <= 1e-12).all()
+
+
+def test_a_stem_slab_too_sparse_to_fit_keeps_the_nodes_own_basis():
+    """Where the slab around a wide stem node holds fewer than six points, the fit uses
+    the node's own points: their plane coordinates and the basis the fitted centre is
+    mapped back with must be the same (they were not: the slab's tilted basis came back
+    with the node's own coordinates, moving the centre off the stem)."""
+    from types import SimpleNamespace
+
+    from scipy.spatial import cKDTree
+
+    from treesim.reconstruct.qsm import _basis, _stem_slab
+
+    # a stem leaning 30 degrees: node centroids along it, 5 cm apart
+    lean = np.array([np.sin(np.radians(30)), 0.0, np.cos(np.radians(30))])
+    centroid = np.arange(21)[:, None] * 0.05 * lean
+    sk = SimpleNamespace(centroid=centroid)
+    seq = list(range(21))
+    own_axis = np.array([0.0, 0.0, 1.0])  # the node's own (zig-zagging) axis
+    u0, v0 = _basis(own_axis)
+    rng = np.random.default_rng(3)
+    ring = np.column_stack([np.cos(t := rng.uniform(0, 2 * np.pi, 8)), np.sin(t), 0 * t]) * 0.1
+    own_pts = centroid[10] + ring
+    own = (np.arange(8), np.stack([ring @ u0, ring @ v0], axis=1), u0, v0)
+
+    # too sparse: only the node's 8 points exist, 5 of them pushed off the slab
+    sparse = own_pts.copy()
+    sparse[:5] += 0.5 * lean
+    idx, q, u, v = _stem_slab(
+        sparse, sk, seq, 10, own_axis, 0.1, 0.05, lambda: cKDTree(sparse), own
+    )
+    assert idx is own[0] and q is own[1]
+    assert np.array_equal(u, u0) and np.array_equal(v, v0)
+
+    # dense: a ring square to the lean; the basis is square to it, q its coordinates
+    ua, va = _basis(lean)
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    pts = centroid[10] + 0.1 * (np.cos(t)[:, None] * ua + np.sin(t)[:, None] * va)
+    idx, q, u, v = _stem_slab(pts, sk, seq, 10, own_axis, 0.1, 0.05, lambda: cKDTree(pts), own)
+    assert len(idx) == 40
+    assert abs(u @ lean) < 1e-12 and abs(v @ lean) < 1e-12
+    rel = pts[idx] - centroid[10]
+    np.testing.assert_allclose(q, np.stack([rel @ u, rel @ v], axis=1), atol=1e-15)
