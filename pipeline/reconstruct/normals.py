@@ -82,11 +82,6 @@ def _local_pca(
     return evals, normals
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    norm = np.linalg.norm(v, axis=1, keepdims=True)
-    return v / np.where(norm > 0, norm, 1.0)
-
-
 # --------------------------------------------------------------------------- normals
 
 
