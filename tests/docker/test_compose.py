@@ -179,19 +179,96 @@ def test_profiles_point_at_their_services():
     assert scheduler.group(2) in SERVICES["dask-scheduler"]["command"]
 
 
-def test_the_image_installs_extras_that_exist_and_runs_treesim():
-    import tomllib
-
-    pyproject = tomllib.loads((DOCKER.parent / "pyproject.toml").read_text())
-    extras = set(pyproject["project"]["optional-dependencies"])
+def _image_extras() -> list[str]:
+    """The extras the image's ``pip install ".[...]"`` asks for."""
     installs = " ".join(line for line in _dockerfile("RUN") if "pip install" in line)
     wanted = re.findall(r"\.\[([\w,]+)\]", installs)
-    assert wanted, installs
-    assert set(wanted[0].split(",")) <= extras
-    assert {"postgres", "dask"} <= set(wanted[0].split(","))
-    assert _dockerfile("ENTRYPOINT") == ['["treesim"]']
+    assert len(wanted) == 1, installs
+    return wanted[0].split(",")
+
+
+def test_the_image_asks_for_extras_that_exist_and_what_compose_runs_needs():
+    import tomllib
+
+    from packaging.requirements import Requirement
+
+    pyproject = tomllib.loads((DOCKER.parent / "pyproject.toml").read_text())
+    extras = pyproject["project"]["optional-dependencies"]
+    wanted = _image_extras()
+    assert set(wanted) <= set(extras), sorted(set(wanted) - set(extras))
+    # the distributions the image gets, and what each role in compose.yaml runs on: the
+    # API and workers (the service extra), the postgres profile's URL (a psycopg driver),
+    # the dask profile's `dask scheduler` / `dask worker` (distributed)
+    got = {Requirement(r).name.lower() for e in wanted for r in extras[e]}
+    assert {"fastapi", "uvicorn", "sqlalchemy", "alembic"} <= got, got
+    assert "postgresql://" in COMPOSE_TEXT and "psycopg" in got, got
+    dask = [Requirement(r) for e in wanted for r in extras[e] if Requirement(r).name == "dask"]
+    assert dask and "distributed" in dask[0].extras, dask
     assert _dockerfile("FROM")[0].startswith("python:3.11")
     assert any(line.strip() != "root" for line in _dockerfile("USER"))
+
+
+def _copied_tree(dst: Path) -> Path:
+    """What the image's COPY lines put into its WORKDIR, copied from this checkout."""
+    import shutil
+
+    for args in _dockerfile("COPY"):
+        *sources, target = args.split()
+        for src in sources:
+            path = DOCKER.parent / src
+            to = dst / target / path.name if target.endswith("/") else dst / target
+            if path.is_dir():
+                shutil.copytree(path, to, ignore=shutil.ignore_patterns("__pycache__"))
+            else:
+                to.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(path, to)
+    return dst
+
+
+def test_the_image_builds_from_what_it_copies_and_its_entrypoint_runs_treesim(tmp_path):
+    # no Docker engine here: the image's steps done by hand. Its COPY lines' files alone
+    # build the package (pip, as its RUN line), the wheel installs the ENTRYPOINT's script,
+    # and that script's target, imported from the wheel, runs the image's CMD and the
+    # compose services' commands
+    import configparser
+    import subprocess
+    import sys
+    import zipfile
+
+    src = _copied_tree(tmp_path / "image")
+    built = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(src)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert built.returncode == 0, built.stderr[-3000:]
+    (wheel,) = tmp_path.glob("treesim-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        info = next(n for n in z.namelist() if n.endswith(".dist-info/entry_points.txt"))
+        meta = z.read(info.replace("entry_points.txt", "METADATA")).decode()
+        points = configparser.ConfigParser()
+        points.read_string(z.read(info).decode())
+        z.extractall(tmp_path / "site")
+    (script,) = json.loads(_dockerfile("ENTRYPOINT")[0])
+    module, func = points["console_scripts"][script].split(":")
+    assert set(_image_extras()) <= set(re.findall(r"^Provides-Extra: (\S+)", meta, re.M))
+    # the wheel's treesim first on the path (the checkout's editable install comes after)
+    run = f"""
+import sys
+sys.path.insert(0, {str(tmp_path / "site")!r})
+import importlib
+mod = importlib.import_module({module!r})
+assert mod.__file__.startswith({str(tmp_path / "site")!r}), mod.__file__
+sys.exit(getattr(mod, {func!r})(sys.argv[1:]))
+"""
+    cmd = json.loads(_dockerfile("CMD")[-1])
+    for argv in (cmd, *([*SERVICES[s]["command"], "--help"] for s in ("api", "worker"))):
+        done = subprocess.run(
+            [sys.executable, "-c", run, *argv], capture_output=True, text=True, timeout=120
+        )
+        assert done.returncode == 0, (argv, done.stderr[-2000:])
+        assert "usage: treesim" in done.stdout, (argv, done.stdout[:500])
 
 
 def test_references_between_services_and_volumes_resolve():
