@@ -5,7 +5,9 @@
 #
 # Installs Debian's postgresql if needed, starts (or creates) a cluster, creates the role
 # `treesim` and the database `treesim_test`, exports the URL, and stops the cluster on exit.
-# Any failure only warns: the Postgres tests then skip with their reason.
+# In CI (CI=true) a failure fails: the source returns 1, which stops .ci/run (set -e), and
+# the Postgres fixture fails rather than skips. Elsewhere a failure only warns: the
+# Postgres tests then skip with their reason.
 
 _treesim_pg() {
   local SUDO=""
@@ -50,7 +52,13 @@ if _treesim_pg; then
   echo "ci-postgres: job-store tests will use $TREESIM_TEST_DATABASE_URL"
   trap _treesim_pg_stop EXIT
 else
-  echo "ci-postgres: warning: no Postgres test database; the Postgres job-store tests will skip" >&2
   unset TREESIM_TEST_DATABASE_URL
   _treesim_pg_stop
+  if [ "${CI:-}" = "true" ]; then
+    # a CI run that silently skipped the Postgres tests would pass without testing them
+    echo "ci-postgres: error: no Postgres test database, and CI=true: the job-store tests need one" >&2
+    # shellcheck disable=SC2317  # exit: when run rather than sourced
+    return 1 2>/dev/null || exit 1
+  fi
+  echo "ci-postgres: warning: no Postgres test database; the Postgres job-store tests will skip" >&2
 fi

@@ -24,10 +24,23 @@ BUNDLED_CLOUD = REPO / "pipeline" / "data" / "coffee_tree" / "cloud.txt"
 BUNDLED_QSM = REPO / "pipeline" / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
 
 
+def in_ci() -> bool:
+    """Whether this is a CI run (``CI=true``, as CI services and ``.ci/run`` set it)."""
+    return os.environ.get("CI", "").strip().lower() in ("true", "1")
+
+
+def postgres_unavailable(why: str) -> None:
+    """Skip a Postgres test for ``why``; in CI fail instead: a CI run whose Postgres did
+    not start must not pass with the Postgres tests silently skipped."""
+    if in_ci():
+        pytest.fail(f"CI=true, so this fails instead of skipping: {why}", pytrace=False)
+    pytest.skip(why)
+
+
 def postgres_or_skip() -> str:
     url = os.environ.get("TREESIM_TEST_DATABASE_URL")
     if not url:
-        pytest.skip(
+        postgres_unavailable(
             "needs TREESIM_TEST_DATABASE_URL (a Postgres test database; .ci/run sets one up)"
         )
     return url
@@ -60,7 +73,7 @@ def _fresh_postgres(url: str) -> str:
             conn.execute(f"CREATE SCHEMA {schema}")
         _SCHEMAS.append((plain, schema))
     except psycopg.OperationalError as exc:
-        pytest.skip(f"Postgres at TREESIM_TEST_DATABASE_URL is not reachable: {exc}")
+        postgres_unavailable(f"Postgres at TREESIM_TEST_DATABASE_URL is not reachable: {exc}")
     sep = "&" if "?" in url else "?"
     return f"{url}{sep}options=-csearch_path%3D{schema}"
 
