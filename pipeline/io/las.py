@@ -22,6 +22,7 @@ and a short description. ``Cloud.metadata`` is stored as JSON in a VLR (user id
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -88,29 +89,107 @@ def _backends() -> tuple[laspy.LazBackend, ...]:
     return tuple(available) or (_LAZ_BACKEND,)
 
 
-def _check_header(path: Path) -> None:
-    """Refuse a LAS/LAZ whose header contradicts the file's size before laspy reads it
-    (laspy trusts the header's VLR count and can loop for ever on garbage)."""
-    import struct
+#: A LAZ file's chunk size that means "variable" (each chunk's point count in the table).
+_VARIABLE_CHUNK = 0xFFFFFFFF
+#: The largest fixed LAZ chunk size believed where the file holds fewer points: LAStools
+#: and lazrs write 50,000; lazrs allocates a chunk's points at once, and a corrupt size
+#: (one flipped byte: 4.3e9) aborts the interpreter instead of raising.
+_MAX_CHUNK_POINTS = 1 << 24
 
+
+def _corrupt(path: Path, what: str) -> InputFormatError:
+    return InputFormatError(f"{path}: corrupt LAS header ({what}); is the file complete?")
+
+
+def _check_header(path: Path) -> None:
+    """Refuse a LAS/LAZ whose header contradicts the file's size before laspy reads it:
+    laspy trusts the header's VLR count and can loop for ever on garbage, allocates what
+    the point and EVLR counts say (a MemoryError on a flipped byte), and lazrs aborts the
+    whole process on a corrupt chunk size or chunk table."""
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
-            head = fh.read(227)
+            head = fh.read(375)
+            if len(head) < 227 or head[:4] != b"LASF":
+                raise InputFormatError(
+                    f"{path}: not a LAS/LAZ file (no LASF header); is it complete?"
+                )
+            header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+            if header_size < 227 or point_offset > size or point_offset < header_size:
+                raise _corrupt(path, f"point data offset {point_offset} in a {size}-byte file")
+            if n_vlrs * 54 > point_offset - header_size:
+                raise _corrupt(
+                    path, f"{n_vlrs} variable-length records cannot fit before the point data"
+                )
+            fh.seek(header_size)
+            vlrs = fh.read(point_offset - header_size)
+            fh.seek(point_offset)
+            table_at = fh.read(8)
     except OSError as exc:
         raise InputFormatError(f"{path}: cannot be read ({exc.strerror})") from exc
-    if len(head) < 227 or head[:4] != b"LASF":
-        raise InputFormatError(f"{path}: not a LAS/LAZ file (no LASF header); is it complete?")
-    header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
-    if header_size < 227 or point_offset > size or point_offset < header_size:
-        raise InputFormatError(
-            f"{path}: corrupt LAS header (point data offset {point_offset} in a {size}-byte file)"
-        )
-    if n_vlrs * 54 > point_offset - header_size:
-        raise InputFormatError(
-            f"{path}: corrupt LAS header ({n_vlrs} variable-length "
-            "records cannot fit before the point data)"
-        )
+    record_length = struct.unpack_from("<H", head, 105)[0]
+    n_points = struct.unpack_from("<I", head, 107)[0]
+    if head[24] == 1 and head[25] >= 4 and header_size >= 375 and len(head) >= 375:
+        n_points = struct.unpack_from("<Q", head, 247)[0] or n_points  # 1.4's 64-bit count
+        evlr_start, n_evlrs = struct.unpack_from("<QI", head, 235)
+        if n_evlrs and not (point_offset <= evlr_start <= size - 60 * n_evlrs):
+            raise _corrupt(
+                path, f"{n_evlrs:,} extended records from byte {evlr_start:,} of {size:,}"
+            )
+    if not head[104] & 0xC0:  # uncompressed: every declared point must be there
+        held = max(0, size - point_offset) // max(record_length, 1)
+        if held < n_points:
+            raise InputFormatError(
+                f"{path}: truncated: the header declares {n_points:,} points, the file "
+                f"holds {held:,} ({size:,} bytes); upload the whole file"
+            )
+        return
+    _check_laz(path, vlrs, n_vlrs, table_at, size, point_offset, record_length, n_points)
+
+
+def _check_laz(
+    path: Path,
+    vlrs: bytes,
+    n_vlrs: int,
+    table_at: bytes,
+    size: int,
+    point_offset: int,
+    record_length: int,
+    n_points: int,
+) -> None:
+    """The LAZ parts lazrs trusts: the laszip record's items and chunk size, and where
+    the chunk table is and how many chunks it lists (see :func:`_check_header`)."""
+    at, chunk_size = 0, None
+    for _ in range(n_vlrs):
+        if at + 54 > len(vlrs):
+            raise _corrupt(path, "a variable-length record runs into the point data")
+        user_id = vlrs[at + 2 : at + 18].rstrip(b"\0")
+        record_id, length = struct.unpack_from("<HH", vlrs, at + 18)
+        data = vlrs[at + 54 : at + 54 + length]
+        if user_id == b"laszip encoded" and record_id == 22204 and len(data) >= 34:
+            chunk_size = struct.unpack_from("<I", data, 12)[0]
+            n_items = struct.unpack_from("<H", data, 32)[0]
+            items = [struct.unpack_from("<HHH", data, 34 + 6 * k) for k in range(n_items)]
+            if len(data) != 34 + 6 * n_items or sum(i[1] for i in items) != record_length:
+                raise _corrupt(path, "its LAZ items do not make up its point record")
+        at += 54 + length
+    if chunk_size is None:
+        raise _corrupt(path, "compressed, but no laszip record")
+    fixed = chunk_size != _VARIABLE_CHUNK
+    if fixed and (chunk_size == 0 or chunk_size > max(n_points, _MAX_CHUNK_POINTS)):
+        raise _corrupt(path, f"LAZ chunk size {chunk_size:,} for {n_points:,} points")
+    (table,) = struct.unpack("<q", table_at) if len(table_at) == 8 else (-2,)
+    if table == -1:  # written by a streaming writer: no table, lazrs reads chunk by chunk
+        return
+    if not point_offset + 8 <= table <= size - 8:
+        raise _corrupt(path, f"LAZ chunk table at byte {table:,} of {size:,}")
+    with open(path, "rb") as fh:
+        fh.seek(table)
+        version, n_chunks = struct.unpack("<II", fh.read(8))
+    # fixed chunks: all full but the last; variable ones hold at least a point each
+    bad = n_chunks != -(-n_points // chunk_size) if fixed else n_chunks > max(n_points, 1)
+    if version != 0 or bad:
+        raise _corrupt(path, f"LAZ chunk table lists {n_chunks:,} chunks for {n_points:,} points")
 
 
 def read_las(path: str | Path) -> Cloud:

@@ -211,24 +211,6 @@ def _bounds(points: np.ndarray) -> tuple[list[float], list[float]]:
     return points.min(axis=0).tolist(), points.max(axis=0).tolist()
 
 
-def _check_las_size(path: Path, label: str) -> None:
-    """An uncompressed LAS must hold every point its header declares."""
-    with open(path, "rb") as fh:
-        head = fh.read(375)
-    point_offset = struct.unpack_from("<I", head, 96)[0]
-    record_length = struct.unpack_from("<H", head, 105)[0]
-    n_points = struct.unpack_from("<I", head, 107)[0]
-    if len(head) >= 255 + 8 and head[24] == 1 and head[25] >= 4:
-        n_points = struct.unpack_from("<Q", head, 247)[0] or n_points  # LAS 1.4's 64-bit count
-    size = path.stat().st_size
-    held = max(0, size - point_offset) // max(record_length, 1)
-    if held < n_points:
-        raise InputFormatError(
-            f"{label}: truncated: the header declares {n_points:,} points, the file holds "
-            f"{held:,} ({size:,} bytes); upload the whole file"
-        )
-
-
 def _read(link: Path, fmt: str, label: str) -> FileInfo:
     from . import e57, las, ply, text
     from .mesh import load_mesh
@@ -248,8 +230,6 @@ def _read(link: Path, fmt: str, label: str) -> FileInfo:
                 f"{label}: {bad:,} vertices have NaN or infinite coordinates"
             )
         return FileInfo(fmt, "mesh", FORMAT_SUFFIX[fmt], len(vertices), n_tri, _bounds(vertices))
-    if fmt == "las":
-        _check_las_size(link, label)
     cloud = readers[fmt](link).validate()
     return FileInfo(
         fmt, "cloud", FORMAT_SUFFIX[fmt], len(cloud.points), None, _bounds(cloud.points),

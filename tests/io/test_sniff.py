@@ -284,14 +284,6 @@ for i in [*range(offset + 8), *range(len(data) - 8, len(data))]:
 """
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="a known bug, found by this test (2026-11-26): a flipped byte in a LAS 1.4 "
-    "header's EVLR start (bytes 243-246) raises MemoryError from laspy, and in a LAZ's "
-    "laszip VLR or chunk table it aborts the interpreter (lazrs: 'memory allocation of "
-    "128347193400 bytes failed'); treesim.io.las should check the header against the "
-    "file's size before reading",
-)
 @pytest.mark.parametrize("suffix", [".las", ".laz"])
 def test_every_las_header_byte_flipped_is_read_or_refused(tmp_path, suffix):
     # deterministic where the property below samples: every byte of the part of the file
