@@ -6,7 +6,7 @@ on the cross-entropy with a small L2 penalty), in three stacked stages (auto-con
 It is fitted on procedural trees whose wood and leaf labels the virtual scanner records
 exactly, scanned with the RIEGL VZ-400 noise model from three stations at several
 angular steps (0.05-0.14°), on seeds the tests never use (1 and 2); the tests and the
-README measure it on seed 0. Run from the repository root:
+manual (docs/validation.md) measure it on seed 0. Run from the repository root:
 
     python scripts/fit_leafwood.py     # writes pipeline/data/leafwood_model.json
 

@@ -147,7 +147,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a synthetic stand of procedural trees",
         description="Make a plausible stand: an exact (or Poisson) number of trees from the "
         "stems per hectare, Weibull DBHs, Näslund heights with lognormal noise, positions by "
-        "sequential inhibition (see the README's Plots section). Writes plot.toml, trees.csv "
+        "sequential inhibition (see docs/commands/plot.md). Writes plot.toml, trees.csv "
         "and map.png into -o.",
     )
     param_option(g, StandParams, "species", metavar="NAME:SHARE,...", required=True)

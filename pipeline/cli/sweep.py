@@ -105,8 +105,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "OUTDIR/sweep.csv, sweep.json and sweep.html (accuracy against time with the "
         "Pareto fronts, each parameter alone, the table). Points already finished with "
         "the same tree, settings and version are not run again.",
-        epilog="The CONFIG format: see 'pydoc treesim.sweep' or the README's 'treesim "
-        "sweep' section; 'treesim sweep CONFIG --list' shows the points it expands to.",
+        epilog="The CONFIG format: see 'pydoc treesim.sweep' or the manual (docs/commands/"
+        "sweep.md); 'treesim sweep CONFIG --list' shows the points it expands to.",
     )
     sp.add_argument("config", metavar="CONFIG", help="the sweep file (TOML)")
     sp.add_argument("-o", "--output", metavar="OUTDIR", help="the sweep's folder")

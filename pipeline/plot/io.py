@@ -259,7 +259,7 @@ def write_plot(
         raise InvalidParameterError(f"{p}: a plot file is TOML; name it plot.toml")
     src = None if plot.base_dir is None else Path(plot.base_dir)
     lines = [
-        "# treesim plot (see the README's Plots section)",
+        "# treesim plot (see the manual: docs/commands/plot.md)",
         f"radius_m = {_toml_value(float(plot.radius_m))}",
         f"centre_xy = {_toml_value([float(v) for v in plot.centre_xy])}",
         f"facets = {int(plot.facets)}",

@@ -214,8 +214,8 @@ class AdaptiveBeam:
     plane of this pulse's triangle (another surface in front or behind); or its range is
     near a range limit. Elsewhere every sub-ray would hit the same plane: the pulse keeps
     its central hit as one return of full energy, which differs from the full model's
-    energy-weighted range by the beam's first moment on that plane (microns; the README
-    states the measured agreement).
+    energy-weighted range by the beam's first moment on that plane (microns; the manual,
+    docs/validation.md, states the measured agreement).
 
     Work goes column by column so that neighbours are known: each block of columns is
     cast with a halo of ``k`` columns on each side (cast again by the next block).
