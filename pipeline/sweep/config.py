@@ -436,6 +436,37 @@ def parse_sweep(
             f"{where}unknown key(s) {', '.join(unknown)} at the top level; "
             f"known: {', '.join(TOP_KEYS)}"
         )
+    description, preset, start, repeat = _header(data, where)
+    tol, factor = _tolerance(data, where)
+    base, base_nested = _base(data, where)
+    trees = _trees(data, Path(base_dir), where)
+    reference = _reference(data.get("reference"), where)
+    grid, points_raw = _grid(data, where)
+    parameters, specs, labels_of = _specs(grid, points_raw, where)
+    # every single value first, so that an error names the value, then every design
+    for k, vals in grid.items():
+        for v in vals:
+            _merge(start, _nested({**base, k: v}, ""), f"{where}[grid] {k}={v!r}: ")
+    designs = _designs(start, preset, base_nested, parameters, specs, labels_of, where)
+    return SweepConfig(
+        path=None,
+        name=name,
+        description=description,
+        preset=preset,
+        base={k: json_ready(v) for k, v in base.items()},
+        parameters=tuple(parameters),
+        designs=tuple(designs),
+        trees=tuple(trees),
+        reference=reference,
+        tolerance_m=float(tol) if tol is not None else None,
+        tolerance_factor=float(factor) if factor is not None else None,
+        repeat=int(repeat),
+        raw=dict(data),
+    )
+
+
+def _header(data: Mapping[str, Any], where: str) -> tuple[str, str, RunParams, int]:
+    """``description``, ``preset`` (its name and its parameters) and ``repeat``, checked."""
     description = data.get("description", "")
     if not isinstance(description, str):
         raise InvalidParameterError(f"{where}description must be text")
@@ -447,7 +478,12 @@ def parse_sweep(
     _number(repeat, "repeat", where, integer=True)
     if repeat < 1:
         raise InvalidParameterError(f"{where}repeat must be >= 1, got {repeat}")
+    return description, preset, start, repeat
 
+
+def _tolerance(data: Mapping[str, Any], where: str) -> tuple[Any, Any]:
+    """``tolerance_m`` or ``tolerance_factor`` (at most one; neither: the default factor),
+    as given."""
     tol = data.get("tolerance_m")
     factor = data.get("tolerance_factor")
     if tol is not None and factor is not None:
@@ -463,15 +499,20 @@ def parse_sweep(
         from ..compare import TOLERANCE_FACTOR
 
         factor = TOLERANCE_FACTOR
+    return tol, factor
 
-    # [base]
+
+def _base(data: Mapping[str, Any], where: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``[base]``: its values by flat name, and nested as the parameter model's paths."""
     base_raw = data.get("base", {}) or {}
     if not isinstance(base_raw, Mapping):
         raise InvalidParameterError(f"{where}[base] must be a table")
     base = _flatten(base_raw)
-    base_nested = _nested(base, f"{where}[base] ")
+    return base, _nested(base, f"{where}[base] ")
 
-    # trees
+
+def _trees(data: Mapping[str, Any], base_dir: Path, where: str) -> list[TreeSpec]:
+    """The ``[[tree]]`` tables: at least one, ids unique and usable as folder names."""
     trees_raw = data.get("tree")
     if not trees_raw:
         raise InvalidParameterError(
@@ -480,7 +521,7 @@ def parse_sweep(
         )
     if not isinstance(trees_raw, list):
         raise InvalidParameterError(f"{where}trees are [[tree]] tables (an array of tables)")
-    trees = [_tree(t, i, Path(base_dir), where) for i, t in enumerate(trees_raw)]
+    trees = [_tree(t, i, base_dir, where) for i, t in enumerate(trees_raw)]
     ids = [t.id for t in trees]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:
@@ -492,9 +533,12 @@ def parse_sweep(
         raise InvalidParameterError(
             f"{where}tree id {bad_ids[0]!r}: use letters, digits, '.', '_' and '-' only"
         )
-    reference = _reference(data.get("reference"), where)
+    return trees
 
-    # the grid
+
+def _grid(data: Mapping[str, Any], where: str) -> tuple[dict[str, Any], list[Any]]:
+    """``[grid]`` by flat name (each a non-empty list of values of a known name) and the
+    raw ``[[point]]`` tables; one of them must be there."""
     grid_raw = data.get("grid", {}) or {}
     if not isinstance(grid_raw, Mapping):
         raise InvalidParameterError(f"{where}[grid] must be a table of name = [values]")
@@ -513,9 +557,20 @@ def parse_sweep(
         raise InvalidParameterError(
             f"{where}nothing to sweep: add a [grid] table or [[point]] tables"
         )
+    return grid, points_raw
 
+
+#: One design as the file gives it: where (for messages), its values, its [[point]] preset.
+_Spec = tuple[str, dict[str, Any], str | None]
+
+
+def _specs(
+    grid: dict[str, Any], points_raw: list[Any], where: str
+) -> tuple[list[str], list[_Spec], dict[int, str]]:
+    """The grid's cartesian product, then the ``[[point]]`` tables, as specs; the names
+    swept (grid keys, then names only points set) and each labelled spec's label."""
     parameters: list[str] = list(grid)
-    specs: list[tuple[str, dict[str, Any], str | None]] = []  # (where, values, point preset)
+    specs: list[_Spec] = []
     for combo in itertools.product(*grid.values()):
         specs.append(
             (
@@ -548,11 +603,20 @@ def parse_sweep(
         if label or p_preset:
             labels_of[len(specs)] = label or p_preset
         specs.append((w, values, p_preset))
+    return parameters, specs, labels_of
 
-    # every single value first, so that an error names the value, then every design
-    for k, vals in grid.items():
-        for v in vals:
-            _merge(start, _nested({**base, k: v}, ""), f"{where}[grid] {k}={v!r}: ")
+
+def _designs(
+    start: RunParams,
+    preset: str,
+    base_nested: dict[str, Any],
+    parameters: list[str],
+    specs: list[_Spec],
+    labels_of: dict[int, str],
+    where: str,
+) -> list[Design]:
+    """Every spec's effective settings as a :class:`Design`; specs with the same key are
+    one design, their labels merged."""
     exec_paths = tuple(
         p for n in parameters for p in paths_of(n) if info_at(RunParams, p).execution_only
     )
@@ -581,21 +645,7 @@ def parse_sweep(
                 key=key,
             )
         )
-    return SweepConfig(
-        path=None,
-        name=name,
-        description=description,
-        preset=preset,
-        base={k: json_ready(v) for k, v in base.items()},
-        parameters=tuple(parameters),
-        designs=tuple(designs),
-        trees=tuple(trees),
-        reference=reference,
-        tolerance_m=float(tol) if tol is not None else None,
-        tolerance_factor=float(factor) if factor is not None else None,
-        repeat=int(repeat),
-        raw=dict(data),
-    )
+    return designs
 
 
 def load_sweep(path: str | Path) -> SweepConfig:
