@@ -35,7 +35,8 @@ The weights live in ``pipeline/data/leafwood_model.json``, fitted by
 ``scripts/fit_leafwood.py`` on procedural trees whose labels the virtual scanner records
 exactly (aspen-leafon, balsam-fir shoots, leaf-off aspen and sapling), scanned with the
 RIEGL VZ-400 noise model at several angular steps, on seeds 1 and 2; the tests measure
-it on seed 0. Measured there, see the manual (docs/guides/reconstruction.md, "Leaf-on field clouds").
+it on seed 0. Measured there, see the manual (docs/guides/reconstruction.md, "Leaf-on
+field clouds").
 
 Everything is deterministic; coordinates enter pgeof as float32 in the local frame the
 reconstruction works in (float32 resolves 1 µm at 20 m).
