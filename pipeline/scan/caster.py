@@ -9,8 +9,9 @@ float64 ray meets (within its error of an edge), the float64 hit is checked agai
 triangle's edges and, outside them, the triangles around it are tested in float64
 (:meth:`Caster.refine`): every point lies on a triangle of the mesh to float64 rounding
 (measured ≤ 1e-12 m at 2 km; the manual, docs/concepts.md, promises 1e-9 m). Whether a
-ray that passes within float32's error of an edge (about 1e-6 of the scene's size, plus of the station's
-distance when it is within 50 m) meets the surface there remains float32's choice.
+ray that passes within float32's error of an edge (about 1e-6 of the scene's size, plus
+of the station's distance when it is within 50 m) meets the surface there remains
+float32's choice.
 Points leave in the input's coordinates as float64. A pulse's float32 ray is gathered
 from per-station tables (:class:`RayTables`), so it is the same bits whichever pulses are
 cast beside it (:func:`cast_central`).
