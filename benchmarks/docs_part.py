@@ -86,7 +86,8 @@ def recording(name: str | None, script: str, page: Path = VALIDATION) -> Iterato
         yield
     command = " ".join([f"python benchmarks/{script}", *sys.argv[1:]])
     head = f"`{command}` printed this on {date.today()}, {machine()}:"
-    write_part(name, f"{head}\n\n```text\n{tee.copy.getvalue().rstrip()}\n```", page)
+    text = "\n".join(line.rstrip() for line in tee.copy.getvalue().rstrip().splitlines())
+    write_part(name, f"{head}\n\n```text\n{text}\n```", page)
     print(f"wrote {page.relative_to(ROOT)}'s {name} part")
 
 
