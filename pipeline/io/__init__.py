@@ -11,7 +11,7 @@ without holding it: a :class:`CloudWriter` per format, with the same output as
 * ``.xyz`` ``.txt`` ``.csv`` ``.asc`` ``.pts``: :mod:`treesim.io.text`
 * ``.las`` ``.laz``: :mod:`treesim.io.las` (laspy, LAZ through lazrs)
 * ``.ply``: :mod:`treesim.io.ply` (plyfile)
-* ``.e57``: :mod:`treesim.io.e57` (read only; needs the optional ``pye57``)
+* ``.e57``: :mod:`treesim.io.e57` (read, and written whole; needs the optional ``pye57``)
 
 A file without a trustworthy name (an upload) is known by its bytes:
 :func:`sniff_format`, and :func:`inspect_file` reads and checks all of it
@@ -103,15 +103,13 @@ _LAS = CloudFormat(
 _PLY = CloudFormat("PLY", ply.read_ply, ply.write_ply, ply.PlyCloudWriter)
 
 
-def _e57_write(path: str | Path, cloud: Cloud, **_: Any) -> Path:
-    raise InputFormatError(f"{path}: writing E57 is not supported; write .laz or .ply")
-
-
 def _e57_open_writer(path: str | Path, **_: Any) -> CloudWriter:
-    raise InputFormatError(f"{path}: writing E57 is not supported; write .laz or .ply")
+    raise InputFormatError(
+        f"{path}: E57 is written whole (write_cloud), not streamed; write .laz or .ply here"
+    )
 
 
-_E57 = CloudFormat("E57", e57.read_e57, _e57_write, _e57_open_writer)
+_E57 = CloudFormat("E57", e57.read_e57, e57.write_e57, _e57_open_writer)
 
 #: Lower-case suffix -> format.
 FORMATS: dict[str, CloudFormat] = {

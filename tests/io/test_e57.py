@@ -63,3 +63,64 @@ def test_missing_pye57_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
     assert not e57.available()
     with pytest.raises(InputFormatError, match="needs the optional package pye57"):
         e57.read_e57(tmp_path / "x.e57")
+
+
+def test_write_e57_one_scan_per_station_with_its_pose(tmp_path: Path) -> None:
+    """A cloud with stations written as E57 reads back as the same points (to well under a
+    micrometre at a 5e6 m offset) with one scan per station, its pose the station."""
+    from treesim.cloud import Cloud
+    from treesim.io import read_cloud, write_cloud
+
+    rng = np.random.default_rng(1)
+    stations = [
+        list(GEO + [1.0, 2.0, 1.5]),
+        list(GEO + [-8.0, 3.0, 1.6]),
+        list(GEO + [4.0, -6.0, 1.4]),
+    ]
+    station = rng.integers(0, 3, 500)
+    pts = np.asarray(stations)[station] + rng.uniform(-10, 10, (500, 3))
+    cloud = Cloud(pts, {"station": station, "intensity": rng.random(500)}, {"stations": stations})
+    path = write_cloud(tmp_path / "field.e57", cloud)
+    back = read_cloud(path)
+    order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0], station))
+    back_order = np.lexsort(
+        (back.points[:, 2], back.points[:, 1], back.points[:, 0], back.fields["station"])
+    )
+    assert np.abs(back.points[back_order] - pts[order]).max() < 1e-6
+    assert back.metadata["stations"] == stations
+    assert back.metadata["stations_posed"] == [True, True, True]
+    assert e57.read_e57_stations(path) == stations
+    assert list(tmp_path.iterdir()) == [path]  # no temporary file left
+
+
+def test_a_scan_without_a_pose(tmp_path: Path) -> None:
+    """A scan with no pose reads (its points as stored, flagged not posed), but its
+    station position is refused with a message that says what to do."""
+    from types import SimpleNamespace
+
+    pts = np.random.default_rng(2).uniform(-2, 2, (50, 3))
+    header = SimpleNamespace(
+        rotation=None,
+        translation=None,
+        name="no pose",
+        **{
+            f"{c}{m}": getattr(pts[:, k], f)
+            for k, c in enumerate("xyz")
+            for m, f in (("Minimum", "min"), ("Maximum", "max"))
+        },
+    )
+    for k in list(vars(header)):
+        if k.endswith(("Minimum", "Maximum")):
+            setattr(header, k, float(getattr(header, k)()))
+    path = tmp_path / "noposes.e57"
+    f = pye57.E57(str(path), mode="w")
+    try:
+        data = {f"cartesian{c}": pts[:, k].copy() for k, c in enumerate("XYZ")}
+        f.write_scan_raw(data, scan_header=header)
+    finally:
+        f.close()
+    cloud = e57.read_e57(path)
+    assert cloud.metadata["stations_posed"] == [False]
+    assert np.allclose(cloud.points, pts)
+    with pytest.raises(InputFormatError, match="scan 0 has no pose.*stations as a CSV"):
+        e57.read_e57_stations(path)

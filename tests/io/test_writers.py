@@ -408,11 +408,12 @@ def test_dropped_writer_leaves_nothing(tmp_path: Path) -> None:
 @pytest.mark.parametrize("with_fields", [False, True])
 def test_every_format_writes_an_empty_cloud(tmp_path: Path, suffix: str, with_fields) -> None:
     """write_cloud of a cloud with no points writes a valid empty file in every format it
-    writes (no ValueError from an empty array); E57 is read-only and says so."""
+    writes (no ValueError from an empty array); E57, which holds scans of points, says
+    it needs one."""
     empty = scan_cloud(0) if with_fields else Cloud(np.empty((0, 3)))
     path = tmp_path / f"e{suffix}"
     if suffix == ".e57":
-        with pytest.raises(InputFormatError, match="writing E57 is not supported"):
+        with pytest.raises(InputFormatError, match="no points; an E57 scan needs"):
             write_cloud(path, empty)
         return
     back = read_cloud(write_cloud(path, empty))
