@@ -67,7 +67,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_scan(args: argparse.Namespace) -> int:
     from ..params import merge
     from ..plot.io import read_plot
-    from ..plot.scan import PLOT_SCAN_FILES, plot_scan_files, plot_stations, read_stations_csv
+    from ..plot.scan import PLOT_SCAN_FILES, plot_scan_files, plot_stations, read_stations
     from .scan import params_from_args
 
     plot = read_plot(args.plot)
@@ -85,10 +85,13 @@ def cmd_scan(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--distance-m must be >= 0")
     if args.full_fov:
         raise InvalidParameterError("--full-fov is not offered for plots; drop it")
-    if args.station and args.stations_csv:
-        raise InvalidParameterError("give either --station or --stations-csv, not both")
-    if args.stations_csv:
-        stations = read_stations_csv(args.stations_csv, plot, height_m=params.height_m)
+    given = [
+        f for f, v in (("--station", args.station), ("--stations-from", args.stations_from)) if v
+    ]
+    if len(given) > 1:
+        raise InvalidParameterError(f"give either {' or '.join(given)}, not both")
+    if args.stations_from:
+        stations = read_stations(args.stations_from, plot, height_m=params.height_m)
     else:
         stations = plot_stations(
             plot,
@@ -193,10 +196,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a station position in plot coordinates (repeatable)",
     )
     st.add_argument(
+        "--stations-from",
         "--stations-csv",
-        metavar="CSV",
-        help="stations from a CSV with x_m, y_m and z_m or height_m columns "
-        "(as treesim plan writes stations.csv)",
+        dest="stations_from",
+        metavar="FILE",
+        help="the field's stations: an E57 file's scan poses, or a CSV with x_m, y_m and "
+        "z_m or height_m columns (as treesim plan writes stations.csv)",
     )
     # without --station: a ring around the plot centre at --distance-m (unset: half the
     # plot's radius), --height-m above the terrain

@@ -41,6 +41,7 @@ __all__ = [
     "plot_fields",
     "plot_scan_files",
     "plot_stations",
+    "read_stations",
     "read_stations_csv",
     "scan_plot",
     "station_trees",
@@ -677,6 +678,51 @@ def read_stations_csv(path: str | Path, plot: Plot, height_m: float = 1.5) -> li
         except (TypeError, ValueError) as exc:
             raise InputFormatError(f"{p}, line {i}: not a number ({exc})") from exc
     return out
+
+
+def read_stations(path: str | Path, plot: Plot, height_m: float = 1.5) -> list[Station]:
+    """The field's stations from ``path``: an E57 file's scan poses (where each scanner
+    stood, as registered) or a stations CSV (:func:`read_stations_csv`).
+
+    Raises
+    ------
+    InputFormatError
+        For another kind of file, an E57 scan without a pose, or stations far from the
+        plot (more than 10 radii and 100 m from its centre: another coordinate frame).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.plot.scan import read_stations
+    >>> plot = ts.read_plot("twin/plot.toml")  # doctest: +SKIP
+    >>> stations = read_stations("field.e57", plot)  # doctest: +SKIP
+    """
+    from ..errors import InputFormatError
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".e57":
+        from ..io.e57 import read_e57_stations
+
+        stations = [_as_station(tuple(xyz)) for xyz in read_e57_stations(p)]
+    elif suffix in (".csv", ".txt"):
+        stations = read_stations_csv(p, plot, height_m=height_m)
+    else:
+        raise InputFormatError(
+            f"{p}: stations come from an E57 file's scan poses or a stations CSV (x_m, y_m "
+            f"and z_m or height_m), not a {suffix or 'suffix-less'} file"
+        )
+    cx, cy = plot.centre_xy
+    limit = 10.0 * float(plot.radius_m) + 100.0
+    for i, st in enumerate(stations):
+        d = math.hypot(st.position_m[0] - cx, st.position_m[1] - cy)
+        if d > limit:
+            raise InputFormatError(
+                f"{p}: station {i} stands {d:,.0f} m from the plot's centre "
+                f"({cx:.2f}, {cy:.2f}); are the stations and the plot in the same "
+                "coordinate frame?"
+            )
+    return stations
 
 
 def write_figures_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
