@@ -132,14 +132,15 @@ class TreeInput:
     settings : tuple of (str, str)
         Per-tree settings from a manifest (see :data:`treesim.params.SETTINGS`), and its
         ``reference_qsm`` (a QSM table's path, set beside the reconstruction).
-    kind : {"tree", "plot"}
+    kind : {"tree", "plot", "reconstruct"}
     """
 
     id: str
     path: Path
     settings: tuple[tuple[str, str], ...] = ()
     #: ``tree`` (a field cloud: the whole loop) or ``plot`` (a ``plot.toml``: the plot
-    #: scan, one summary row per tree of it)
+    #: scan, one summary row per tree of it) or ``reconstruct`` (a field cloud: the
+    #: reconstruction only, as ``treesim plot from-cloud`` runs its trees)
     kind: str = "tree"
 
 
@@ -375,6 +376,8 @@ def _run_task(task: _Task) -> dict[str, Any]:
     try:
         if task.kind == "plot":
             row = {**base, **_run_plot(task, tmp, threads)}
+        elif task.kind == "reconstruct":
+            row = {**base, **_run_reconstruct(task, tmp, threads)}
         else:
             res = run_tree(
                 task.path,
@@ -924,6 +927,29 @@ def _run_plot(task: _Task, out: Path, threads: int) -> dict[str, Any]:
         "kind": "plot",
         "trees": trees,
         "report": f"trees/{task.id}/plot_scan.json",
+        "folder": f"trees/{task.id}",
+    }
+
+
+def _run_reconstruct(task: _Task, out: Path, threads: int) -> dict[str, Any]:
+    """Reconstruct one field cloud (:func:`treesim.steps.reconstruct_files`) with the
+    batch's reconstruction settings; ``tree.ply``, ``cylinders.csv`` and ``tree.json`` go
+    into the tree's folder. Returns its row."""
+    from .steps import reconstruct_files
+
+    t0 = time.perf_counter()
+    step = reconstruct_files(task.path, task.params.reconstruct, out, threads=threads)
+    total = time.perf_counter() - t0
+    summary = step.summary
+    return {
+        "status": "ok",
+        "kind": "reconstruct",
+        **_row_from_summary(
+            {"reconstruction": summary, "inputs": {"points": summary.get("points_input")}}
+        ),
+        "time_reconstruct_s": total,
+        "time_total_s": total,
+        "report": f"trees/{task.id}/tree.json",
         "folder": f"trees/{task.id}",
     }
 

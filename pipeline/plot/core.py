@@ -172,6 +172,10 @@ class PlotTree:
         (:func:`treesim.plot._sources.fit_species`); the tree's exact figures are
         :meth:`Plot.truth`'s. Other sources ignore them (a stand file may carry the
         figures it measured).
+    field_cloud : str, optional
+        The field cloud the tree was measured from (``treesim plot from-cloud`` writes each
+        tree's points and reconstructs its QSM from them); kept with the tree, not read to
+        build it.
 
     Examples
     --------
@@ -193,6 +197,7 @@ class PlotTree:
     leaves: bool | None = None
     dbh_m: float | None = None
     height_m: float | None = None
+    field_cloud: str | None = None
 
     def __post_init__(self) -> None:
         tid = self.tree_id

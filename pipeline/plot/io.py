@@ -68,7 +68,10 @@ TREE_COLUMNS = (
     "leaves",
     "dbh_m",
     "height_m",
+    "field_cloud",
 )
+#: Columns holding paths (relative to the file's folder).
+_PATHS = ("path", "field_cloud")
 _PLOT_KEYS = {"radius_m", "centre_xy", "facets", "terrain_cell_m", "trees", "terrain", "stand"}
 _TERRAIN_KEYS = {"kind", "z0_m", "slope_deg", "aspect_deg", "path"}
 _INT = {"tree_id", "seed"}
@@ -182,7 +185,7 @@ def write_trees_csv(
         row = []
         for c in TREE_COLUMNS:
             v = getattr(t, c)
-            if c == "path":
+            if c in _PATHS:
                 v = _rel(v, src_dir, p.parent)
             elif c in _FLOAT and v is not None:
                 v = float(v)
@@ -283,7 +286,8 @@ def write_plot(
     if not trees_csv:
         for t in plot.trees:
             row = {c: getattr(t, c) for c in TREE_COLUMNS}
-            row["path"] = _rel(row["path"], src, p.parent)
+            for c in _PATHS:
+                row[c] = _rel(row[c], src, p.parent)
             for c in _FLOAT:
                 if row[c] is not None:
                     row[c] = float(row[c])
