@@ -21,11 +21,14 @@ import numpy as np
 from ..errors import EmptyInputError, InputFormatError
 
 __all__ = [
+    "ASC_NODATA",
     "MAX_GROUND_POINTS",
     "DTM_SUFFIXES",
     "read_asc",
     "surface_from_cloud",
     "surface_from_dtm",
+    "surface_from_grid",
+    "write_asc",
 ]
 
 #: Ground clouds larger than this are averaged over a grid before triangulation.
@@ -102,6 +105,64 @@ def read_asc(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x0 + cs * np.arange(nc), y0 + cs * np.arange(nr), z
 
 
+#: The NODATA value :func:`write_asc` writes for NaN cells.
+ASC_NODATA = -9999.0
+
+
+def write_asc(path: str | Path, x0: float, y0: float, cell_m: float, z: np.ndarray) -> Path:
+    """Write an ESRI ASCII grid that :func:`read_asc` reads back exactly.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.asc`` file to write.
+    x0, y0 : float
+        The grid's lower-left corner (``xllcorner``, ``yllcorner``), in the file's
+        coordinates.
+    cell_m : float
+        The cell size (> 0).
+    z : (ncols, nrows) array
+        Heights in :func:`read_asc`'s layout (x first, y ascending); NaN cells are written
+        as NODATA (:data:`ASC_NODATA`).
+
+    Returns
+    -------
+    Path
+        The file written. Values are written with the shortest text that parses back to
+        the same float64 (``repr``), so a read gives the very same numbers.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> z = np.array([[1.0, 2.0], [np.nan, 4.25]])
+    >>> p = write_asc("dtm.asc", 100.0, 200.0, 0.5, z)  # doctest: +SKIP
+    >>> read_asc(p)[2]  # doctest: +SKIP
+    array([[1.  , 2.  ],
+           [ nan, 4.25]])
+    """
+    z = np.asarray(z, dtype=np.float64)
+    if z.ndim != 2 or z.size == 0:
+        raise InputFormatError(f"{path}: a DTM grid must be a non-empty 2-D array, got {z.shape}")
+    if not (math.isfinite(cell_m) and cell_m > 0):
+        raise InputFormatError(f"{path}: the DTM cell size must be > 0, got {cell_m}")
+    nc, nr = z.shape
+    rows = z[:, ::-1].T  # the file's first row is the northern one
+    lines = [
+        f"ncols {nc}",
+        f"nrows {nr}",
+        f"xllcorner {float(x0)!r}",
+        f"yllcorner {float(y0)!r}",
+        f"cellsize {float(cell_m)!r}",
+        f"NODATA_value {ASC_NODATA!r}",
+    ]
+    nodata = repr(ASC_NODATA)
+    for row in rows.tolist():
+        lines.append(" ".join(nodata if math.isnan(v) else repr(v) for v in row))
+    p = Path(path)
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
 def _fill_nodata(z: np.ndarray, where: str) -> np.ndarray:
     bad = np.isnan(z)
     if bad.all():
@@ -126,7 +187,23 @@ def surface_from_dtm(path: str | Path) -> Height:
             "cloud terrain"
         )
     xs, ys, z = read_asc(p)
-    z = _fill_nodata(z, str(p))
+    return surface_from_grid(xs, ys, _fill_nodata(z, str(p)))
+
+
+def surface_from_grid(xs: np.ndarray, ys: np.ndarray, z: np.ndarray) -> Height:
+    """The bilinear height function of a grid of cell-centre heights (no NaN).
+
+    ``xs`` (ncols,) and ``ys`` (nrows,) are evenly spaced ascending cell centres and ``z``
+    is (ncols, nrows), as :func:`read_asc` returns them. Between the centres the height is
+    bilinear; outside the centres' rectangle it is the nearest edge's value (clamped).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> f = surface_from_grid(np.array([0.5, 1.5]), np.array([0.5]), np.array([[1.0], [3.0]]))
+    >>> f(np.array([1.0, 9.0]), np.array([0.0, 0.0])).tolist()
+    [2.0, 3.0]
+    """
 
     def height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)
