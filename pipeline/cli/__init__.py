@@ -39,6 +39,7 @@ COMMANDS = (
     "batch",
     "sweep",
     "plan",
+    "validate",
     "demo",
 )
 

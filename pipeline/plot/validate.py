@@ -1,0 +1,1126 @@
+"""A simulated plot scan checked against the field scan it should reproduce.
+
+:func:`validate_scans` answers the question a simulation is run for (HELIOS++ issue
+#835): how closely does the simulated scan reproduce the real one, from the stations
+actually used? Both clouds are moved into one float64 local frame (one origin subtracted
+from both) and compared
+
+* per station (the ``station`` field of both clouds, matched by number; a field cloud
+  without one is a single group ``"all"``): point density by height above the terrain
+  and by range from the station, real and simulated, and their ratio
+  (``simulated / real``: 1 when the simulation records as many points as the field);
+* per tree of the twin (simulated points by their ``tree_id``; real points given to the
+  twin tree whose mesh is nearest, within ``assign_distance_m``, else 0: ground and
+  other): points, and the coverage of the tree's surface at one τ (the share of
+  area-uniform surface samples, hidden surface left out, within τ of a real point, and
+  of a simulated point), and the occlusion profile (that coverage by height band);
+* both ways as nearest-neighbour distances: real → simulated (every field point to the
+  simulated cloud: AVOHD *completeness* of the simulation, with the field scan as the
+  reference) and simulated → real (AVOHD *accuracy*), as :mod:`treesim.compare` names
+  them, over all points and per station.
+
+Only the region both describe is compared: within the twin's radius of its centre, or
+without a twin, where the two clouds' horizontal extents overlap.
+
+:func:`write_validation` writes ``validation.json``, the figures and ``validation.html``
+(self-contained).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cloud import Cloud
+from ..errors import EmptyInputError, InputFormatError, InvalidParameterError
+from ..frame import LocalFrame
+from .core import Plot
+
+__all__ = [
+    "ASSIGN_DISTANCE_M",
+    "VALIDATION_FILES",
+    "ValidationResult",
+    "station_positions",
+    "validate_scans",
+    "write_validation",
+]
+
+#: Real points farther than this from every twin tree's mesh belong to no tree (m).
+ASSIGN_DISTANCE_M = 0.25
+#: What :func:`write_validation` writes.
+VALIDATION_FILES = {
+    "json": "validation.json",
+    "density_by_height": "density_by_height.png",
+    "density_by_range": "density_by_range.png",
+    "coverage_by_tree": "coverage_by_tree.png",
+    "occlusion_profile": "occlusion_profile.png",
+    "distances": "distances.png",
+    "html": "validation.html",
+}
+#: A simulated station farther than this from the field's is reported (m).
+STATION_OFFSET_WARN_M = 0.1
+#: Most height or range bins a profile may have.
+MAX_BINS = 500
+
+DEFINITIONS = {
+    "density_ratio": "simulated points / real points (1: the simulation records as many)",
+    "range_profile_difference": "half the summed absolute difference of the real and "
+    "simulated shares of points per range bin (0: same shape, 1: disjoint)",
+    "coverage": "share (0-1) of a twin tree's visible surface samples within tau_m of a point",
+    "real_to_simulated": "every real point to its nearest simulated point (m): AVOHD "
+    "completeness of the simulation, the field scan as reference",
+    "simulated_to_real": "every simulated point to its nearest real point (m): AVOHD accuracy",
+    "height_above_terrain_m": "z minus the twin's terrain (without a twin: the lowest real "
+    "point within ground_cell_m)",
+}
+
+
+@dataclass
+class ValidationResult:
+    """What :func:`validate_scans` measured (figures as lists, ready for JSON).
+
+    Attributes
+    ----------
+    summary : str
+        One line: the verdict and the headline figures.
+    groups : list of str
+        The station groups (``"0"``, ``"1"``, ... or ``"all"``).
+    stations : dict
+        ``real_m`` and ``simulated_m`` ([x, y, z] per group or None, input
+        coordinates), ``offset_m`` (per group, simulated to real) and ``source``.
+    density : dict
+        Per group ``points_real``, ``points_simulated``, ``density_ratio`` and
+        ``range_profile_difference``; and over all groups.
+    density_by_height, density_by_range : dict or None
+        ``edges_m`` and per group ``real``, ``simulated`` (points per bin) and ``ratio``.
+    trees : list of dict or None
+        Per twin tree: points real and simulated, ``coverage_real``,
+        ``coverage_simulated``, ``coverage_difference_points`` (simulated − real, in
+        percentage points), ``samples``, ``area_m2``.
+    occlusion_profile : dict or None
+        ``edges_m``, ``samples``, ``coverage_real``, ``coverage_simulated`` per height band.
+    distances : dict
+        ``real_to_simulated`` and ``simulated_to_real`` statistics (m), overall and
+        ``by_station``.
+    notes, warnings : list of str
+        What was left out and why; implausible results.
+    parameters : dict
+    frame_origin_m : list of float
+    """
+
+    summary: str
+    groups: list[str]
+    stations: dict[str, Any]
+    density: dict[str, Any]
+    density_by_height: dict[str, Any]
+    density_by_range: dict[str, Any] | None
+    trees: list[dict[str, Any]] | None
+    occlusion_profile: dict[str, Any] | None
+    distances: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    parameters: dict[str, Any] = field(default_factory=dict)
+    frame_origin_m: list[float] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready figures (units in the names)."""
+        from ..jsonio import json_ready
+
+        return json_ready(
+            {
+                "summary": self.summary,
+                "groups": self.groups,
+                "stations": self.stations,
+                "density": self.density,
+                "density_by_height": self.density_by_height,
+                "density_by_range": self.density_by_range,
+                "trees": self.trees,
+                "occlusion_profile": self.occlusion_profile,
+                "distances": self.distances,
+                "notes": self.notes,
+                "warnings": self.warnings,
+                "parameters": self.parameters,
+                "frame_origin_m": self.frame_origin_m,
+                "definitions": dict(DEFINITIONS),
+            }
+        )
+
+
+# -- inputs ---------------------------------------------------------------------------
+def station_positions(cloud: Cloud) -> np.ndarray | None:
+    """The station positions a cloud's metadata carries ((n, 3) float64, input
+    coordinates): an E57's scan poses (``[x, y, z]``) or a treesim scan's stations
+    (``{"position_m": [x, y, z]}``); None when it carries none.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> cloud = ts.Cloud(np.zeros((1, 3)), {}, {"stations": [[1.0, 2.0, 1.5]]})
+    >>> station_positions(cloud)
+    array([[1. , 2. , 1.5]])
+    """
+    raw = (cloud.metadata or {}).get("stations")
+    if not raw:
+        return None
+    out = []
+    for s in raw:
+        p = s.get("position_m") if isinstance(s, dict) else s
+        try:
+            xyz = [float(c) for c in p]
+        except (TypeError, ValueError):
+            return None
+        if len(xyz) != 3 or not all(math.isfinite(c) for c in xyz):
+            return None
+        out.append(xyz)
+    return np.asarray(out, dtype=np.float64)
+
+
+def _distance_text(d_m: float) -> str:
+    return f"{d_m / 1000:,.1f} km" if d_m >= 1000 else f"{d_m:,.1f} m"
+
+
+def _check_cloud(cloud: Cloud, what: str) -> np.ndarray:
+    if not isinstance(cloud, Cloud):
+        raise InputFormatError(f"the {what} must be a point cloud, got {type(cloud).__name__}")
+    pts = np.asarray(cloud.points, dtype=np.float64)
+    if len(pts) == 0:
+        raise EmptyInputError(f"the {what} has no points")
+    if not np.isfinite(pts).all():
+        raise InputFormatError(f"the {what} has NaN or infinite coordinates")
+    return pts
+
+
+def _box_gap_m(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The gap between two clouds' bounding boxes and their centres' distance (m)."""
+    lo_a, hi_a, lo_b, hi_b = a.min(0), a.max(0), b.min(0), b.max(0)
+    gap = np.maximum(np.maximum(lo_a - hi_b, lo_b - hi_a), 0.0)
+    centres = 0.5 * (lo_a + hi_a) - 0.5 * (lo_b + hi_b)
+    return float(np.linalg.norm(gap)), float(np.linalg.norm(centres))
+
+
+def _check_overlap(real: np.ndarray, sim: np.ndarray, plot: Plot | None) -> None:
+    gap, apart = _box_gap_m(real, sim)
+    if gap > 0.5:
+        raise InputFormatError(
+            f"the field scan and the simulated scan do not overlap: the clouds are "
+            f"{_distance_text(apart)} apart: different coordinate frames?"
+        )
+    if plot is not None:
+        cx, cy = plot.centre_xy
+        lo, hi = real.min(0)[:2], real.max(0)[:2]
+        d = float(np.linalg.norm(np.maximum(np.maximum(lo - (cx, cy), (cx, cy) - hi), 0.0)))
+        if d > float(plot.radius_m):
+            c = 0.5 * (lo + hi)
+            raise InputFormatError(
+                f"the twin's plot (centre {cx:.2f}, {cy:.2f}) lies outside the field scan: "
+                f"they are {_distance_text(math.hypot(c[0] - cx, c[1] - cy))} apart: "
+                "different coordinate frames?"
+            )
+
+
+@dataclass
+class _Side:
+    """One cloud in the local frame, within the compared region."""
+
+    pts: np.ndarray  # (n, 3) local
+    group: np.ndarray  # (n,) index into groups
+    height_m: np.ndarray  # (n,) above the terrain
+    range_m: np.ndarray | None  # (n,) from its station
+    stations: np.ndarray | None  # (g, 3) local, per group (None: unknown)
+    tree_id: np.ndarray | None = None
+
+
+def _station_ids(cloud: Cloud, n_kept: int) -> np.ndarray | None:
+    s = cloud.fields.get("station")
+    if s is None:
+        return None
+    s = np.asarray(s).astype(np.int64)
+    if len(s) != n_kept:
+        raise InputFormatError("the station field does not have one value per point")
+    return s
+
+
+def _station_count(cloud: Cloud, ids: np.ndarray, pos: np.ndarray | None) -> int:
+    return max(int(ids.max(initial=-1)) + 1, 0 if pos is None else len(pos))
+
+
+def _groups(
+    real: Cloud, sim: Cloud, real_pos: np.ndarray | None, sim_pos: np.ndarray | None
+) -> tuple[list[str], np.ndarray, np.ndarray, list[str]]:
+    """The groups, each cloud's group index per point, and notes."""
+    notes: list[str] = []
+    r_ids = _station_ids(real, len(real.points))
+    s_ids = _station_ids(sim, len(sim.points))
+    if r_ids is None or s_ids is None:
+        who = "field scan" if r_ids is None else "simulated scan"
+        notes.append(
+            f"the {who} has no station field: all stations are one group 'all' (per-station "
+            "figures need each point's station, as an E57 gives)"
+        )
+        return ["all"], np.zeros(len(real.points), int), np.zeros(len(sim.points), int), notes
+    n_r = _station_count(real, r_ids, real_pos)
+    n_s = _station_count(sim, s_ids, sim_pos)
+    if n_r != n_s:
+        raise InputFormatError(
+            f"the field scan has {n_r} station{'s' * (n_r != 1)} and the simulated scan "
+            f"{n_s}: simulate from the field's stations (treesim plot scan --stations-from "
+            "the field's E57 or stations CSV)"
+        )
+    return [str(k) for k in range(n_r)], r_ids, s_ids, notes
+
+
+def _resolve_stations(
+    real: Cloud, sim: Cloud, stations: Any
+) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """Station positions (input coordinates) of the field and the simulation."""
+    if stations is not None:
+        given = np.array(
+            [s.position_m if hasattr(s, "position_m") else s for s in stations], dtype=np.float64
+        )
+        if given.ndim != 2 or given.shape[1] != 3 or not np.isfinite(given).all():
+            raise InvalidParameterError("stations must be [x, y, z] positions in metres")
+        real_pos, source = given, "given"
+    else:
+        real_pos, source = station_positions(real), "field scan's metadata"
+    sim_pos = station_positions(sim)
+    if real_pos is None and sim_pos is not None:
+        return sim_pos, sim_pos, "simulated scan's metadata (the field's unknown)"
+    if real_pos is None:
+        return None, None, "unknown"
+    return real_pos, (real_pos if sim_pos is None else sim_pos), source
+
+
+# -- terrain, region ------------------------------------------------------------------
+def _ground_from_cloud(pts: np.ndarray, cell_m: float):
+    """A crude terrain from the lowest point per cell (local frame), as a function."""
+    from scipy.spatial import cKDTree
+
+    ij = np.floor(pts[:, :2] / cell_m).astype(np.int64)
+    keys, inv = np.unique(ij, axis=0, return_inverse=True)
+    low = np.full(len(keys), np.inf)
+    np.minimum.at(low, inv.ravel(), pts[:, 2])
+    tree = cKDTree((keys + 0.5) * cell_m)
+
+    def height_at(xy: np.ndarray) -> np.ndarray:
+        _, k = tree.query(xy, k=1)
+        return low[k]
+
+    return height_at
+
+
+def _heights(pts: np.ndarray, frame: LocalFrame, plot: Plot | None, ground: Any) -> np.ndarray:
+    if plot is not None:
+        o = frame.origin_array
+        return pts[:, 2] + o[2] - plot.terrain.height_at(pts[:, 0] + o[0], pts[:, 1] + o[1])
+    return pts[:, 2] - ground(pts[:, :2])
+
+
+def _region(
+    real: np.ndarray, sim: np.ndarray, frame: LocalFrame, plot: Plot | None
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """Masks of the points of each cloud in the compared region, and its description."""
+    if plot is not None:
+        c = np.asarray(plot.centre_xy) - frame.origin_array[:2]
+        r = float(plot.radius_m)
+
+        def inside(p: np.ndarray) -> np.ndarray:
+            return np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) <= r
+
+        return inside(real), inside(sim), f"within the twin's radius ({r:g} m) of its centre"
+    lo = np.maximum(real[:, :2].min(0), sim[:, :2].min(0))
+    hi = np.minimum(real[:, :2].max(0), sim[:, :2].max(0))
+
+    def box(p: np.ndarray) -> np.ndarray:
+        return np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1)
+
+    return box(real), box(sim), "where the two clouds' horizontal extents overlap"
+
+
+def _ranges(pts: np.ndarray, group: np.ndarray, pos: np.ndarray | None, pooled: bool):
+    if pos is None:
+        return None
+    if pooled:  # one group over several stations: the nearest station
+        from scipy.spatial import cKDTree
+
+        return cKDTree(pos).query(pts, k=1)[0]
+    return np.linalg.norm(pts - pos[np.minimum(group, len(pos) - 1)], axis=1)
+
+
+def _side(
+    cloud: Cloud,
+    pts_all: np.ndarray,
+    keep: np.ndarray,
+    group: np.ndarray,
+    pos: np.ndarray | None,
+    ctx: dict[str, Any],
+) -> _Side:
+    frame = ctx["frame"]
+    pts = frame.to_local(pts_all[keep])
+    grp = group[keep]
+    pos_local = None if pos is None else frame.to_local(pos)
+    tid = cloud.fields.get("tree_id")
+    return _Side(
+        pts=pts,
+        group=grp,
+        height_m=_heights(pts, frame, ctx["plot"], ctx["ground"]),
+        range_m=_ranges(pts, grp, pos_local, ctx["pooled"]),
+        stations=pos_local,
+        tree_id=None if tid is None else np.asarray(tid).astype(np.int64)[keep],
+    )
+
+
+# -- density --------------------------------------------------------------------------
+def _edges(values: list[np.ndarray], step: float, start: float | None = None) -> np.ndarray:
+    v = np.concatenate(values) if values else np.zeros(1)
+    lo = math.floor(float(v.min(initial=0.0)) / step) * step if start is None else start
+    hi = math.ceil(float(v.max(initial=step)) / step + 1e-9) * step
+    n = max(1, round((hi - lo) / step))
+    if n > MAX_BINS:
+        raise InvalidParameterError(
+            f"{n} bins of {step:g} m: too many (at most {MAX_BINS}); give larger bins"
+        )
+    return lo + step * np.arange(n + 1)
+
+
+def _ratio(sim: np.ndarray, real: np.ndarray) -> list[float | None]:
+    return [None if r == 0 else float(s / r) for s, r in zip(sim, real, strict=True)]
+
+
+def _profile(
+    groups: list[str], real_v: np.ndarray, real_g: np.ndarray, sim_v, sim_g, edges
+) -> dict[str, Any]:
+    per: dict[str, Any] = {}
+    for k, g in enumerate(groups):
+        r = np.histogram(real_v[real_g == k], edges)[0]
+        s = np.histogram(sim_v[sim_g == k], edges)[0]
+        per[g] = {"real": r.tolist(), "simulated": s.tolist(), "ratio": _ratio(s, r)}
+    return {"edges_m": edges.tolist(), "per_station": per}
+
+
+def _profile_difference(real: list[int], sim: list[int]) -> float | None:
+    r, s = np.asarray(real, float), np.asarray(sim, float)
+    if r.sum() == 0 or s.sum() == 0:
+        return None
+    return float(0.5 * np.abs(r / r.sum() - s / s.sum()).sum())
+
+
+def _density(
+    groups: list[str], real: _Side, sim: _Side, height_bin_m: float, range_bin_m: float
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any] | None]:
+    h_edges = _edges([real.height_m, sim.height_m], height_bin_m)
+    by_h = _profile(groups, real.height_m, real.group, sim.height_m, sim.group, h_edges)
+    by_r = None
+    if real.range_m is not None and sim.range_m is not None:
+        r_edges = _edges([real.range_m, sim.range_m], range_bin_m, start=0.0)
+        by_r = _profile(groups, real.range_m, real.group, sim.range_m, sim.group, r_edges)
+    per: dict[str, Any] = {}
+    for k, g in enumerate(groups):
+        nr, ns = int((real.group == k).sum()), int((sim.group == k).sum())
+        rp = by_r["per_station"][g] if by_r else None
+        hp = by_h["per_station"][g]
+        per[g] = {
+            "points_real": nr,
+            "points_simulated": ns,
+            "density_ratio": ns / nr if nr else None,
+            "height_profile_difference": _profile_difference(hp["real"], hp["simulated"]),
+            "range_profile_difference": None
+            if rp is None
+            else _profile_difference(rp["real"], rp["simulated"]),
+        }
+    nr, ns = len(real.pts), len(sim.pts)
+    density = {
+        "points_real": nr,
+        "points_simulated": ns,
+        "density_ratio": ns / nr if nr else None,
+        "per_station": per,
+    }
+    return density, by_h, by_r
+
+
+# -- trees: assignment, coverage -----------------------------------------------------
+def _tree_mesh(plot: Plot, tid: int, frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
+    verts, faces, n = [], [], 0
+    for part in plot.tree_parts(tid):
+        verts.append(frame.to_local(np.asarray(part.vertices, dtype=np.float64)))
+        faces.append(np.asarray(part.faces, dtype=np.int64) + n)
+        n += len(part.vertices)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _assign(
+    pts: np.ndarray, meshes: dict[int, tuple[np.ndarray, np.ndarray]], within_m: float
+) -> np.ndarray:
+    """Each point's nearest twin tree (its mesh within ``within_m``), else 0."""
+    from ..geometry import point_to_mesh_distances
+
+    best = np.full(len(pts), np.inf)
+    out = np.zeros(len(pts), dtype=np.int64)
+    for tid, (v, f) in meshes.items():
+        lo, hi = v.min(0) - within_m, v.max(0) + within_m
+        cand = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+        if len(cand) == 0:
+            continue
+        d = point_to_mesh_distances(pts[cand], v, f, 0)
+        take = (d <= within_m) & (d < best[cand])
+        best[cand[take]] = d[take]
+        out[cand[take]] = tid
+    return out
+
+
+def _surface_samples(
+    v: np.ndarray, f: np.ndarray, spacing_m: float, max_samples: int, seed: int
+) -> tuple[np.ndarray, float]:
+    """Area-uniform samples of a tree's visible surface (hidden surface dropped)."""
+    from ..geometry import inside_other_parts, mesh_parts, sample_surface
+
+    tri = v[f]
+    area = float(
+        0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    )
+    n = int(np.clip(math.ceil(area / spacing_m**2), 200, max_samples))
+    s, face = sample_surface(v, f, n, seed=seed)
+    hidden = inside_other_parts(s, face, v, f, mesh_parts(v, f), seed=seed)
+    return s[~hidden], area
+
+
+def _covered(tree: Any, samples: np.ndarray, tau_m: float) -> np.ndarray:
+    if tree is None or len(samples) == 0:
+        return np.zeros(len(samples), dtype=bool)
+    d, _ = tree.query(samples, k=1, distance_upper_bound=tau_m, workers=-1)
+    return np.isfinite(d)
+
+
+def _trees(
+    plot: Plot, real: _Side, sim: _Side, kd: dict[str, Any], ctx: dict[str, Any]
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Per-tree points and coverage, and the occlusion profile (coverage by height)."""
+    frame, tau = ctx["frame"], ctx["tau_m"]
+    meshes = {tid: _tree_mesh(plot, tid, frame) for tid in plot.tree_ids}
+    # both clouds' points go to trees by one rule (the simulated tree_id only checks it)
+    labelled = sim.tree_id
+    real.tree_id = _assign(real.pts, meshes, ctx["assign_distance_m"])
+    sim.tree_id = _assign(sim.pts, meshes, ctx["assign_distance_m"])
+    rows, hs, cr, cs = [], [], [], []
+    for tid, (v, f) in meshes.items():
+        samples, area = _surface_samples(
+            v, f, ctx["sample_spacing_m"], ctx["max_samples"], ctx["seed"]
+        )
+        in_r, in_s = _covered(kd["real"], samples, tau), _covered(kd["sim"], samples, tau)
+        hs.append(_heights(samples, frame, plot, None))
+        cr.append(in_r)
+        cs.append(in_s)
+        n_r, n_s = int((real.tree_id == tid).sum()), int((sim.tree_id == tid).sum())
+        hit = None if labelled is None else labelled == tid
+        c_r = float(in_r.mean()) if len(samples) else None
+        c_s = float(in_s.mean()) if len(samples) else None
+        rows.append(
+            {
+                "tree_id": int(tid),
+                "points_real": n_r,
+                "points_simulated": n_s,
+                "density_ratio": n_s / n_r if n_r else None,
+                "coverage_real": c_r,
+                "coverage_simulated": c_s,
+                "coverage_difference_points": None if c_r is None else 100.0 * (c_s - c_r),
+                "points_simulated_tree_id": None if hit is None else int(hit.sum()),
+                "assignment_agreement": None
+                if hit is None or not hit.any()
+                else float((sim.tree_id[hit] == tid).mean()),
+                "samples": int(len(samples)),
+                "area_m2": area,
+            }
+        )
+    plot.release(list(meshes))
+    h, in_r, in_s = np.concatenate(hs), np.concatenate(cr), np.concatenate(cs)
+    edges = _edges([h], ctx["height_bin_m"])
+    k = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, len(edges) - 2)
+    n = np.bincount(k, minlength=len(edges) - 1)
+    prof = {
+        "edges_m": edges.tolist(),
+        "samples": n.tolist(),
+        "coverage_real": _ratio(np.bincount(k, in_r, len(n)), n),
+        "coverage_simulated": _ratio(np.bincount(k, in_s, len(n)), n),
+        "tau_m": tau,
+    }
+    return rows, prof
+
+
+# -- distances ------------------------------------------------------------------------
+def _pick(n: int, cap: int, seed: int) -> np.ndarray:
+    if n <= cap:
+        return np.arange(n)
+    return np.sort(np.random.default_rng(seed).choice(n, cap, replace=False))
+
+
+def _nn(tree: Any, query: np.ndarray, cap: int, seed: int) -> np.ndarray:
+    if tree is None or len(query) == 0:
+        return np.empty(0)
+    return tree.query(query[_pick(len(query), cap, seed)], k=1, workers=-1)[0]
+
+
+def _stats(d: np.ndarray) -> dict[str, Any]:
+    from ..compare import DistanceStats
+
+    return DistanceStats.of(d).to_dict()
+
+
+def _histogram(a: np.ndarray, b: np.ndarray, bins: int = 60) -> dict[str, Any]:
+    both = np.concatenate([a, b])
+    top = float(np.percentile(both, 99.0)) if len(both) else 1.0
+    edges = np.linspace(0.0, max(top, 1e-6), bins + 1)
+    return {
+        "edges_m": edges.tolist(),
+        "real_to_simulated": np.histogram(np.minimum(a, edges[-1]), edges)[0].tolist(),
+        "simulated_to_real": np.histogram(np.minimum(b, edges[-1]), edges)[0].tolist(),
+    }
+
+
+def _distances(
+    groups: list[str], real: _Side, sim: _Side, kd: dict[str, Any], cap: int, seed: int
+) -> dict[str, Any]:
+    from ..geometry import kdtree
+
+    a, b = _nn(kd["sim"], real.pts, cap, seed), _nn(kd["real"], sim.pts, cap, seed + 1)
+    out: dict[str, Any] = {
+        "real_to_simulated": _stats(a),
+        "simulated_to_real": _stats(b),
+        "avohd": {"real_to_simulated": "completeness", "simulated_to_real": "accuracy"},
+        "histogram": _histogram(a, b),
+        "by_station": {},
+    }
+    if len(groups) > 1:
+        for k, g in enumerate(groups):
+            r, s = real.pts[real.group == k], sim.pts[sim.group == k]
+            tr = kdtree(r) if len(r) else None
+            ts = kdtree(s) if len(s) else None
+            out["by_station"][g] = {
+                "real_to_simulated": _stats(_nn(ts, r, cap, seed + 2 + 2 * k)),
+                "simulated_to_real": _stats(_nn(tr, s, cap, seed + 3 + 2 * k)),
+            }
+    return out
+
+
+# -- the verdict ----------------------------------------------------------------------
+def _summary(density: dict[str, Any], trees: list | None, dist: dict[str, Any]) -> str:
+    from ..report.text import length
+
+    ratio = density["density_ratio"]
+    per = [v["density_ratio"] for v in density["per_station"].values() if v["density_ratio"]]
+    diffs = [abs(t["coverage_difference_points"]) for t in trees or [] if t["points_real"]]
+    ok = ratio is not None and 0.85 <= ratio <= 1.18 and all(0.7 <= r <= 1.43 for r in per)
+    shape = [
+        v["range_profile_difference"]
+        for v in density["per_station"].values()
+        if v["range_profile_difference"] is not None
+    ]
+    ok = ok and (not diffs or max(diffs) <= 10.0) and (not shape or max(shape) <= 0.1)
+    bits = [
+        "density ratio n/a"
+        if ratio is None
+        else f"density ratio {ratio:.2f}"
+        + (f" (per-station range {min(per):.2f}-{max(per):.2f})" if len(per) > 1 else "")
+    ]
+    if diffs:
+        bits.append(f"tree coverage within {max(diffs):.1f} points")
+    a, b = dist["real_to_simulated"]["p95_m"], dist["simulated_to_real"]["p95_m"]
+    bits.append(f"distances p95 {length(a)} real→simulated, {length(b)} simulated→real")
+    verdict = "reproduces" if ok else "does not reproduce"
+    return f"simulated scan {verdict} the field scan: " + ", ".join(bits)
+
+
+def _warnings(res: dict[str, Any], groups: list[str]) -> list[str]:
+    out = []
+    offsets = res["stations"]["offset_m"] or []
+    for g, off in zip(groups, offsets, strict=False):
+        if off is not None and off > STATION_OFFSET_WARN_M:
+            out.append(
+                f"simulated station {g} stands {off:.2f} m from the field's: simulate from the "
+                "stations actually used (treesim plot scan --stations-from)"
+            )
+    for g, v in res["density"]["per_station"].items():
+        r = v["density_ratio"]
+        if r is not None and not 0.5 <= r <= 2.0:
+            out.append(
+                f"station {g}: the simulation records {r:.2f} × the field's points; check the "
+                "scanner's angular step and range limits"
+            )
+        if v["points_real"] == 0 or v["points_simulated"] == 0:
+            who = "field scan" if v["points_real"] == 0 else "simulated scan"
+            out.append(f"station {g}: the {who} has no points in the compared region")
+    for t in res["trees"] or []:
+        d = t["coverage_difference_points"]
+        if d is not None and abs(d) > 20.0:
+            out.append(
+                f"tree {t['tree_id']}: coverage differs by {d:+.0f} points (simulated − real)"
+            )
+    return out
+
+
+def _check_params(tau_m: float, height_bin_m: float, range_bin_m: float, within: float) -> None:
+    for name, v in (
+        ("tau_m", tau_m),
+        ("height_bin_m", height_bin_m),
+        ("range_bin_m", range_bin_m),
+        ("assign_distance_m", within),
+    ):
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, int | float)
+            or not (math.isfinite(v) and v > 0)
+        ):
+            raise InvalidParameterError(f"{name} must be a number > 0, got {v!r}")
+
+
+def validate_scans(
+    real: Cloud,
+    simulated: Cloud,
+    *,
+    plot: Plot | None = None,
+    stations: Sequence[Any] | None = None,
+    tau_m: float = 0.01,
+    height_bin_m: float = 1.0,
+    range_bin_m: float = 2.0,
+    assign_distance_m: float = ASSIGN_DISTANCE_M,
+    ground_cell_m: float = 1.0,
+    max_distance_points: int = 2_000_000,
+    max_samples_per_tree: int = 200_000,
+    seed: int = 0,
+) -> ValidationResult:
+    """How closely ``simulated`` reproduces the field scan ``real`` (see the module notes).
+
+    Parameters
+    ----------
+    real : Cloud
+        The field scan (a ``station`` field and ``metadata["stations"]`` from an E57; a
+        merged cloud without them is one group ``"all"``).
+    simulated : Cloud
+        The simulated scan (``treesim plot scan``: ``station`` and ``tree_id`` fields).
+    plot : Plot, optional
+        The plot's digital twin: its terrain gives the heights, its trees the coverage
+        figures (left out without it, and said so in ``notes``).
+    stations : sequence of [x, y, z] or Station, optional
+        The field's station positions (default the real cloud's metadata).
+    tau_m : float
+        Coverage tolerance τ (m).
+    height_bin_m, range_bin_m : float
+        Bins of the density profiles (m).
+    assign_distance_m : float
+        A real point is given to the nearest twin tree whose mesh lies within this (m).
+    ground_cell_m : float
+        Without a twin: cells of the crude terrain (lowest real point per cell).
+    max_distance_points : int
+        At most this many points per direction for the distances (seeded subsample).
+    max_samples_per_tree : int
+        At most this many surface samples per tree (one per τ² of area otherwise).
+    seed : int
+        Seed of the surface samples and the subsamples.
+
+    Returns
+    -------
+    ValidationResult
+
+    Raises
+    ------
+    EmptyInputError
+        If either cloud has no points (or none in the compared region).
+    InputFormatError
+        If the clouds (or the twin) do not overlap, or the station counts differ.
+    InvalidParameterError
+        If a parameter is out of range.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.plot.validate import validate_scans
+    >>> real = ts.read_cloud("field.e57")  # doctest: +SKIP
+    >>> sim = ts.read_cloud("sim/plot_scan.laz")  # doctest: +SKIP
+    >>> result = validate_scans(real, sim, plot=ts.read_plot("twin/plot.toml"))  # doctest: +SKIP
+    >>> print(result.summary)  # doctest: +SKIP
+    """
+    _check_params(tau_m, height_bin_m, range_bin_m, assign_distance_m)
+    r_all, s_all = _check_cloud(real, "field scan"), _check_cloud(simulated, "simulated scan")
+    _check_overlap(r_all, s_all, plot)
+    real_pos, sim_pos, pos_source = _resolve_stations(real, simulated, stations)
+    groups, r_grp, s_grp, notes = _groups(real, simulated, real_pos, sim_pos)
+    frame = plot.frame() if plot is not None else LocalFrame.around(r_all)
+    keep_r, keep_s, region = _region(frame.to_local(r_all), frame.to_local(s_all), frame, plot)
+    if not keep_r.any() or not keep_s.any():
+        who = "field scan" if not keep_r.any() else "simulated scan"
+        raise EmptyInputError(f"the {who} has no points in the compared region ({region})")
+    pooled = groups == ["all"]
+    ctx: dict[str, Any] = {
+        "frame": frame,
+        "plot": plot,
+        "pooled": pooled,
+        "ground": None,
+        "tau_m": float(tau_m),
+        "height_bin_m": float(height_bin_m),
+        "range_bin_m": float(range_bin_m),
+        "max_points": int(max_distance_points),
+        "real_pos": real_pos,
+        "sim_pos": sim_pos,
+        "pos_source": pos_source,
+        "region": region,
+        "counts": (len(r_all), len(s_all)),
+        "assign_distance_m": float(assign_distance_m),
+        "sample_spacing_m": float(tau_m),
+        "max_samples": int(max_samples_per_tree),
+        "seed": int(seed),
+    }
+    if plot is None:
+        ctx["ground"] = _ground_from_cloud(frame.to_local(r_all[keep_r]), float(ground_cell_m))
+        notes.append(
+            "no twin given: heights are above the lowest field point per "
+            f"{ground_cell_m:g} m cell, and the tree coverage and occlusion profile are left out"
+        )
+    rs = _side(real, r_all, keep_r, r_grp, real_pos, ctx)
+    # the simulated points' ranges are from the field's stations: the density as the
+    # stations actually used see it (a simulated station elsewhere shows there)
+    ss = _side(simulated, s_all, keep_s, s_grp, real_pos, ctx)
+    return _measure(groups, rs, ss, ctx, notes)
+
+
+def _measure(
+    groups: list[str], rs: _Side, ss: _Side, ctx: dict[str, Any], notes: list[str]
+) -> ValidationResult:
+    """The figures, once both clouds are in the local frame (see :func:`validate_scans`)."""
+    from ..geometry import kdtree
+
+    plot, frame = ctx["plot"], ctx["frame"]
+    real_pos, sim_pos = ctx["real_pos"], ctx["sim_pos"]
+    if rs.range_m is None:
+        notes.append("no station positions known: the density by range is left out")
+    elif groups == ["all"] and real_pos is not None and len(real_pos) > 1:
+        notes.append("ranges are from each point's nearest station (no station field)")
+    density, by_h, by_r = _density(groups, rs, ss, ctx["height_bin_m"], ctx["range_bin_m"])
+    kd = {"real": kdtree(rs.pts), "sim": kdtree(ss.pts)}
+    trees, occl = (None, None)
+    if plot is not None:
+        trees, occl = _trees(plot, rs, ss, kd, ctx)
+    dist = _distances(groups, rs, ss, kd, ctx["max_points"], ctx["seed"])
+    offsets = None
+    if real_pos is not None and sim_pos is not None and groups != ["all"]:
+        n = min(len(real_pos), len(sim_pos))
+        offsets = np.linalg.norm(real_pos[:n] - sim_pos[:n], axis=1).tolist()
+    stations = {
+        "real_m": None if real_pos is None else real_pos.tolist(),
+        "simulated_m": None if sim_pos is None else sim_pos.tolist(),
+        "offset_m": offsets,
+        "source": ctx["pos_source"],
+    }
+    res = {"stations": stations, "density": density, "trees": trees}
+    return ValidationResult(
+        summary=_summary(density, trees, dist),
+        groups=groups,
+        stations=stations,
+        density=density,
+        density_by_height=by_h,
+        density_by_range=by_r,
+        trees=trees,
+        occlusion_profile=occl,
+        distances=dist,
+        notes=notes,
+        warnings=_warnings(res, groups),
+        parameters={
+            "tau_m": ctx["tau_m"],
+            "height_bin_m": ctx["height_bin_m"],
+            "range_bin_m": ctx["range_bin_m"],
+            "assign_distance_m": ctx["assign_distance_m"],
+            "region": ctx["region"],
+            "points_in_region_real": len(rs.pts),
+            "points_in_region_simulated": len(ss.pts),
+            "points_real": ctx["counts"][0],
+            "points_simulated": ctx["counts"][1],
+            "max_distance_points": ctx["max_points"],
+            "seed": ctx["seed"],
+        },
+        frame_origin_m=list(frame.origin),
+    )
+
+
+# -- writers --------------------------------------------------------------------------
+REAL_COLOUR = "#2c6e9b"
+SIM_COLOUR = "#c2612d"
+
+
+def _panels(n: int, w: float = 3.2, h: float = 3.4) -> tuple[Any, list[Any]]:
+    from ..report.figures import _new_figure
+
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig = _new_figure(w * cols + 0.6, h * rows)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return fig, list(axes[:n])
+
+
+def _save_png(fig: Any, path: Path) -> Path:
+    from ..atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
+    return path
+
+
+def _title(g: str) -> str:
+    return "all stations" if g == "all" else f"station {g}"
+
+
+def plot_density_by_height(result: ValidationResult, path: Path) -> Path:
+    """One panel per station: points per height bin, real and simulated."""
+    prof = result.density_by_height
+    e = np.asarray(prof["edges_m"])
+    mid = 0.5 * (e[1:] + e[:-1])
+    fig, axes = _panels(len(result.groups))
+    for ax, g in zip(axes, result.groups, strict=True):
+        p = prof["per_station"][g]
+        ax.plot(p["real"], mid, "-o", ms=3, color=REAL_COLOUR, label="field scan")
+        ax.plot(p["simulated"], mid, "-s", ms=3, color=SIM_COLOUR, label="simulated")
+        r = result.density["per_station"][g]["density_ratio"]
+        ax.set_title(_title(g) + ("" if r is None else f" (ratio {r:.2f})"))
+        ax.set_xlabel("points per bin")
+        ax.set_ylabel("height above terrain (m)")
+        ax.set_xscale("symlog", linthresh=10)
+    axes[0].legend(fontsize=8)
+    return _save_png(fig, path)
+
+
+def plot_density_by_range(result: ValidationResult, path: Path) -> Path:
+    """One panel per station: points per range bin from the station, real and simulated."""
+    prof = result.density_by_range
+    assert prof is not None
+    e = np.asarray(prof["edges_m"])
+    mid = 0.5 * (e[1:] + e[:-1])
+    fig, axes = _panels(len(result.groups), h=3.0)
+    for ax, g in zip(axes, result.groups, strict=True):
+        p = prof["per_station"][g]
+        ax.plot(mid, p["real"], "-o", ms=3, color=REAL_COLOUR, label="field scan")
+        ax.plot(mid, p["simulated"], "-s", ms=3, color=SIM_COLOUR, label="simulated")
+        diff = result.density["per_station"][g]["range_profile_difference"]
+        ax.set_title(_title(g) + ("" if diff is None else f" (difference {diff:.2f})"))
+        ax.set_xlabel("range from the station (m)")
+        ax.set_ylabel("points per bin")
+        ax.set_yscale("symlog", linthresh=10)
+    axes[0].legend(fontsize=8)
+    return _save_png(fig, path)
+
+
+def plot_coverage_by_tree(result: ValidationResult, path: Path) -> Path:
+    """Each twin tree's coverage at τ, real and simulated."""
+    from ..report.figures import _new_figure
+
+    rows = result.trees or []
+    fig = _new_figure(min(11.0, 2.0 + 0.45 * len(rows)), 3.4)
+    ax = fig.subplots()
+    x = np.arange(len(rows))
+    cr = [100 * (t["coverage_real"] or 0.0) for t in rows]
+    cs = [100 * (t["coverage_simulated"] or 0.0) for t in rows]
+    ax.bar(x - 0.2, cr, 0.4, color=REAL_COLOUR, label="field scan")
+    ax.bar(x + 0.2, cs, 0.4, color=SIM_COLOUR, label="simulated")
+    ax.set_xticks(x, [str(t["tree_id"]) for t in rows])
+    ax.set_xlabel("tree")
+    ax.set_ylabel(f"coverage within τ = {result.parameters['tau_m'] * 1e3:g} mm (%)")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8)
+    return _save_png(fig, path)
+
+
+def plot_occlusion_profile(result: ValidationResult, path: Path) -> Path:
+    """The twin trees' coverage by height band, real and simulated."""
+    from ..report.figures import _new_figure
+
+    prof = result.occlusion_profile
+    assert prof is not None
+    e = np.asarray(prof["edges_m"])
+    mid = 0.5 * (e[1:] + e[:-1])
+    fig = _new_figure(4.8, 4.2)
+    ax = fig.subplots()
+    for key, colour, label in (
+        ("coverage_real", REAL_COLOUR, "field scan"),
+        ("coverage_simulated", SIM_COLOUR, "simulated"),
+    ):
+        v = np.array([np.nan if c is None else 100 * c for c in prof[key]])
+        ax.plot(v, mid, "-o", ms=3, color=colour, label=label)
+    ax.set_xlim(0, 100)
+    ax.set_xlabel(f"tree surface within τ = {prof['tau_m'] * 1e3:g} mm (%)")
+    ax.set_ylabel("height above terrain (m)")
+    ax.legend(fontsize=8)
+    return _save_png(fig, path)
+
+
+def plot_distances(result: ValidationResult, path: Path) -> Path:
+    """Histograms of the two directions' distances, and each station's p95."""
+    from ..report.figures import _new_figure
+
+    d = result.distances
+    h = d["histogram"]
+    e = np.asarray(h["edges_m"]) * 1e3
+    fig = _new_figure(10.0, 3.4)
+    a, b = fig.subplots(1, 2)
+    for key, colour, label in (
+        ("real_to_simulated", REAL_COLOUR, "field → simulated"),
+        ("simulated_to_real", SIM_COLOUR, "simulated → field"),
+    ):
+        a.stairs(h[key], e, color=colour, label=label, linewidth=1.5)
+    a.set_xlabel("nearest-neighbour distance (mm; the last bin holds the farthest 1 %)")
+    a.set_ylabel("points")
+    a.legend(fontsize=8)
+    per = d["by_station"] or {"all": d}
+    x = np.arange(len(per))
+    for off, key, colour in (
+        (-0.2, "real_to_simulated", REAL_COLOUR),
+        (0.2, "simulated_to_real", SIM_COLOUR),
+    ):
+        vals = [1e3 * (v[key]["p95_m"] or 0.0) for v in per.values()]
+        b.bar(x + off, vals, 0.4, color=colour)
+    b.set_xticks(x, [_title(g) for g in per])
+    b.set_ylabel("p95 distance (mm)")
+    return _save_png(fig, path)
+
+
+def _fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    if isinstance(v, int):
+        return f"{v:,}"
+    return f"{v * scale:,.{digits}f}"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> str:
+    from html import escape
+
+    th = "".join(f"<th>{escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _station_rows(result: ValidationResult) -> list[list[str]]:
+    rows = []
+    offsets = result.stations["offset_m"] or [None] * len(result.groups)
+    for g, off in zip(result.groups, offsets, strict=False):
+        v = result.density["per_station"][g]
+        dist = result.distances["by_station"].get(g, result.distances)
+        rows.append(
+            [
+                _title(g),
+                _fmt(v["points_real"]),
+                _fmt(v["points_simulated"]),
+                _fmt(v["density_ratio"]),
+                _fmt(v["height_profile_difference"]),
+                _fmt(v["range_profile_difference"]),
+                _fmt(dist["real_to_simulated"]["p95_m"], 1e3, 1),
+                _fmt(dist["simulated_to_real"]["p95_m"], 1e3, 1),
+                _fmt(off),
+            ]
+        )
+    return rows
+
+
+def _tree_rows(result: ValidationResult) -> list[list[str]]:
+    return [
+        [
+            str(t["tree_id"]),
+            _fmt(t["points_real"]),
+            _fmt(t["points_simulated"]),
+            _fmt(t["coverage_real"], 100, 1),
+            _fmt(t["coverage_simulated"], 100, 1),
+            _fmt(t["coverage_difference_points"], 1, 1),
+        ]
+        for t in result.trees or []
+    ]
+
+
+def _html(result: ValidationResult, images: dict[str, Path], names: tuple[str, str]) -> str:
+    from html import escape
+
+    from ..report import assets
+    from ..report.html import _img, _kv_table
+
+    def fig(key: str, alt: str) -> str:
+        return _img(images[key], alt, 110) if key in images else ""
+
+    p = result.parameters
+    kv = _kv_table(
+        [
+            ("field scan", escape(f"{names[0]} ({p['points_real']:,} points)")),
+            ("simulated scan", escape(f"{names[1]} ({p['points_simulated']:,} points)")),
+            ("compared region", escape(p["region"])),
+            ("points compared", f"{p['points_in_region_real']:,} field, "
+             f"{p['points_in_region_simulated']:,} simulated"),
+            ("stations from", escape(result.stations["source"])),
+            ("τ", f"{p['tau_m'] * 1e3:g} mm"),
+        ]
+    )  # fmt: skip
+    notes = "".join(f"<li>{escape(n)}</li>" for n in result.notes + result.warnings)
+    station_head = [
+        "station", "field points", "simulated points", "ratio", "height-profile diff.",
+        "range-profile diff.", "p95 field→sim (mm)", "p95 sim→field (mm)", "offset (m)",
+    ]  # fmt: skip
+    tree_head = ["tree", "field points", "simulated points", "field coverage (%)",
+                 "simulated coverage (%)", "difference (points)"]  # fmt: skip
+    trees = (
+        _table(tree_head, _tree_rows(result))
+        if result.trees is not None
+        else '<p class="note">no twin given: the tree coverage needs the plot.toml</p>'
+    )
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>treesim validation: {escape(names[1])} vs {escape(names[0])}</title>
+<script>{assets.ERROR_HOOK_JS}</script><style>{assets.CSS}</style></head><body>
+<header class="top"><div class="wrap"><div class="eyebrow">treesim · scan validation</div>
+<h1>{escape(names[1])}<span class="vs">vs</span>{escape(names[0])}</h1>
+<p class="meta">{escape(result.summary)}</p></div></header>
+<main class="wrap">
+<section class="panel"><h2>Inputs</h2>{kv}<ul>{notes}</ul></section>
+<section class="panel"><h2>Stations</h2>{_table(station_head, _station_rows(result))}</section>
+<section class="panel"><h2>Density by height</h2>{fig("density_by_height", "density by height")}
+</section>
+<section class="panel"><h2>Density by range</h2>{
+        fig("density_by_range", "density by range")
+        or '<p class="note">no station positions known</p>'
+    }</section>
+<section class="panel"><h2>Trees</h2>{trees}{fig("coverage_by_tree", "coverage by tree")}
+{fig("occlusion_profile", "occlusion profile")}</section>
+<section class="panel"><h2>Distances</h2>{fig("distances", "distances")}</section>
+</main></body></html>
+"""
+
+
+def write_validation(
+    result: ValidationResult, outdir: str | Path, *, names: tuple[str, str] = ("field", "simulated")
+) -> list[Path]:
+    """Write ``validation.json``, the figures and ``validation.html`` into ``outdir``.
+
+    The coverage figures are drawn only with a twin, the density by range only with
+    station positions. ``names`` are the field and simulated scans' names for the page.
+    Returns the written paths.
+
+    Examples
+    --------
+    >>> from treesim.plot.validate import validate_scans, write_validation
+    >>> paths = write_validation(validate_scans(real, sim), "validation/")  # doctest: +SKIP
+    """
+    from ..atomic import write_text
+    from ..jsonio import write_json
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    f = VALIDATION_FILES
+    written = [write_json(out / f["json"], result.to_dict())]
+    draw = {"density_by_height": plot_density_by_height, "distances": plot_distances}
+    if result.density_by_range is not None:
+        draw["density_by_range"] = plot_density_by_range
+    if result.trees is not None:
+        draw["coverage_by_tree"] = plot_coverage_by_tree
+        draw["occlusion_profile"] = plot_occlusion_profile
+    images = {key: fn(result, out / f[key]) for key, fn in draw.items()}
+    written += list(images.values())
+    written.append(write_text(out / f["html"], _html(result, images, names)))
+    return written

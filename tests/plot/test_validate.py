@@ -1,0 +1,229 @@
+"""``treesim validate``: a simulated plot scan against a "field" scan of the same plot.
+
+The field scan is itself simulated, so the truth is known: two scans of one plot from one
+set of stations that differ only in their noise seed must agree (same rays: density ratio
+1, same coverage, distances at the noise level); a scan at twice the angular step casts a
+quarter of the rays per solid angle (density ratio 1/4); a station moved by 3 m stands
+3 m off and sees the plot from elsewhere (its range profile differs, the other's not).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import pytest
+
+from treesim.cli import main
+from treesim.cloud import Cloud
+from treesim.errors import InputFormatError
+from treesim.io import read_cloud, write_cloud
+from treesim.params import ScanParams
+from treesim.plot import Plot, PlotTree
+from treesim.plot.scan import scan_plot
+from treesim.plot.validate import VALIDATION_FILES, validate_scans, write_validation
+from treesim.scan import ScannerSpec
+
+NOISE_M = 0.002
+STATIONS = [(0.0, -2.0, 1.5), (0.0, 2.0, 1.5)]
+RES_DEG = 0.25
+
+
+def _plot() -> Plot:
+    pos = [(3.0, 0.0), (-3.0, 1.5), (0.5, 4.0)]
+    trees = [
+        PlotTree(tree_id=i + 1, x_m=x, y_m=y, species="sapling", seed=i, rotation_deg=17.0 * i)
+        for i, (x, y) in enumerate(pos)
+    ]
+    return Plot(trees, facets=8, radius_m=6.0)
+
+
+def _scan(plot: Plot, res_deg: float, seed: int, stations=STATIONS) -> Cloud:
+    spec = ScannerSpec(
+        horizontal_resolution_deg=res_deg,
+        vertical_resolution_deg=res_deg,
+        range_noise_sd_m=NOISE_M,
+        seed=seed,
+    )
+    return scan_plot(plot, stations, replace(ScanParams(), scanner=spec)).cloud
+
+
+@pytest.fixture(scope="module")
+def plot() -> Plot:
+    return _plot()
+
+
+@pytest.fixture(scope="module")
+def field(plot) -> Cloud:
+    return _scan(plot, RES_DEG, seed=1)
+
+
+@pytest.fixture(scope="module")
+def same(plot, field):
+    return validate_scans(field, _scan(plot, RES_DEG, seed=2), plot=plot)
+
+
+def test_two_noise_seeds_of_one_scan_agree(same):
+    for g in ("0", "1"):
+        assert same.density["per_station"][g]["density_ratio"] == pytest.approx(1.0, abs=0.02)
+        assert same.density["per_station"][g]["range_profile_difference"] < 0.01
+    assert same.groups == ["0", "1"]
+    assert len(same.trees) == 3
+    for t in same.trees:
+        assert t["points_real"] > 500
+        assert abs(t["coverage_difference_points"]) < 3.0
+        assert 0.2 < t["coverage_real"] < 1.0
+        # the assignment rule gives the simulated points to the tree that returned them
+        assert t["assignment_agreement"] > 0.95
+    # both ways at the noise level: |n1 - n2| has sd σ√2; p95 within 3σ√2, not zero
+    for key in ("real_to_simulated", "simulated_to_real"):
+        p95 = same.distances[key]["p95_m"]
+        assert 0.0 < p95 < 3 * math.sqrt(2) * NOISE_M
+    assert same.stations["offset_m"] == [0.0, 0.0]
+    assert same.warnings == []
+    assert same.summary.startswith("simulated scan reproduces the field scan: density ratio 1.00")
+
+
+def test_the_occlusion_profile_agrees_band_by_band(same):
+    prof = same.occlusion_profile
+    for cr, cs, n in zip(
+        prof["coverage_real"], prof["coverage_simulated"], prof["samples"], strict=True
+    ):
+        if n > 1000:
+            assert abs(cr - cs) < 0.03
+
+
+def test_twice_the_angular_step_records_a_quarter_of_the_points(plot, field):
+    res = validate_scans(field, _scan(plot, 2 * RES_DEG, seed=2), plot=plot)
+    # the oracle: rays per solid angle go with 1 / step², the same surfaces are hit
+    for g in ("0", "1"):
+        assert res.density["per_station"][g]["density_ratio"] == pytest.approx(0.25, abs=0.02)
+    h = res.density_by_height["per_station"]["0"]
+    for r, s in zip(h["real"], h["simulated"], strict=True):
+        if r > 2000:
+            assert s / r == pytest.approx(0.25, abs=0.05)
+    assert all(t["coverage_difference_points"] < -10 for t in res.trees)
+    assert res.summary.startswith("simulated scan does not reproduce")
+    assert any("0.25 × the field's points" in w for w in res.warnings)
+
+
+def test_a_station_moved_by_3_m_shows_in_its_range_profile(plot, field):
+    moved = [STATIONS[0], (STATIONS[1][0] + 3.0, STATIONS[1][1], STATIONS[1][2])]
+    res = validate_scans(field, _scan(plot, RES_DEG, seed=2, stations=moved), plot=plot)
+    assert res.stations["offset_m"] == pytest.approx([0.0, 3.0], abs=1e-12)
+    per = res.density["per_station"]
+    assert per["0"]["range_profile_difference"] < 0.01
+    assert per["1"]["range_profile_difference"] > 0.1
+    assert any("station 1 stands 3.00 m" in w for w in res.warnings)
+
+
+def test_a_field_cloud_without_stations_is_one_group(plot, field, tmp_path):
+    merged = Cloud(field.points, {}, {})
+    res = validate_scans(merged, field, plot=plot)
+    assert res.groups == ["all"]
+    assert any("no station field" in n for n in res.notes)
+    assert res.density["density_ratio"] == pytest.approx(1.0)
+    assert res.distances["real_to_simulated"]["max_m"] == 0.0  # the same points
+
+
+def test_without_a_twin_the_coverage_is_left_out(field):
+    res = validate_scans(field, field)
+    assert res.trees is None and res.occlusion_profile is None
+    assert any("no twin given" in n for n in res.notes)
+    assert res.density["density_ratio"] == 1.0
+
+
+def test_bad_inputs_say_what_is_wrong(plot, field):
+    far = Cloud(field.points + (5000.0, 0.0, 0.0), dict(field.fields), dict(field.metadata))
+    with pytest.raises(InputFormatError, match="5.0 km apart: different coordinate frames"):
+        validate_scans(field, far)
+    one = field.fields["station"] == 0
+    single = Cloud(
+        field.points[one],
+        {"station": field.fields["station"][one]},
+        {"stations": [list(STATIONS[0])]},
+    )
+    with pytest.raises(InputFormatError, match="field scan has 1 station and the simulated scan 2"):
+        validate_scans(single, field, plot=plot)
+
+
+def test_the_e57_path_keeps_each_scans_pose(plot, field, tmp_path):
+    from treesim.io.e57 import available
+
+    if not available():
+        pytest.skip("pye57 is not installed: the E57 path is not tested")
+    stations = [list(s) for s in STATIONS]
+    path = tmp_path / "field.e57"
+    write_cloud(
+        path, Cloud(field.points, {"station": field.fields["station"]}, {"stations": stations})
+    )
+    real = read_cloud(path)
+    res = validate_scans(real, field, plot=plot)
+    assert res.stations["real_m"] == stations
+    assert res.groups == ["0", "1"]
+    assert res.density["density_ratio"] == pytest.approx(1.0)
+    assert res.distances["real_to_simulated"]["p95_m"] < 1e-6
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A tiny twin and two coarse scans of it on disk."""
+    from treesim.plot.io import write_plot
+
+    d = tmp_path_factory.mktemp("validate")
+    plot = _plot()
+    write_plot(d / "plot.toml", plot)
+    write_cloud(d / "field.laz", _scan(plot, 0.5, seed=1))
+    write_cloud(d / "plot_scan.laz", _scan(plot, 0.5, seed=2))
+    (d / "notes.txt").write_text("these are not points\n")
+    return d
+
+
+def test_the_command_writes_the_report(files, tmp_path, capsys):
+    out = tmp_path / "v"
+    argv = ["validate", str(files / "field.laz"), str(files / "plot_scan.laz")]
+    assert main([*argv, "--plot", str(files / "plot.toml"), "--tau-mm", "20", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "simulated scan reproduces the field scan" in text
+    for name in VALIDATION_FILES.values():
+        assert (out / name).stat().st_size > 0, name
+    data = json.loads((out / "validation.json").read_text())
+    assert data["parameters"]["tau_m"] == 0.02
+    assert data["stations"]["simulated_m"] == [list(s) for s in STATIONS]
+    html = (out / "validation.html").read_text()
+    assert html.count("data:image/png;base64,") == 5
+    # without the twin: no coverage figures, and why
+    out2 = tmp_path / "v2"
+    assert main([*argv, "-o", str(out2)]) == 0
+    assert "no twin given" in capsys.readouterr().out
+    assert not (out2 / VALIDATION_FILES["coverage_by_tree"]).exists()
+    assert (out2 / VALIDATION_FILES["html"]).exists()
+
+
+def test_the_command_refuses_bad_input_in_one_line(files, tmp_path, capsys):
+    out = str(tmp_path / "v")
+    assert main(["validate", str(files / "notes.txt"), str(files / "field.laz"), "-o", out]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("treesim: error: ") and "Traceback" not in err
+    assert "field scan" in err
+    assert main(["validate", str(files / "field.laz"), "missing.laz", "-o", out]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    csv = files / "stations.csv"
+    csv.write_text("x_m,y_m\n0,-2\n")
+    argv = ["validate", str(files / "field.laz"), str(files / "plot_scan.laz")]
+    assert main([*argv, "--stations-from", str(csv), "-o", out]) == 1
+    assert "needs a z_m column" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # a usage error
+        main([*argv, "--tau-mm", "0", "-o", out])
+    assert exc.value.code == 2
+    assert "expected a number > 0" in capsys.readouterr().err
+
+
+def test_the_writers_draw_without_a_range_profile(field, tmp_path):
+    res = validate_scans(Cloud(field.points, {}, {}), field)
+    assert res.density_by_range is not None  # the simulated cloud's stations stand in
+    res.density_by_range = None
+    names = {p.name for p in write_validation(res, tmp_path)}
+    assert VALIDATION_FILES["density_by_range"] not in names
+    assert VALIDATION_FILES["html"] in names
