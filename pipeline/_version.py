@@ -11,7 +11,7 @@ import sys
 
 __all__ = ["__version__", "software_versions"]
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def software_versions(*extra: str) -> dict[str, str]:

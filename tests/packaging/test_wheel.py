@@ -140,3 +140,16 @@ def test_serve_without_the_service_extra_names_the_extra(monkeypatch):
     )
     with pytest.raises(InvalidParameterError, match=r"pip install 'treesim\[service\]'"):
         cli.require_service_extra("serve")
+
+
+def test_one_version_everywhere() -> None:
+    """The version the package reports, pyproject.toml's and CITATION.cff's agree."""
+    import re
+
+    from treesim._version import __version__
+
+    root = Path(__file__).resolve().parents[2]
+    project = tomllib.loads((root / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    cff = re.search(r"^version: (\S+)$", (root / "CITATION.cff").read_text(), re.M)
+    assert cff is not None
+    assert __version__ == project["version"] == cff[1]
