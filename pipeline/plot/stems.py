@@ -413,10 +413,14 @@ def _dbh(
     if len(idx) == 0:
         return None
     half = p.dbh_half_m
+    # z of the axis at breast height: the ground under the axis (a plane through the
+    # ground under the points near it) + 1.3 m; a point's height along the axis is its z
+    # above that (its own hag differs by the ground's slope across the stem)
+    z13 = _ground_at(stripe[idx], stripe_h[idx], ax.c13) + p.dbh_height_m
     while True:
         s = idx[np.abs(stripe_h[idx] - p.dbh_height_m) <= half]
         # each point moved to breast height along the axis (a leaning stem's slab)
-        q = stripe[s, :2] - np.outer(stripe_h[s] - p.dbh_height_m, ax.slope)
+        q = stripe[s, :2] - np.outer(stripe[s, 2] - z13, ax.slope)
         if len(s) >= 3 * p.min_slab_points or half >= p.dbh_max_half_m:
             break
         half = min(p.dbh_max_half_m, half * 2)
@@ -434,17 +438,20 @@ def _dbh(
     return c, s
 
 
+def _ground_at(g: np.ndarray, h: np.ndarray, xy: np.ndarray) -> float:
+    """The ground's z at ``xy``: a plane through the ground under points ``g`` (z - hag)."""
+    gz = g[:, 2] - h
+    design = np.column_stack([np.ones(len(g)), g[:, 0] - xy[0], g[:, 1] - xy[1]])
+    coef, *_ = np.linalg.lstsq(design, gz, rcond=None)
+    if not np.isfinite(coef).all() or np.abs(coef[1:]).max() > 2.0:  # not a ground (> 63°)
+        return float(np.median(gz))
+    return float(coef[0])
+
+
 def _stem(ax: _Axis, c, s, stripe: np.ndarray, stripe_h: np.ndarray, origin, p: StemParams):
     """The :class:`Stem` of an axis and its breast-height circle (input coordinates)."""
     base_xy = c.centre - ax.slope * p.dbh_height_m
-    # the ground under the slab's points (z - hag), a plane through them, at the base
-    g = stripe[s]
-    gz = g[:, 2] - stripe_h[s]
-    design = np.column_stack([np.ones(len(g)), g[:, 0] - c.centre[0], g[:, 1] - c.centre[1]])
-    coef, *_ = np.linalg.lstsq(design, gz, rcond=None)
-    if np.abs(coef[1:]).max() > 2.0:  # not a plausible ground (> 63°): its median
-        coef = np.array([np.median(gz), 0.0, 0.0])
-    base_z = coef[0] + coef[1:] @ (base_xy - c.centre)
+    base_z = _ground_at(stripe[s], stripe_h[s], base_xy)
     lean = math.degrees(math.atan(float(np.linalg.norm(ax.slope))))
     return Stem(
         x_m=float(c.centre[0] + origin[0]),
