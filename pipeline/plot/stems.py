@@ -212,6 +212,10 @@ class Stem:
     lean_deg: float
 
 
+#: The narrowest residual scatter a breast-height circle's band is made from (m).
+MIN_SCATTER_M = 0.002
+
+
 @dataclass
 class _Axis:
     """A stem's axis in the local frame: centre at breast height, xy per m of height."""
@@ -271,11 +275,15 @@ def _cluster(local: np.ndarray, voxel_m: float, gap_m: float) -> np.ndarray:
 
 
 def _sector_weights(q: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Weights equalising the points' share per 10° sector around ``centre``."""
+    """Weights equalising the points' share per 10° sector around ``centre``; a sector
+    with few points (a quarter of the median sector's, at least 3) counts as that many, so
+    that a stray point or two (a branch base, a leaf) cannot weigh as much as a whole
+    sector of stem."""
     ang = np.arctan2(q[:, 1] - centre[1], q[:, 0] - centre[0])
     sec = np.floor((ang + np.pi) / (2 * np.pi) * 36).astype(int) % 36
     count = np.bincount(sec, minlength=36)
-    return 1.0 / count[sec]
+    floor = max(3.0, 0.25 * float(np.median(count[count > 0])))
+    return 1.0 / np.maximum(count[sec], floor)
 
 
 def _circle(q: np.ndarray, p: StemParams, rng: np.random.Generator):
@@ -371,8 +379,12 @@ def _circle_from_prior(q: np.ndarray, centre: np.ndarray, radius: float, p: Stem
     x = np.array([centre[0], centre[1], radius], dtype=np.float64)
     band = p.circle_band_m
     inl = np.zeros(len(q), bool)
-    for share, times in ((0.3, 3.0), (0.1, 2.5), (0.0, 2.5)):
-        tol = max(share * x[2], times * band)
+    scatter = band
+    # a wide band first (the prior may be off), then bands from the residuals' own scatter
+    # (a fixed band of a few cm takes in the branch bases around a thin conifer stem and
+    # pulls its circle outwards)
+    for share, times in ((0.3, 3.0), (0.1, 2.5), (0.0, 2.5), (0.0, 2.5)):
+        tol = max(share * x[2], times * scatter)
         inl = np.abs(np.linalg.norm(q - x[:2], axis=1) - x[2]) < tol
         if inl.sum() < p.min_slab_points:
             return None
@@ -383,8 +395,10 @@ def _circle_from_prior(q: np.ndarray, centre: np.ndarray, radius: float, p: Stem
         if not np.isfinite(xi).all() or xi[2] <= 0:
             return None
         x = np.array([xi[0] + o[0], xi[1] + o[1], xi[2]])
+        res = np.linalg.norm(q[inl] - x[:2], axis=1) - x[2]
+        scatter = min(band, max(MIN_SCATTER_M, 1.4826 * float(np.median(np.abs(res)))))
     d = np.abs(np.linalg.norm(q - x[:2], axis=1) - x[2])
-    inl = d < 2.5 * band
+    inl = d < 2.5 * scatter
     if inl.sum() < p.min_slab_points:
         return None
     ang = np.arctan2(q[inl, 1] - x[1], q[inl, 0] - x[0])
