@@ -6,8 +6,10 @@ tree mesh, ``scan`` it with the virtual scanner, ``compare`` clouds with meshes 
 or a grid of settings on trees, timed and scored (``run_sweep``). Forest plots: a ``Plot``
 of ``PlotTree`` on a ``Terrain``, read and written as files (``read_plot``,
 ``write_plot``) or generated as a stand (``generate_stand``), scanned station by station
-(``scan_plot``) and measured per tree (``tree_figures``); scan planning: where to stand and
-how often (``plan_scans``, ``write_plan``).
+(``scan_plot``) and measured per tree (``tree_figures``), or made from a field plot's
+cloud as a digital twin (``plot_from_cloud``) and its simulated scan checked against the
+field scan (``validate_scans``); scan planning: where to stand and how often
+(``plan_scans``, ``write_plan``).
 
 Examples
 --------
@@ -51,6 +53,8 @@ if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference
     from .plot.generate import StandParams, generate_stand
     from .plot.io import read_plot, write_plot
     from .plot.scan import PlotScanResult, scan_plot, tree_figures
+    from .plot.validate import ValidationResult, validate_scans
+    from .twin import TwinParams, TwinResult, plot_from_cloud
 
 #: The plot and plan verbs, imported on first use: every ``treesim`` command imports this
 #: package, and what only plots and plans need (their modules, the TOML reader) should not
@@ -70,6 +74,11 @@ _LAZY = {
     "PlotScanResult": ".plot.scan",
     "scan_plot": ".plot.scan",
     "tree_figures": ".plot.scan",
+    "TwinParams": ".twin",
+    "TwinResult": ".twin",
+    "plot_from_cloud": ".twin",
+    "ValidationResult": ".plot.validate",
+    "validate_scans": ".plot.validate",
 }
 
 
@@ -109,6 +118,9 @@ __all__ = [
     "SweepResult",
     "Terrain",
     "TreesimError",
+    "TwinParams",
+    "TwinResult",
+    "ValidationResult",
     "__version__",
     "build_report",
     "compare",
@@ -116,6 +128,7 @@ __all__ = [
     "load_config",
     "load_scene",
     "plan_scans",
+    "plot_from_cloud",
     "read_cloud",
     "read_plot",
     "reconstruct",
@@ -127,6 +140,7 @@ __all__ = [
     "scan",
     "scan_plot",
     "tree_figures",
+    "validate_scans",
     "write_cloud",
     "write_plan",
     "write_plot",

@@ -6,7 +6,9 @@
 * ``treesim plot scan plot.toml -o out/ [scanner options]``: scan it station by station
   (only the trees each station can record are loaded) and measure every tree in the
   plot's context (``plot_scan.laz`` with ``tree_id``, ``plot_scan.json``,
-  ``tree_figures.csv``).
+  ``tree_figures.csv``);
+* ``treesim plot from-cloud PLOT.laz|PLOT.e57 -o twin/``: a field plot's cloud becomes a
+  digital twin (ground and DTM, stems, trees, a QSM per tree, ``plot.toml``, a report).
 """
 
 from __future__ import annotations
@@ -138,12 +140,66 @@ def cmd_scan(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_from_cloud(args: argparse.Namespace) -> int:
+    import sys
+
+    from ..params import merge
+    from ..twin import TWIN_FILES, TwinParams, plot_from_cloud
+    from .progress import BatchProgressBar
+
+    tp = merge(TwinParams(), collect(args))
+    output_folder(args.output, files=list(TWIN_FILES.values()))
+    bar = None if args.no_progress else BatchProgressBar(sys.stderr)
+    try:
+        res = plot_from_cloud(
+            args.cloud,
+            args.output,
+            tp,
+            executor=args.executor,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=None if args.no_progress else progress_printer(label="from-cloud"),
+            batch_progress=bar,
+        )
+    except KeyboardInterrupt:
+        print(
+            f"treesim: interrupted; trees reconstructed so far are kept in {args.output}; "
+            "run the same command again to finish the rest",
+            file=sys.stderr,
+        )
+        return 130
+    finally:
+        if bar is not None:
+            bar.close()
+    print(f"{'tree':>5} {'x (m)':>11} {'y (m)':>11} {'slab DBH':>9} {'QSM DBH':>8} {'height':>7}")
+    for r in res.trees:
+        qsm = f"{r['qsm_dbh_m'] * 100:6.1f}cm" if r.get("qsm_dbh_m") else "     –  "
+        print(
+            f"{r['tree_id']:>5} {r['x_m']:>11.2f} {r['y_m']:>11.2f} "
+            f"{r['slab_dbh_m'] * 100:7.1f}cm {qsm} "
+            + ("     – " if r["height_m"] is None else f"{r['height_m']:6.1f}m")
+        )
+    for r in res.left_out:
+        print(f"left out: stem {r['tree_id']} at ({r['x_m']:.2f}, {r['y_m']:.2f}): {r['reason']}")
+    print_warnings(res.warnings)
+    print(res.summary_line())
+    print(f"twin: {res.plot_file}; report: {Path(args.output) / TWIN_FILES['report']}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plot`` and its subcommands to ``treesim``'s parser."""
-    from ..plot import TERRAIN_KINDS
-
-    p = sub.add_parser("plot", help="forest plots: generate a stand, scan a plot")
+    p = sub.add_parser(
+        "plot", help="forest plots: generate a stand, make a twin of a field plot, scan a plot"
+    )
     psub = p.add_subparsers(dest="plot_command", metavar="SUBCOMMAND", required=True)
+    _register_generate(psub)
+    _register_from_cloud(psub)
+    _register_scan(psub)
+
+
+def _register_generate(psub: argparse._SubParsersAction) -> None:
+    from ..plot import TERRAIN_KINDS
 
     g = psub.add_parser(
         "generate",
@@ -170,6 +226,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("-o", "--output", required=True, metavar="DIR")
     g.set_defaults(func=cmd_generate)
 
+
+def _register_from_cloud(psub: argparse._SubParsersAction) -> None:
+    fc = psub.add_parser(
+        "from-cloud",
+        help="a field plot's cloud becomes a digital twin",
+        description="Classify the ground (cloth simulation filter) and build a DTM; find the "
+        "stems and give every point above the ground to its tree; reconstruct each tree (a "
+        "QSM) in parallel, resumably; write the twin (plot.toml with the DTM as terrain and "
+        "each tree as its QSM with its field cloud), each tree's cloud, the labelled plot "
+        "cloud and a report into -o. Trees that fail are listed and left out.",
+    )
+    fc.add_argument("cloud", metavar="CLOUD", help="the plot's cloud (.laz, .las, .e57, .ply, ...)")
+    fc.add_argument("-o", "--output", required=True, metavar="DIR")
+    from ..twin import TwinParams
+
+    param_options(fc, TwinParams, ["units", "dtm_cell_m", "min_tree_points", "preset", "facets"])
+    fx = fc.add_argument_group("execution")
+    fx.add_argument(
+        "--executor",
+        choices=["inline", "local", "dask"],
+        default="local",
+        help="where the trees are reconstructed: inline, local process pool (default), dask",
+    )
+    fx.add_argument(
+        "--workers", type=whole_number(1), help="worker processes (default one per core)"
+    )
+    fx.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler")
+    fx.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
+    fc.set_defaults(func=cmd_from_cloud)
+
+
+def _register_scan(psub: argparse._SubParsersAction) -> None:
     s = psub.add_parser(
         "scan",
         help="scan a plot and measure every tree in it",

@@ -83,7 +83,8 @@ def _stations(path: str, plot: Any) -> list[Any]:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     from ..plot.io import read_plot
-    from ..plot.validate import VALIDATION_FILES, validate_scans, write_validation
+    from ..plot.validate import VALIDATION_FILES, validate_scans
+    from ..plot.validate_report import write_validation
 
     out = output_folder(args.output, files=list(VALIDATION_FILES.values()))
     real = _read_cloud(args.real, "field scan")

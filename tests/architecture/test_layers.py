@@ -9,8 +9,9 @@ is imported. The layers, bottom to top (docs/install.md, "The repository"):
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
   another, except ``reconstruct → models`` (cylinders to mesh);
 * ``report``, above ``compare``;
-* ``steps``, ``run``, ``plot``, ``batch``, ``sweep``, ``executors``: one stage on files,
-  one tree, a plot of trees, many trees, a grid of settings on trees, where they run;
+* ``steps``, ``run``, ``plot``, ``batch``, ``sweep``, ``executors``, ``plan``, ``twin``: one
+  stage on files, one tree, a plot of trees, many trees, a grid of settings on trees,
+  where they run, where to scan, a plot made from a field cloud;
 * ``cli``, on top. The facade (``pipeline/__init__.py``) is imported by nobody inside.
 """
 
@@ -52,6 +53,7 @@ LAYER = {
     "executors": 3,
     "plot": 3,
     "plan": 3,
+    "twin": 3,
     "cli": 4,
 }
 #: The one allowed arrow between stages.
@@ -59,8 +61,9 @@ STAGE_ARROWS = {("reconstruct", "models")}
 #: Order inside the top library layer: a batch runs trees on executors; a sweep runs its
 #: points through the batch's engine; steps are the single stages on files, beside run; a
 #: plot scans its trees station by station through steps, and the batch runs plots;
-#: a plan scans plots to verify itself.
-TOP_ORDER = ["executors", "steps", "run", "plot", "batch", "sweep", "plan"]
+#: a plan scans plots to verify itself; a twin makes a plot from a field cloud, its trees
+#: reconstructed through the batch.
+TOP_ORDER = ["executors", "steps", "run", "plot", "batch", "sweep", "plan", "twin"]
 WEB = {"fastapi", "starlette", "uvicorn", "pydantic", "pydantic_settings", "sqlalchemy"}
 
 

@@ -22,7 +22,8 @@ from treesim.io import read_cloud, write_cloud
 from treesim.params import ScanParams
 from treesim.plot import Plot, PlotTree
 from treesim.plot.scan import scan_plot
-from treesim.plot.validate import VALIDATION_FILES, validate_scans, write_validation
+from treesim.plot.validate import VALIDATION_FILES, validate_scans
+from treesim.plot.validate_report import write_validation
 from treesim.scan import ScannerSpec
 
 NOISE_M = 0.002
