@@ -217,6 +217,14 @@ def read_unpacked_plot(plot_file: Path, root: Path, label: str) -> Any:
         for t in plot.trees:
             if t.path:
                 _inside(root, base, str(t.path), f"{shown}: tree {t.tree_id}'s path", label)
+            if t.field_cloud:
+                _inside(
+                    root,
+                    base,
+                    str(t.field_cloud),
+                    f"{shown}: tree {t.tree_id}'s field_cloud",
+                    label,
+                )
     except InputFormatError as exc:
         msg = clean(exc)
         raise InputFormatError(msg if msg.startswith(label) else f"{label}: {msg}") from None

@@ -1,5 +1,5 @@
 """The processes the service runs as jobs: ``run``, ``reconstruct``, ``scan``, ``compare``,
-``plan`` and ``plot-scan``, one module each.
+``plan``, ``plot-scan``, ``plot-from-cloud`` and ``validate``, one module each.
 
 Each is a thin adapter over one :mod:`treesim` function: its inputs (files, by kind), the
 JSON Schema of its parameters (generated from the parameter model,
@@ -13,12 +13,13 @@ to its code; :mod:`.base` holds what they share and :mod:`.sources` where ``plan
 
 from __future__ import annotations
 
-from . import compare, plan, plot_scan, reconstruct, run, scan
+from . import compare, plan, plot_from_cloud, plot_scan, reconstruct, run, scan, validate
 from .base import Input, Process, check_parameters
 
 __all__ = ["PROCESSES", "Input", "Process", "check_parameters"]
 
 #: The processes by id, in the order the API lists them.
 PROCESSES: dict[str, Process] = {
-    m.PROCESS.id: m.PROCESS for m in (run, reconstruct, scan, compare, plan, plot_scan)
+    m.PROCESS.id: m.PROCESS
+    for m in (run, reconstruct, scan, compare, plan, plot_scan, plot_from_cloud, validate)
 }

@@ -196,7 +196,9 @@ def test_missing_upload_is_404(client):
 # -- processes and jobs -----------------------------------------------------------------------
 def test_processes_describe_inputs_and_parameter_schemas(client):
     ids = [p["id"] for p in client.get("/v1/processes").json()["processes"]]
-    assert ids == ["run", "reconstruct", "scan", "compare", "plan", "plot-scan"]
+    assert ids == [
+        "run", "reconstruct", "scan", "compare", "plan", "plot-scan", "plot-from-cloud", "validate"
+    ]  # fmt: skip
     run = client.get("/v1/processes/run").json()
     props = run["parameters"]["properties"]
     assert set(props["preset"]["enum"]) == {"draft", "standard", "fine"}

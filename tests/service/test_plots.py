@@ -186,7 +186,7 @@ def test_the_service_starts_without_the_plot_and_plan_modules():
 # -- the processes and their parameters -------------------------------------------------------
 def test_plan_and_plot_scan_are_described_with_ranges(client):
     ids = [p["id"] for p in client.get("/v1/processes").json()["processes"]]
-    assert ids[-2:] == ["plan", "plot-scan"]
+    assert ids[4:6] == ["plan", "plot-scan"]
     plan = client.get("/v1/processes/plan").json()
     props = plan["parameters"]["properties"]
     assert props["goal_coverage"]["maximum"] == 1 and props["tolerance_m"]["exclusiveMinimum"] == 0
@@ -344,3 +344,33 @@ def test_a_plan_over_its_budget_fails_the_job_with_the_reason(client):
     assert err["type"] == "/problems#invalid-parameter" and err["status"] == 422
     assert "less than one station" in err["detail"] and "Traceback" not in err["detail"]
     _problem(client.get(f"/v1/jobs/{job['jobID']}/results"), 404, contains="failed")
+
+
+def test_plot_from_cloud_and_validate_are_described_with_ranges(client):
+    twin = client.get("/v1/processes/plot-from-cloud").json()
+    props = twin["parameters"]["properties"]
+    assert props["units"]["enum"] == ["auto", "m", "ft", "us-ft"]
+    assert props["dtm_cell_m"]["exclusiveMinimum"] == 0 and props["dtm_cell_m"]["maximum"] == 10
+    assert "twin.zip" in twin["outputs"]
+    val = client.get("/v1/processes/validate").json()
+    assert set(val["inputs"]) == {"real", "simulated", "plot"}
+    assert val["inputs"]["plot"]["minOccurs"] == 0
+    assert val["parameters"]["properties"]["tau_m"]["exclusiveMinimum"] == 0
+
+
+@pytest.mark.parametrize(
+    ("process", "params", "field"),
+    [
+        ("plot-from-cloud", {"units": "yards"}, "parameters"),
+        ("plot-from-cloud", {"dtm_cell_m": 0}, "parameters"),
+        ("plot-from-cloud", {"min_tree_points": 5}, "parameters"),
+        ("validate", {"tau_m": -1}, "parameters"),
+        ("validate", {"tau_m": 1e308}, "parameters"),
+        ("validate", {"bins": 3}, "parameters.bins"),
+    ],
+)
+def test_plot_from_cloud_and_validate_refuse_bad_parameters(client, process, params, field):
+    """Bad parameters are a 422 naming the field, before any job runs."""
+    r = client.post("/v1/jobs", json={"process": process, "inputs": {}, "parameters": params})
+    assert r.status_code == 422, r.text
+    assert r.json()["field"].startswith(field), r.json()

@@ -1,0 +1,118 @@
+"""``validate``: a simulated plot scan set beside the field scan (as ``treesim validate``)."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .base import Input, Process, Progress, field_error
+
+
+@dataclass(frozen=True)
+class ValidateJob:
+    """A validate job's settings (the defaults are :func:`validate_scans`'s)."""
+
+    settings: tuple[tuple[str, float], ...] = ()
+
+
+#: The numeric settings a request may give, with their open lower and closed upper bound.
+_SETTINGS = {
+    "tau_m": (0.0, 1.0, "m", "τ: a twin surface sample within it of a point is covered"),
+    "height_bin_m": (0.0, 100.0, "m", "height bins of the density profiles"),
+    "range_bin_m": (0.0, 1000.0, "m", "range bins of the density profiles"),
+}
+
+
+def _validate_schema() -> dict[str, Any]:
+    return {
+        "type": "object",
+        "description": "How closely a simulated plot scan reproduces the field scan.",
+        "properties": {
+            k: {
+                "type": "number",
+                "exclusiveMinimum": lo,
+                "maximum": hi,
+                "x-unit": unit,
+                "description": what,
+            }
+            for k, (lo, hi, unit, what) in _SETTINGS.items()
+        },
+    }
+
+
+def _parse_validate(parameters: Mapping[str, Any]) -> ValidateJob:
+    out = []
+    for k, v in parameters.items():
+        lo, hi, _, _ = _SETTINGS[k]  # the schema refused other names
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise field_error(k, f"{k} must be a number")
+        if not lo < v <= hi:
+            raise field_error(k, f"{k} must be in ({lo:g}, {hi:g}], got {v!r}")
+        out.append((k, float(v)))
+    return ValidateJob(tuple(out))
+
+
+def _execute_validate(
+    inputs: Mapping[str, Path],
+    job: ValidateJob,
+    out: Path,
+    threads: int,
+    progress: Progress,
+    name: str,
+) -> dict[str, Any]:
+    from treesim.io import read_cloud
+    from treesim.plot.validate import validate_scans
+    from treesim.plot.validate_report import write_validation
+
+    from ..plots import read_unpacked_plot, unpack_plot
+
+    progress(0.0, "reading")
+    real = read_cloud(inputs["real"])
+    sim = read_cloud(inputs["simulated"])
+    plot = None
+    work = out / ".plot"
+    try:
+        if "plot" in inputs:
+            plot_file = unpack_plot(inputs["plot"], work, label="the twin archive")
+            plot = read_unpacked_plot(plot_file, work, "the twin archive")
+        progress(0.2, "measuring")
+        result = validate_scans(real, sim, plot=plot, **dict(job.settings))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    progress(0.9, "writing the report")
+    write_validation(result, out, names=("field scan", "simulated scan"))
+    return result.to_dict()
+
+
+PROCESS = Process(
+    id="validate",
+    title="Check a simulated plot scan against the field scan",
+    description="Set the simulated scan beside the field scan, per station and per twin "
+    "tree: point density by height and by range, each tree's coverage and the occlusion "
+    "profile, distances both ways, and a one-line verdict (as treesim validate).",
+    inputs=(
+        Input("real", ("cloud",), "the field scan (an E57 with its scans' poses, or LAS/LAZ)"),
+        Input("simulated", ("cloud",), "the simulated scan (a plot-scan job's plot_scan.laz)"),
+        Input(
+            "plot",
+            ("plot",),
+            "the twin: a zip archive of its plot.toml and the files it names (a "
+            "plot-from-cloud job's twin.zip); without it no coverage figures",
+            required=False,
+        ),
+    ),
+    outputs=(
+        ("validation.json", "every figure, per station and per tree, and the verdict"),
+        ("validation.html", "the report with its figures"),
+        ("density_by_height.png", "points per height bin, per station"),
+        ("distances.png", "distances both ways"),
+    ),
+    extra_schema=dict,
+    base_schema=_validate_schema,
+    parse=_parse_validate,
+    execute=_execute_validate,
+)
