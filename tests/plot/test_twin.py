@@ -27,9 +27,13 @@ DBH_M = 0.01
 DTM_M = 0.05
 
 
+#: Vertices per ring of the field plot's tree meshes (what the virtual scanner sees).
+FACETS = 16
+
+
 @pytest.fixture(scope="module")
 def field(tmp_path_factory):
-    return make_field_plot(tmp_path_factory.mktemp("field"), resolution_deg=0.2, facets=16)
+    return make_field_plot(tmp_path_factory.mktemp("field"), resolution_deg=0.2, facets=FACETS)
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +78,27 @@ def test_stems_found_where_the_trees_stand(field, stages) -> None:
     matched = set(int(j) for j in m if j >= 0)
     invented = [(s.x_m, s.y_m, s.dbh_m) for j, s in enumerate(stems) if j not in matched]
     assert invented == []
-    errors = [stems[m[i]].dbh_m - truth[i]["dbh_m"] for i in detected]
+    # the scanner sees the stem's mesh, a regular polygon of FACETS sides inscribed in the
+    # table's circle: its mean distance from the axis is the circle's radius times
+    shrink = _polygon_mean_radius(FACETS)
+    errors = [stems[m[i]].dbh_m - truth[i]["dbh_m"] * shrink for i in detected]
     assert np.abs(errors).max() < DBH_M, np.round(errors, 4)
+
+
+def _polygon_mean_radius(n: int) -> float:
+    """Mean distance from the centre of the perimeter of a regular n-gon inscribed in the
+    unit circle (numerically, along one edge)."""
+    t = np.linspace(-1.0, 1.0, 20_001) * math.sin(math.pi / n)
+    return float(np.mean(np.hypot(math.cos(math.pi / n), t)))
+
+
+def test_polygon_mean_radius() -> None:
+    # a square inscribed in the unit circle, half-side a = 1/sqrt(2): the mean of
+    # sqrt(a^2 + t^2) over t in [-a, a], in closed form
+    a = 1 / math.sqrt(2)
+    closed = 0.5 * (math.sqrt(2 * a * a) * a + a * a * math.asinh(1.0)) / a
+    assert _polygon_mean_radius(4) == pytest.approx(closed, rel=1e-4)
+    assert _polygon_mean_radius(1000) == pytest.approx(1.0, abs=1e-5)
 
 
 def _small_plot(tmp_path: Path, **kw):
