@@ -90,6 +90,31 @@ def whole_number(minimum: int) -> Callable[[str], int]:
     return read
 
 
+def execution_options(parser: argparse.ArgumentParser, what: str = "tree") -> None:
+    """The ``execution`` group of a command that runs many trees through the batch's
+    executors: ``--executor`` (inline, local: default, dask), ``--workers``,
+    ``--threads`` (per ``what``), ``--scheduler``, ``--no-progress``."""
+    x = parser.add_argument_group("execution")
+    x.add_argument(
+        "--executor",
+        choices=["inline", "local", "dask"],
+        default="local",
+        help="inline: this process; local: a process pool (default); dask: a Dask cluster",
+    )
+    x.add_argument(
+        "--workers", type=whole_number(1), help="worker processes (default one per core)"
+    )
+    x.add_argument(
+        "--threads", type=whole_number(1), help=f"threads per {what} (default cores // workers)"
+    )
+    x.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a running Dask scheduler (default: a local cluster); with --executor dask",
+    )
+    x.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
+
+
 def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
     """The argparse ``type`` of ``n`` comma-separated finite numbers (``"-40,90"``) for
     the option ``what``, or a usage error (exit 2)."""

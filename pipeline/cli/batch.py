@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..params import SETTINGS
-from ._options import whole_number
+from ._options import execution_options
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 from .progress import print_warnings
@@ -78,23 +78,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("inputs", nargs="+", metavar="INPUT", help="files, folders or manifests")
     bp.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="batch folder")
     add_settings(bp)
-    x = bp.add_argument_group("execution")
-    x.add_argument(
-        "--executor",
-        choices=["inline", "local", "dask"],
-        default="local",
-        help="inline: this process; local: a process pool (default); dask: a Dask cluster",
-    )
-    x.add_argument(
-        "--workers", type=whole_number(1), help="worker processes (default one per core)"
-    )
-    x.add_argument(
-        "--threads", type=whole_number(1), help="threads per tree (default cores // workers)"
-    )
-    x.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="a running Dask scheduler (default: a local cluster); with --executor dask",
-    )
-    x.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
+    execution_options(bp)
     bp.set_defaults(func=cmd_batch)

@@ -19,7 +19,15 @@ from pathlib import Path
 from ..errors import InvalidParameterError
 from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
 from ..plot.generate import StandParams
-from ._options import collect, floats_type, number_type, param_option, param_options, whole_number
+from ._options import (
+    collect,
+    execution_options,
+    floats_type,
+    number_type,
+    param_option,
+    param_options,
+    whole_number,
+)
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
@@ -157,6 +165,7 @@ def cmd_from_cloud(args: argparse.Namespace) -> int:
             tp,
             executor=args.executor,
             workers=args.workers,
+            threads=args.threads,
             scheduler=args.scheduler,
             progress=None if args.no_progress else progress_printer(label="from-cloud"),
             batch_progress=bar,
@@ -242,18 +251,7 @@ def _register_from_cloud(psub: argparse._SubParsersAction) -> None:
     from ..twin import TwinParams
 
     param_options(fc, TwinParams, ["units", "dtm_cell_m", "min_tree_points", "preset", "facets"])
-    fx = fc.add_argument_group("execution")
-    fx.add_argument(
-        "--executor",
-        choices=["inline", "local", "dask"],
-        default="local",
-        help="where the trees are reconstructed: inline, local process pool (default), dask",
-    )
-    fx.add_argument(
-        "--workers", type=whole_number(1), help="worker processes (default one per core)"
-    )
-    fx.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler")
-    fx.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
+    execution_options(fc)
     fc.set_defaults(func=cmd_from_cloud)
 
 

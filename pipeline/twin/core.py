@@ -283,6 +283,7 @@ def _reconstruct(
     outdir: Path,
     executor: str,
     workers: int | None,
+    threads: int | None,
     scheduler: str | None,
     progress: Any,
 ) -> dict[str, dict[str, Any]]:
@@ -299,6 +300,7 @@ def _reconstruct(
         outdir / RECONSTRUCT_DIR,
         executor=executor,
         workers=workers,
+        threads=threads,
         scheduler=scheduler,
         progress=progress,
     )
@@ -467,6 +469,7 @@ def plot_from_cloud(
     *,
     executor: str = "local",
     workers: int | None = None,
+    threads: int | None = None,
     scheduler: str | None = None,
     progress: Progress | None = None,
     batch_progress: Any = None,
@@ -483,6 +486,8 @@ def plot_from_cloud(
     executor : {"inline", "local", "dask"}
         Where the trees are reconstructed (see :func:`treesim.run_batch`).
     workers : int, optional
+    threads : int, optional
+        Threads per tree (default cores // workers).
     scheduler : str, optional
         A running Dask scheduler's address.
     progress : callable(fraction, message), optional
@@ -533,7 +538,11 @@ def plot_from_cloud(
     write_cloud(out / TWIN_FILES["labelled"], labelled)
     kept, left = _write_tree_clouds(cloud, labels, stems, heights, tp, out)
     say(0.25, f"reconstructing {len(kept)} trees")
-    rows = _reconstruct(kept, tp, out, executor, workers, scheduler, batch_progress) if kept else {}
+    rows = (
+        _reconstruct(kept, tp, out, executor, workers, threads, scheduler, batch_progress)
+        if kept
+        else {}
+    )
     say(0.9, "writing the twin")
     trees, table_rows, failed, w = _twin_trees(kept, rows, tp, out, dtm)
     warnings += w

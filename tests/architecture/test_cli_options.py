@@ -18,6 +18,7 @@ CLI = Path(__file__).resolve().parents[2] / "pipeline" / "cli"
 NOT_PARAMETERS = {
     ("batch", "--threads"): "threads per tree chosen by the executor (cores // workers)",
     ("sweep", "--threads"): "threads per point chosen by the executor (cores // workers)",
+    ("plot from-cloud", "--threads"): "threads per tree chosen by the executor (cores // workers)",
     ("scan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("plan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
     ("plot scan", "--resolution-deg"): "the flat setting resolution_deg: sets both steps",
