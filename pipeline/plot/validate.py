@@ -85,8 +85,8 @@ DEFINITIONS = {
     "real_to_simulated": "every real point to its nearest simulated point (m): AVOHD "
     "completeness of the simulation, the field scan as reference",
     "simulated_to_real": "every simulated point to its nearest real point (m): AVOHD accuracy",
-    "height_above_terrain_m": "z minus the twin's terrain (without a twin: the lowest real "
-    "point within ground_cell_m)",
+    "height_above_terrain_m": "z minus the twin's terrain (without a twin: the field scan's "
+    "own DTM of ground_cell_m cells)",
 }
 
 
@@ -314,20 +314,12 @@ def _resolve_stations(
 
 # -- terrain, region ------------------------------------------------------------------
 def _ground_from_cloud(pts: np.ndarray, cell_m: float):
-    """A crude terrain from the lowest point per cell (local frame), as a function."""
-    from scipy.spatial import cKDTree
+    """The field scan's own terrain (local frame): its CSF ground as a DTM raster of
+    ``cell_m`` cells (:func:`treesim.plot.dtm.ground_and_dtm`), as a function of xy."""
+    from .dtm import ground_and_dtm
 
-    ij = np.floor(pts[:, :2] / cell_m).astype(np.int64)
-    keys, inv = np.unique(ij, axis=0, return_inverse=True)
-    low = np.full(len(keys), np.inf)
-    np.minimum.at(low, inv.ravel(), pts[:, 2])
-    tree = cKDTree((keys + 0.5) * cell_m)
-
-    def height_at(xy: np.ndarray) -> np.ndarray:
-        _, k = tree.query(xy, k=1)
-        return low[k]
-
-    return height_at
+    _, dtm, _ = ground_and_dtm(pts, cell_m=cell_m)
+    return lambda xy: dtm.height_at(xy[:, 0], xy[:, 1])
 
 
 def _heights(pts: np.ndarray, frame: LocalFrame, plot: Plot | None, ground: Any) -> np.ndarray:
@@ -735,7 +727,7 @@ def validate_scans(
     assign_distance_m : float
         A real point is given to the nearest twin tree whose mesh lies within this (m).
     ground_cell_m : float
-        Without a twin: cells of the crude terrain (lowest real point per cell).
+        Without a twin: cells of the field scan's own DTM (its CSF ground).
     max_distance_points : int
         At most this many points per direction for the distances (seeded subsample).
     max_samples_per_tree : int
@@ -798,8 +790,9 @@ def validate_scans(
     if plot is None:
         ctx["ground"] = _ground_from_cloud(frame.to_local(r_all[keep_r]), float(ground_cell_m))
         notes.append(
-            "no twin given: heights are above the lowest field point per "
-            f"{ground_cell_m:g} m cell, and the tree coverage and occlusion profile are left out"
+            "no twin given: heights are above the field scan's own ground (a DTM of "
+            f"{ground_cell_m:g} m cells), and the tree coverage and occlusion profile are "
+            "left out"
         )
     rs = _side(real, r_all, keep_r, r_grp, real_pos, ctx)
     # the simulated points' ranges are from the field's stations: the density as the
