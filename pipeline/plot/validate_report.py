@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..report.figures import save_png
 from .validate import VALIDATION_FILES, ValidationResult
 
 __all__ = ["write_validation"]
@@ -28,14 +29,6 @@ def _panels(n: int, w: float = 3.2, h: float = 3.4) -> tuple[Any, list[Any]]:
     for ax in axes[n:]:
         ax.set_visible(False)
     return fig, list(axes[:n])
-
-
-def _save_png(fig: Any, path: Path) -> Path:
-    from ..atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, metadata={"Software": None})
-    return path
 
 
 def _title(g: str) -> str:
@@ -58,7 +51,7 @@ def plot_density_by_height(result: ValidationResult, path: Path) -> Path:
         ax.set_ylabel("height above terrain (m)")
         ax.set_xscale("symlog", linthresh=10)
     axes[0].legend(fontsize=8)
-    return _save_png(fig, path)
+    return save_png(fig, path)
 
 
 def plot_density_by_range(result: ValidationResult, path: Path) -> Path:
@@ -78,7 +71,7 @@ def plot_density_by_range(result: ValidationResult, path: Path) -> Path:
         ax.set_ylabel("points per bin")
         ax.set_yscale("symlog", linthresh=10)
     axes[0].legend(fontsize=8)
-    return _save_png(fig, path)
+    return save_png(fig, path)
 
 
 def plot_coverage_by_tree(result: ValidationResult, path: Path) -> Path:
@@ -98,7 +91,7 @@ def plot_coverage_by_tree(result: ValidationResult, path: Path) -> Path:
     ax.set_ylabel(f"coverage within τ = {result.parameters['tau_m'] * 1e3:g} mm (%)")
     ax.set_ylim(0, 100)
     ax.legend(fontsize=8)
-    return _save_png(fig, path)
+    return save_png(fig, path)
 
 
 def plot_occlusion_profile(result: ValidationResult, path: Path) -> Path:
@@ -121,7 +114,7 @@ def plot_occlusion_profile(result: ValidationResult, path: Path) -> Path:
     ax.set_xlabel(f"tree surface within τ = {prof['tau_m'] * 1e3:g} mm (%)")
     ax.set_ylabel("height above terrain (m)")
     ax.legend(fontsize=8)
-    return _save_png(fig, path)
+    return save_png(fig, path)
 
 
 def plot_distances(result: ValidationResult, path: Path) -> Path:
@@ -151,7 +144,7 @@ def plot_distances(result: ValidationResult, path: Path) -> Path:
         b.bar(x + off, vals, 0.4, color=colour)
     b.set_xticks(x, [_title(g) for g in per])
     b.set_ylabel("p95 distance (mm)")
-    return _save_png(fig, path)
+    return save_png(fig, path)
 
 
 def _fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:

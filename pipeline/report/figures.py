@@ -92,6 +92,15 @@ def _save(fig: Any, path: Path, dpi: int) -> Path:
     return path
 
 
+def save_png(fig: Any, path: Path, dpi: int = 110) -> Path:
+    """Write ``fig`` as a PNG at ``path`` atomically (a reader never sees half a file)."""
+    from ..atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
+    return path
+
+
 def _ref_word(summary: dict[str, Any]) -> str:
     return "mesh" if summary.get("reference", {}).get("kind", "mesh") == "mesh" else "reference"
 

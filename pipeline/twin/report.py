@@ -9,32 +9,16 @@ from typing import Any
 
 import numpy as np
 
+from ..report.figures import _new_figure, save_png
+
 __all__ = ["write_twin_report"]
-
-
-def _figure(w: float, h: float) -> tuple[Any, Any]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt, plt.subplots(1, 1, figsize=(w, h), dpi=110)
-
-
-def _save(plt: Any, fig: Any, path: Path) -> Path:
-    from ..atomic import atomic_path
-
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-    return path
 
 
 def write_map(path: Path, result: Any, dtm: Any) -> Path:
     """The DTM's contours, each tree at its stem (circles 5 × its slab DBH, numbered),
     the stems left out (red crosses) and the stations (triangles)."""
-    plt, (fig, ax) = _figure(6.5, 6.0)
+    fig = _new_figure(6.5, 6.0)
+    ax = fig.subplots()
     xs, ys = dtm.centres()  # row 0 of z is the southern row
     z = np.asarray(dtm.z, dtype=float)
     if z.shape[0] > 1 and z.shape[1] > 1 and np.isfinite(z).any():
@@ -59,17 +43,13 @@ def write_map(path: Path, result: Any, dtm: Any) -> Path:
         f"{len(result.left_out)} left out (red ×)",
         fontsize=9,
     )
-    return _save(plt, fig, path)
+    return save_png(fig, path)
 
 
 def write_distributions(path: Path, result: Any) -> Path:
     """Histograms of the slab and QSM DBH, and of the heights."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=110)
+    fig = _new_figure(9.0, 3.4)
+    a, b = fig.subplots(1, 2)
     slab = [r["slab_dbh_m"] * 100 for r in result.trees]
     qsm = [r["qsm_dbh_m"] * 100 for r in result.trees if r.get("qsm_dbh_m")]
     bins = np.histogram_bin_edges(slab + qsm or [0.0], bins=min(12, max(3, len(slab))))
@@ -85,7 +65,7 @@ def write_distributions(path: Path, result: Any) -> Path:
     )
     b.set_xlabel("height above ground (m)")
     b.set_ylabel("trees")
-    return _save(plt, fig, path)
+    return save_png(fig, path)
 
 
 def _fmt(v: Any, scale: float = 1.0, digits: int = 1) -> str:
