@@ -164,6 +164,9 @@ class ValidationResult:
                 "parameters": self.parameters,
                 "frame_origin_m": self.frame_origin_m,
                 "definitions": dict(DEFINITIONS),
+                "verdict_bounds": {
+                    k: list(v) if isinstance(v, tuple) else v for k, v in VERDICT.items()
+                },
             }
         )
 
