@@ -44,7 +44,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ..errors import InputFormatError, InvalidParameterError
-from ..reconstruct.qsm import CircleFit, fit_circle
+from ..reconstruct.qsm import CircleFit, _refine_circle, fit_circle
 
 __all__ = [
     "SIDEWAYS_FACTOR",
@@ -353,26 +353,6 @@ def _theil_sen(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.vstack([np.median(xy - np.outer(h, slope), axis=0), slope])
 
 
-def _gauss_newton(q: np.ndarray, w: np.ndarray, x: np.ndarray, f_scale: float) -> np.ndarray:
-    """Geometric circle fit (centre x, y, radius) by Gauss-Newton with soft-L1 weights."""
-    for _ in range(15):
-        dv = q - x[:2]
-        d = np.maximum(np.linalg.norm(dv, axis=1), 1e-12)
-        res = d - x[2]
-        wt = w / np.sqrt(1.0 + (res / f_scale) ** 2)
-        jac = np.column_stack([-dv[:, 0] / d, -dv[:, 1] / d, -np.ones(len(d))])
-        try:
-            step = np.linalg.solve(
-                jac.T @ (jac * wt[:, None]) + 1e-12 * np.eye(3), -(jac.T @ (wt * res))
-            )
-        except np.linalg.LinAlgError:
-            break
-        x = x + step
-        if np.abs(step).max() < 1e-7:
-            break
-    return x
-
-
 def _circle_from_prior(q: np.ndarray, centre: np.ndarray, radius: float, p: StemParams):
     """The circle near a prior one (the axis'): points within a shrinking band of it,
     weighted per 10° sector, fitted geometrically; None when too few points or no fit."""
@@ -391,7 +371,7 @@ def _circle_from_prior(q: np.ndarray, centre: np.ndarray, radius: float, p: Stem
         o = q[inl].mean(axis=0)
         qi = q[inl] - o
         x0 = np.array([x[0] - o[0], x[1] - o[1], x[2]])
-        xi = _gauss_newton(qi, _sector_weights(qi, x0[:2]), x0, band)
+        xi = _refine_circle(qi, _sector_weights(qi, x0[:2]), x0, band)
         if not np.isfinite(xi).all() or xi[2] <= 0:
             return None
         x = np.array([xi[0] + o[0], xi[1] + o[1], xi[2]])
