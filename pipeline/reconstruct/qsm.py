@@ -217,16 +217,19 @@ def _bridge(
     if len(roots) > 1:  # components with no candidate pair: nearest point of the main one
         main = lab[main_hint]
         main_idx = np.flatnonzero(lab == main)
-        main_tree = cKDTree(points[main_idx])
-        for r in roots:
-            if r == main:
-                continue
-            members = np.flatnonzero(lab == r)
-            dd, jj = main_tree.query(points[members], k=1)
-            e = int(np.argmin(dd))
-            extra_r.append(members[e])
-            extra_c.append(main_idx[jj[e]])
-            extra_w.append(dd[e])
+        other = np.flatnonzero(lab != main)
+        dd, jj = cKDTree(points[main_idx]).query(points[other], k=1)
+        # each component's point nearest to the main one (the first such point on a tie),
+        # components in label order: one query and one sort, not a pass over every point
+        # per component (quadratic on a noisy cloud of many stray clumps)
+        order = np.lexsort((dd, lab[other]))
+        comp = lab[other][order]
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = comp[1:] != comp[:-1]
+        pick = order[first]
+        extra_r.extend(other[pick].tolist())
+        extra_c.extend(main_idx[jj[pick]].tolist())
+        extra_w.extend(dd[pick].tolist())
     b = sparse.coo_matrix(
         (np.maximum(np.asarray(extra_w), 1e-9), (np.asarray(extra_r), np.asarray(extra_c))),
         shape=g.shape,
