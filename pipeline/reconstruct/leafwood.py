@@ -80,6 +80,11 @@ SKELETON_K = (8, 16)
 MODEL_PATH = Path(__file__).resolve().parents[1] / "data" / "leafwood_model.json"
 #: Fewest points the classifier accepts.
 MIN_POINTS = max(KNN_SCALES) + 1
+#: Points whose context features are made and scored at a time: the float64 features
+#: and the network's intermediates (about 2 KB a point) live for one chunk only, so the
+#: classifier holds little more than its base features and the neighbour table (768 B a
+#: point); scored at once, a 1.5 M-point cloud took 6.8 GB.
+CHUNK_ROWS = 65_536
 
 
 @dataclass(frozen=True)
@@ -123,13 +128,14 @@ def _knn(points32: np.ndarray, k: int) -> np.ndarray:
 
 
 def _multiscale(points32: np.ndarray, nn: np.ndarray, scales: tuple[int, ...]) -> np.ndarray:
-    """pgeof's 11 features at each k of ``scales`` from a (n, max k) neighbour table."""
+    """pgeof's 11 features at each k of ``scales`` from a (n, max k) neighbour table
+    (float32, as pgeof computes them from float32 points)."""
     import pgeof
 
     n, k = nn.shape
     ptr = np.arange(0, n * k + 1, k, dtype=np.uint32)
     f = pgeof.compute_features_multiscale(points32, np.ascontiguousarray(nn.ravel()), ptr, scales)
-    return np.asarray(f, dtype=np.float64).reshape(n, -1)
+    return np.asarray(f, dtype=np.float32).reshape(n, -1)
 
 
 def neighbours(points: np.ndarray) -> np.ndarray:
@@ -160,34 +166,60 @@ def base_features(points: np.ndarray, nn: np.ndarray | None = None) -> np.ndarra
     for r in RADIUS_SCALES_M:
         sup, _, inv = voxel_downsample(pts, r / 4.0)
         f = pgeof.compute_features_selected(np.ascontiguousarray(sup), r, RADIUS_MAX_KNN, ids)
-        cols.append(np.asarray(f, dtype=np.float64)[inv])
-    return np.hstack(cols)
+        cols.append(np.asarray(f)[inv])  # (float64: pgeof computes in the support's type)
+    return np.hstack(cols, dtype=np.float64)
+
+
+class _Context:
+    """What step 3's features of any point need from a previous stage's ``score``: the
+    wood probability of every point and the candidate wood skeleton (its k-d tree and
+    its points' linearity, planarity and verticality at :data:`SKELETON_K`)."""
+
+    def __init__(self, points: np.ndarray, score: np.ndarray, nn: np.ndarray) -> None:
+        from scipy.spatial import cKDTree
+
+        self.pts = np.asarray(points, dtype=np.float64)
+        self.nn = nn
+        self.score = score
+        self.prob = 1.0 / (1.0 + np.exp(-np.clip(score, -30.0, 30.0)))
+        cand = np.flatnonzero(self.prob > 0.5)
+        self.skeleton = None
+        if len(cand) > max(SKELETON_K):
+            c32 = _f32(self.pts[cand])
+            f = _multiscale(c32, _knn(c32, max(SKELETON_K)), SKELETON_K)
+            f = f.reshape(len(cand), -1, 11)[:, :, [0, 1, 3]].reshape(len(cand), -1)
+            self.skeleton = (cKDTree(self.pts[cand]), f)
+
+    def features(self, base: np.ndarray, rows: slice) -> np.ndarray:
+        """Step 3's features of the points ``rows``: their ``base`` features, the score,
+        the mean probability of their 4 ... 32 nearest neighbours, the skeleton's shape
+        at its nearest point and the log distance to it; float64."""
+        nn = self.nn[rows, : max(CONTEXT_K)].astype(np.int64)
+        cols = [self.score[rows, None]]
+        cols += [self.prob[nn[:, :k]].mean(axis=1)[:, None] for k in CONTEXT_K]
+        n_skel = 3 * len(SKELETON_K)
+        if self.skeleton is not None:
+            tree, f = self.skeleton
+            dist, near = tree.query(self.pts[rows], workers=-1)
+            skel = f[near]
+        else:  # no candidate skeleton: every point is far from wood
+            m = len(nn)
+            dist, skel = np.full(m, 10.0), np.zeros((m, n_skel), dtype=np.float32)
+        cols += [skel, np.log(dist + 1e-4)[:, None]]
+        return np.hstack([base[rows], *cols], dtype=np.float64)
 
 
 def context_features(
     points: np.ndarray, score: np.ndarray, base: np.ndarray, nn: np.ndarray | None = None
 ) -> np.ndarray:
     """Step 3's features: ``base`` plus the context of a previous stage's ``score``
-    (``nn``: :func:`neighbours` of the points, computed when not given)."""
-    from scipy.spatial import cKDTree
+    (``nn``: :func:`neighbours` of the points, computed when not given), (n, 76) float64."""
+    nn = neighbours(points) if nn is None else nn
+    return _Context(points, score, nn).features(base, slice(None))
 
-    pts = np.asarray(points, dtype=np.float64)
-    p32 = _f32(pts)
-    prob = 1.0 / (1.0 + np.exp(-np.clip(score, -30.0, 30.0)))
-    nn = neighbours(pts) if nn is None else nn
-    nn = nn[:, : max(CONTEXT_K)].astype(np.int64)
-    cols = [score[:, None]] + [prob[nn[:, :k]].mean(axis=1)[:, None] for k in CONTEXT_K]
-    cand = np.flatnonzero(prob > 0.5)
-    n_skel = 3 * len(SKELETON_K)
-    if len(cand) > max(SKELETON_K):
-        c32 = p32[cand]
-        f = _multiscale(c32, _knn(c32, max(SKELETON_K)), SKELETON_K).reshape(len(cand), -1, 11)
-        dist, near = cKDTree(pts[cand]).query(pts, workers=-1)
-        skel = f[near][:, :, [0, 1, 3]].reshape(len(pts), n_skel)
-    else:  # no candidate skeleton: every point is far from wood
-        dist, skel = np.full(len(pts), 10.0), np.zeros((len(pts), n_skel))
-    cols += [skel, np.log(dist + 1e-4)[:, None]]
-    return np.hstack([base, *cols])
+
+def _chunks(n: int) -> list[slice]:
+    return [slice(lo, min(n, lo + CHUNK_ROWS)) for lo in range(0, n, CHUNK_ROWS)]
 
 
 @cache
@@ -241,8 +273,10 @@ def separate_leaves(points: np.ndarray, model: dict[str, Any] | None = None) -> 
     nn = neighbours(pts)
     base = base_features(pts, nn)
     stages = model["stages"]
-    score = stage_score(stages[0], base)
+    chunks = _chunks(len(pts))
+    score = np.concatenate([stage_score(stages[0], base[c]) for c in chunks])
     for stage in stages[1:]:
-        score = stage_score(stage, context_features(pts, score, base, nn))
+        ctx = _Context(pts, score, nn)
+        score = np.concatenate([stage_score(stage, ctx.features(base, c)) for c in chunks])
     threshold = float(model["threshold"])
     return LeafWoodResult(wood=score > threshold, score=score, threshold=threshold)
