@@ -1,7 +1,9 @@
 """The FastAPI application: ``create_app(settings)`` builds it, no import-time singletons.
 
-Routers are composed here: ``/v1`` (uploads, processes, jobs, results; the token applies
-there), the health and metrics routes, and the pages. The lifespan opens the job store
+Routers are composed here: ``/v1`` (OGC API - Processes' landing page and conformance,
+open; uploads, processes, jobs, results, where the token applies), the health and
+metrics routes, the pages, and redirects from the root's ``/processes``, ``/jobs`` and
+``/conformance`` to ``/v1``. The lifespan opens the job store
 (creating or migrating its schema), starts the upload inspector, and, with
 ``settings.workers > 0``, the embedded worker; at shutdown the worker hands its running
 jobs back.
@@ -18,7 +20,7 @@ from pathlib import Path
 from fastapi import Depends, FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
-from .api import errors, health, jobs, pages, uploads
+from .api import errors, health, jobs, ogc, pages, processes, uploads
 from .api.deps import require_token
 from .inspect import Inspector
 from .jobs.store import Store
@@ -76,9 +78,12 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
         version=__version__,
         summary="Reconstruct trees from field point clouds, scan them with a virtual TLS "
         "scanner, and compare (AVOHD), as jobs over HTTP.",
-        description="Upload a cloud (`POST /v1/uploads`), start a job of a process "
-        "(`POST /v1/jobs`), follow it (`GET /v1/jobs/{id}`), and fetch its results and "
-        "report. Every error is `application/problem+json` (types at `/problems`). With "
+        description="An OGC API - Processes - Part 1: Core server (landing page `/v1/`, "
+        "`/v1/conformance`). Upload a cloud (`POST /v1/uploads`), execute a process "
+        "(`POST /v1/processes/{id}/execution`, or treesim's `POST /v1/jobs`), follow the "
+        "job (`GET /v1/jobs/{id}`), and fetch its results (`GET /v1/jobs/{id}/results`) "
+        "and report. Every error is `application/problem+json` (types at `/problems`, "
+        "OGC's exception URIs for no-such-process, no-such-job, result-not-ready). With "
         "`TREESIM_API_TOKEN` set, `/v1` needs `Authorization: Bearer <token>`.",
         lifespan=lifespan,
     )
@@ -88,10 +93,13 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
     app.state.inspector = Inspector()
     errors.install(app)
     v1 = [Depends(require_token)]
+    app.include_router(ogc.router, prefix="/v1")  # landing page, conformance: open
     app.include_router(uploads.router, prefix="/v1", dependencies=v1)
+    app.include_router(processes.router, prefix="/v1", dependencies=v1)
     app.include_router(jobs.router, prefix="/v1", dependencies=v1)
     app.include_router(health.router)
     app.include_router(pages.router)
+    app.include_router(ogc.root_router)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -132,7 +140,7 @@ def _openapi(app: FastAPI) -> dict:
     for path, item in schema.get("paths", {}).items():
         for op in item.values():
             responses = op.setdefault("responses", {})
-            if path.startswith("/v1"):
+            if path.startswith("/v1") and path not in ("/v1/", "/v1/conformance"):
                 responses.setdefault("401", {"description": "missing or wrong token"})
             for code, resp in responses.items():
                 if code[0] in "45" and path != "/readyz":  # readyz's 503 is its report

@@ -16,6 +16,7 @@ from treesim import errors as e
 
 __all__ = [
     "ERROR_TABLE",
+    "OGC_EXCEPTIONS",
     "PROBLEMS",
     "ProblemType",
     "ServiceProblem",
@@ -28,16 +29,22 @@ MEDIA_TYPE = "application/problem+json"
 
 @dataclass(frozen=True)
 class ProblemType:
-    """A kind of problem: its slug (the type URI is ``/problems#<slug>``), title, status."""
+    """A kind of problem: its slug, title, status; its type URI is ``/problems#<slug>``, or
+    the standard's own (``type_uri``: OGC API - Processes' exception types)."""
 
     slug: str
     title: str
     status: int
     doc: str
+    type_uri: str | None = None
 
     @property
     def uri(self) -> str:
-        return f"/problems#{self.slug}"
+        return self.type_uri or f"/problems#{self.slug}"
+
+
+#: OGC API - Processes - Part 1's exception types.
+OGC_EXCEPTIONS = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
 
 
 #: Every problem type the service uses, by slug.
@@ -101,6 +108,35 @@ PROBLEMS: dict[str, ProblemType] = {
             "unauthorized", "Unauthorized", 401, "a valid 'Authorization: Bearer' token is required"
         ),
         ProblemType("not-found", "Not found", 404, "no such route, upload, job or result"),
+        ProblemType(
+            "no-such-process",
+            "No such process",
+            404,
+            "no process of this id (OGC API - Processes' exception)",
+            OGC_EXCEPTIONS + "no-such-process",
+        ),
+        ProblemType(
+            "no-such-job",
+            "No such job",
+            404,
+            "no job of this id (OGC API - Processes' exception)",
+            OGC_EXCEPTIONS + "no-such-job",
+        ),
+        ProblemType(
+            "result-not-ready",
+            "Result not ready",
+            404,
+            "the job has not finished: its results appear when it is successful (OGC API - "
+            "Processes' exception)",
+            OGC_EXCEPTIONS + "result-not-ready",
+        ),
+        ProblemType(
+            "remote-input-refused",
+            "Remote input refused",
+            400,
+            "an input's href names a file on another host; this service reads only its own "
+            "uploads and job results unless TREESIM_ALLOW_REMOTE_HREFS is set",
+        ),
         ProblemType(
             "method-not-allowed", "Method not allowed", 405, "the route does not take this method"
         ),

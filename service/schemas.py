@@ -23,10 +23,12 @@ def iso(t: float | None) -> str | None:
 
 
 class Link(BaseModel):
+    """A link (OGC API's ``link.yaml``): every one says its media type."""
+
     href: str
     rel: str
-    type: str | None = None
-    title: str | None = None
+    type: str
+    title: str
 
 
 class Problem(BaseModel):
@@ -75,7 +77,8 @@ class UploadList(BaseModel):
 
 
 class JobResultRef(BaseModel):
-    """A result file of an earlier successful job, used as an input."""
+    """A result file of an earlier successful job, used as an input (treesim's shorthand
+    for ``{"href": ".../v1/jobs/ID/results/NAME"}``)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -83,27 +86,54 @@ class JobResultRef(BaseModel):
     result: str = Field(description="the result's name, e.g. tree.ply")
 
 
-InputRef = str | JobResultRef
+class OutputFormat(BaseModel):
+    """``format`` of a requested output (OGC's ``format.yaml``)."""
+
+    mediaType: str | None = None  # noqa: N815 - OGC's name
+    encoding: str | None = None
+    schema_: str | dict[str, Any] | None = Field(None, alias="schema")
 
 
-class ExecuteRequest(BaseModel):
-    """``POST /v1/processes/{id}/execution``: inputs and parameters."""
+class OutputRequest(BaseModel):
+    """One requested output: its format and how it is returned (files: by reference)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    inputs: dict[str, InputRef] = Field(
+    format: OutputFormat | None = None
+    transmissionMode: Literal["value", "reference"] | None = None  # noqa: N815 - OGC's name
+
+
+class ExecuteRequest(BaseModel):
+    """``POST /v1/processes/{id}/execution``: OGC API - Processes' execute request, and
+    treesim's ``parameters`` object beside it."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    inputs: dict[str, Any] = Field(
         default_factory=dict,
-        description='input name → upload id, or {"job": ID, "result": NAME}',
+        description='input id → value. A file: {"href": URL of an upload or of a job\'s '
+        'result on this service}, or (treesim) an upload id or {"job": ID, "result": '
+        'NAME}. A setting: its value, or {"value": ...}',
+    )
+    outputs: dict[str, OutputRequest] = Field(
+        default_factory=dict,
+        description="output id → its format and transmissionMode (files are returned by "
+        "reference); all outputs when empty",
+    )
+    response: Literal["document", "raw"] = Field(
+        "document",
+        description="document or raw: a job's results are the results document at "
+        "/v1/jobs/{id}/results either way (every output a link)",
     )
     parameters: dict[str, Any] = Field(
         default_factory=dict,
-        description="the process's parameters (JSON Schema: GET /v1/processes/{id}); "
-        "presets by name",
+        description="treesim's extension: the process's settings as one object (JSON "
+        "Schema: the description's parameters); the same names as the inputs",
     )
 
 
 class JobRequest(ExecuteRequest):
-    """``POST /v1/jobs``: the process, its inputs and parameters."""
+    """``POST /v1/jobs`` (treesim's way): the process, its inputs and parameters."""
 
     process: str = Field(description="run, reconstruct, scan, compare, plan or plot-scan")
 
@@ -144,8 +174,22 @@ class ResultItem(BaseModel):
 
 
 class ResultList(BaseModel):
+    """A successful job's files (treesim's listing, ``/v1/jobs/{id}/files``)."""
+
     jobID: str  # noqa: N815 - OGC's name
     results: list[ResultItem]
+
+
+class ResultLink(BaseModel):
+    """One output in a results document: where to fetch it and its media type."""
+
+    href: str
+    type: str
+    title: str
+
+
+#: OGC API - Processes' results document: output id → its link.
+Results = dict[str, ResultLink]
 
 
 class ProcessSummary(BaseModel):
@@ -154,17 +198,38 @@ class ProcessSummary(BaseModel):
     description: str
     version: str
     jobControlOptions: list[str]  # noqa: N815 - OGC's name
+    outputTransmission: list[str] = ["reference"]  # noqa: N815 - OGC's name
     links: list[Link] = []
 
 
 class ProcessList(BaseModel):
     processes: list[ProcessSummary]
+    links: list[Link]
 
 
 class ProcessDescription(ProcessSummary):
-    inputs: dict[str, Any]
-    parameters: dict[str, Any] = Field(description="JSON Schema of the parameters object")
-    outputs: dict[str, Any]
+    inputs: dict[str, Any] = Field(
+        description="input id → {title, description, schema, minOccurs, maxOccurs}: the "
+        "files, and every setting of the parameters object"
+    )
+    outputs: dict[str, Any] = Field(description="output id → {title, description, schema}")
+    parameters: dict[str, Any] = Field(
+        description="treesim's extension: JSON Schema of the parameters object"
+    )
+
+
+class LandingPage(BaseModel):
+    """OGC API's landing page: what the service is and where its resources are."""
+
+    title: str
+    description: str
+    links: list[Link]
+
+
+class Conformance(BaseModel):
+    """The requirement classes of OGC API - Processes the service conforms to."""
+
+    conformsTo: list[str]  # noqa: N815 - OGC's name
 
 
 class Health(BaseModel):

@@ -89,6 +89,12 @@ class Settings(BaseSettings):
         None,
         description="a worker touches this file every poll (a container healthcheck reads its age)",
     )
+    allow_remote_hrefs: bool = Field(
+        False,
+        description="an execute request's input may name a file on another host by href "
+        "(the service downloads it as an upload, within max_upload_bytes); off: only this "
+        "service's own uploads and job results",
+    )
     cors_origins: list[str] = Field(
         default_factory=list,
         description="origins allowed to call the API from a browser (CORS off when empty)",

@@ -23,8 +23,15 @@ def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
+def get_base(request: Request) -> str:
+    """The service's own base URL as the client reached it (no trailing slash): links are
+    absolute, and an input's href naming it is one of this service's files."""
+    return str(request.base_url).rstrip("/")
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
+BaseDep = Annotated[str, Depends(get_base)]
 
 
 def require_token(request: Request) -> None:

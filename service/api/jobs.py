@@ -1,4 +1,5 @@
-"""``/v1/jobs`` and ``/v1/processes``: submit, follow, dismiss, and fetch results."""
+"""``/v1/jobs``: follow, list and dismiss jobs (OGC API - Processes' status documents),
+their results document and files. Jobs are started in :mod:`.processes`."""
 
 from __future__ import annotations
 
@@ -6,93 +7,34 @@ import shutil
 from pathlib import Path, PurePosixPath
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse, RedirectResponse
 
-from treesim.errors import InvalidParameterError
 from treesim.io import MESH_SUFFIXES
 
 from ..jobs.store import STATUSES, Store, decode_cursor
 from ..problems import ServiceProblem
-from ..processes import PROCESSES, Process, check_parameters
 from ..schemas import (
-    ExecuteRequest,
     JobList,
-    JobRequest,
     Link,
-    ProcessDescription,
-    ProcessList,
-    ProcessSummary,
     ResultItem,
+    ResultLink,
     ResultList,
+    Results,
     StatusInfo,
     iso,
 )
-from ..settings import Settings
-from .deps import SettingsDep, StoreDep
+from .deps import BaseDep, SettingsDep, StoreDep
 from .responses import PROBLEM_RESPONSES
 
 router = APIRouter()
 
 RESULTS_REL = "http://www.opengis.net/def/rel/ogc/1.0/results"
+JSON = "application/json"
 
 
-# -- processes --------------------------------------------------------------------------------
-def _summary(p: Process) -> ProcessSummary:
-    d = p.describe()
-    return ProcessSummary(
-        id=p.id,
-        title=p.title,
-        description=p.description,
-        version=d["version"],
-        jobControlOptions=d["jobControlOptions"],
-        links=[
-            Link(href=f"/v1/processes/{p.id}", rel="self", type="application/json"),
-            Link(
-                href=f"/v1/processes/{p.id}/execution",
-                rel="http://www.opengis.net/def/rel/ogc/1.0/execute",
-                title="execute",
-            ),
-        ],
-    )
-
-
-@router.get("/processes", response_model=ProcessList, tags=["processes"], summary="The processes")
-def list_processes() -> ProcessList:
-    return ProcessList(processes=[_summary(p) for p in PROCESSES.values()])
-
-
-def _process(process_id: str, field: str = "process_id") -> Process:
-    try:
-        return PROCESSES[process_id]
-    except KeyError:
-        raise ServiceProblem(
-            "not-found",
-            f"no process {process_id!r}; the processes are {', '.join(PROCESSES)}",
-            field=field,
-        ) from None
-
-
-@router.get(
-    "/processes/{process_id}",
-    response_model=ProcessDescription,
-    responses=PROBLEM_RESPONSES(404),
-    tags=["processes"],
-    summary="A process: its inputs, outputs and the JSON Schema of its parameters",
-)
-def get_process(process_id: str) -> ProcessDescription:
-    p = _process(process_id)
-    d = p.describe()
-    return ProcessDescription(
-        **_summary(p).model_dump(),
-        inputs=d["inputs"],
-        parameters=d["parameters"],
-        outputs=d["outputs"],
-    )
-
-
-# -- submitting -------------------------------------------------------------------------------
-def _kind_of_result(path: Path) -> str:
+def kind_of_result(path: Path) -> str:
+    """A job result's kind as an input of another job: table, mesh or cloud."""
     from treesim.io.ply import ply_has_faces
 
     suffix = path.suffix.lower()
@@ -103,207 +45,23 @@ def _kind_of_result(path: Path) -> str:
     return "cloud"
 
 
-def _resolve_inputs(
-    process: Process, given: dict[str, Any], store: Store, settings: Settings
-) -> tuple[dict[str, Any], list[tuple[str, str | None, str | None]]]:
-    known = {i.name: i for i in process.inputs}
-    for name in given:
-        if name not in known:
-            raise ServiceProblem(
-                "invalid-parameter",
-                f"process {process.id!r} has no input {name!r}; its inputs are {', '.join(known)}",
-                field=f"inputs.{name}",
-            )
-    resolved: dict[str, Any] = {}
-    links: list[tuple[str, str | None, str | None]] = []
-    for name, spec in known.items():
-        ref = given.get(name)
-        field = f"inputs.{name}"
-        if ref is None:
-            if not spec.required:
-                continue
-            raise ServiceProblem(
-                "invalid-parameter",
-                f"input {name!r} is required: {spec.description} (an upload id)",
-                field=field,
-            )
-        if isinstance(ref, str):
-            up = store.upload(ref)
-            if up is None:
-                raise ServiceProblem("not-found", f"{field}: no upload {ref!r}", field=field)
-            kind = up["kind"]
-            resolved[name] = {
-                "upload": up["id"],
-                "path": up["path"],
-                "filename": up["filename"],
-                "kind": kind,
-            }
-            links.append((name, up["id"], None))
-        else:
-            job_id, result = ref.job, ref.result
-            src = store.job(job_id)
-            if src is None:
-                raise ServiceProblem("not-found", f"{field}: no job {job_id!r}", field=field)
-            if src["status"] != "successful":
-                raise ServiceProblem(
-                    "conflict",
-                    f"{field}: job {job_id} is {src['status']}; chain a job after its input "
-                    "job has succeeded",
-                    field=field,
-                )
-            names = {r["name"] for r in src["results"] or []}
-            if result not in names:
-                raise ServiceProblem(
-                    "not-found",
-                    f"{field}: job {job_id} has no result {result!r}; it has "
-                    f"{', '.join(sorted(names))}",
-                    field=field,
-                )
-            rel = f"jobs/{job_id}/results/{result}"
-            kind = _kind_of_result(settings.data_dir / rel)
-            resolved[name] = {"job": job_id, "result": result, "path": rel, "kind": kind}
-            links.append((name, None, job_id))
-        if kind not in spec.kinds:
-            raise ServiceProblem(
-                "invalid-parameter",
-                f"{field} must be a {' or '.join(spec.kinds)}, got a {kind}",
-                field=field,
-            )
-    return resolved, links
-
-
-def submit(
-    process: Process,
-    inputs: dict[str, Any],
-    parameters: dict[str, Any],
-    store: Store,
-    settings: Settings,
-    response: Response,
-) -> StatusInfo:
-    try:
-        parsed = check_parameters(process, parameters)
-    except InvalidParameterError as exc:
-        raise ServiceProblem(
-            "invalid-parameter", str(exc), field=getattr(exc, "field", "parameters")
-        ) from None
-    resolved, links = _resolve_inputs(process, inputs, store, settings)
-    if process.check_inputs is not None:
-        try:
-            process.check_inputs(frozenset(resolved), parsed)
-        except InvalidParameterError as exc:
-            raise ServiceProblem(
-                "invalid-parameter", str(exc), field=getattr(exc, "field", "inputs")
-            ) from None
-
-    def still_there(conn: Any) -> None:
-        from sqlalchemy import select
-
-        from ..jobs.store import jobs, uploads
-
-        for name, upload_id, source in links:
-            if (
-                upload_id
-                and conn.execute(select(uploads.c.id).where(uploads.c.id == upload_id)).first()
-                is None
-            ):
-                raise ServiceProblem(
-                    "not-found",
-                    f"inputs.{name}: upload {upload_id} was just deleted",
-                    field=f"inputs.{name}",
-                )
-            if (
-                source
-                and conn.execute(select(jobs.c.status).where(jobs.c.id == source)).scalar()
-                != "successful"
-            ):
-                raise ServiceProblem(
-                    "conflict",
-                    f"inputs.{name}: job {source} was just dismissed",
-                    field=f"inputs.{name}",
-                )
-
-    job = store.create_job(
-        process=process.id,
-        inputs=resolved,
-        parameters=parameters,
-        max_attempts=settings.max_attempts,
-        time_limit_s=settings.job_time_limit_s,
-        links=links,
-        check=still_there,
-    )
-    response.status_code = 201
-    response.headers["Location"] = f"/v1/jobs/{job['id']}"
-    return status_info(job)
-
-
-_SUBMIT_RESPONSES = {
-    201: {
-        "description": "the job, accepted",
-        "headers": {"Location": {"schema": {"type": "string"}}},
-    },
-    **PROBLEM_RESPONSES(404, 409, 422),
-}
-
-
-@router.post(
-    "/jobs",
-    status_code=201,
-    response_model=StatusInfo,
-    responses=_SUBMIT_RESPONSES,
-    tags=["jobs"],
-    summary="Start a job of a process",
-)
-def create_job(
-    body: JobRequest, store: StoreDep, settings: SettingsDep, response: Response
-) -> StatusInfo:
-    """``{"process": "run", "inputs": {"cloud": UPLOAD_ID}, "parameters": {...}}``. An input
-    may be an earlier successful job's result: ``{"job": ID, "result": "tree.ply"}``."""
-    if body.process not in PROCESSES:
-        raise ServiceProblem(
-            "invalid-parameter",
-            f"unknown process {body.process!r}; the processes are {', '.join(PROCESSES)}",
-            field="process",
-        )
-    return submit(PROCESSES[body.process], body.inputs, body.parameters, store, settings, response)
-
-
-@router.post(
-    "/processes/{process_id}/execution",
-    status_code=201,
-    response_model=StatusInfo,
-    responses=_SUBMIT_RESPONSES,
-    tags=["processes"],
-    summary="Execute a process as a job (OGC API – Processes)",
-)
-def execute(
-    process_id: str,
-    body: ExecuteRequest,
-    store: StoreDep,
-    settings: SettingsDep,
-    response: Response,
-) -> StatusInfo:
-    return submit(_process(process_id), body.inputs, body.parameters, store, settings, response)
-
-
 # -- following --------------------------------------------------------------------------------
-def status_info(job: dict[str, Any]) -> StatusInfo:
+def status_info(job: dict[str, Any], base: str = "") -> StatusInfo:
+    """A job's status document (OGC API - Processes' ``statusInfo``, with treesim's
+    attempt, stage, inputs, parameters, error and summary beside it)."""
     jid = job["id"]
-    links = [Link(href=f"/v1/jobs/{jid}", rel="self", type="application/json", title="status")]
+    url = f"{base}/v1/jobs/{jid}"
+    links = [
+        Link(href=url, rel="self", type=JSON, title="status"),
+        Link(href=f"{base}/v1/jobs", rel="up", type=JSON, title="the job list"),
+    ]
     if job["status"] == "successful":
-        links.append(
-            Link(
-                href=f"/v1/jobs/{jid}/results",
-                rel=RESULTS_REL,
-                type="application/json",
-                title="results",
-            )
-        )
+        links.append(Link(href=f"{url}/results", rel=RESULTS_REL, type=JSON, title="results"))
+        links.append(Link(href=f"{url}/files", rel="alternate", type=JSON, title="files"))
         names = {r["name"] for r in job["results"] or []}
         if "report.html" in names:
             links.append(
-                Link(
-                    href=f"/v1/jobs/{jid}/report", rel="alternate", type="text/html", title="report"
-                )
+                Link(href=f"{url}/report", rel="alternate", type="text/html", title="report")
             )
     inputs = {
         k: {kk: v[kk] for kk in ("upload", "job", "result", "filename", "kind") if kk in v}
@@ -333,18 +91,26 @@ def status_info(job: dict[str, Any]) -> StatusInfo:
 def _job(store: Store, job_id: str) -> dict[str, Any]:
     job = store.job(job_id)
     if job is None:
-        raise ServiceProblem("not-found", f"no job {job_id!r}", field="job_id")
+        raise ServiceProblem("no-such-job", f"no job {job_id!r}", field="job_id")
     return job
 
 
-@router.get("/jobs", response_model=JobList, tags=["jobs"], summary="List jobs, newest first")
+@router.get(
+    "/jobs",
+    response_model=JobList,
+    response_model_exclude_none=True,
+    responses=PROBLEM_RESPONSES(422),
+    tags=["jobs"],
+    summary="List jobs, newest first",
+)
 def list_jobs(
     store: StoreDep,
+    base: BaseDep,
     status: Annotated[
         list[str] | None,
         Query(description="only these statuses (repeat, or comma-separated)"),
     ] = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+    limit: Annotated[int, Query(ge=1, le=10000)] = 10,
     cursor: Annotated[str | None, Query(max_length=500, description="from a 'next' link")] = None,
 ) -> JobList:
     wanted: list[str] = []
@@ -365,35 +131,45 @@ def list_jobs(
             field="cursor",
         )
     rows, nxt = store.list_jobs(status=wanted, limit=limit, cursor=cursor)
-    links = []
+    q = "".join(f"&status={s}" for s in wanted)
+    url = f"{base}/v1/jobs?limit={limit}{q}"
+    links = [
+        Link(
+            href=url + (f"&cursor={cursor}" if cursor else ""),
+            rel="self",
+            type=JSON,
+            title="this page",
+        )
+    ]
     if nxt:
-        q = "".join(f"&status={s}" for s in wanted)
-        links.append(Link(href=f"/v1/jobs?limit={limit}&cursor={nxt}{q}", rel="next"))
-    return JobList(jobs=[status_info(r) for r in rows], links=links)
+        links.append(Link(href=f"{url}&cursor={nxt}", rel="next", type=JSON, title="next page"))
+    return JobList(jobs=[status_info(r, base) for r in rows], links=links)
 
 
 @router.get(
     "/jobs/{job_id}",
     response_model=StatusInfo,
+    response_model_exclude_none=True,
     responses=PROBLEM_RESPONSES(404),
     tags=["jobs"],
     summary="A job's status, progress and links to its results",
 )
-def get_job(job_id: str, store: StoreDep) -> StatusInfo:
-    return status_info(_job(store, job_id))
+def get_job(job_id: str, store: StoreDep, base: BaseDep) -> StatusInfo:
+    return status_info(_job(store, job_id), base)
 
 
 @router.delete(
     "/jobs/{job_id}",
     response_model=StatusInfo,
+    response_model_exclude_none=True,
     responses=PROBLEM_RESPONSES(404, 409),
     tags=["jobs"],
     summary="Dismiss a job: stop it if running, remove its files",
 )
-def dismiss_job(job_id: str, store: StoreDep, settings: SettingsDep) -> StatusInfo:
+def dismiss_job(job_id: str, store: StoreDep, settings: SettingsDep, base: BaseDep) -> StatusInfo:
     job, before, readers = store.dismiss(job_id)
     if job is None:
-        raise ServiceProblem("not-found", f"no job {job_id!r}", field="job_id")
+        raise ServiceProblem("no-such-job", f"no job {job_id!r}", field="job_id")
     if readers:
         raise ServiceProblem(
             "conflict",
@@ -403,7 +179,7 @@ def dismiss_job(job_id: str, store: StoreDep, settings: SettingsDep) -> StatusIn
         )
     # a running job's worker stops it and removes its attempt at its next lease renewal
     shutil.rmtree(settings.data_dir / "jobs" / job_id / "results", ignore_errors=True)
-    return status_info(job)
+    return status_info(job, base)
 
 
 # -- results ----------------------------------------------------------------------------------
@@ -414,31 +190,97 @@ _REPORT_CSP = (
 
 
 def _successful(store: Store, job_id: str) -> dict[str, Any]:
+    """The job, successful; else OGC's exception: no-such-job, result-not-ready (accepted
+    or running), the job's own error (failed), not-found (dismissed)."""
     job = _job(store, job_id)
-    if job["status"] != "successful":
+    status = job["status"]
+    if status in ("accepted", "running"):
         raise ServiceProblem(
-            "not-found",
-            f"job {job_id} is {job['status']}: results appear when it is successful",
+            "result-not-ready",
+            f"job {job_id} is {status}: results appear when it is successful",
             field="job_id",
+        )
+    if status == "failed":
+        err = dict(job["error"] or {})
+        raise _JobFailed(job_id, err)
+    if status != "successful":
+        raise ServiceProblem(
+            "not-found", f"job {job_id} is {status}: it has no results", field="job_id"
         )
     return job
 
 
+class _JobFailed(ServiceProblem):
+    """A failed job's results: its own problem (type and status), as OGC asks."""
+
+    def __init__(self, job_id: str, err: dict[str, Any]) -> None:
+        detail = f"job {job_id} failed: {err.get('detail', 'no reason recorded')}"
+        super().__init__("internal-error", detail)
+        self.err = err
+
+    @property
+    def status(self) -> int:
+        return int(self.err.get("status", 500))
+
+    def body(self) -> dict[str, Any]:
+        return {**self.err, "status": self.status, "detail": self.detail, "field": "job_id"}
+
+
 @router.get(
     "/jobs/{job_id}/results",
-    response_model=ResultList,
-    responses=PROBLEM_RESPONSES(404),
+    response_model=Results,
+    responses=PROBLEM_RESPONSES(404, 415, 422, 500, 507),
     tags=["results"],
-    summary="A successful job's files",
+    summary="A successful job's results document: each output by id, a link to its file",
 )
-def list_results(job_id: str, store: StoreDep) -> ResultList:
+def get_results(
+    job_id: str,
+    store: StoreDep,
+    base: BaseDep,
+    outputs: Annotated[
+        list[str] | None,
+        Query(description="only these output ids (repeat, or comma-separated)"),
+    ] = None,
+) -> Results:
+    """OGC API - Processes' results document: output id → ``{href, type, title}`` of its
+    file (every output by reference). Outputs a run did not write (``cylinders`` of a
+    mesh reconstruction) are left out."""
+    from ..processes import PROCESSES
+
     job = _successful(store, job_id)
+    names = {r["name"]: r for r in job["results"] or []}
+    process = PROCESSES.get(job["process"])
+    ids = process.output_ids() if process else {}
+    wanted = [x.strip() for o in outputs or [] for x in o.split(",") if x.strip()]
+    for oid in wanted:
+        if oid not in ids:
+            raise ServiceProblem(
+                "invalid-parameter",
+                f"process {job['process']!r} has no output {oid!r}; its outputs are "
+                f"{', '.join(ids)}",
+                field="outputs",
+            )
+    url = f"{base}/v1/jobs/{job_id}/results"
+    return {
+        oid: ResultLink(href=f"{url}/{name}", type=names[name]["media_type"], title=name)
+        for oid, name in ids.items()
+        if name in names and (not wanted or oid in wanted)
+    }
+
+
+@router.get(
+    "/jobs/{job_id}/files",
+    response_model=ResultList,
+    responses=PROBLEM_RESPONSES(404, 415, 422, 500, 507),
+    tags=["results"],
+    summary="A successful job's files: name, size, media type (treesim's listing)",
+)
+def list_files(job_id: str, store: StoreDep, base: BaseDep) -> ResultList:
+    job = _successful(store, job_id)
+    url = f"{base}/v1/jobs/{job_id}/results"
     return ResultList(
         jobID=job_id,
-        results=[
-            ResultItem(**r, href=f"/v1/jobs/{job_id}/results/{r['name']}")
-            for r in job["results"] or []
-        ],
+        results=[ResultItem(**r, href=f"{url}/{r['name']}") for r in job["results"] or []],
     )
 
 
@@ -448,7 +290,7 @@ def list_results(job_id: str, store: StoreDep) -> ResultList:
     responses={
         200: {"content": {"application/octet-stream": {}}, "description": "the file"},
         206: {"description": "part of the file (Range request)"},
-        **PROBLEM_RESPONSES(404),
+        **PROBLEM_RESPONSES(404, 415, 422, 500, 507),
     },
     tags=["results"],
     summary="Download one result (Range requests supported)",
@@ -476,7 +318,10 @@ def get_result(job_id: str, name: str, store: StoreDep, settings: SettingsDep) -
     "/jobs/{job_id}/report",
     status_code=307,
     response_class=RedirectResponse,
-    responses={307: {"description": "to results/report.html"}, **PROBLEM_RESPONSES(404)},
+    responses={
+        307: {"description": "to results/report.html"},
+        **PROBLEM_RESPONSES(404, 415, 422, 500, 507),
+    },
     tags=["results"],
     summary="The job's HTML report",
 )

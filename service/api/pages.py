@@ -1,23 +1,62 @@
 """``GET /``: the jobs page (plain HTML and JavaScript, no build step, no external
-resources), and ``GET /problems``: the problem types."""
+resources) or, for a client asking for JSON, the OGC landing page; and ``GET /problems``:
+the problem types."""
 
 from __future__ import annotations
 
 import html
 from importlib import resources
 
-from fastapi import APIRouter
-from fastapi.responses import HTMLResponse, Response
+from fastapi import APIRouter, Request
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 
 from ..problems import PROBLEMS
 
 router = APIRouter(include_in_schema=False)
 
 
+def wants_html(accept: str, f: str | None) -> bool:
+    """Whether ``GET /`` answers the jobs page (HTML) rather than the JSON landing page:
+    ``?f=html``/``?f=json`` decide; else HTML only when the client names ``text/html`` in
+    ``Accept`` (a browser does) with at least the weight of ``application/json``. ``*/*``
+    or no ``Accept`` (curl, requests, OWSLib) is JSON.
+
+    Examples
+    --------
+    >>> wants_html("text/html,application/xhtml+xml,*/*;q=0.8", None)
+    True
+    >>> wants_html("*/*", None), wants_html("application/json", "html")
+    (False, True)
+    """
+    if f in ("html", "json"):
+        return f == "html"
+    weights: dict[str, float] = {}
+    for part in accept.split(","):
+        kind, *params = (x.strip() for x in part.split(";"))
+        q = 1.0
+        for p in params:
+            if p.startswith("q="):
+                try:
+                    q = float(p[2:])
+                except ValueError:
+                    q = 0.0
+        weights[kind.lower()] = max(q, weights.get(kind.lower(), 0.0))
+    html_q = weights.get("text/html", 0.0)
+    return html_q > 0 and html_q >= weights.get("application/json", 0.0)
+
+
 @router.get("/", response_class=HTMLResponse)
-def index() -> HTMLResponse:
+def index(request: Request, f: str | None = None) -> Response:
+    """The jobs page for a browser; OGC API - Processes' landing page (JSON) for a client
+    (``Accept: application/json``, ``?f=json``, or no preference)."""
+    from .ogc import landing_page
+
+    headers = {"Cache-Control": "no-store", "Vary": "Accept"}
+    if not wants_html(request.headers.get("accept", ""), f):
+        doc = landing_page(str(request.base_url).rstrip("/"))
+        return JSONResponse(doc.model_dump(), headers=headers)
     page = (resources.files("treesim.service") / "static" / "index.html").read_text("utf-8")
-    return HTMLResponse(page, headers={"Cache-Control": "no-store"})
+    return HTMLResponse(page, headers=headers)
 
 
 @router.get("/favicon.ico")

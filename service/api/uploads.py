@@ -18,7 +18,7 @@ from treesim.errors import EmptyInputError
 from ..plots import UNPACK_FACTOR
 from ..problems import ServiceProblem
 from ..schemas import Link, UploadList, UploadOut, iso
-from .deps import SettingsDep, StoreDep
+from .deps import BaseDep, SettingsDep, StoreDep
 from .responses import PROBLEM_RESPONSES
 
 router = APIRouter(tags=["uploads"])
@@ -47,7 +47,7 @@ def check_filename(name: str | None) -> str:
     return name
 
 
-def upload_out(rec: dict[str, Any]) -> UploadOut:
+def upload_out(rec: dict[str, Any], base: str = "") -> UploadOut:
     info = rec["info"] or {}
     lo, hi = info.get("bounds", [[0, 0, 0], [0, 0, 0]])
     return UploadOut(
@@ -63,7 +63,14 @@ def upload_out(rec: dict[str, Any]) -> UploadOut:
         bounds={"min": list(lo), "max": list(hi)},
         fields=list(info.get("fields", [])),
         created=iso(rec["created"]),
-        links=[Link(href=f"/v1/uploads/{rec['id']}", rel="self", type="application/json")],
+        links=[
+            Link(
+                href=f"{base}/v1/uploads/{rec['id']}",
+                rel="self",
+                type="application/json",
+                title="this upload: its href is an input of a process",
+            )
+        ],
     )
 
 
@@ -94,8 +101,8 @@ def _tmp_dir(data_dir: Path) -> Path:
 async def create_upload(
     request: Request,
     response: Response,
-    store: StoreDep,
     settings: SettingsDep,
+    base: BaseDep,
     filename: Annotated[
         str | None, Query(max_length=1000, description="the file's name (a label only)")
     ] = None,
@@ -137,49 +144,104 @@ async def create_upload(
                     )
                 digest.update(chunk)
                 fh.write(chunk)
-        if size == 0:
-            raise EmptyInputError(f"{name}: the body is empty; send the file's bytes")
-        info = await request.app.state.inspector.inspect(
-            tmp, name if filename else None, max_unpacked=UNPACK_FACTOR * limit
-        )
-        sha = digest.hexdigest()
-        rel = Path("uploads") / sha[:2] / f"{sha}{info['suffix']}"
-        final = settings.data_dir / rel
-
-        def place() -> None:
-            final.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(tmp, final)
-
-        record = {
-            "sha256": sha,
-            "filename": name,
-            "format": info["format"],
-            "kind": info["kind"],
-            "size_bytes": size,
-            "n_points": info.get("n_points"),
-            "n_triangles": info.get("n_triangles"),
-            "info": {
-                "bounds": info["bounds"],
-                "fields": list(info.get("fields", [])),
-                **({"n_trees": info["n_trees"]} if "n_trees" in info else {}),
-            },
-            "path": rel.as_posix(),
-        }
-        rec, created = await run_in_threadpool(store.add_upload, record, place)
+        rec, created = await keep(request.app.state, tmp, size, digest.hexdigest(), name, filename)
     finally:
         tmp.unlink(missing_ok=True)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/v1/uploads/{rec['id']}"
-    return upload_out(rec)
+    return upload_out(rec, base)
+
+
+async def keep(
+    state: Any, tmp: Path, size: int, sha: str, name: str, filename: str | None
+) -> tuple[dict[str, Any], bool]:
+    """Check a file received into ``tmp`` (``size`` bytes, SHA-256 ``sha``) and store it
+    as an upload, once per content: (its record, whether it is new)."""
+    settings, store = state.settings, state.store
+    if size == 0:
+        raise EmptyInputError(f"{name}: the body is empty; send the file's bytes")
+    info = await state.inspector.inspect(
+        tmp, name if filename else None, max_unpacked=UNPACK_FACTOR * settings.max_upload_bytes
+    )
+    rel = Path("uploads") / sha[:2] / f"{sha}{info['suffix']}"
+    final = settings.data_dir / rel
+
+    def place() -> None:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, final)
+
+    record = {
+        "sha256": sha,
+        "filename": name,
+        "format": info["format"],
+        "kind": info["kind"],
+        "size_bytes": size,
+        "n_points": info.get("n_points"),
+        "n_triangles": info.get("n_triangles"),
+        "info": {
+            "bounds": info["bounds"],
+            "fields": list(info.get("fields", [])),
+            **({"n_trees": info["n_trees"]} if "n_trees" in info else {}),
+        },
+        "path": rel.as_posix(),
+    }
+    return await run_in_threadpool(store.add_upload, record, place)
+
+
+async def fetch_remote(state: Any, url: str, field: str) -> dict[str, Any]:
+    """Download ``url`` (an input's href on another host, where
+    ``TREESIM_ALLOW_REMOTE_HREFS`` allows it) and keep it as an upload, within the
+    upload limit; its record."""
+    limit = state.settings.max_upload_bytes
+    tmp = _tmp_dir(state.settings.data_dir) / f"{uuid.uuid4().hex}.part"
+    last = url.split("?", 1)[0].rstrip("/").rsplit("/", 1)[-1]
+    try:
+        name = check_filename(last or None)
+    except ServiceProblem:
+        name = "remote"
+    try:
+        size, sha = await run_in_threadpool(_download, url, tmp, limit, field)
+        rec, _ = await keep(state, tmp, size, sha, name, name)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return rec
+
+
+def _download(url: str, tmp: Path, limit: int, field: str) -> tuple[int, str]:
+    """Stream ``url`` into ``tmp``, at most ``limit`` bytes: (size, SHA-256)."""
+    import urllib.error
+    import urllib.request
+
+    digest = hashlib.sha256()
+    size = 0
+    try:
+        with urllib.request.urlopen(url, timeout=60) as r, open(tmp, "wb") as fh:  # noqa: S310 - http(s) only, checked by the caller
+            while chunk := r.read(1 << 20):
+                size += len(chunk)
+                if size > limit:
+                    raise ServiceProblem(
+                        "payload-too-large",
+                        f"{field}: {url} is larger than the upload limit of {limit:,} bytes "
+                        "(TREESIM_MAX_UPLOAD_BYTES)",
+                        field=field,
+                    )
+                digest.update(chunk)
+                fh.write(chunk)
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        raise ServiceProblem(
+            "bad-request", f"{field}: could not fetch {url}: {exc}", field=field
+        ) from None
+    return size, digest.hexdigest()
 
 
 @router.get("/uploads", response_model=UploadList, summary="List uploads, newest first")
 def list_uploads(
     store: StoreDep,
+    base: BaseDep,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> UploadList:
-    return UploadList(uploads=[upload_out(r) for r in store.list_uploads(limit, offset)])
+    return UploadList(uploads=[upload_out(r, base) for r in store.list_uploads(limit, offset)])
 
 
 @router.get(
@@ -188,11 +250,11 @@ def list_uploads(
     responses=PROBLEM_RESPONSES(404),
     summary="One upload",
 )
-def get_upload(upload_id: str, store: StoreDep) -> UploadOut:
+def get_upload(upload_id: str, store: StoreDep, base: BaseDep) -> UploadOut:
     rec = store.upload(upload_id)
     if rec is None:
         raise ServiceProblem("not-found", f"no upload {upload_id!r}", field="upload_id")
-    return upload_out(rec)
+    return upload_out(rec, base)
 
 
 @router.delete(

@@ -5,9 +5,9 @@ flat ``resolution_deg``)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from treesim.errors import InvalidParameterError
@@ -23,12 +23,15 @@ from treesim.params import (
 
 __all__ = [
     "CLOUD",
+    "KIND_MEDIA_TYPES",
     "Input",
     "Process",
     "Progress",
     "check_parameters",
     "field_error",
     "job_schema",
+    "openapi30_schema",
+    "output_ids",
     "pop_preset",
     "preset_schema",
     "resolution_schema",
@@ -36,6 +39,24 @@ __all__ = [
 
 #: A job's progress callback: fraction done in [0, 1] and a few words on the stage.
 Progress = Callable[[float, str], None]
+
+
+#: Media types a file input of each kind may have (its description's ``schema``).
+KIND_MEDIA_TYPES: dict[str, tuple[str, ...]] = {
+    "cloud": ("application/vnd.laszip", "application/vnd.las", "application/octet-stream"),
+    "mesh": ("model/obj", "model/stl", "application/octet-stream"),
+    "plot": ("application/zip",),
+    "cylinders": ("text/csv",),
+    "table": ("text/csv",),
+}
+
+_FORMATS = {
+    "cloud": "LAS, LAZ, PLY, E57 or XYZ",
+    "mesh": "PLY, OBJ, STL, OFF or GLB",
+    "plot": "a plot archive (zip)",
+    "cylinders": "a QSM cylinder table (CSV)",
+    "table": "a table (CSV)",
+}
 
 
 @dataclass(frozen=True)
@@ -48,22 +69,24 @@ class Input:
     required: bool = True
 
     def schema(self) -> dict[str, Any]:
-        """The input's entry in the process description (OGC API - Processes)."""
+        """The input's entry in the process description (OGC API - Processes'
+        ``inputDescription``): a file, given by reference."""
+        media = [m for k in self.kinds for m in KIND_MEDIA_TYPES.get(k, ())]
+        formats = " or ".join(_FORMATS.get(k, k) for k in self.kinds)
         return {
-            "description": f"{self.description} ({' or '.join(self.kinds)}): an upload's id, "
-            'or {"job": JOB_ID, "result": NAME} for a result of an earlier successful job'
-            + ("" if self.required else "; optional"),
+            "title": self.name,
+            "description": f"{self.description} ({formats}), by reference: "
+            '{"href": URL} of an upload (POST /v1/uploads) or of a result of an earlier '
+            "job of this service; treesim also takes the upload's id, or "
+            '{"job": JOB_ID, "result": NAME}' + ("" if self.required else "; optional"),
+            "schema": {
+                "anyOf": [
+                    {"type": "string", "contentMediaType": m, "contentEncoding": "binary"}
+                    for m in dict.fromkeys(media)
+                ]
+            },
             "minOccurs": 1 if self.required else 0,
             "maxOccurs": 1,
-            "oneOf": [
-                {"type": "string", "description": "upload id"},
-                {
-                    "type": "object",
-                    "properties": {"job": {"type": "string"}, "result": {"type": "string"}},
-                    "required": ["job", "result"],
-                    "additionalProperties": False,
-                },
-            ],
         }
 
 
@@ -99,18 +122,163 @@ class Process:
             "additionalProperties": False,
         }
 
+    def output_ids(self) -> dict[str, str]:
+        """Output id → its file name: the name less its suffix, folders joined by ``_``
+        (``vs_mesh/comparison.json`` → ``vs_mesh_comparison``); where two files share
+        that, their ids keep the suffix (``tree_ply``, ``tree_json``)."""
+        return output_ids(name for name, _ in self.outputs)
+
     def describe(self) -> dict[str, Any]:
-        """The process description the API serves at ``/v1/processes/{id}``."""
+        """The process description the API serves at ``/v1/processes/{id}`` (OGC API -
+        Processes' ``process.yaml``, less its links): the files and every setting of the
+        parameters object as inputs, each with a JSON Schema (OpenAPI 3.0's dialect); the
+        outputs by id with their media types; and the parameters' own JSON Schema
+        (2020-12), treesim's extension."""
+        from ..jobs.worker import media_type
+
+        parameters = self.parameters_schema()
+        inputs = {i.name: i.schema() for i in self.inputs}
+        for name, prop in parameters["properties"].items():
+            text = prop.get("description", "")
+            schema = openapi30_schema(prop)
+            if name in inputs:  # a file or a value (plot-scan's stations: a CSV or a list)
+                file = inputs[name]
+                inputs[name] = {
+                    **file,
+                    "description": f"{file['description']}; or, by value: {text}",
+                    "schema": {"anyOf": [*file["schema"]["anyOf"], schema]},
+                }
+                continue
+            inputs[name] = {
+                "title": name,
+                "description": f"{text} (a setting; also accepted in the parameters object)",
+                "schema": schema,
+                "minOccurs": 0,
+                "maxOccurs": 1,
+            }
+        files = dict(self.outputs)
+        outputs = {}
+        for oid, name in self.output_ids().items():
+            mt = media_type(name)
+            text = mt.startswith("text/") or mt == "application/json"
+            outputs[oid] = {
+                "title": name,
+                "description": files[name],
+                "schema": {
+                    "type": "string",
+                    "contentMediaType": mt,
+                    **({} if text else {"contentEncoding": "binary"}),
+                },
+            }
         return {
             "id": self.id,
             "title": self.title,
             "description": self.description,
             "version": _version(),
-            "inputs": {i.name: i.schema() for i in self.inputs},
-            "parameters": self.parameters_schema(),
-            "outputs": {name: {"description": d} for name, d in self.outputs},
+            "inputs": inputs,
+            "parameters": parameters,
+            "outputs": outputs,
             "jobControlOptions": ["async-execute", "dismiss"],
+            "outputTransmission": ["reference"],
         }
+
+
+def output_ids(names: Iterable[str]) -> dict[str, str]:
+    """Output ids for result file names (see :meth:`Process.output_ids`).
+
+    Examples
+    --------
+    >>> output_ids(["tree.ply", "tree.json", "vs_mesh/comparison.json"])
+    {'tree_ply': 'tree.ply', 'tree_json': 'tree.json', 'vs_mesh_comparison': 'vs_mesh/comparison.json'}
+    """  # noqa: E501
+    names = list(names)
+
+    def short(name: str) -> str:
+        p = PurePosixPath(name)
+        return "_".join([*p.parent.parts, p.stem])
+
+    stems = [short(n) for n in names]
+    return {
+        (s if stems.count(s) == 1 else short(n) + "_" + PurePosixPath(n).suffix.lstrip(".")): n
+        for s, n in zip(stems, names, strict=True)
+    }
+
+
+#: The keywords of OpenAPI 3.0's Schema Object (OGC API - Processes 1.0's ``schema.yaml``).
+_OAS30_KEYWORDS = frozenset(
+    "title multipleOf maximum exclusiveMaximum minimum exclusiveMinimum maxLength minLength "
+    "pattern maxItems minItems uniqueItems maxProperties minProperties required enum type not "
+    "allOf oneOf anyOf items properties additionalProperties description format default "
+    "nullable readOnly writeOnly example deprecated contentMediaType contentEncoding "
+    "contentSchema".split()
+)
+
+
+def _drop_null(s: dict[str, Any]) -> dict[str, Any]:
+    """``anyOf: [X, {type: null}]`` and ``type: [T, "null"]`` as OpenAPI 3.0 says them:
+    X (or T) with ``nullable: true``."""
+    for key in ("anyOf", "oneOf"):
+        alts = s.get(key)
+        if isinstance(alts, list) and {"type": "null"} in alts:
+            rest = [a for a in alts if a != {"type": "null"}]
+            del s[key]
+            s = {**rest[0], **s} if len(rest) == 1 else {**s, key: rest}
+            s["nullable"] = True
+    t = s.get("type")
+    if isinstance(t, list):
+        kinds = [x for x in t if x != "null"]
+        if len(kinds) < len(t):
+            s["nullable"] = True
+        if len(kinds) == 1:
+            s["type"] = kinds[0]
+        else:
+            del s["type"]
+            s["anyOf"] = [{"type": x} for x in kinds]
+    return s
+
+
+def openapi30_schema(schema: Any) -> Any:
+    """A JSON Schema (2020-12, as :func:`treesim.params.json_schema` writes them) in
+    OpenAPI 3.0's dialect, which OGC API - Processes 1.0 descriptions use: nullable
+    instead of a null type, boolean ``exclusiveMinimum``/``exclusiveMaximum`` beside the
+    bound, ``const`` as a one-value ``enum``, the unit (``x-unit``) in the description;
+    other keywords left out.
+
+    Examples
+    --------
+    >>> s = openapi30_schema(
+    ...     {"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}],
+    ...      "x-unit": "m", "description": "range", "default": None})
+    >>> s["type"], s["minimum"], s["exclusiveMinimum"], s["nullable"], s["description"]
+    ('number', 0, True, True, 'range [m]')
+    """
+    if not isinstance(schema, dict):
+        return schema
+    s = _drop_null(dict(schema))
+    unit = s.pop("x-unit", None)
+    if unit:
+        s["description"] = f"{s.get('description', '')} [{unit}]".strip()
+    if "const" in s:
+        s["enum"] = [s.pop("const")]
+    if s.get("examples"):
+        s["example"] = s["examples"][0]
+    for bound, limit in (("exclusiveMinimum", "minimum"), ("exclusiveMaximum", "maximum")):
+        v = s.get(bound)
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            s = {**{k: x for k, x in s.items() if k != bound}, limit: v, bound: True}
+    out: dict[str, Any] = {}
+    for k, v in s.items():
+        if k not in _OAS30_KEYWORDS:
+            continue
+        if k == "properties":
+            out[k] = {n: openapi30_schema(x) for n, x in v.items()}
+        elif k in ("allOf", "oneOf", "anyOf"):
+            out[k] = [openapi30_schema(x) for x in v]
+        elif k in ("items", "not", "additionalProperties") and isinstance(v, dict):
+            out[k] = openapi30_schema(v)
+        else:
+            out[k] = v
+    return out
 
 
 def _version() -> str:

@@ -71,7 +71,7 @@ def test_run_over_http_equals_treesim_run(serve, tmp_path):
         assert job["progress"] == 100 and job["attempt"] == 1
         assert seen_running["status"] in ("running", "successful")
 
-        results = {r["name"]: r for r in c.get(f"/v1/jobs/{job_id}/results").json()["results"]}
+        results = {r["name"]: r for r in c.get(f"/v1/jobs/{job_id}/files").json()["results"]}
         assert {"report.html", "run.json", "scan.laz", "tree.ply"} <= set(results)
         report = c.get(f"/v1/jobs/{job_id}/report", follow_redirects=True)
         assert report.status_code == 200
@@ -148,7 +148,7 @@ def test_kill_9_mid_job_then_restart_loses_nothing(serve, tmp_path):
         for job_id in (done, victim):
             jobdir = data / "jobs" / job_id
             assert sorted(p.name for p in jobdir.iterdir()) == ["results"]
-            listing = c.get(f"/v1/jobs/{job_id}/results").json()["results"]
+            listing = c.get(f"/v1/jobs/{job_id}/files").json()["results"]
             listed_names = {r["name"] for r in listing}
             on_disk = {
                 p.relative_to(jobdir / "results").as_posix()

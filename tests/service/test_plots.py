@@ -184,6 +184,22 @@ def test_the_service_starts_without_the_plot_and_plan_modules():
 
 
 # -- the processes and their parameters -------------------------------------------------------
+def _files(description: dict) -> dict[str, dict]:
+    """A process description's file inputs (those with a media type; the others are its
+    settings, each an input too)."""
+    return {
+        k: v
+        for k, v in description["inputs"].items()
+        if any("contentMediaType" in s for s in v["schema"].get("anyOf", []))
+    }
+
+
+def _output_files(description: dict) -> set[str]:
+    """The file names of a description's outputs (each output's title; its id is the
+    name less the suffix)."""
+    return {o["title"] for o in description["outputs"].values()}
+
+
 def test_plan_and_plot_scan_are_described_with_ranges(client):
     ids = [p["id"] for p in client.get("/v1/processes").json()["processes"]]
     assert ids[4:6] == ["plan", "plot-scan"]
@@ -194,14 +210,14 @@ def test_plan_and_plot_scan_are_described_with_ranges(client):
     assert props["instrument"]["default"] == "riegl-vz400"
     assert props["stand"]["properties"]["stems_per_ha"]["exclusiveMinimum"] == 0
     assert "sapling" in props["tree"]["properties"]["species"]["enum"]
-    assert {k: v["minOccurs"] for k, v in plan["inputs"].items()} == {"plot": 0, "mesh": 0}
-    assert {"plan.json", "stations.csv", "map.png", "curve.png"} <= set(plan["outputs"])
+    assert {k: v["minOccurs"] for k, v in _files(plan).items()} == {"plot": 0, "mesh": 0}
+    assert {"plan.json", "stations.csv", "map.png", "curve.png"} <= _output_files(plan)
     scan = client.get("/v1/processes/plot-scan").json()
     sp = scan["parameters"]["properties"]
     assert {"stations", "tolerance_m", "figures", "instrument", "scanner"} <= set(sp)
     assert "min_distance_m" not in sp and "max_rays" not in sp
-    assert set(scan["inputs"]) == {"plot", "mesh", "stations"}
-    assert {"plot_scan.laz", "plot_scan.json", "tree_figures.csv"} <= set(scan["outputs"])
+    assert set(_files(scan)) == {"plot", "mesh", "stations"}
+    assert {"plot_scan.laz", "plot_scan.json", "tree_figures.csv"} <= _output_files(scan)
 
 
 @pytest.mark.parametrize(
@@ -264,7 +280,7 @@ _PLAN = {
 
 
 def _results(client, job_id: str) -> dict[str, dict]:
-    listing = client.get(f"/v1/jobs/{job_id}/results").json()["results"]
+    listing = client.get(f"/v1/jobs/{job_id}/files").json()["results"]
     return {r["name"]: r for r in listing}
 
 
@@ -343,7 +359,8 @@ def test_a_plan_over_its_budget_fails_the_job_with_the_reason(client):
     err = job["error"]
     assert err["type"] == "/problems#invalid-parameter" and err["status"] == 422
     assert "less than one station" in err["detail"] and "Traceback" not in err["detail"]
-    _problem(client.get(f"/v1/jobs/{job['jobID']}/results"), 404, contains="failed")
+    # OGC: a failed job's results answer its own problem
+    _problem(client.get(f"/v1/jobs/{job['jobID']}/results"), 422, contains="failed")
 
 
 def test_plot_from_cloud_and_validate_are_described_with_ranges(client):
@@ -351,9 +368,9 @@ def test_plot_from_cloud_and_validate_are_described_with_ranges(client):
     props = twin["parameters"]["properties"]
     assert props["units"]["enum"] == ["auto", "m", "ft", "us-ft"]
     assert props["dtm_cell_m"]["exclusiveMinimum"] == 0 and props["dtm_cell_m"]["maximum"] == 10
-    assert "twin.zip" in twin["outputs"]
+    assert "twin.zip" in _output_files(twin)
     val = client.get("/v1/processes/validate").json()
-    assert set(val["inputs"]) == {"real", "simulated", "plot"}
+    assert set(_files(val)) == {"real", "simulated", "plot"}
     assert val["inputs"]["plot"]["minOccurs"] == 0
     assert val["parameters"]["properties"]["tau_m"]["exclusiveMinimum"] == 0
 
