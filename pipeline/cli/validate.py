@@ -1,32 +1,42 @@
 """``treesim validate REAL SIMULATED``: how closely a simulated plot scan reproduces the
 field scan, from the stations actually used (density by height and range per station,
-each twin tree's coverage and the occlusion profile, distances both ways)."""
+each twin tree's coverage and the occlusion profile, distances
+both ways). The settings' options come from
+:class:`~treesim.plot.validate.ValidateParams`; ``--tau-mm`` is kept, deprecated, for
+scripts written before ``--tau-m``."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputFormatError
+from ._options import collect, param_option, param_options
 from ._outputs import output_folder
 from .progress import print_warnings
 
 
-def _positive(flag: str):
-    def read(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            v = math.nan
-        if not (math.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-        return v
+def _tau_mm(text: str) -> float:
+    """The deprecated ``--tau-mm``: τ in millimetres, read as metres within the range
+    :class:`~treesim.plot.validate.ValidateParams` declares for ``tau_m``."""
+    from dataclasses import replace
 
-    read.__name__ = flag
-    return read
+    from ..params import field_info
+    from ..plot.validate import ValidateParams
+
+    info = field_info(ValidateParams, "tau_m")
+    in_mm = replace(info, bounds=tuple(None if b is None else 1000.0 * b for b in info.bounds))
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not in_mm.in_range(v):
+        raise argparse.ArgumentTypeError(f"expected {in_mm.range_text()} (mm), got {text!r}")
+    return v / 1000.0
 
 
 def _read_cloud(path: str, what: str) -> Any:
@@ -82,8 +92,9 @@ def _stations(path: str, plot: Any) -> list[Any]:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
+    from ..params import merge
     from ..plot.io import read_plot
-    from ..plot.validate import VALIDATION_FILES, validate_scans
+    from ..plot.validate import VALIDATION_FILES, ValidateParams, validate_scans
     from ..plot.validate_report import write_validation
 
     out = output_folder(args.output, files=list(VALIDATION_FILES.values()))
@@ -92,14 +103,16 @@ def cmd_validate(args: argparse.Namespace) -> int:
     _sidecar_stations(sim, args.simulated)
     plot = read_plot(args.plot) if args.plot else None
     stations = _stations(args.stations_from, plot) if args.stations_from else None
-    # unset options keep validate_scans' own defaults (one place for them)
-    given = {
-        "tau_m": None if args.tau_mm is None else args.tau_mm / 1000.0,
-        "height_bin_m": args.height_bin_m,
-        "range_bin_m": args.range_bin_m,
-    }
-    kw = {k: v for k, v in given.items() if v is not None}
-    result = validate_scans(real, sim, plot=plot, stations=stations, **kw)
+    # unset options keep ValidateParams' own defaults (one place for them)
+    given = collect(args)
+    if args.tau_from_mm is not None:
+        given["tau_m"] = args.tau_from_mm
+        print(
+            f"note: --tau-mm is deprecated; give --tau-m {args.tau_from_mm:g} (τ in metres)",
+            file=sys.stderr,
+        )
+    params = merge(ValidateParams(), given)
+    result = validate_scans(real, sim, params, plot=plot, stations=stations)
     written = write_validation(result, out, names=(Path(args.real).name, Path(args.simulated).name))
     for g in result.groups:
         d = result.density["per_station"][g]
@@ -139,22 +152,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the field's stations: an E57's scan poses or a CSV with x_m, y_m and z_m (or "
         "height_m above the twin's terrain) columns; default the REAL cloud's own",
     )
-    v.add_argument(
+    from ..plot.validate import ValidateParams
+
+    settings = v.add_argument_group("settings")
+    tau = settings.add_mutually_exclusive_group()
+    param_option(tau, ValidateParams, "tau_m")
+    tau.add_argument(
         "--tau-mm",
-        type=_positive("--tau-mm"),
+        dest="tau_from_mm",
+        type=_tau_mm,
         metavar="MM",
-        help="coverage tolerance τ in mm (default 10)",
+        help="deprecated: τ in millimetres (give --tau-m)",
     )
-    v.add_argument(
-        "--height-bin-m",
-        type=_positive("--height-bin-m"),
-        metavar="M",
-        help="height bins of the density profile (default 1 m)",
-    )
-    v.add_argument(
-        "--range-bin-m",
-        type=_positive("--range-bin-m"),
-        metavar="M",
-        help="range bins of the density profile (default 2 m)",
-    )
+    param_options(settings, ValidateParams, exclude=("tau_m",))
     v.set_defaults(func=cmd_validate)

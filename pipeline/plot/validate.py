@@ -38,12 +38,14 @@ import numpy as np
 from ..cloud import Cloud
 from ..errors import EmptyInputError, InputFormatError, InvalidParameterError
 from ..frame import LocalFrame
+from ..params._fields import check_bounds, param
 from .core import Plot
 
 __all__ = [
     "ASSIGN_DISTANCE_M",
     "VALIDATION_FILES",
     "VERDICT",
+    "ValidateParams",
     "ValidationResult",
     "station_positions",
     "validate_scans",
@@ -88,6 +90,63 @@ DEFINITIONS = {
     "height_above_terrain_m": "z minus the twin's terrain (without a twin: the field scan's "
     "own DTM of ground_cell_m cells)",
 }
+
+
+@dataclass(frozen=True, kw_only=True)
+class ValidateParams:
+    """Settings of :func:`validate_scans` (``treesim validate``, the service's
+    ``validate`` process): each with its unit and range, checked here.
+
+    Examples
+    --------
+    >>> from treesim.plot.validate import ValidateParams
+    >>> ValidateParams(tau_m=0.02).height_bin_m
+    1.0
+    """
+
+    tau_m: float = param(
+        0.01,
+        help="coverage tolerance τ: a twin surface sample within it of a point is covered",
+        unit="m",
+        gt=0,
+        le=1.0,
+    )
+    height_bin_m: float = param(
+        1.0, help="height bins of the density profiles", unit="m", gt=0, le=100.0
+    )
+    range_bin_m: float = param(
+        2.0, help="range bins of the density profiles", unit="m", gt=0, le=1000.0
+    )
+    assign_distance_m: float = param(
+        ASSIGN_DISTANCE_M,
+        help="a point is given to the nearest twin tree whose mesh lies within this",
+        unit="m",
+        gt=0,
+        le=10.0,
+    )
+    ground_cell_m: float = param(
+        1.0,
+        help="without a twin: cells of the field scan's own DTM (its CSF ground)",
+        unit="m",
+        gt=0,
+        le=100.0,
+    )
+    max_distance_points: int = param(
+        2_000_000,
+        help="most points per direction for the distances (seeded subsample)",
+        ge=1,
+        le=10**9,
+    )
+    max_samples_per_tree: int = param(
+        200_000,
+        help="most surface samples per twin tree (else one per τ² of area)",
+        ge=200,
+        le=10**8,
+    )
+    seed: int = param(0, help="seed of the surface samples and the subsamples", ge=0, le=2**31 - 1)
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
 
 
 @dataclass
@@ -679,35 +738,23 @@ def _warnings(res: dict[str, Any], groups: list[str]) -> list[str]:
     return out
 
 
-def _check_params(tau_m: float, height_bin_m: float, range_bin_m: float, within: float) -> None:
-    for name, v in (
-        ("tau_m", tau_m),
-        ("height_bin_m", height_bin_m),
-        ("range_bin_m", range_bin_m),
-        ("assign_distance_m", within),
-    ):
-        if (
-            isinstance(v, bool)
-            or not isinstance(v, int | float)
-            or not (math.isfinite(v) and v > 0)
-        ):
-            raise InvalidParameterError(f"{name} must be a number > 0, got {v!r}")
+def _params(params: ValidateParams | None, settings: dict[str, Any]) -> ValidateParams:
+    """``params`` (default the model's) with the keyword ``settings`` over it, checked."""
+    from ..params import merge
+
+    if params is not None and not isinstance(params, ValidateParams):
+        raise InvalidParameterError(f"params must be a ValidateParams, got {type(params).__name__}")
+    return merge(params or ValidateParams(), settings)
 
 
 def validate_scans(
     real: Cloud,
     simulated: Cloud,
+    params: ValidateParams | None = None,
     *,
     plot: Plot | None = None,
     stations: Sequence[Any] | None = None,
-    tau_m: float = 0.01,
-    height_bin_m: float = 1.0,
-    range_bin_m: float = 2.0,
-    assign_distance_m: float = ASSIGN_DISTANCE_M,
-    ground_cell_m: float = 1.0,
-    max_distance_points: int = 2_000_000,
-    max_samples_per_tree: int = 200_000,
-    seed: int = 0,
+    **settings: Any,
 ) -> ValidationResult:
     """How closely ``simulated`` reproduces the field scan ``real`` (see the module notes).
 
@@ -718,25 +765,19 @@ def validate_scans(
         merged cloud without them is one group ``"all"``).
     simulated : Cloud
         The simulated scan (``treesim plot scan``: ``station`` and ``tree_id`` fields).
+    params : ValidateParams, optional
+        The settings: τ (``tau_m``), the profiles' bins, the assignment distance, ...
+        (default :class:`ValidateParams`' own).
     plot : Plot, optional
         The plot's digital twin: its terrain gives the heights, its trees the coverage
         figures (left out without it, and said so in ``notes``).
     stations : sequence of [x, y, z] or Station, optional
         The field's station positions (default the real cloud's metadata).
-    tau_m : float
-        Coverage tolerance τ (m).
-    height_bin_m, range_bin_m : float
-        Bins of the density profiles (m).
-    assign_distance_m : float
-        A real point is given to the nearest twin tree whose mesh lies within this (m).
-    ground_cell_m : float
-        Without a twin: cells of the field scan's own DTM (its CSF ground).
-    max_distance_points : int
-        At most this many points per direction for the distances (seeded subsample).
-    max_samples_per_tree : int
-        At most this many surface samples per tree (one per τ² of area otherwise).
-    seed : int
-        Seed of the surface samples and the subsamples.
+    **settings
+        Fields of :class:`ValidateParams` by name (``tau_m=0.02``, ``height_bin_m``,
+        ``range_bin_m``, ``assign_distance_m``, ``ground_cell_m``,
+        ``max_distance_points``, ``max_samples_per_tree``, ``seed``): set over
+        ``params``, checked the same way.
 
     Returns
     -------
@@ -749,18 +790,19 @@ def validate_scans(
     InputFormatError
         If the clouds (or the twin) do not overlap, or the station counts differ.
     InvalidParameterError
-        If a parameter is out of range.
+        If a setting is unknown or out of its range (the message names it).
 
     Examples
     --------
     >>> import treesim as ts
-    >>> from treesim.plot.validate import validate_scans
+    >>> from treesim.plot.validate import ValidateParams, validate_scans
     >>> real = ts.read_cloud("field.e57")  # doctest: +SKIP
     >>> sim = ts.read_cloud("sim/plot_scan.laz")  # doctest: +SKIP
-    >>> result = validate_scans(real, sim, plot=ts.read_plot("twin/plot.toml"))  # doctest: +SKIP
+    >>> twin = ts.read_plot("twin/plot.toml")  # doctest: +SKIP
+    >>> result = validate_scans(real, sim, ValidateParams(tau_m=0.02), plot=twin)  # doctest: +SKIP
     >>> print(result.summary)  # doctest: +SKIP
     """
-    _check_params(tau_m, height_bin_m, range_bin_m, assign_distance_m)
+    p = _params(params, settings)
     r_all, s_all = _check_cloud(real, "field scan"), _check_cloud(simulated, "simulated scan")
     _check_overlap(r_all, s_all, plot)
     real_pos, sim_pos, pos_source = _resolve_stations(real, simulated, stations)
@@ -770,31 +812,29 @@ def validate_scans(
     if not keep_r.any() or not keep_s.any():
         who = "field scan" if not keep_r.any() else "simulated scan"
         raise EmptyInputError(f"the {who} has no points in the compared region ({region})")
-    pooled = groups == ["all"]
     ctx: dict[str, Any] = {
+        "params": p,
         "frame": frame,
         "plot": plot,
-        "pooled": pooled,
+        "pooled": groups == ["all"],
         "ground": None,
-        "tau_m": float(tau_m),
-        "height_bin_m": float(height_bin_m),
-        "range_bin_m": float(range_bin_m),
-        "max_points": int(max_distance_points),
+        "tau_m": p.tau_m,
+        "height_bin_m": p.height_bin_m,
         "real_pos": real_pos,
         "sim_pos": sim_pos,
         "pos_source": pos_source,
         "region": region,
         "counts": (len(r_all), len(s_all)),
-        "assign_distance_m": float(assign_distance_m),
-        "sample_spacing_m": float(tau_m),
-        "max_samples": int(max_samples_per_tree),
-        "seed": int(seed),
+        "assign_distance_m": p.assign_distance_m,
+        "sample_spacing_m": p.tau_m,
+        "max_samples": p.max_samples_per_tree,
+        "seed": p.seed,
     }
     if plot is None:
-        ctx["ground"] = _ground_from_cloud(frame.to_local(r_all[keep_r]), float(ground_cell_m))
+        ctx["ground"] = _ground_from_cloud(frame.to_local(r_all[keep_r]), p.ground_cell_m)
         notes.append(
             "no twin given: heights are above the field scan's own ground (a DTM of "
-            f"{ground_cell_m:g} m cells), and the tree coverage and occlusion profile are "
+            f"{p.ground_cell_m:g} m cells), and the tree coverage and occlusion profile are "
             "left out"
         )
     rs = _side(real, r_all, keep_r, r_grp, real_pos, ctx)
@@ -808,20 +848,22 @@ def _measure(
     groups: list[str], rs: _Side, ss: _Side, ctx: dict[str, Any], notes: list[str]
 ) -> ValidationResult:
     """The figures, once both clouds are in the local frame (see :func:`validate_scans`)."""
+    from dataclasses import asdict
+
     from ..geometry import kdtree
 
-    plot, frame = ctx["plot"], ctx["frame"]
+    plot, frame, p = ctx["plot"], ctx["frame"], ctx["params"]
     real_pos, sim_pos = ctx["real_pos"], ctx["sim_pos"]
     if rs.range_m is None:
         notes.append("no station positions known: the density by range is left out")
     elif groups == ["all"] and real_pos is not None and len(real_pos) > 1:
         notes.append("ranges are from each point's nearest station (no station field)")
-    density, by_h, by_r = _density(groups, rs, ss, ctx["height_bin_m"], ctx["range_bin_m"])
+    density, by_h, by_r = _density(groups, rs, ss, p.height_bin_m, p.range_bin_m)
     kd = {"real": kdtree(rs.pts), "sim": kdtree(ss.pts)}
     trees, occl = (None, None)
     if plot is not None:
         trees, occl = _trees(plot, rs, ss, kd, ctx)
-    dist = _distances(groups, rs, ss, kd, ctx["max_points"], ctx["seed"])
+    dist = _distances(groups, rs, ss, kd, p.max_distance_points, p.seed)
     offsets = None
     if real_pos is not None and sim_pos is not None and groups != ["all"]:
         n = min(len(real_pos), len(sim_pos))
@@ -846,17 +888,12 @@ def _measure(
         notes=notes,
         warnings=_warnings(res, groups),
         parameters={
-            "tau_m": ctx["tau_m"],
-            "height_bin_m": ctx["height_bin_m"],
-            "range_bin_m": ctx["range_bin_m"],
-            "assign_distance_m": ctx["assign_distance_m"],
+            **asdict(p),
             "region": ctx["region"],
             "points_in_region_real": len(rs.pts),
             "points_in_region_simulated": len(ss.pts),
             "points_real": ctx["counts"][0],
             "points_simulated": ctx["counts"][1],
-            "max_distance_points": ctx["max_points"],
-            "seed": ctx["seed"],
         },
         frame_origin_m=list(frame.origin),
     )

@@ -2,63 +2,26 @@
 
 from __future__ import annotations
 
-import math
 import shutil
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .base import Input, Process, Progress, field_error
+from treesim.params import merge
+from treesim.plot.validate import ValidateParams
+
+from .base import Input, Process, Progress, job_schema
 
 
-@dataclass(frozen=True)
-class ValidateJob:
-    """A validate job's settings (the defaults are :func:`validate_scans`'s)."""
-
-    settings: tuple[tuple[str, float], ...] = ()
-
-
-#: The numeric settings a request may give, with their open lower and closed upper bound.
-_SETTINGS = {
-    "tau_m": (0.0, 1.0, "m", "τ: a twin surface sample within it of a point is covered"),
-    "height_bin_m": (0.0, 100.0, "m", "height bins of the density profiles"),
-    "range_bin_m": (0.0, 1000.0, "m", "range bins of the density profiles"),
-}
-
-
-def _validate_schema() -> dict[str, Any]:
-    return {
-        "type": "object",
-        "description": "How closely a simulated plot scan reproduces the field scan.",
-        "properties": {
-            k: {
-                "type": "number",
-                "exclusiveMinimum": lo,
-                "maximum": hi,
-                "x-unit": unit,
-                "description": what,
-            }
-            for k, (lo, hi, unit, what) in _SETTINGS.items()
-        },
-    }
-
-
-def _parse_validate(parameters: Mapping[str, Any]) -> ValidateJob:
-    out = []
-    for k, v in parameters.items():
-        lo, hi, _, _ = _SETTINGS[k]  # the schema refused other names
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise field_error(k, f"{k} must be a number")
-        if not lo < v <= hi:
-            raise field_error(k, f"{k} must be in ({lo:g}, {hi:g}], got {v!r}")
-        out.append((k, float(v)))
-    return ValidateJob(tuple(out))
+def _parse_validate(parameters: Mapping[str, Any]) -> ValidateParams:
+    """The request's settings over :class:`ValidateParams`' defaults, checked by the
+    model (its ranges are the schema's)."""
+    return merge(ValidateParams(), dict(parameters))
 
 
 def _execute_validate(
     inputs: Mapping[str, Path],
-    job: ValidateJob,
+    job: ValidateParams,
     out: Path,
     threads: int,
     progress: Progress,
@@ -80,7 +43,7 @@ def _execute_validate(
             plot_file = unpack_plot(inputs["plot"], work, label="the twin archive")
             plot = read_unpacked_plot(plot_file, work, "the twin archive")
         progress(0.2, "measuring")
-        result = validate_scans(real, sim, plot=plot, **dict(job.settings))
+        result = validate_scans(real, sim, job, plot=plot)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     progress(0.9, "writing the report")
@@ -93,7 +56,8 @@ PROCESS = Process(
     title="Check a simulated plot scan against the field scan",
     description="Set the simulated scan beside the field scan, per station and per twin "
     "tree: point density by height and by range, each tree's coverage and the occlusion "
-    "profile, distances both ways, and a one-line verdict (as treesim validate).",
+    "profile, distances both ways, and a one-line verdict (as "
+    "treesim validate).",
     inputs=(
         Input("real", ("cloud",), "the field scan (an E57 with its scans' poses, or LAS/LAZ)"),
         Input("simulated", ("cloud",), "the simulated scan (a plot-scan job's plot_scan.laz)"),
@@ -112,7 +76,7 @@ PROCESS = Process(
         ("distances.png", "distances both ways"),
     ),
     extra_schema=dict,
-    base_schema=_validate_schema,
+    base_schema=lambda: job_schema(ValidateParams),
     parse=_parse_validate,
     execute=_execute_validate,
 )

@@ -13,16 +13,17 @@ import json
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from treesim.cli import main
 from treesim.cloud import Cloud
-from treesim.errors import InputFormatError
+from treesim.errors import InputFormatError, InvalidParameterError
 from treesim.io import read_cloud, write_cloud
 from treesim.params import ScanParams
 from treesim.plot import Plot, PlotTree
 from treesim.plot.scan import scan_plot
-from treesim.plot.validate import VALIDATION_FILES, validate_scans
+from treesim.plot.validate import VALIDATION_FILES, ValidateParams, validate_scans
 from treesim.plot.validate_report import write_validation
 from treesim.scan import ScannerSpec
 
@@ -129,10 +130,28 @@ def test_a_field_cloud_without_stations_is_one_group(plot, field, tmp_path):
 
 
 def test_without_a_twin_the_coverage_is_left_out(field):
-    res = validate_scans(field, field)
+    # settings as ValidateParams and as keywords over it (the keyword wins)
+    params = ValidateParams(height_bin_m=0.5, range_bin_m=3.0)
+    res = validate_scans(field, field, params, range_bin_m=4.0)
     assert res.trees is None and res.occlusion_profile is None
     assert any("no twin given" in n for n in res.notes)
     assert res.density["density_ratio"] == 1.0
+    assert np.diff(res.density_by_height["edges_m"]) == pytest.approx(0.5)
+    assert np.diff(res.density_by_range["edges_m"]) == pytest.approx(4.0)
+    assert res.parameters["range_bin_m"] == 4.0 and res.parameters["height_bin_m"] == 0.5
+
+
+def test_settings_out_of_range_name_themselves(field):
+    with pytest.raises(InvalidParameterError, match=r"tau_m must be a number in \(0, 1\]"):
+        ValidateParams(tau_m=0.0)
+    with pytest.raises(InvalidParameterError, match="max_samples_per_tree"):
+        ValidateParams(max_samples_per_tree=10)
+    with pytest.raises(InvalidParameterError, match="height_bin_m"):
+        validate_scans(field, field, height_bin_m=-1.0)
+    with pytest.raises(InvalidParameterError, match="tau_m must be a number"):
+        validate_scans(field, field, tau_m="fine")
+    with pytest.raises(InvalidParameterError, match="unknown setting 'bins'"):
+        validate_scans(field, field, bins=3)
 
 
 def test_bad_inputs_say_what_is_wrong(plot, field):
@@ -185,8 +204,11 @@ def test_the_command_writes_the_report(files, tmp_path, capsys):
     out = tmp_path / "v"
     argv = ["validate", str(files / "field.laz"), str(files / "plot_scan.laz")]
     assert main([*argv, "--plot", str(files / "plot.toml"), "--tau-mm", "20", "-o", str(out)]) == 0
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
     assert "simulated scan reproduces the field scan" in text
+    # the deprecated --tau-mm still works, and says what to give instead
+    assert "--tau-mm is deprecated; give --tau-m 0.02" in captured.err
     for name in VALIDATION_FILES.values():
         assert (out / name).stat().st_size > 0, name
     data = json.loads((out / "validation.json").read_text())
@@ -194,6 +216,12 @@ def test_the_command_writes_the_report(files, tmp_path, capsys):
     assert data["stations"]["simulated_m"] == [list(s) for s in STATIONS]
     html = (out / "validation.html").read_text()
     assert html.count("data:image/png;base64,") == 5
+    # --tau-m gives the same setting the deprecated --tau-mm gave
+    from treesim.cli import build_parser
+    from treesim.cli._options import collect
+
+    args = build_parser().parse_args([*argv, "--tau-m", "0.02", "--seed", "3", "-o", "x"])
+    assert collect(args) == {"tau_m": 0.02, "seed": 3} and args.tau_from_mm is None
     # without the twin: no coverage figures, and why
     out2 = tmp_path / "v2"
     assert main([*argv, "-o", str(out2)]) == 0
@@ -218,7 +246,15 @@ def test_the_command_refuses_bad_input_in_one_line(files, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:  # a usage error
         main([*argv, "--tau-mm", "0", "-o", out])
     assert exc.value.code == 2
-    assert "expected a number > 0" in capsys.readouterr().err
+    assert "--tau-mm: expected a number in (0, 1000] (mm), got '0'" in capsys.readouterr().err
+    for bad in ("0", "2", "nan"):  # the range ValidateParams declares: (0, 1] m
+        with pytest.raises(SystemExit) as exc:
+            main([*argv, "--tau-m", bad, "-o", out])
+        assert exc.value.code == 2
+        assert "--tau-m: expected a number in (0, 1]" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # one τ, not two
+        main([*argv, "--tau-m", "0.02", "--tau-mm", "20", "-o", out])
+    assert "not allowed with argument" in capsys.readouterr().err
 
 
 def test_the_writers_draw_without_a_range_profile(field, tmp_path):
