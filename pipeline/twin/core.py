@@ -53,6 +53,7 @@ __all__ = [
     "TwinParams",
     "TwinResult",
     "declared_units",
+    "finished_twin",
     "plot_from_cloud",
     "stand_on_ground",
 ]
@@ -462,6 +463,80 @@ def _write_stations_csv(path: Path, stations: list[list[float]]) -> Path:
     return write_text(path, "\n".join(rows) + "\n")
 
 
+#: Bytes read at each end of a plot's cloud for its fingerprint.
+_FINGERPRINT_BYTES = 1 << 20
+
+
+def _fingerprint(path: Path) -> dict[str, Any]:
+    """What tells a plot's cloud from another for reuse: its size, modification time and
+    the SHA-256 of its first and last MiB, and treesim's version."""
+    import hashlib
+
+    from .._version import __version__
+
+    st = path.stat()
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        h.update(fh.read(_FINGERPRINT_BYTES))
+        if st.st_size > _FINGERPRINT_BYTES:
+            fh.seek(max(_FINGERPRINT_BYTES, st.st_size - _FINGERPRINT_BYTES))
+            h.update(fh.read(_FINGERPRINT_BYTES))
+    return {
+        "size": int(st.st_size),
+        "mtime_ns": int(st.st_mtime_ns),
+        "ends_sha256": h.hexdigest(),
+        "treesim": __version__,
+    }
+
+
+def _params_dict(tp: TwinParams) -> dict[str, Any]:
+    return {k: getattr(tp, k) for k in tp.__dataclass_fields__}
+
+
+def finished_twin(
+    cloud_path: str | Path, outdir: str | Path, params: TwinParams | None = None
+) -> TwinResult | None:
+    """The twin already in ``outdir`` when it was made from this cloud with these
+    settings, else None: its ``from_cloud.json`` names the same cloud (size, modification
+    time, SHA-256 of its first and last MiB), the same :class:`TwinParams` and treesim
+    version, and every file of the twin is there. Nothing is written.
+
+    Parameters
+    ----------
+    cloud_path : str or Path
+        The plot's cloud.
+    outdir : str or Path
+        The twin's folder.
+    params : TwinParams, optional
+
+    Examples
+    --------
+    >>> from treesim.twin import finished_twin
+    >>> finished_twin("plot.laz", "twin/") is None  # doctest: +SKIP
+    False
+    """
+    import json
+
+    out = Path(outdir)
+    try:
+        figures = json.loads((out / TWIN_FILES["json"]).read_text(encoding="utf-8"))
+        source = _fingerprint(Path(cloud_path))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(figures, dict) or figures.get("source") != source:
+        return None
+    if figures.get("params") != _params_dict(params or TwinParams()):
+        return None
+    trees = figures.get("trees") or []
+    needed = [TWIN_FILES[k] for k in ("plot", "trees", "dtm", "labelled", "report")]
+    needed += [str(r.get("twin_table", "")) for r in trees]
+    if not trees or not all((out / n).is_file() for n in needed):
+        return None
+    plot_file = out / TWIN_FILES["plot"]
+    left = figures.get("left_out") or []
+    return TwinResult(out, plot_file, trees, left, list(figures.get("warnings") or []), figures)
+
+
 def plot_from_cloud(
     cloud_path: str | Path,
     outdir: str | Path,
@@ -481,7 +556,8 @@ def plot_from_cloud(
     cloud_path : str or Path
         The plot's cloud: LAS/LAZ, E57 (scans with poses), PLY or text.
     outdir : str or Path
-        The twin's folder (created; a second run into it reuses finished trees).
+        The twin's folder (created; a second run into it reuses finished trees;
+        :func:`finished_twin` says whether the whole twin is there already).
     params : TwinParams, optional
     executor : {"inline", "local", "dask"}
         Where the trees are reconstructed (see :func:`treesim.run_batch`).
@@ -521,6 +597,9 @@ def plot_from_cloud(
     src = Path(cloud_path)
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
+    # the twin's last word goes first: a folder half made again never passes for finished
+    (out / TWIN_FILES["json"]).unlink(missing_ok=True)
+    source = _fingerprint(src) if src.is_file() else None
     say(0.0, "reading")
     units, unit_warnings = _units(src, tp.units)
     cloud = _read(src, units)
@@ -560,7 +639,8 @@ def plot_from_cloud(
     figures = {
         "kind": "treesim.plot_from_cloud",
         "input": str(src),
-        "params": {k: getattr(tp, k) for k in tp.__dataclass_fields__},
+        "source": source,
+        "params": _params_dict(tp),
         "units": units,
         "stations": stations,
         "ground": ground_fig,
