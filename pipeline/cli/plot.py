@@ -8,13 +8,16 @@
   plot's context (``plot_scan.laz`` with ``tree_id``, ``plot_scan.json``,
   ``tree_figures.csv``);
 * ``treesim plot from-cloud PLOT.laz|PLOT.e57 -o twin/``: a field plot's cloud becomes a
-  digital twin (ground and DTM, stems, trees, a QSM per tree, ``plot.toml``, a report).
+  digital twin (ground and DTM, stems, trees, a QSM per tree, ``plot.toml``, a report);
+  ``treesim plot from-cloud A.laz B.laz field/ -o twins/``: many plots, each twin in
+  ``twins/<plot>/``, ``plots.csv`` and ``plots.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import InvalidParameterError
 from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
@@ -30,6 +33,9 @@ from ._options import (
 )
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
+
+if TYPE_CHECKING:  # named only: the twin's stages are imported when the command runs
+    from ..twin import TwinParams, TwinResult
 
 
 def _terrain(args: argparse.Namespace, sp: StandParams):
@@ -149,18 +155,55 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_from_cloud(args: argparse.Namespace) -> int:
-    import sys
-
     from ..params import merge
-    from ..twin import TWIN_FILES, TwinParams, plot_from_cloud
-    from .progress import BatchProgressBar
+    from ..twin import TwinParams
 
     tp = merge(TwinParams(), collect(args))
+    clouds = list(args.cloud)
+    if len(clouds) == 1 and not Path(clouds[0]).is_dir():
+        return _from_one_cloud(args, clouds[0], tp)
+    return _from_many_clouds(args, clouds, tp)
+
+
+def _print_twin(res: TwinResult, output: str) -> None:
+    from ..twin import TWIN_FILES
+
+    print(f"{'tree':>5} {'x (m)':>11} {'y (m)':>11} {'slab DBH':>9} {'QSM DBH':>8} {'height':>7}")
+    for r in res.trees:
+        qsm = f"{r['qsm_dbh_m'] * 100:6.1f}cm" if r.get("qsm_dbh_m") else "     –  "
+        print(
+            f"{r['tree_id']:>5} {r['x_m']:>11.2f} {r['y_m']:>11.2f} "
+            f"{r['slab_dbh_m'] * 100:7.1f}cm {qsm} "
+            + ("     – " if r["height_m"] is None else f"{r['height_m']:6.1f}m")
+        )
+    for r in res.left_out:
+        print(f"left out: stem {r['tree_id']} at ({r['x_m']:.2f}, {r['y_m']:.2f}): {r['reason']}")
+    print_warnings(res.warnings)
+    print(res.summary_line())
+    print(f"twin: {res.plot_file}; report: {Path(output) / TWIN_FILES['report']}")
+
+
+def _from_one_cloud(args: argparse.Namespace, cloud: str, tp: TwinParams) -> int:
+    """One cloud file: its twin directly in -o (a finished one made from the same cloud
+    and settings is reused)."""
+    import sys
+
+    from ..twin import TWIN_FILES, finished_twin, plot_from_cloud
+    from .progress import BatchProgressBar
+
     output_folder(args.output, files=list(TWIN_FILES.values()))
+    res = finished_twin(cloud, args.output, tp)
+    if res is not None:
+        print(
+            f"the twin in {args.output} was made from this cloud with these settings: reused, "
+            f"not made again (delete {Path(args.output) / TWIN_FILES['json']} to make it again)"
+        )
+        _print_twin(res, args.output)
+        return 0
     bar = None if args.no_progress else BatchProgressBar(sys.stderr)
     try:
         res = plot_from_cloud(
-            args.cloud,
+            cloud,
             args.output,
             tp,
             executor=args.executor,
@@ -180,19 +223,55 @@ def cmd_from_cloud(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    print(f"{'tree':>5} {'x (m)':>11} {'y (m)':>11} {'slab DBH':>9} {'QSM DBH':>8} {'height':>7}")
-    for r in res.trees:
-        qsm = f"{r['qsm_dbh_m'] * 100:6.1f}cm" if r.get("qsm_dbh_m") else "     –  "
-        print(
-            f"{r['tree_id']:>5} {r['x_m']:>11.2f} {r['y_m']:>11.2f} "
-            f"{r['slab_dbh_m'] * 100:7.1f}cm {qsm} "
-            + ("     – " if r["height_m"] is None else f"{r['height_m']:6.1f}m")
+    _print_twin(res, args.output)
+    return 0
+
+
+def _from_many_clouds(args: argparse.Namespace, clouds: list[str], tp: TwinParams) -> int:
+    """Many clouds (or folders): each plot's twin in -o/<id>/, plots.csv and plots.json."""
+    import sys
+
+    from ..twin import PLOTS_FILES, plots_from_clouds
+
+    output_folder(args.output, files=list(PLOTS_FILES.values()))
+    try:
+        res = plots_from_clouds(
+            clouds,
+            args.output,
+            tp,
+            executor=args.executor,
+            workers=args.workers,
+            threads=args.threads,
+            scheduler=args.scheduler,
+            progress=None if args.no_progress else progress_printer(label="from-cloud"),
         )
-    for r in res.left_out:
-        print(f"left out: stem {r['tree_id']} at ({r['x_m']:.2f}, {r['y_m']:.2f}): {r['reason']}")
-    print_warnings(res.warnings)
+    except KeyboardInterrupt:
+        print(
+            f"treesim: interrupted; the plots finished so far are kept in {args.output} "
+            f"(listed in {PLOTS_FILES['csv']}); run the same command again to finish the rest",
+            file=sys.stderr,
+        )
+        return 130
+    for path, why in res.skipped_files:
+        print(f"skipped: {path} ({why})")
+    print(f"{'plot':<24} {'status':<7} {'trees':>5} {'left out':>8} {'time (s)':>9}")
+    for r in res.rows:
+        trees = "–" if r["trees"] is None else r["trees"]
+        left = "–" if r["left_out"] is None else r["left_out"]
+        print(f"{r['id']:<24} {r['status']:<7} {trees:>5} {left:>8} {r['time_s']:>9.1f}")
+    for pid, warnings in res.warnings.items():
+        print_warnings([f"{pid}: {w}" for w in warnings])
+    for r in res.failed:
+        print(f"failed: {r['id']} ({r['input']}): {r['error_class']}: {r['error']}")
     print(res.summary_line())
-    print(f"twin: {res.plot_file}; report: {Path(args.output) / TWIN_FILES['report']}")
+    print(f"twins in {args.output}/<plot>/; summary: {res.summary_csv}, {res.summary_json}")
+    if res.n_failed:
+        print(
+            f"treesim: error: {res.n_failed} of {len(res.rows)} plots failed (listed above "
+            f"and in {res.summary_csv})",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -239,14 +318,22 @@ def _register_generate(psub: argparse._SubParsersAction) -> None:
 def _register_from_cloud(psub: argparse._SubParsersAction) -> None:
     fc = psub.add_parser(
         "from-cloud",
-        help="a field plot's cloud becomes a digital twin",
+        help="field plots' clouds become digital twins",
         description="Classify the ground (cloth simulation filter) and build a DTM; find the "
         "stems and give every point above the ground to its tree; reconstruct each tree (a "
         "QSM) in parallel, resumably; write the twin (plot.toml with the DTM as terrain and "
         "each tree as its QSM with its field cloud), each tree's cloud, the labelled plot "
-        "cloud and a report into -o. Trees that fail are listed and left out.",
+        "cloud and a report into -o. Trees that fail are listed and left out. Many clouds "
+        "(or folders of them): one plot after another, each twin in -o/<plot>/, a row per "
+        "plot in plots.csv and plots.json; a plot that fails is listed and the others go "
+        "on; a plot made before from the same cloud and settings is reused.",
     )
-    fc.add_argument("cloud", metavar="CLOUD", help="the plot's cloud (.laz, .las, .e57, .ply, ...)")
+    fc.add_argument(
+        "cloud",
+        metavar="CLOUD",
+        nargs="+",
+        help="a plot's cloud (.laz, .las, .e57, .ply, ...) or a folder of them",
+    )
     fc.add_argument("-o", "--output", required=True, metavar="DIR")
     from ..twin import TwinParams
 
