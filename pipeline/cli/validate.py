@@ -1,6 +1,6 @@
 """``treesim validate REAL SIMULATED``: how closely a simulated plot scan reproduces the
 field scan, from the stations actually used (density by height and range per station,
-each twin tree's coverage and the occlusion profile, distances
+each twin tree's coverage, stem and crown apart, and the occlusion profile, distances
 both ways). The settings' options come from
 :class:`~treesim.plot.validate.ValidateParams`; ``--tau-mm`` is kept, deprecated, for
 scripts written before ``--tau-m``."""
@@ -125,6 +125,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
         print(f"note: {n}")
     print_warnings(result.warnings)
     print(result.summary)
+    if result.verdict["failed"]:
+        print(f"criteria not met: {', '.join(result.verdict['failed'])}")
     html = out / VALIDATION_FILES["html"]
     print(f"wrote {len(written)} files into {out}; report: {html} (open it in a browser)")
     return 0
@@ -138,9 +140,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="How closely does SIMULATED (treesim plot scan's cloud) reproduce REAL "
         "(the field scan: an E57 with one scan per station, or a LAS/LAZ), from the stations "
         "actually used? Per station: point density by height and by range, real and "
-        "simulated, and their ratio; per twin tree (--plot): coverage at τ and the occlusion "
-        "profile; nearest-neighbour distances both ways. Writes validation.json, the figures "
-        "and validation.html into -o.",
+        "simulated, and their ratio; per twin tree (--plot): coverage at τ, of the whole tree, "
+        "its stem and its crown, and the occlusion profile; nearest-neighbour distances both "
+        "ways. Writes validation.json, the figures and validation.html into -o.",
     )
     v.add_argument("real", metavar="REAL", help="the field scan (.e57, .laz, .las, .ply, ...)")
     v.add_argument("simulated", metavar="SIMULATED", help="the simulated scan (plot_scan.laz)")

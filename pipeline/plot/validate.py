@@ -69,13 +69,17 @@ STATION_OFFSET_WARN_M = 0.1
 MAX_BINS = 500
 #: The verdict "reproduces" needs all of these: the overall density ratio within
 #: ``density_ratio``, every station's within ``station_density_ratio``, every twin tree's
-#: coverage within ``coverage_points`` percentage points of the field's, and every
-#: station's range profile within ``range_profile_difference`` of the field's shape.
+#: coverage within ``coverage_points`` percentage points of the field's, every twin
+#: tree's *stem* coverage within ``stem_coverage_points`` (trees with a cylinder table),
+#: and every station's range profile within ``range_profile_difference`` of the field's
+#: shape. A tree's crown is judged by ``coverage_points`` for the one-line account of the
+#: parts ("stems reproduce; crowns do not"), not as a criterion of its own.
 #: (Set by judgement, not yet calibrated on field campaigns.)
 VERDICT = {
     "density_ratio": (0.85, 1.18),
     "station_density_ratio": (0.7, 1.43),
     "coverage_points": 10.0,
+    "stem_coverage_points": 10.0,
     "range_profile_difference": 0.1,
 }
 
@@ -84,6 +88,11 @@ DEFINITIONS = {
     "range_profile_difference": "half the summed absolute difference of the real and "
     "simulated shares of points per range bin (0: same shape, 1: disjoint)",
     "coverage": "share (0-1) of a twin tree's visible surface samples within tau_m of a point",
+    "stem": "the part of a twin tree's surface on its cylinder table's stem (branch order "
+    "0, within the tubes' faceting of a stem cylinder's surface); null for a tree without "
+    "a table (a plain mesh)",
+    "crown": "the rest of a twin tree's surface: branches of order >= 1 and leaves; null "
+    "for a tree without a table",
     "real_to_simulated": "every real point to its nearest simulated point (m): AVOHD "
     "completeness of the simulation, the field scan as reference",
     "simulated_to_real": "every simulated point to its nearest real point (m): AVOHD accuracy",
@@ -170,14 +179,24 @@ class ValidationResult:
     trees : list of dict or None
         Per twin tree: points real and simulated, ``coverage_real``,
         ``coverage_simulated``, ``coverage_difference_points`` (simulated − real, in
-        percentage points), ``samples``, ``area_m2``.
+        percentage points), ``samples``, ``area_m2``; and ``stem`` and ``crown``, each
+        with ``coverage_real``, ``coverage_simulated``, ``coverage_difference_points``,
+        ``samples`` and ``area_m2`` (None for a tree without a cylinder table: a plain
+        mesh).
     occlusion_profile : dict or None
-        ``edges_m``, ``samples``, ``coverage_real``, ``coverage_simulated`` per height band.
+        ``edges_m``, ``samples``, ``coverage_real``, ``coverage_simulated`` per height band;
+        the same for the stems and the crowns (``stem`` and ``crown``: over the trees with
+        a table).
     distances : dict
         ``real_to_simulated`` and ``simulated_to_real`` statistics (m), overall and
         ``by_station``.
     notes, warnings : list of str
         What was left out and why; implausible results.
+    verdict : dict
+        ``reproduces`` (bool), ``failed`` (the names of the :data:`VERDICT` criteria not
+        met), ``criteria`` (per criterion its ``value``, ``bound`` and ``passed``; None
+        where it does not apply) and ``parts`` (one line: do the stems, the crowns
+        reproduce?).
     parameters : dict
     frame_origin_m : list of float
 
@@ -200,6 +219,7 @@ class ValidationResult:
     distances: dict[str, Any]
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    verdict: dict[str, Any] = field(default_factory=dict)
     parameters: dict[str, Any] = field(default_factory=dict)
     frame_origin_m: list[float] = field(default_factory=list)
 
@@ -220,6 +240,7 @@ class ValidationResult:
                 "distances": self.distances,
                 "notes": self.notes,
                 "warnings": self.warnings,
+                "verdict": self.verdict,
                 "parameters": self.parameters,
                 "frame_origin_m": self.frame_origin_m,
                 "definitions": dict(DEFINITIONS),
@@ -545,8 +566,9 @@ def _assign(
 
 def _surface_samples(
     v: np.ndarray, f: np.ndarray, spacing_m: float, max_samples: int, seed: int
-) -> tuple[np.ndarray, float]:
-    """Area-uniform samples of a tree's visible surface (hidden surface dropped)."""
+) -> tuple[np.ndarray, float, float]:
+    """Area-uniform samples of a tree's visible surface (hidden surface dropped), the
+    mesh's area and the area each sample stands for (m²)."""
     from ..geometry import inside_other_parts, mesh_parts, sample_surface
 
     tri = v[f]
@@ -556,7 +578,7 @@ def _surface_samples(
     n = int(np.clip(math.ceil(area / spacing_m**2), 200, max_samples))
     s, face = sample_surface(v, f, n, seed=seed)
     hidden = inside_other_parts(s, face, v, f, mesh_parts(v, f), seed=seed)
-    return s[~hidden], area
+    return s[~hidden], area, area / n
 
 
 def _covered(tree: Any, samples: np.ndarray, tau_m: float) -> np.ndarray:
@@ -566,58 +588,179 @@ def _covered(tree: Any, samples: np.ndarray, tau_m: float) -> np.ndarray:
     return np.isfinite(d)
 
 
+# -- trees: stem and crown -----------------------------------------------------------
+#: A sample lies on the stem when it is this close to a stem cylinder's surface: the
+#: tubes' faceting (a polygon of ``facets`` sides inside the circle) plus this share of
+#: the radius and this many metres (junctions, rounding).
+STEM_SLACK_RADIUS = 0.03
+STEM_SLACK_M = 0.002
+#: Below this share of the stem cylinders' side area found on the mesh, the tree's table
+#: does not describe its mesh: its parts are left out (null), with a warning.
+STEM_FIT_MIN = 0.5
+
+
+def _placed_stem(plot: Plot, tid: int, frame: LocalFrame) -> dict[str, np.ndarray] | None:
+    """The tree's stem cylinders (branch order 0) as the plot places its mesh, in the
+    local frame: ``start``, unit ``axis``, ``length_m``, ``r0_m`` and ``r1_m`` (radius at
+    the start and the end); None for a tree without a cylinder table (a plain mesh)."""
+    from ._sources import rotation
+
+    # Plot.tree_parts keeps each tree's table and the stem base its mesh was moved from
+    table = plot._tables.get(tid)
+    if table is None:
+        return None
+    stem = np.flatnonzero(np.asarray(table.branch_order) == 0)
+    if len(stem) == 0:
+        return None
+    t = plot.tree(tid)
+    base = np.asarray(plot._origin[tid], dtype=np.float64)
+    rot = rotation(t.rotation_deg)
+    # as Plot._place: the source's stem base (its lowest point) to the tree's position,
+    # standing on the terrain, which puts the placed mesh's lowest point at the base
+    shift = np.array([t.x_m, t.y_m, plot.tree_bounds(tid)[0, 2]]) - frame.origin_array
+    axis = np.asarray(table.axis, dtype=np.float64)[stem] @ rot.T
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    start = ((np.asarray(table.start, dtype=np.float64)[stem] - base) * t.scale) @ rot.T
+    return {
+        "start": start + shift,
+        "axis": axis,
+        "length_m": np.asarray(table.length_m, dtype=np.float64)[stem] * t.scale,
+        "r0_m": np.asarray(table.radius_m, dtype=np.float64)[stem] * t.scale,
+        "r1_m": np.asarray(table.end_radius_m, dtype=np.float64)[stem] * t.scale,
+    }
+
+
+def _on_stem(samples: np.ndarray, stem: dict[str, np.ndarray], facets: int) -> np.ndarray:
+    """Which samples lie on the surface of one of the stem's cylinders (within the
+    faceting's slack): distance to the side at the sample's height along the axis, or to
+    the nearer end disc beyond the ends."""
+    s, a, length = stem["start"], stem["axis"], stem["length_m"]
+    r0, r1 = stem["r0_m"], stem["r1_m"]
+    facet = 1.0 - math.cos(math.pi / max(int(facets), 3)) + STEM_SLACK_RADIUS
+    out = np.zeros(len(samples), dtype=bool)
+    step = max(256, 1_000_000 // len(s))  # (step, k, 3) float64 blocks of at most 24 MB
+    for lo in range(0, len(samples), step):
+        d = samples[lo : lo + step, None, :] - s[None]
+        t = np.einsum("mkj,kj->mk", d, a)
+        rho = np.linalg.norm(d - t[..., None] * a[None], axis=2)
+        tc = np.clip(t, 0.0, length)
+        r = r0 + (r1 - r0) * tc / length
+        side = np.abs(rho - r)
+        end = np.hypot(t - tc, np.maximum(rho - r, 0.0))
+        dist = np.where(t == tc, side, end)
+        out[lo : lo + step] = (dist <= facet * r + STEM_SLACK_M).any(axis=1)
+    return out
+
+
+def _stem_side_area_m2(stem: dict[str, np.ndarray]) -> float:
+    return float(np.sum(math.pi * (stem["r0_m"] + stem["r1_m"]) * stem["length_m"]))
+
+
+def _part(in_r: np.ndarray, in_s: np.ndarray, mask: np.ndarray, w_m2: float) -> dict[str, Any]:
+    """One part's coverage figures (its samples ``mask``)."""
+    n = int(mask.sum())
+    c_r = float(in_r[mask].mean()) if n else None
+    c_s = float(in_s[mask].mean()) if n else None
+    return {
+        "coverage_real": c_r,
+        "coverage_simulated": c_s,
+        "coverage_difference_points": None if c_r is None else 100.0 * (c_s - c_r),
+        "samples": n,
+        "area_m2": n * w_m2,
+    }
+
+
+def _tree_row(
+    tid: int, mesh: tuple[np.ndarray, np.ndarray], real: _Side, sim: _Side, kd: dict, ctx: dict
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """One twin tree's row and its samples' heights, coverage and part (``stem``: True,
+    False, or all False with ``has_parts`` False for a tree without a table)."""
+    plot, frame, p = ctx["plot"], ctx["frame"], ctx["params"]
+    samples, area, w = _surface_samples(*mesh, p.tau_m, p.max_samples_per_tree, p.seed)
+    in_r, in_s = _covered(kd["real"], samples, p.tau_m), _covered(kd["sim"], samples, p.tau_m)
+    n_r, n_s = int((real.tree_id == tid).sum()), int((sim.tree_id == tid).sum())
+    hit = None if ctx["labelled"] is None else ctx["labelled"] == tid
+    whole = _part(in_r, in_s, np.ones(len(samples), dtype=bool), w)
+    stem = _placed_stem(plot, tid, frame)
+    on_stem = np.zeros(len(samples), dtype=bool)
+    parts: dict[str, Any] = {"stem": None, "crown": None}
+    if stem is not None:
+        on_stem = _on_stem(samples, stem, int(plot.facets))
+        fit = on_stem.sum() * w / _stem_side_area_m2(stem)
+        if fit < STEM_FIT_MIN:
+            ctx["warnings"].append(
+                f"tree {tid}: only {100 * fit:.0f} % of its stem cylinders' surface lies on "
+                "its mesh: its table does not describe the mesh, stem and crown left out"
+            )
+            stem, on_stem = None, np.zeros(len(samples), dtype=bool)
+        else:
+            parts = {"stem": _part(in_r, in_s, on_stem, w), "crown": _part(in_r, in_s, ~on_stem, w)}
+    row = {
+        "tree_id": int(tid),
+        "points_real": n_r,
+        "points_simulated": n_s,
+        "density_ratio": n_s / n_r if n_r else None,
+        "coverage_real": whole["coverage_real"],
+        "coverage_simulated": whole["coverage_simulated"],
+        "coverage_difference_points": whole["coverage_difference_points"],
+        **parts,
+        "points_simulated_tree_id": None if hit is None else int(hit.sum()),
+        "assignment_agreement": None
+        if hit is None or not hit.any()
+        else float((sim.tree_id[hit] == tid).mean()),
+        "samples": int(len(samples)),
+        "area_m2": area,
+    }
+    arrays = {
+        "height_m": _heights(samples, frame, plot, None),
+        "real": in_r,
+        "sim": in_s,
+        "stem": on_stem,
+        "has_parts": np.full(len(samples), stem is not None),
+    }
+    return row, arrays
+
+
+def _band_coverage(k: np.ndarray, n_bins: int, a: dict[str, np.ndarray], mask) -> dict:
+    n = np.bincount(k[mask], minlength=n_bins)
+    return {
+        "samples": n.tolist(),
+        "coverage_real": _ratio(np.bincount(k[mask], a["real"][mask], n_bins), n),
+        "coverage_simulated": _ratio(np.bincount(k[mask], a["sim"][mask], n_bins), n),
+    }
+
+
 def _trees(
     plot: Plot, real: _Side, sim: _Side, kd: dict[str, Any], ctx: dict[str, Any]
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Per-tree points and coverage, and the occlusion profile (coverage by height)."""
-    frame, tau = ctx["frame"], ctx["tau_m"]
+    """Per-tree points and coverage (whole, stem, crown), and the occlusion profile
+    (coverage by height band)."""
+    frame, p = ctx["frame"], ctx["params"]
     meshes = {tid: _tree_mesh(plot, tid, frame) for tid in plot.tree_ids}
     # both clouds' points go to trees by one rule (the simulated tree_id only checks it)
-    labelled = sim.tree_id
-    real.tree_id = _assign(real.pts, meshes, ctx["assign_distance_m"])
-    sim.tree_id = _assign(sim.pts, meshes, ctx["assign_distance_m"])
-    rows, hs, cr, cs = [], [], [], []
-    for tid, (v, f) in meshes.items():
-        samples, area = _surface_samples(
-            v, f, ctx["sample_spacing_m"], ctx["max_samples"], ctx["seed"]
-        )
-        in_r, in_s = _covered(kd["real"], samples, tau), _covered(kd["sim"], samples, tau)
-        hs.append(_heights(samples, frame, plot, None))
-        cr.append(in_r)
-        cs.append(in_s)
-        n_r, n_s = int((real.tree_id == tid).sum()), int((sim.tree_id == tid).sum())
-        hit = None if labelled is None else labelled == tid
-        c_r = float(in_r.mean()) if len(samples) else None
-        c_s = float(in_s.mean()) if len(samples) else None
-        rows.append(
-            {
-                "tree_id": int(tid),
-                "points_real": n_r,
-                "points_simulated": n_s,
-                "density_ratio": n_s / n_r if n_r else None,
-                "coverage_real": c_r,
-                "coverage_simulated": c_s,
-                "coverage_difference_points": None if c_r is None else 100.0 * (c_s - c_r),
-                "points_simulated_tree_id": None if hit is None else int(hit.sum()),
-                "assignment_agreement": None
-                if hit is None or not hit.any()
-                else float((sim.tree_id[hit] == tid).mean()),
-                "samples": int(len(samples)),
-                "area_m2": area,
-            }
-        )
+    ctx["labelled"] = sim.tree_id
+    real.tree_id = _assign(real.pts, meshes, p.assign_distance_m)
+    sim.tree_id = _assign(sim.pts, meshes, p.assign_distance_m)
+    rows, per = [], []
+    for tid, mesh in meshes.items():
+        row, arrays = _tree_row(tid, mesh, real, sim, kd, ctx)
+        rows.append(row)
+        per.append(arrays)
     plot.release(list(meshes))
-    h, in_r, in_s = np.concatenate(hs), np.concatenate(cr), np.concatenate(cs)
-    edges = _edges([h], ctx["height_bin_m"])
-    k = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, len(edges) - 2)
-    n = np.bincount(k, minlength=len(edges) - 1)
+    a = {key: np.concatenate([x[key] for x in per]) for key in per[0]}
+    edges = _edges([a["height_m"]], p.height_bin_m)
+    k = np.clip(np.searchsorted(edges, a["height_m"], side="right") - 1, 0, len(edges) - 2)
+    nb = len(edges) - 1
     prof = {
         "edges_m": edges.tolist(),
-        "samples": n.tolist(),
-        "coverage_real": _ratio(np.bincount(k, in_r, len(n)), n),
-        "coverage_simulated": _ratio(np.bincount(k, in_s, len(n)), n),
-        "tau_m": tau,
+        **_band_coverage(k, nb, a, np.ones(len(k), dtype=bool)),
+        "stem": None,
+        "crown": None,
+        "tau_m": p.tau_m,
     }
+    if a["has_parts"].any():
+        prof["stem"] = _band_coverage(k, nb, a, a["has_parts"] & a["stem"])
+        prof["crown"] = _band_coverage(k, nb, a, a["has_parts"] & ~a["stem"])
     return rows, prof
 
 
@@ -677,37 +820,82 @@ def _distances(
 
 
 # -- the verdict ----------------------------------------------------------------------
-def _summary(density: dict[str, Any], trees: list | None, dist: dict[str, Any]) -> str:
+def _worst(values: Any) -> float | None:
+    vals = [abs(v) for v in values if v is not None]
+    return max(vals) if vals else None
+
+
+def _criterion(value: Any, bound: Any, passed: bool | None) -> dict[str, Any]:
+    shown = list(bound) if isinstance(bound, tuple) else bound
+    return {"value": value, "bound": shown, "passed": passed}
+
+
+def _verdict(density: dict[str, Any], trees: list | None) -> dict[str, Any]:
+    """Each :data:`VERDICT` criterion's worst value and whether it is met (None: it does
+    not apply), the criteria that failed, and one line on the stems and crowns."""
+    ratio = density["density_ratio"]
+    per = [v["density_ratio"] for v in density["per_station"].values() if v["density_ratio"]]
+    counted = [t for t in trees or [] if t["points_real"]]
+    whole = _worst(t["coverage_difference_points"] for t in counted)
+    stem = _worst(t["stem"]["coverage_difference_points"] for t in counted if t["stem"])
+    crown = _worst(t["crown"]["coverage_difference_points"] for t in counted if t["crown"])
+    shape = _worst(v["range_profile_difference"] for v in density["per_station"].values())
+    lo, hi = VERDICT["density_ratio"]
+    slo, shi = VERDICT["station_density_ratio"]
+    cov, stem_cov, diff = (
+        VERDICT["coverage_points"],
+        VERDICT["stem_coverage_points"],
+        VERDICT["range_profile_difference"],
+    )
+    criteria = {
+        "density_ratio": _criterion(ratio, (lo, hi), ratio is not None and lo <= ratio <= hi),
+        "station_density_ratio": _criterion(
+            [min(per), max(per)] if per else None,
+            (slo, shi),
+            all(slo <= r <= shi for r in per) if per else None,
+        ),
+        "coverage_points": _criterion(whole, cov, None if whole is None else whole <= cov),
+        "stem_coverage_points": _criterion(
+            stem, stem_cov, None if stem is None else stem <= stem_cov
+        ),
+        "range_profile_difference": _criterion(
+            shape, diff, None if shape is None else shape <= diff
+        ),
+    }
+    failed = [k for k, c in criteria.items() if c["passed"] is False]
+    parts = None
+    if stem is not None:
+        said = "stems reproduce" if stem <= stem_cov else "stems do not reproduce"
+        parts = f"{said} (coverage within {stem:.1f} points)"
+        if crown is not None:
+            said = "crowns reproduce" if crown <= cov else "crowns do not"
+            parts += f"; {said} (within {crown:.1f} points)"
+    return {"reproduces": not failed, "failed": failed, "criteria": criteria, "parts": parts}
+
+
+def _summary(density: dict[str, Any], verdict: dict[str, Any], dist: dict[str, Any]) -> str:
     from ..report.text import length
 
     ratio = density["density_ratio"]
     per = [v["density_ratio"] for v in density["per_station"].values() if v["density_ratio"]]
-    diffs = [abs(t["coverage_difference_points"]) for t in trees or [] if t["points_real"]]
-    lo, hi = VERDICT["density_ratio"]
-    slo, shi = VERDICT["station_density_ratio"]
-    ok = ratio is not None and lo <= ratio <= hi and all(slo <= r <= shi for r in per)
-    shape = [
-        v["range_profile_difference"]
-        for v in density["per_station"].values()
-        if v["range_profile_difference"] is not None
-    ]
-    ok = (
-        ok
-        and (not diffs or max(diffs) <= VERDICT["coverage_points"])
-        and (not shape or max(shape) <= VERDICT["range_profile_difference"])
-    )
+    crit = verdict["criteria"]
     bits = [
         "density ratio n/a"
         if ratio is None
         else f"density ratio {ratio:.2f}"
         + (f" (per-station range {min(per):.2f}-{max(per):.2f})" if len(per) > 1 else "")
     ]
-    if diffs:
-        bits.append(f"tree coverage within {max(diffs):.1f} points")
+    if crit["coverage_points"]["value"] is not None:
+        bits.append(f"tree coverage within {crit['coverage_points']['value']:.1f} points")
     a, b = dist["real_to_simulated"]["p95_m"], dist["simulated_to_real"]["p95_m"]
     bits.append(f"distances p95 {length(a)} real→simulated, {length(b)} simulated→real")
-    verdict = "reproduces" if ok else "does not reproduce"
-    return f"simulated scan {verdict} the field scan: " + ", ".join(bits)
+    said = "reproduces" if verdict["reproduces"] else "does not reproduce"
+    out = f"simulated scan {said} the field scan: " + ", ".join(bits)
+    if verdict["parts"]:
+        out += f"; {verdict['parts']}"
+    if verdict["failed"]:
+        out += f" (failed: {', '.join(verdict['failed'])})"
+    return out
 
 
 def _warnings(res: dict[str, Any], groups: list[str]) -> list[str]:
@@ -770,7 +958,8 @@ def validate_scans(
         (default :class:`ValidateParams`' own).
     plot : Plot, optional
         The plot's digital twin: its terrain gives the heights, its trees the coverage
-        figures (left out without it, and said so in ``notes``).
+        figures (left out without it, and said so in ``notes``), their cylinder tables
+        the stem and crown split.
     stations : sequence of [x, y, z] or Station, optional
         The field's station positions (default the real cloud's metadata).
     **settings
@@ -801,6 +990,8 @@ def validate_scans(
     >>> twin = ts.read_plot("twin/plot.toml")  # doctest: +SKIP
     >>> result = validate_scans(real, sim, ValidateParams(tau_m=0.02), plot=twin)  # doctest: +SKIP
     >>> print(result.summary)  # doctest: +SKIP
+    >>> result.verdict["parts"]  # doctest: +SKIP
+    'stems reproduce (coverage within 4.2 points); crowns do not (within 31.0 points)'
     """
     p = _params(params, settings)
     r_all, s_all = _check_cloud(real, "field scan"), _check_cloud(simulated, "simulated scan")
@@ -818,17 +1009,12 @@ def validate_scans(
         "plot": plot,
         "pooled": groups == ["all"],
         "ground": None,
-        "tau_m": p.tau_m,
-        "height_bin_m": p.height_bin_m,
         "real_pos": real_pos,
         "sim_pos": sim_pos,
         "pos_source": pos_source,
         "region": region,
         "counts": (len(r_all), len(s_all)),
-        "assign_distance_m": p.assign_distance_m,
-        "sample_spacing_m": p.tau_m,
-        "max_samples": p.max_samples_per_tree,
-        "seed": p.seed,
+        "warnings": [],
     }
     if plot is None:
         ctx["ground"] = _ground_from_cloud(frame.to_local(r_all[keep_r]), p.ground_cell_m)
@@ -863,6 +1049,11 @@ def _measure(
     trees, occl = (None, None)
     if plot is not None:
         trees, occl = _trees(plot, rs, ss, kd, ctx)
+        if not any(t["stem"] for t in trees):
+            notes.append(
+                "no twin tree has a cylinder table (plain meshes): stem and crown are not "
+                "told apart"
+            )
     dist = _distances(groups, rs, ss, kd, p.max_distance_points, p.seed)
     offsets = None
     if real_pos is not None and sim_pos is not None and groups != ["all"]:
@@ -875,8 +1066,9 @@ def _measure(
         "source": ctx["pos_source"],
     }
     res = {"stations": stations, "density": density, "trees": trees}
+    verdict = _verdict(density, trees)
     return ValidationResult(
-        summary=_summary(density, trees, dist),
+        summary=_summary(density, verdict, dist),
         groups=groups,
         stations=stations,
         density=density,
@@ -886,7 +1078,8 @@ def _measure(
         occlusion_profile=occl,
         distances=dist,
         notes=notes,
-        warnings=_warnings(res, groups),
+        warnings=ctx["warnings"] + _warnings(res, groups),
+        verdict=verdict,
         parameters={
             **asdict(p),
             "region": ctx["region"],

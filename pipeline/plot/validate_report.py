@@ -74,46 +74,68 @@ def plot_density_by_range(result: ValidationResult, path: Path) -> Path:
     return save_png(fig, path)
 
 
+def _pct(part: dict[str, Any] | None, key: str) -> float:
+    v = None if part is None else part[key]
+    return math.nan if v is None else 100.0 * v
+
+
+def _coverage_bars(ax: Any, rows: list[dict[str, Any]], part: str | None, tau_m: float) -> None:
+    """Real and simulated coverage per tree: of the whole tree (``part`` None) or of its
+    ``stem`` or ``crown`` (no bar for a tree without a table)."""
+    x = np.arange(len(rows))
+    cr = [_pct(t if part is None else t[part], "coverage_real") for t in rows]
+    cs = [_pct(t if part is None else t[part], "coverage_simulated") for t in rows]
+    ax.bar(x - 0.2, np.nan_to_num(cr), 0.4, color=REAL_COLOUR, label="field scan")
+    ax.bar(x + 0.2, np.nan_to_num(cs), 0.4, color=SIM_COLOUR, label="simulated")
+    ax.set_xticks(x, [str(t["tree_id"]) for t in rows])
+    ax.set_ylim(0, 100)
+    what = "tree" if part is None else part
+    ax.set_ylabel(f"{what} within τ = {tau_m * 1e3:g} mm (%)")
+
+
 def plot_coverage_by_tree(result: ValidationResult, path: Path) -> Path:
-    """Each twin tree's coverage at τ, real and simulated."""
+    """Each twin tree's coverage at τ, real and simulated: the whole tree, and (trees with
+    a cylinder table) its stem and its crown in panels below."""
     from ..report.figures import _new_figure
 
     rows = result.trees or []
-    fig = _new_figure(min(11.0, 2.0 + 0.45 * len(rows)), 3.4)
-    ax = fig.subplots()
-    x = np.arange(len(rows))
-    cr = [100 * (t["coverage_real"] or 0.0) for t in rows]
-    cs = [100 * (t["coverage_simulated"] or 0.0) for t in rows]
-    ax.bar(x - 0.2, cr, 0.4, color=REAL_COLOUR, label="field scan")
-    ax.bar(x + 0.2, cs, 0.4, color=SIM_COLOUR, label="simulated")
-    ax.set_xticks(x, [str(t["tree_id"]) for t in rows])
-    ax.set_xlabel("tree")
-    ax.set_ylabel(f"coverage within τ = {result.parameters['tau_m'] * 1e3:g} mm (%)")
-    ax.set_ylim(0, 100)
-    ax.legend(fontsize=8)
+    parts = [p for p in ("stem", "crown") if any(t[p] for t in rows)]
+    fig = _new_figure(min(11.0, 2.0 + 0.45 * len(rows)), 3.0 * (1 + len(parts)) + 0.4)
+    axes = fig.subplots(1 + len(parts), 1, squeeze=False).ravel()
+    tau = result.parameters["tau_m"]
+    for ax, part in zip(axes, [None, *parts], strict=True):
+        _coverage_bars(ax, rows, part, tau)
+    axes[-1].set_xlabel("tree")
+    axes[0].legend(fontsize=8)
     return save_png(fig, path)
 
 
 def plot_occlusion_profile(result: ValidationResult, path: Path) -> Path:
-    """The twin trees' coverage by height band, real and simulated."""
+    """The twin trees' coverage by height band, real and simulated: of the whole trees,
+    and (trees with a table) of their stems and their crowns beside."""
     from ..report.figures import _new_figure
 
     prof = result.occlusion_profile
     assert prof is not None
     e = np.asarray(prof["edges_m"])
     mid = 0.5 * (e[1:] + e[:-1])
-    fig = _new_figure(4.8, 4.2)
-    ax = fig.subplots()
-    for key, colour, label in (
-        ("coverage_real", REAL_COLOUR, "field scan"),
-        ("coverage_simulated", SIM_COLOUR, "simulated"),
-    ):
-        v = np.array([np.nan if c is None else 100 * c for c in prof[key]])
-        ax.plot(v, mid, "-o", ms=3, color=colour, label=label)
-    ax.set_xlim(0, 100)
-    ax.set_xlabel(f"tree surface within τ = {prof['tau_m'] * 1e3:g} mm (%)")
-    ax.set_ylabel("height above terrain (m)")
-    ax.legend(fontsize=8)
+    panels = [("whole trees", prof)] + [
+        (f"{p}s", prof[p]) for p in ("stem", "crown") if prof.get(p) is not None
+    ]
+    fig = _new_figure(4.2 * len(panels) + 0.6, 4.2)
+    axes = fig.subplots(1, len(panels), squeeze=False, sharey=True).ravel()
+    for ax, (title, band) in zip(axes, panels, strict=True):
+        for key, colour, label in (
+            ("coverage_real", REAL_COLOUR, "field scan"),
+            ("coverage_simulated", SIM_COLOUR, "simulated"),
+        ):
+            v = np.array([np.nan if c is None else 100 * c for c in band[key]])
+            ax.plot(v, mid, "-o", ms=3, color=colour, label=label)
+        ax.set_xlim(0, 100)
+        ax.set_title(title)
+        ax.set_xlabel(f"surface within τ = {prof['tau_m'] * 1e3:g} mm (%)")
+    axes[0].set_ylabel("height above terrain (m)")
+    axes[0].legend(fontsize=8)
     return save_png(fig, path)
 
 
@@ -186,8 +208,9 @@ def _station_rows(result: ValidationResult) -> list[list[str]]:
 
 
 def _tree_rows(result: ValidationResult) -> list[list[str]]:
-    return [
-        [
+    rows = []
+    for t in result.trees or []:
+        row = [
             str(t["tree_id"]),
             _fmt(t["points_real"]),
             _fmt(t["points_simulated"]),
@@ -195,8 +218,37 @@ def _tree_rows(result: ValidationResult) -> list[list[str]]:
             _fmt(t["coverage_simulated"], 100, 1),
             _fmt(t["coverage_difference_points"], 1, 1),
         ]
-        for t in result.trees or []
-    ]
+        for part in ("stem", "crown"):
+            p = t[part] or {}
+            row += [
+                _fmt(p.get("coverage_real"), 100, 1),
+                _fmt(p.get("coverage_simulated"), 100, 1),
+                _fmt(p.get("coverage_difference_points"), 1, 1),
+            ]
+        rows.append(row)
+    return rows
+
+
+def _verdict_html(result: ValidationResult) -> str:
+    """The criteria of the verdict: each one's worst value, its bound, met or not."""
+    from html import escape
+
+    v = result.verdict
+    rows = []
+    for name, c in v.get("criteria", {}).items():
+        value, bound = c["value"], c["bound"]
+        show = (
+            "–"
+            if value is None
+            else "–".join(_fmt(float(x)) for x in value)
+            if isinstance(value, list)
+            else _fmt(float(value))
+        )
+        limit = "–".join(f"{b:g}" for b in bound) if isinstance(bound, list) else f"{bound:g}"
+        met = {True: "met", False: "<strong>not met</strong>", None: "does not apply"}
+        rows.append([escape(name), show, limit, met[c["passed"]]])
+    parts = f"<p>{escape(v['parts'])}</p>" if v.get("parts") else ""
+    return parts + _table(["criterion", "worst value", "bound", ""], rows)
 
 
 def _html(result: ValidationResult, images: dict[str, Path], names: tuple[str, str]) -> str:
@@ -221,12 +273,15 @@ def _html(result: ValidationResult, images: dict[str, Path], names: tuple[str, s
         ]
     )  # fmt: skip
     notes = "".join(f"<li>{escape(n)}</li>" for n in result.notes + result.warnings)
+    verdict = _verdict_html(result)
     station_head = [
         "station", "field points", "simulated points", "ratio", "height-profile diff.",
         "range-profile diff.", "p95 field→sim (mm)", "p95 sim→field (mm)", "offset (m)",
     ]  # fmt: skip
     tree_head = ["tree", "field points", "simulated points", "field coverage (%)",
-                 "simulated coverage (%)", "difference (points)"]  # fmt: skip
+                 "simulated coverage (%)", "difference (points)", "stem: field (%)",
+                 "stem: simulated (%)", "stem: difference", "crown: field (%)",
+                 "crown: simulated (%)", "crown: difference"]  # fmt: skip
     trees = (
         _table(tree_head, _tree_rows(result))
         if result.trees is not None
@@ -242,6 +297,7 @@ def _html(result: ValidationResult, images: dict[str, Path], names: tuple[str, s
 <p class="meta">{escape(result.summary)}</p></div></header>
 <main class="wrap">
 <section class="panel"><h2>Inputs</h2>{kv}<ul>{notes}</ul></section>
+<section class="panel"><h2>Verdict</h2>{verdict}</section>
 <section class="panel"><h2>Stations</h2>{_table(station_head, _station_rows(result))}</section>
 <section class="panel"><h2>Density by height</h2>{fig("density_by_height", "density by height")}
 </section>

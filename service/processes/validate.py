@@ -55,8 +55,8 @@ PROCESS = Process(
     id="validate",
     title="Check a simulated plot scan against the field scan",
     description="Set the simulated scan beside the field scan, per station and per twin "
-    "tree: point density by height and by range, each tree's coverage and the occlusion "
-    "profile, distances both ways, and a one-line verdict (as "
+    "tree: point density by height and by range, each tree's coverage (whole, stem and "
+    "crown) and the occlusion profile, distances both ways, and a one-line verdict (as "
     "treesim validate).",
     inputs=(
         Input("real", ("cloud",), "the field scan (an E57 with its scans' poses, or LAS/LAZ)"),

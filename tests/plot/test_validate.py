@@ -23,7 +23,7 @@ from treesim.io import read_cloud, write_cloud
 from treesim.params import ScanParams
 from treesim.plot import Plot, PlotTree
 from treesim.plot.scan import scan_plot
-from treesim.plot.validate import VALIDATION_FILES, ValidateParams, validate_scans
+from treesim.plot.validate import VALIDATION_FILES, VERDICT, ValidateParams, validate_scans
 from treesim.plot.validate_report import write_validation
 from treesim.scan import ScannerSpec
 
@@ -139,6 +139,7 @@ def test_without_a_twin_the_coverage_is_left_out(field):
     assert np.diff(res.density_by_height["edges_m"]) == pytest.approx(0.5)
     assert np.diff(res.density_by_range["edges_m"]) == pytest.approx(4.0)
     assert res.parameters["range_bin_m"] == 4.0 and res.parameters["height_bin_m"] == 0.5
+    assert res.verdict["criteria"]["coverage_points"]["passed"] is None  # no trees
 
 
 def test_settings_out_of_range_name_themselves(field):
@@ -213,6 +214,9 @@ def test_the_command_writes_the_report(files, tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
     data = json.loads((out / "validation.json").read_text())
     assert data["parameters"]["tau_m"] == 0.02
+    assert data["verdict"]["reproduces"] is True and data["verdict"]["failed"] == []
+    assert data["verdict_bounds"]["stem_coverage_points"] == VERDICT["stem_coverage_points"]
+    assert all(t["stem"]["samples"] > 0 for t in data["trees"])
     assert data["stations"]["simulated_m"] == [list(s) for s in STATIONS]
     html = (out / "validation.html").read_text()
     assert html.count("data:image/png;base64,") == 5
@@ -264,3 +268,95 @@ def test_the_writers_draw_without_a_range_profile(field, tmp_path):
     names = {p.name for p in write_validation(res, tmp_path)}
     assert VALIDATION_FILES["density_by_range"] not in names
     assert VALIDATION_FILES["html"] in names
+
+
+# -- stem and crown ----------------------------------------------------------------------
+def test_a_scan_against_itself_agrees_on_stem_and_crown(plot, field):
+    """The same points on both sides: every part's coverage is the same, exactly; the
+    stem's area is its cylinders' side area (the generator's table, 8-sided tubes)."""
+    from treesim.models import generate_tree, species_preset
+
+    res = validate_scans(field, field, plot=plot)
+    facets = 8 * math.sin(math.pi / 8) / math.pi  # an octagon's perimeter over the circle's
+    for t, i in zip(res.trees, range(3), strict=True):
+        for part in ("stem", "crown"):
+            assert t[part]["coverage_difference_points"] == 0.0
+            assert t[part]["coverage_real"] == t[part]["coverage_simulated"]
+        assert t["stem"]["samples"] + t["crown"]["samples"] == t["samples"]
+        assert 0.0 < t["stem"]["coverage_real"] < 1.0
+        table = generate_tree(species_preset("sapling"), seed=i).cylinders
+        stem = table.branch_order == 0
+        side = np.sum(math.pi * (table.radius_m + table.end_radius_m)[stem] * table.length_m[stem])
+        assert t["stem"]["area_m2"] == pytest.approx(facets * side, rel=0.06)
+    prof = res.occlusion_profile
+    assert sum(prof["stem"]["samples"]) == sum(t["stem"]["samples"] for t in res.trees)
+    assert res.verdict["failed"] == [] and res.verdict["parts"].startswith("stems reproduce")
+
+
+@pytest.fixture(scope="module")
+def moved_crowns(tmp_path_factory):
+    """The test plot's trees as cylinder tables (a twin's QSMs), and the same tables with
+    every non-stem cylinder moved 1 m east: the 'field' the twin got the crowns wrong of."""
+    from treesim.models import generate_tree, species_preset, write_cylinders
+
+    d = tmp_path_factory.mktemp("crowns")
+    twin, field = [], []
+    for t in _plot().trees:
+        table = generate_tree(species_preset("sapling"), seed=t.seed).cylinders
+        crown = (table.branch_order > 0)[:, None]
+        moved = replace(table, start=table.start + np.where(crown, (1.0, 0.0, 0.0), 0.0))
+        paths = (
+            write_cylinders(d / f"t{t.tree_id}.csv", table),
+            write_cylinders(d / f"m{t.tree_id}.csv", moved),
+        )
+        for out, path in zip((twin, field), paths, strict=True):
+            out.append(replace(t, source="qsm", species=None, path=str(path)))
+    return Plot(twin, facets=8, radius_m=6.0), Plot(field, facets=8, radius_m=6.0)
+
+
+def test_a_twin_with_its_crowns_1_m_off_reproduces_its_stems_only(moved_crowns):
+    twin, truth = moved_crowns
+    # coarse scans and τ 2 cm (the 8-sided tubes' stems are 3 cm thick): a few seconds
+    field, sim = _scan(truth, 2 * RES_DEG, seed=1), _scan(twin, 2 * RES_DEG, seed=2)
+    res = validate_scans(field, sim, plot=twin, tau_m=0.02)
+    for t in res.trees:
+        assert abs(t["stem"]["coverage_difference_points"]) < 5.0, t
+        assert t["stem"]["coverage_real"] > 0.2
+        # the field's crowns are 1 m away from the twin's: hardly a twin crown sample is
+        # within τ of a field point, while the twin's own scan covers them
+        assert t["crown"]["coverage_real"] < 0.1
+        assert t["crown"]["coverage_difference_points"] > 20.0
+    v = res.verdict
+    assert "coverage_points" in v["failed"] and "stem_coverage_points" not in v["failed"]
+    assert v["criteria"]["stem_coverage_points"]["passed"] is True
+    assert v["parts"].startswith("stems reproduce") and "crowns do not" in v["parts"]
+    assert "(failed: coverage_points)" in res.summary
+    for band_r, band_s, n in zip(
+        res.occlusion_profile["stem"]["coverage_real"],
+        res.occlusion_profile["stem"]["coverage_simulated"],
+        res.occlusion_profile["stem"]["samples"],
+        strict=True,
+    ):
+        if n > 500:
+            assert abs(band_r - band_s) < 0.1
+
+
+def test_a_mesh_tree_has_no_parts(plot, tmp_path):
+    from treesim.io import write_mesh
+    from treesim.models import generate_tree, species_preset
+
+    made = generate_tree(species_preset("sapling"), seed=0)
+    v, f, lab = made.mesh(8)
+    path = write_mesh(tmp_path / "tree.ply", v, f, face_label=lab)
+    mesh_plot = Plot([PlotTree(tree_id=1, x_m=3.0, y_m=0.0, source="mesh", path=str(path))])
+    scan = _scan(mesh_plot, 0.5, seed=1, stations=STATIONS[:1])
+    res = validate_scans(scan, scan, plot=mesh_plot)
+    (t,) = res.trees
+    assert t["stem"] is None and t["crown"] is None
+    assert t["coverage_difference_points"] == 0.0
+    assert res.occlusion_profile["stem"] is None
+    assert res.verdict["criteria"]["stem_coverage_points"]["passed"] is None
+    assert res.verdict["parts"] is None
+    assert any("no twin tree has a cylinder table" in n for n in res.notes)
+    names = {p.name for p in write_validation(res, tmp_path / "v")}
+    assert VALIDATION_FILES["coverage_by_tree"] in names
