@@ -23,7 +23,8 @@ CONFORMANCE = [
 
 _OGC_REL = "http://www.opengis.net/def/rel/ogc/1.0/"
 JSON = "application/json"
-OPENAPI_JSON = "application/vnd.oai.openapi+json;version=3.0"
+#: FastAPI writes OpenAPI 3.1 (its schemas are JSON Schema 2020-12)
+OPENAPI_JSON = "application/vnd.oai.openapi+json;version=3.1"
 
 
 def landing_page(base: str) -> LandingPage:

@@ -281,6 +281,50 @@ def test_a_setting_given_twice_and_bad_outputs(client, upload):
     client.delete(r.headers["location"])
 
 
+def test_an_input_that_is_a_file_or_a_value(client):
+    """plot-scan's stations: a stations CSV by reference, or positions by value."""
+    body = {"inputs": {"stand": {}, "stations": {"value": [[0, 0], [3.5, 0]]}}}
+    r = _execute(client, "plot-scan", body)
+    assert r.status_code == 201, r.text
+    assert r.json()["parameters"]["stations"] == [[0, 0], [3.5, 0]]
+    assert r.json()["inputs"] == {}
+    client.delete(r.headers["location"])
+    r = _execute(
+        client, "plot-scan", {"inputs": {"stand": {}, "stations": {"href": "/v1/uploads/x"}}}
+    )
+    assert r.status_code == 404 and r.json()["field"] == "inputs.stations", r.text
+
+
+def test_remote_hrefs_are_fetched_where_the_setting_allows(tmp_path):
+    """With TREESIM_ALLOW_REMOTE_HREFS an href on another origin (here a file server on
+    this machine's loopback, never the network) is downloaded and kept as an upload."""
+    import functools
+    import http.server
+    import threading
+
+    served = tmp_path / "served"
+    served.mkdir()
+    (served / "tree.xyz").write_bytes(BUNDLED_CLOUD.read_bytes())
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(served))
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{httpd.server_address[1]}"
+    try:
+        app = create_app(_settings(tmp_path / "data", allow_remote_hrefs=True))
+        with TestClient(app) as c:
+            r = _execute(c, "reconstruct", {"inputs": {"cloud": {"href": f"{url}/tree.xyz"}}})
+            assert r.status_code == 201, r.text
+            ups = c.get("/v1/uploads").json()["uploads"]
+            assert [u["filename"] for u in ups] == ["tree.xyz"]
+            n_lines = sum(1 for line in BUNDLED_CLOUD.read_text().splitlines() if line.strip())
+            assert ups[0]["n_points"] == n_lines
+            assert r.json()["inputs"]["cloud"]["upload"] == ups[0]["id"]
+            r = _execute(c, "reconstruct", {"inputs": {"cloud": {"href": f"{url}/missing.xyz"}}})
+            assert r.status_code == 400 and "404" in r.json()["detail"], r.text
+    finally:
+        httpd.shutdown()
+
+
 # -- status, results, exceptions --------------------------------------------------------------
 def test_unknown_job_and_results_not_ready(client, upload):
     for path in ("/v1/jobs/nope", "/v1/jobs/nope/results", "/v1/jobs/nope/results/tree.ply"):
