@@ -5,18 +5,26 @@ from __future__ import annotations
 import shutil
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from treesim.params import merge
-from treesim.plot.validate import ValidateParams
 
 from .base import Input, Process, Progress, job_schema
+
+if TYPE_CHECKING:  # the plot package is imported in jobs, never at the API's start-up
+    from treesim.plot.validate import ValidateParams
+
+
+def _params() -> type[ValidateParams]:
+    from treesim.plot.validate import ValidateParams
+
+    return ValidateParams
 
 
 def _parse_validate(parameters: Mapping[str, Any]) -> ValidateParams:
     """The request's settings over :class:`ValidateParams`' defaults, checked by the
     model (its ranges are the schema's)."""
-    return merge(ValidateParams(), dict(parameters))
+    return merge(_params()(), dict(parameters))
 
 
 def _execute_validate(
@@ -76,7 +84,7 @@ PROCESS = Process(
         ("distances.png", "distances both ways"),
     ),
     extra_schema=dict,
-    base_schema=lambda: job_schema(ValidateParams),
+    base_schema=lambda: job_schema(_params()),
     parse=_parse_validate,
     execute=_execute_validate,
 )
