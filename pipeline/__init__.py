@@ -7,8 +7,9 @@ or a grid of settings on trees, timed and scored (``run_sweep``). Forest plots: 
 of ``PlotTree`` on a ``Terrain``, read and written as files (``read_plot``,
 ``write_plot``) or generated as a stand (``generate_stand``), scanned station by station
 (``scan_plot``) and measured per tree (``tree_figures``), or made from a field plot's
-cloud as a digital twin (``plot_from_cloud``) and its simulated scan checked against the
-field scan (``validate_scans``); scan planning: where to stand and how often
+cloud as a digital twin (``plot_from_cloud``; many plots: ``plots_from_clouds``) and its
+simulated scan checked against the field scan (``validate_scans`` with
+``ValidateParams``); scan planning: where to stand and how often
 (``plan_scans``, ``write_plan``).
 
 Examples
@@ -53,8 +54,8 @@ if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference
     from .plot.generate import StandParams, generate_stand
     from .plot.io import read_plot, write_plot
     from .plot.scan import PlotScanResult, scan_plot, tree_figures
-    from .plot.validate import ValidationResult, validate_scans
-    from .twin import TwinParams, TwinResult, plot_from_cloud
+    from .plot.validate import ValidateParams, ValidationResult, validate_scans
+    from .twin import PlotsResult, TwinParams, TwinResult, plot_from_cloud, plots_from_clouds
 
 #: The plot and plan verbs, imported on first use: every ``treesim`` command imports this
 #: package, and what only plots and plans need (their modules, the TOML reader) should not
@@ -77,6 +78,9 @@ _LAZY = {
     "TwinParams": ".twin",
     "TwinResult": ".twin",
     "plot_from_cloud": ".twin",
+    "PlotsResult": ".twin",
+    "plots_from_clouds": ".twin",
+    "ValidateParams": ".plot.validate",
     "ValidationResult": ".plot.validate",
     "validate_scans": ".plot.validate",
 }
@@ -107,6 +111,7 @@ __all__ = [
     "Plot",
     "PlotScanResult",
     "PlotTree",
+    "PlotsResult",
     "ReconstructParams",
     "RunParams",
     "RunResult",
@@ -120,6 +125,7 @@ __all__ = [
     "TreesimError",
     "TwinParams",
     "TwinResult",
+    "ValidateParams",
     "ValidationResult",
     "__version__",
     "build_report",
@@ -129,6 +135,7 @@ __all__ = [
     "load_scene",
     "plan_scans",
     "plot_from_cloud",
+    "plots_from_clouds",
     "read_cloud",
     "read_plot",
     "reconstruct",
