@@ -188,10 +188,15 @@ def _from_one_cloud(args: argparse.Namespace, cloud: str, tp: TwinParams) -> int
     and settings is reused)."""
     import sys
 
-    from ..twin import TWIN_FILES, finished_twin, plot_from_cloud
+    from ..twin import PLOTS_FILES, TWIN_FILES, finished_twin, plot_from_cloud
     from .progress import BatchProgressBar
 
-    output_folder(args.output, files=list(TWIN_FILES.values()))
+    out = output_folder(args.output, files=list(TWIN_FILES.values()))
+    if (out / PLOTS_FILES["json"]).is_file():
+        raise InvalidParameterError(
+            f"{out} holds the twins of many plots ({PLOTS_FILES['json']}); give another -o, "
+            f"or {out / Path(cloud).stem} to make this plot's twin again among them"
+        )
     res = finished_twin(cloud, args.output, tp)
     if res is not None:
         print(

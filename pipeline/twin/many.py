@@ -270,7 +270,7 @@ def _row(base: dict[str, Any], status: str, twin: Any, t0: float) -> dict[str, A
         "warnings": len(twin.warnings),
         "error_class": None,
         "error": None,
-        "time_s": time.perf_counter() - t0,
+        "time_s": round(time.perf_counter() - t0, 2),
     }
 
 
@@ -296,7 +296,7 @@ def _failed(base: dict[str, Any], folder: Path, exc: Exception, t0: float) -> di
         "warnings": None,
         "error_class": type(exc).__name__,
         "error": _one_line(exc),
-        "time_s": time.perf_counter() - t0,
+        "time_s": round(time.perf_counter() - t0, 2),
     }
 
 

@@ -193,3 +193,9 @@ def test_the_cli_says_what_is_wrong_in_one_line(tmp_path) -> None:
     rc, stdout, stderr = _cli("plot", "from-cloud", str(tmp_path / "empty"), "-o",
                               str(tmp_path / "out"), *DRAFT)  # fmt: skip
     assert rc == 1 and "no point cloud" in stderr and "Traceback" not in stderr
+    # one plot's twin is not written among many plots' twins
+    (tmp_path / "twins").mkdir()
+    (tmp_path / "twins" / "plots.json").write_text("{}")
+    rc, _, stderr = _cli("plot", "from-cloud", str(tmp_path / "p1.laz"), "-o",
+                         str(tmp_path / "twins"), *DRAFT)  # fmt: skip
+    assert rc == 1 and "twins of many plots" in stderr and "twins/p1" in stderr
