@@ -76,6 +76,8 @@ SCALING_INSTRUMENT = "riegl-vz400"
 SCALING_TARGET_S = 50.0
 SCALING_TARGET_MIB = 1024.0
 SECTIONS = ("real", "100k", "curve", "scaling")
+#: A child still running after this is stopped and reported as timed out (s).
+CHILD_TIMEOUT_S = 900.0
 TARGET_QSM_S = 30.0
 CURVE_RES_DEG = 0.04
 SAMPLE_SPACING_M = 0.002
@@ -185,9 +187,16 @@ def run_child(source: Path, method: str, write_to: Path | None = None) -> dict[s
         f"child({str(source)!r}, {method!r}, {str(write_to or '')!r})"
     )
     t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=900
-    )
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            cwd=str(ROOT),
+            timeout=CHILD_TIMEOUT_S,
+        )
+    except subprocess.TimeoutExpired:  # reported in the table, the other sizes go on
+        return {"error": f"timed out after {CHILD_TIMEOUT_S:.0f} s", "wall_s": CHILD_TIMEOUT_S}
     wall = time.perf_counter() - t0
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:
@@ -545,7 +554,12 @@ def main() -> None:
     for name in SECTIONS:
         if name in chosen:
             runs[name](args.quick)
-    print(f"\nbenchmark wall time: {time.perf_counter() - t0:.0f} s")
+    print(
+        f"\nbenchmark wall time: {time.perf_counter() - t0:.0f} s; load average at the end "
+        "(1, 5, 15 min): {:.2f} {:.2f} {:.2f} (wall times grow with it; CPU times do not)".format(
+            *os.getloadavg()
+        )
+    )
 
 
 if __name__ == "__main__":
