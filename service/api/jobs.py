@@ -34,12 +34,14 @@ JSON = "application/json"
 
 
 def kind_of_result(path: Path) -> str:
-    """A job result's kind as an input of another job: table, mesh or cloud."""
+    """A job result's kind as an input of another job: table, plot, mesh or cloud."""
     from treesim.io.ply import ply_has_faces
 
     suffix = path.suffix.lower()
     if suffix == ".csv":  # a table (stations.csv of a plan), never a cloud
         return "table"
+    if suffix == ".zip":  # a plot archive (a plot-from-cloud job's twin.zip)
+        return "plot"
     if suffix in MESH_SUFFIXES and (suffix != ".ply" or ply_has_faces(path)):
         return "mesh"
     return "cloud"
