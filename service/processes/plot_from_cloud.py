@@ -30,7 +30,8 @@ def _execute_from_cloud(
     # the job is one process already: its trees are reconstructed in it, one after another
     result = plot_from_cloud(inputs["cloud"], out, params, executor="inline", progress=progress)
     _zip_twin(out, result)
-    return {k: v for k, v in result.figures.items() if k != "params"}
+    # "input" is the upload's path in the data folder: a client's job says nothing of it
+    return {k: v for k, v in result.figures.items() if k not in ("params", "input")}
 
 
 def _zip_twin(out: Path, result: Any) -> Path:
