@@ -633,22 +633,32 @@ def _placed_stem(plot: Plot, tid: int, frame: LocalFrame) -> dict[str, np.ndarra
 def _on_stem(samples: np.ndarray, stem: dict[str, np.ndarray], facets: int) -> np.ndarray:
     """Which samples lie on the surface of one of the stem's cylinders (within the
     faceting's slack): distance to the side at the sample's height along the axis, or to
-    the nearer end disc beyond the ends."""
+    the nearer end disc beyond the ends. Only the pairs of a sample and a cylinder whose
+    bounding sphere (widened by the slack) holds it are measured."""
+    from scipy.spatial import cKDTree
+
     s, a, length = stem["start"], stem["axis"], stem["length_m"]
     r0, r1 = stem["r0_m"], stem["r1_m"]
     facet = 1.0 - math.cos(math.pi / max(int(facets), 3)) + STEM_SLACK_RADIUS
     out = np.zeros(len(samples), dtype=bool)
-    step = max(256, 1_000_000 // len(s))  # (step, k, 3) float64 blocks of at most 24 MB
-    for lo in range(0, len(samples), step):
-        d = samples[lo : lo + step, None, :] - s[None]
-        t = np.einsum("mkj,kj->mk", d, a)
-        rho = np.linalg.norm(d - t[..., None] * a[None], axis=2)
-        tc = np.clip(t, 0.0, length)
-        r = r0 + (r1 - r0) * tc / length
-        side = np.abs(rho - r)
-        end = np.hypot(t - tc, np.maximum(rho - r, 0.0))
-        dist = np.where(t == tc, side, end)
-        out[lo : lo + step] = (dist <= facet * r + STEM_SLACK_M).any(axis=1)
+    if len(samples) == 0 or len(s) == 0:
+        return out
+    r_max = np.maximum(r0, r1)
+    reach = np.hypot(0.5 * length, r_max) + facet * r_max + STEM_SLACK_M + 1e-9
+    near = cKDTree(samples).query_ball_point(s + 0.5 * length[:, None] * a, reach)
+    k = np.repeat(np.arange(len(s)), [len(n) for n in near])
+    if len(k) == 0:
+        return out
+    i = np.concatenate([np.asarray(n, dtype=np.int64) for n in near])
+    d = samples[i] - s[k]
+    t = np.einsum("mj,mj->m", d, a[k])
+    rho = np.linalg.norm(d - t[:, None] * a[k], axis=1)
+    tc = np.clip(t, 0.0, length[k])
+    r = r0[k] + (r1[k] - r0[k]) * tc / length[k]
+    side = np.abs(rho - r)
+    end = np.hypot(t - tc, np.maximum(rho - r, 0.0))
+    dist = np.where(t == tc, side, end)
+    out[i[dist <= facet * r + STEM_SLACK_M]] = True
     return out
 
 
