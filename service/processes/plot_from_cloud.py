@@ -29,9 +29,23 @@ def _execute_from_cloud(
 
     # the job is one process already: its trees are reconstructed in it, one after another
     result = plot_from_cloud(inputs["cloud"], out, params, executor="inline", progress=progress)
+    _hide_server_path(out, name)
     _zip_twin(out, result)
     # "input" is the upload's path in the data folder: a client's job says nothing of it
     return {k: v for k, v in result.figures.items() if k not in ("params", "input")}
+
+
+def _hide_server_path(out: Path, name: str) -> None:
+    """``from_cloud.json`` (a result a client downloads) names the upload as the client
+    named it, not by its path in the server's data folder."""
+    import json
+
+    from treesim.jsonio import write_json
+
+    path = out / "from_cloud.json"
+    figures = json.loads(path.read_text(encoding="utf-8"))
+    figures["input"] = name or "the uploaded cloud"
+    write_json(path, figures)
 
 
 def _zip_twin(out: Path, result: Any) -> Path:
@@ -42,6 +56,8 @@ def _zip_twin(out: Path, result: Any) -> Path:
     from treesim.atomic import atomic_path
 
     names = ["plot.toml", "trees.csv", "dtm.asc"]
+    if (out / "stations.csv").is_file():  # the field's stations, from an E57's poses
+        names.append("stations.csv")
     for r in result.trees:
         names += [r["twin_table"], r["field_cloud"]]
     path = out / "twin.zip"

@@ -153,6 +153,10 @@ def test_plot_from_cloud_finds_the_trees_the_generator_placed(
     # the summary says as much, and no server path
     assert len(twin_job["summary"]["trees"]) == len(twin_trees)
     assert str(data_dir) not in json.dumps(twin_job["summary"])
+    # nor in the figures a client downloads: the upload is named as the client named it
+    figures = _get(client, results["from_cloud.json"]).decode()
+    assert str(data_dir) not in figures
+    assert json.loads(figures)["input"] == "field"
 
 
 def test_twin_zip_is_a_plot_archive_of_the_twin(client, twin_job, twin_trees):
