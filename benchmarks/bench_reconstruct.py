@@ -35,10 +35,9 @@ Measures, in one run (issue 5's Benchmark section):
 
 Usage: ``python benchmarks/bench_reconstruct.py [--quick] [--sections ...]``
 (``--quick``: two real trees, fewer settings and sizes; ``--sections scaling`` runs only
-section 4). Prints measured figures and ratios only; sections 1-3 take about 3 minutes in
-full and under 1 minute with ``--quick`` on 2 cores (measured: 182 s and 47 s); section 4
-about 3 minutes in full, the 5 M scan and reconstruction most of it (measured: 180 s at
-load average 1-2) and about 1 minute with ``--quick``.
+section 4). Prints measured figures and ratios only, and its own wall time at the end
+(section 4 is the longest: the 5 M-point scan and reconstruction; a child running over
+``CHILD_TIMEOUT_S`` is stopped and reported).
 """
 
 from __future__ import annotations
@@ -312,6 +311,10 @@ def hundred_k(quick: bool) -> None:
         ],
         [
             ["prepare", fmt(ts["prepare"])],
+            [
+                f"wood/leaf separation (auto; leaves found: {fmt(f.get('leaves_present'))})",
+                fmt(ts.get("separate_leaves")),
+            ],
             ["QSM fit", fmt(fit_s)],
             ["mesh", fmt(ts.get("mesh"))],
             ["reconstruct() total", fmt(r["reconstruct_s"])],
@@ -471,7 +474,7 @@ def scaling(quick: bool) -> None:
             del pts
             r = run_child(src, "qsm")
             if "error" in r:
-                rows.append([f"{n:,}", f"{res:.4f}", fmt(scan_s), *["-"] * 8, "error"])
+                rows.append([f"{n:,}", f"{res:.4f}", fmt(scan_s), *["-"] * 9, "error"])
                 print(f"failed at {n:,} points: {r['error']}")
                 continue
             f, ts = r["figures"], r["timings_s"]
@@ -483,6 +486,7 @@ def scaling(quick: bool) -> None:
                     fmt(scan_s),
                     f"{f['points_used']:,}",
                     fmt(ts["prepare"]),
+                    fmt(ts.get("separate_leaves")),
                     fmt(ts["reconstruct"] - ts.get("mesh", 0.0)),
                     fmt(r["reconstruct_s"]),
                     fmt(r["cpu_s"]),
@@ -499,6 +503,7 @@ def scaling(quick: bool) -> None:
             "scan (s)",
             "points used",
             "prepare (s)",
+            "separation (s)",
             "QSM + mesh (s)",
             "reconstruct (s)",
             "child CPU (s)",

@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -82,6 +83,22 @@ def _print_validation(v: dict) -> None:
             f"  coverage per tree, simulated - field: median {np.median(diff):+.1f} points, "
             f"|max| {np.abs(diff).max():.1f} points over {len(diff)} trees"
         )
+        for part in ("stem", "crown"):
+            d = [
+                t[part]["coverage_difference_points"]
+                for t in trees
+                if t["points_real"]
+                and t.get(part)
+                and t[part]["coverage_difference_points"] is not None
+            ]
+            if d:
+                print(
+                    f"  {part} coverage, simulated - field: median {np.median(d):+.1f} points, "
+                    f"|max| {np.abs(d).max():.1f} points over {len(d)} trees"
+                )
+    verdict = v.get("verdict") or {}
+    if verdict.get("parts"):
+        print(f"  by part: {verdict['parts']}")
     for w in v.get("warnings", []):
         print(f"  warning: {w}")
 
@@ -222,7 +239,10 @@ def main() -> None:
         f"bench_twin ({date.today()}, {platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()})"
     )
-    args.workdir.mkdir(parents=True, exist_ok=True)
+    # a fresh folder: treesim reuses a finished twin, scan or reconstruction it finds, and
+    # this script measures making them
+    shutil.rmtree(args.workdir, ignore_errors=True)
+    args.workdir.mkdir(parents=True)
     if args.section in ("synthetic", "all"):
         synthetic(args.workdir, args.resolution_deg)
     if args.section in ("pine", "all"):
