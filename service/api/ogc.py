@@ -6,10 +6,11 @@ root (OWSLib's ``Processes("http://host:port/")``) finds them."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
-from fastapi.responses import RedirectResponse
+from fastapi.responses import JSONResponse, RedirectResponse
 
 from ..schemas import Conformance, LandingPage, Link
 from .deps import BaseDep
+from .openapi30 import OPENAPI30_JSON, to_openapi30
 
 router = APIRouter(tags=["OGC API"])
 root_router = APIRouter(include_in_schema=False)
@@ -34,7 +35,18 @@ def landing_page(base: str) -> LandingPage:
     links = [
         Link(href=f"{api}/", rel="self", type=JSON, title="this document"),
         Link(href=f"{base}/", rel="alternate", type="text/html", title="the jobs page"),
-        Link(href=f"{base}/openapi.json", rel="service-desc", type=OPENAPI_JSON, title="the API"),
+        Link(
+            href=f"{api}/openapi-3.0.json",
+            rel="service-desc",
+            type=OPENAPI30_JSON,
+            title="the API (OpenAPI 3.0)",
+        ),
+        Link(
+            href=f"{base}/openapi.json",
+            rel="service-desc",
+            type=OPENAPI_JSON,
+            title="the API (OpenAPI 3.1, as FastAPI writes it)",
+        ),
         Link(href=f"{base}/docs", rel="service-doc", type="text/html", title="the API's docs"),
         Link(
             href=f"{api}/conformance",
@@ -71,6 +83,17 @@ def get_landing_page(base: BaseDep) -> LandingPage:
 )
 def get_conformance() -> Conformance:
     return Conformance(conformsTo=CONFORMANCE)
+
+
+@router.get(
+    "/openapi-3.0.json",
+    summary="The API's definition in OpenAPI 3.0 (the oas30 conformance class)",
+    response_class=JSONResponse,
+)
+def get_openapi30(request: Request) -> JSONResponse:
+    return JSONResponse(
+        to_openapi30(request.app.openapi()), media_type="application/vnd.oai.openapi+json"
+    )
 
 
 def _to_v1(request: Request) -> RedirectResponse:

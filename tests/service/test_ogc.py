@@ -71,6 +71,24 @@ def test_landing_page_links_what_part_1_requires(client):
     assert client.get(rels[OGC_REL + "conformance"]["href"]).status_code == 200
 
 
+def test_the_oas30_service_desc_is_a_valid_openapi_30_document(client):
+    """The oas30 class: a service-desc in OpenAPI 3.0 that a 3.0 validator accepts (and
+    that FastAPI's own 3.1 document, said to be 3.0, is not: the check can fail)."""
+    from openapi_spec_validator import validate
+    from openapi_spec_validator.validation.exceptions import OpenAPIValidationError
+
+    descs = [link for link in client.get("/v1/").json()["links"] if link["rel"] == "service-desc"]
+    oas30 = [link for link in descs if link["type"].endswith("version=3.0")]
+    assert len(oas30) == 1, descs
+    doc = client.get(oas30[0]["href"]).json()
+    assert doc["openapi"] == "3.0.3"
+    validate(doc)
+    assert set(doc["paths"]) == set(client.get("/openapi.json").json()["paths"])
+    native = client.get("/openapi.json").json()
+    with pytest.raises(OpenAPIValidationError):
+        validate({**native, "openapi": "3.0.3"})
+
+
 @pytest.mark.parametrize(
     "accept, query, html",
     [
