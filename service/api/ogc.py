@@ -8,9 +8,9 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse, RedirectResponse
 
+from ..openapi30 import OPENAPI30_JSON, to_openapi30
 from ..schemas import Conformance, LandingPage, Link
 from .deps import BaseDep
-from .openapi30 import OPENAPI30_JSON, to_openapi30
 
 router = APIRouter(tags=["OGC API"])
 root_router = APIRouter(include_in_schema=False)

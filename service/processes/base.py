@@ -204,81 +204,20 @@ def output_ids(names: Iterable[str]) -> dict[str, str]:
     }
 
 
-#: The keywords of OpenAPI 3.0's Schema Object (OGC API - Processes 1.0's ``schema.yaml``).
-_OAS30_KEYWORDS = frozenset(
-    "title multipleOf maximum exclusiveMaximum minimum exclusiveMinimum maxLength minLength "
-    "pattern maxItems minItems uniqueItems maxProperties minProperties required enum type not "
-    "allOf oneOf anyOf items properties additionalProperties description format default "
-    "nullable readOnly writeOnly example deprecated contentMediaType contentEncoding "
-    "contentSchema".split()
-)
-
-
-def _drop_null(s: dict[str, Any]) -> dict[str, Any]:
-    """``anyOf: [X, {type: null}]`` and ``type: [T, "null"]`` as OpenAPI 3.0 says them:
-    X (or T) with ``nullable: true``."""
-    for key in ("anyOf", "oneOf"):
-        alts = s.get(key)
-        if isinstance(alts, list) and {"type": "null"} in alts:
-            rest = [a for a in alts if a != {"type": "null"}]
-            del s[key]
-            s = {**rest[0], **s} if len(rest) == 1 else {**s, key: rest}
-            s["nullable"] = True
-    t = s.get("type")
-    if isinstance(t, list):
-        kinds = [x for x in t if x != "null"]
-        if len(kinds) < len(t):
-            s["nullable"] = True
-        if len(kinds) == 1:
-            s["type"] = kinds[0]
-        else:
-            del s["type"]
-            s["anyOf"] = [{"type": x} for x in kinds]
-    return s
-
-
 def openapi30_schema(schema: Any) -> Any:
     """A JSON Schema (2020-12, as :func:`treesim.params.json_schema` writes them) in
-    OpenAPI 3.0's dialect, which OGC API - Processes 1.0 descriptions use: nullable
-    instead of a null type, boolean ``exclusiveMinimum``/``exclusiveMaximum`` beside the
-    bound, ``const`` as a one-value ``enum``, the unit (``x-unit``) in the description;
-    other keywords left out.
+    OpenAPI 3.0's dialect, which OGC API - Processes 1.0 descriptions use (see
+    :func:`treesim.service.openapi30.schema30`), a file's media type kept.
 
     Examples
     --------
-    >>> s = openapi30_schema(
-    ...     {"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}],
-    ...      "x-unit": "m", "description": "range", "default": None})
-    >>> s["type"], s["minimum"], s["exclusiveMinimum"], s["nullable"], s["description"]
-    ('number', 0, True, True, 'range [m]')
+    >>> s = openapi30_schema({"type": "string", "contentMediaType": "application/zip"})
+    >>> s["contentMediaType"]
+    'application/zip'
     """
-    if not isinstance(schema, dict):
-        return schema
-    s = _drop_null(dict(schema))
-    unit = s.pop("x-unit", None)
-    if unit:
-        s["description"] = f"{s.get('description', '')} [{unit}]".strip()
-    if "const" in s:
-        s["enum"] = [s.pop("const")]
-    if s.get("examples"):
-        s["example"] = s["examples"][0]
-    for bound, limit in (("exclusiveMinimum", "minimum"), ("exclusiveMaximum", "maximum")):
-        v = s.get(bound)
-        if isinstance(v, int | float) and not isinstance(v, bool):
-            s = {**{k: x for k, x in s.items() if k != bound}, limit: v, bound: True}
-    out: dict[str, Any] = {}
-    for k, v in s.items():
-        if k not in _OAS30_KEYWORDS:
-            continue
-        if k == "properties":
-            out[k] = {n: openapi30_schema(x) for n, x in v.items()}
-        elif k in ("allOf", "oneOf", "anyOf"):
-            out[k] = [openapi30_schema(x) for x in v]
-        elif k in ("items", "not", "additionalProperties") and isinstance(v, dict):
-            out[k] = openapi30_schema(v)
-        else:
-            out[k] = v
-    return out
+    from ..openapi30 import OGC_KEYWORDS, schema30
+
+    return schema30(schema, OGC_KEYWORDS)
 
 
 def _version() -> str:

@@ -1,13 +1,16 @@
-"""The API's definition in OpenAPI 3.0, for the ``oas30`` conformance class of OGC API -
-Processes - Part 1 (and clients such as OWSLib that look for a 3.0 service-desc).
+"""OpenAPI 3.0's dialect of JSON Schema, which OGC API - Processes 1.0 speaks: the API's
+definition for the ``oas30`` conformance class (and clients such as OWSLib that look for
+a 3.0 service-desc), and the schemas of the process descriptions.
 
-FastAPI writes OpenAPI 3.1, whose schemas are JSON Schema 2020-12. :func:`to_openapi30`
-rewrites that document's Schema Objects in OpenAPI 3.0's dialect and changes nothing
-else: ``anyOf``/``oneOf`` with a null alternative and type lists become ``nullable``;
-``const`` a one-value ``enum``; numeric ``exclusiveMinimum``/``exclusiveMaximum`` the
-bound with a boolean; ``examples`` the first ``example``; a ``$ref`` with siblings an
+FastAPI writes OpenAPI 3.1, whose schemas are JSON Schema 2020-12 (as
+:func:`treesim.params.json_schema` writes them too). :func:`schema30` rewrites one
+Schema Object: ``anyOf``/``oneOf`` with a null alternative and type lists become
+``nullable``; ``const`` a one-value ``enum``; numeric ``exclusiveMinimum``/
+``exclusiveMaximum`` the bound with a boolean; ``examples`` the first ``example``; the
+unit (``x-unit``) goes into the description; a ``$ref`` with siblings becomes an
 ``allOf`` of the reference; ``prefixItems`` its ``items``; keywords OpenAPI 3.0 has not
-(``contentMediaType``, ``$schema``, ...) left out. ``tests/service/test_ogc.py`` checks the
+(``$schema``, ...) are left out. :func:`to_openapi30` does so for every Schema Object of
+a whole document and changes nothing else; ``tests/service/test_ogc.py`` checks the
 result with openapi-spec-validator.
 """
 
@@ -16,7 +19,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-__all__ = ["OPENAPI30_JSON", "to_openapi30"]
+__all__ = ["OGC_KEYWORDS", "OPENAPI30_JSON", "schema30", "to_openapi30"]
 
 #: The media type of the 3.0 document (its service-desc link's type).
 OPENAPI30_JSON = "application/vnd.oai.openapi+json;version=3.0"
@@ -28,6 +31,8 @@ _KEYWORDS = frozenset(
     "allOf oneOf anyOf items properties additionalProperties description format default "
     "nullable discriminator readOnly writeOnly xml externalDocs example deprecated".split()
 )
+#: What OGC API - Processes 1.0's ``schema.yaml`` adds to them (a file input's media type).
+OGC_KEYWORDS = frozenset({"contentMediaType", "contentEncoding", "contentSchema"})
 _NULL = {"type": "null"}
 
 
@@ -59,14 +64,28 @@ def _nullable(s: dict[str, Any]) -> dict[str, Any]:
     return s
 
 
-def _schema(schema: Any) -> Any:
-    """One Schema Object (and those inside it) in OpenAPI 3.0's dialect."""
+def schema30(schema: Any, keep: frozenset[str] = frozenset()) -> Any:
+    """One Schema Object (and those inside it) in OpenAPI 3.0's dialect; ``keep``: further
+    keywords to keep (:data:`OGC_KEYWORDS` in a process description).
+
+    Examples
+    --------
+    >>> s = schema30(
+    ...     {"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}],
+    ...      "x-unit": "m", "description": "range", "default": None})
+    >>> s["type"], s["minimum"], s["exclusiveMinimum"], s["nullable"], s["description"]
+    ('number', 0, True, True, 'range [m]')
+    """
     if not isinstance(schema, dict):
         return schema
+    allowed = _KEYWORDS | keep
     s = _nullable(dict(schema))
+    unit = s.pop("x-unit", None)
+    if unit:
+        s["description"] = f"{s.get('description', '')} [{unit}]".strip()
     if "$ref" in s:
         ref = {"$ref": s.pop("$ref")}
-        rest = {k: v for k, v in s.items() if k in _KEYWORDS}
+        rest = {k: v for k, v in s.items() if k in allowed}
         if not rest:
             return ref
         s = {**rest, "allOf": [ref, *rest.get("allOf", [])]}
@@ -83,14 +102,14 @@ def _schema(schema: Any) -> Any:
             s[limit], s[bound] = v, True
     out: dict[str, Any] = {}
     for k, v in s.items():
-        if k not in _KEYWORDS:
+        if k not in allowed:
             continue
         if k == "properties":
-            out[k] = {n: _schema(x) for n, x in v.items()}
+            out[k] = {n: schema30(x, keep) for n, x in v.items()}
         elif k in ("allOf", "oneOf", "anyOf"):
-            out[k] = [_schema(x) for x in v]
+            out[k] = [schema30(x, keep) for x in v]
         elif k in ("items", "not", "additionalProperties") and isinstance(v, dict):
-            out[k] = _schema(v)
+            out[k] = schema30(v, keep)
         else:
             out[k] = v
     return out
@@ -99,13 +118,13 @@ def _schema(schema: Any) -> Any:
 def _content(content: dict[str, Any]) -> None:
     for media in content.values():
         if isinstance(media, dict) and "schema" in media:
-            media["schema"] = _schema(media["schema"])
+            media["schema"] = schema30(media["schema"])
 
 
 def _operation(op: dict[str, Any]) -> None:
     for p in op.get("parameters", []):
         if "schema" in p:
-            p["schema"] = _schema(p["schema"])
+            p["schema"] = schema30(p["schema"])
     body = op.get("requestBody")
     if isinstance(body, dict):
         _content(body.get("content", {}))
@@ -114,7 +133,7 @@ def _operation(op: dict[str, Any]) -> None:
             _content(resp.get("content", {}))
             for h in resp.get("headers", {}).values():
                 if isinstance(h, dict) and "schema" in h:
-                    h["schema"] = _schema(h["schema"])
+                    h["schema"] = schema30(h["schema"])
 
 
 def to_openapi30(doc: dict[str, Any]) -> dict[str, Any]:
@@ -125,8 +144,10 @@ def to_openapi30(doc: dict[str, Any]) -> dict[str, Any]:
     >>> d = to_openapi30({"openapi": "3.1.0", "info": {"title": "t", "version": "1"},
     ...     "paths": {}, "components": {"schemas": {"A": {"type": "object", "properties":
     ...     {"x": {"anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"type": "null"}]}}}}}})
-    >>> d["openapi"], d["components"]["schemas"]["A"]["properties"]["x"]
-    ('3.0.3', {'type': 'number', 'minimum': 0, 'exclusiveMinimum': True, 'nullable': True})
+    >>> x = d["components"]["schemas"]["A"]["properties"]["x"]
+    >>> d["openapi"], x == {"type": "number", "minimum": 0, "exclusiveMinimum": True,
+    ...                     "nullable": True}
+    ('3.0.3', True)
     """
     out = copy.deepcopy(doc)
     out["openapi"] = "3.0.3"
@@ -143,5 +164,5 @@ def to_openapi30(doc: dict[str, Any]) -> dict[str, Any]:
                 _operation(op)
     comps = out.get("components", {})
     for name, s in list(comps.get("schemas", {}).items()):
-        comps["schemas"][name] = _schema(s)
+        comps["schemas"][name] = schema30(s)
     return out
