@@ -115,6 +115,12 @@ def execution_options(parser: argparse.ArgumentParser, what: str = "tree") -> No
     x.add_argument("--no-progress", action="store_true", help="no progress output on stderr")
 
 
+def execution(args: argparse.Namespace) -> dict[str, Any]:
+    """The keywords :func:`execution_options` gathered, as the batch's runners take them:
+    ``executor``, ``workers``, ``threads``, ``scheduler``."""
+    return {k: getattr(args, k) for k in ("executor", "workers", "threads", "scheduler")}
+
+
 def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
     """The argparse ``type`` of ``n`` comma-separated finite numbers (``"-40,90"``) for
     the option ``what``, or a usage error (exit 2)."""

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..params import SETTINGS
-from ._options import execution_options
+from ._options import execution, execution_options
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 from .progress import print_warnings
@@ -25,10 +25,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
             args.inputs,
             params,
             args.output,
-            executor=args.executor,
-            workers=args.workers,
-            threads=args.threads,
-            scheduler=args.scheduler,
+            **execution(args),
             progress=bar,
         )
     except KeyboardInterrupt:

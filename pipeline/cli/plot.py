@@ -24,6 +24,7 @@ from ..params import CompareParams, RunParams, ScannerSpec, ScanParams
 from ..plot.generate import StandParams
 from ._options import (
     collect,
+    execution,
     execution_options,
     floats_type,
     number_type,
@@ -211,10 +212,7 @@ def _from_one_cloud(args: argparse.Namespace, cloud: str, tp: TwinParams) -> int
             cloud,
             args.output,
             tp,
-            executor=args.executor,
-            workers=args.workers,
-            threads=args.threads,
-            scheduler=args.scheduler,
+            **execution(args),
             progress=None if args.no_progress else progress_printer(label="from-cloud"),
             batch_progress=bar,
         )
@@ -244,10 +242,7 @@ def _from_many_clouds(args: argparse.Namespace, clouds: list[str], tp: TwinParam
             clouds,
             args.output,
             tp,
-            executor=args.executor,
-            workers=args.workers,
-            threads=args.threads,
-            scheduler=args.scheduler,
+            **execution(args),
             progress=None if args.no_progress else progress_printer(label="from-cloud"),
         )
     except KeyboardInterrupt:

@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ._options import whole_number
+from ._options import execution, whole_number
 from ._outputs import output_folder
 
 if TYPE_CHECKING:
@@ -64,10 +64,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             cfg,
             args.output,
             repeat=args.repeat,
-            executor=args.executor,
-            workers=args.workers,
-            threads=args.threads,
-            scheduler=args.scheduler,
+            **execution(args),
             fresh=args.fresh,
             progress=bar,
             say=say,
