@@ -4,7 +4,9 @@ An upload is opened with treesim's own readers (:func:`treesim.io.inspect_file`;
 archive is a plot, :func:`treesim.service.plots.inspect_plot_archive`) before it is accepted. That
 runs in a small pool of ``spawn``-ed processes: a huge cloud's memory, a
 slow parse or a native reader that crashes stay out of the server, and a crash fails only
-that upload (the pool is rebuilt).
+that upload (the pool is rebuilt). A plot archive is unpacked beside the upload, in the data
+folder's ``tmp`` (never the system's temp folder), streamed and stopped at ``max_unpacked``
+bytes.
 """
 
 from __future__ import annotations

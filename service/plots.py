@@ -234,15 +234,22 @@ def read_unpacked_plot(plot_file: Path, root: Path, label: str) -> Any:
 
 
 def inspect_plot_archive(
-    path: str | Path, filename: str | None = None, *, max_bytes: int | None = None
+    path: str | Path,
+    filename: str | None = None,
+    *,
+    max_bytes: int | None = None,
+    work_dir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Check an uploaded plot archive (unpacked into a temporary folder, then removed):
-    the facts an upload records (``format`` zip, ``kind`` plot, ``n_trees``, ``bounds``:
-    the plot's square around its centre, at its terrain's height there)."""
+    """Check an uploaded plot archive (unpacked into a temporary folder inside
+    ``work_dir``, by default the archive's own folder, never the system's temp folder;
+    streamed, never more than ``max_bytes`` on disk; then removed): the facts an upload
+    records (``format`` zip, ``kind`` plot, ``n_trees``, ``bounds``: the plot's square
+    around its centre, at its terrain's height there)."""
     label = filename or Path(path).name
     if Path(path).stat().st_size == 0:
         raise EmptyInputError(f"{label}: the body is empty; send the file's bytes")
-    with tempfile.TemporaryDirectory(prefix="treesim-plot-") as tmp:
+    where = Path(work_dir) if work_dir is not None else Path(path).resolve().parent
+    with tempfile.TemporaryDirectory(prefix="treesim-plot-", dir=where) as tmp:
         plot_file = unpack_plot(path, tmp, max_bytes=max_bytes, label=label)
         plot = read_unpacked_plot(plot_file, Path(tmp), label)
         cx, cy = plot.centre_xy
