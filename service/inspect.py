@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures as cf
+import errno
 import multiprocessing
 import threading
 from concurrent.futures.process import BrokenProcessPool
@@ -25,6 +26,19 @@ __all__ = ["Inspector"]
 
 
 def _inspect(path: str, filename: str | None, max_unpacked: int | None = None) -> dict[str, Any]:
+    from .problems import is_disk_full
+
+    try:
+        return _inspect_any(path, filename, max_unpacked)
+    except Exception as exc:
+        # an error's cause does not cross the process boundary: a full disk, however a
+        # reader wrapped it, goes back as the OSError it is (the API answers 507)
+        if is_disk_full(exc):
+            raise OSError(errno.ENOSPC, "No space left on device") from None
+        raise
+
+
+def _inspect_any(path: str, filename: str | None, max_unpacked: int | None) -> dict[str, Any]:
     from treesim.io import inspect_file
 
     from .plots import inspect_plot_archive, is_zip

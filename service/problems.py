@@ -9,6 +9,7 @@ a job's own process uses it too.
 
 from __future__ import annotations
 
+import errno
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,6 +21,7 @@ __all__ = [
     "PROBLEMS",
     "ProblemType",
     "ServiceProblem",
+    "is_disk_full",
     "problem",
     "problem_for",
 ]
@@ -176,6 +178,13 @@ PROBLEMS: dict[str, ProblemType] = {
         ),
         ProblemType("out-of-memory", "Out of memory", 507, "the job ran out of memory"),
         ProblemType(
+            "insufficient-storage",
+            "Out of disk space",
+            507,
+            "the server's data folder is full (no space left on the device, or a quota); "
+            "an operator must free space, then send the request again",
+        ),
+        ProblemType(
             "internal-error",
             "Internal error",
             500,
@@ -213,8 +222,42 @@ def slug_for(exc: BaseException) -> str:
     return "internal-error"
 
 
+#: The errno values of a full disk (no space left; a quota exceeded).
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+#: A full disk's problem detail: no path of the server's in it.
+DISK_FULL_DETAIL = (
+    "out of disk space: the server's data folder is full; an operator must free space, "
+    "then send it again"
+)
+
+
+def is_disk_full(exc: BaseException | None) -> bool:
+    """Whether ``exc``, or an error it was raised from or while handling, is a full
+    disk (``ENOSPC`` or ``EDQUOT``), however a reader wrapped it.
+
+    Examples
+    --------
+    >>> import errno
+    >>> is_disk_full(OSError(errno.ENOSPC, "No space left on device"))
+    True
+    >>> is_disk_full(ValueError("x"))
+    False
+    """
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in DISK_FULL_ERRNOS:
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def problem_for(exc: BaseException) -> dict[str, Any]:
-    """The problem object for an exception (``field`` kept when the error names one)."""
+    """The problem object for an exception (``field`` kept when the error names one; a
+    full disk, however wrapped, is ``insufficient-storage`` without the server's paths)."""
+    if is_disk_full(exc):
+        return problem("insufficient-storage", DISK_FULL_DETAIL)
     slug = slug_for(exc)
     detail = str(exc) or type(exc).__name__
     if slug == "internal-error":

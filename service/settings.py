@@ -47,6 +47,12 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         4 * 1024**3, gt=0, description="largest upload accepted, in bytes (larger: 413)"
     )
+    min_free_mb: float = Field(
+        500.0,
+        ge=0,
+        description="free space the data folder's disk must keep, in MiB: below it /readyz "
+        "answers 503 (0: no floor)",
+    )
     job_time_limit_s: float = Field(
         6 * 3600.0, gt=0, description="a job running longer than this is stopped and failed (s)"
     )

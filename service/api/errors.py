@@ -13,7 +13,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from treesim.errors import TreesimError
 
-from ..problems import MEDIA_TYPE, ServiceProblem, problem, problem_for
+from ..problems import MEDIA_TYPE, ServiceProblem, is_disk_full, problem, problem_for
 
 log = logging.getLogger("treesim.api")
 
@@ -28,6 +28,7 @@ _HTTP_SLUGS = {
     415: "unsupported-format",
     422: "validation-error",
     503: "not-ready",
+    507: "insufficient-storage",
 }
 
 
@@ -79,6 +80,14 @@ def install(app: FastAPI) -> None:
                 detail = f"no route {request.url.path}; the API is described at /docs"
             body = problem(slug, detail)
         return problem_response(body, dict(exc.headers or {}))
+
+    @app.exception_handler(OSError)
+    async def _os_error(request: Request, exc: OSError) -> JSONResponse:
+        # a full disk is the operator's to fix (507, no paths); any other is a bug
+        if is_disk_full(exc):
+            log.warning("%s %s: out of disk space (%s)", request.method, request.url.path, exc)
+            return problem_response(problem_for(exc))
+        return await _internal(request, exc)
 
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception) -> JSONResponse:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import shutil
 import uuid
+from pathlib import Path
 
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
@@ -24,7 +26,7 @@ def healthz() -> Health:
     "/readyz",
     response_model=Readiness,
     responses={503: {"model": Readiness, "description": "a check failed"}},
-    summary="Database, data folder and a live worker",
+    summary="Database, data folder, its free space and a live worker",
 )
 def readyz(store: StoreDep, settings: SettingsDep) -> JSONResponse:
     checks: dict[str, dict] = {}
@@ -40,6 +42,7 @@ def readyz(store: StoreDep, settings: SettingsDep) -> JSONResponse:
         checks["data_dir"] = {"ok": True}
     except OSError as exc:
         checks["data_dir"] = {"ok": False, "detail": f"{settings.data_dir}: {exc.strerror}"}
+    checks["disk"] = _disk_check(settings.data_dir, settings.min_free_mb)
     try:
         live = store.live_workers(max(3 * settings.poll_interval_s, settings.lease_s))
         checks["worker"] = {"ok": bool(live), "live": len(live)}
@@ -50,6 +53,21 @@ def readyz(store: StoreDep, settings: SettingsDep) -> JSONResponse:
     ok = all(c["ok"] for c in checks.values())
     body = Readiness(status="ready" if ok else "not ready", checks=checks)
     return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+
+
+def _disk_check(data_dir: Path, min_free_mb: float) -> dict:
+    """The data folder's free space against the floor ``TREESIM_MIN_FREE_MB``."""
+    try:
+        free_mb = shutil.disk_usage(data_dir).free / 2**20
+    except OSError as exc:
+        return {"ok": False, "detail": f"free space unknown: {exc.strerror}"}
+    check: dict = {"ok": free_mb >= min_free_mb, "free_mb": round(free_mb, 1)}
+    if not check["ok"]:
+        check["detail"] = (
+            f"{free_mb:,.0f} MiB free in the data folder, below TREESIM_MIN_FREE_MB "
+            f"{min_free_mb:,.0f}"
+        )
+    return check
 
 
 @router.get(

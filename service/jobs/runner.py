@@ -109,13 +109,18 @@ def execute(spec: JobSpec) -> dict[str, Any]:
 
 
 def _outcome(spec: JobSpec) -> dict[str, Any]:
-    from ..problems import problem, problem_for
+    from ..problems import is_disk_full, problem, problem_for
 
     try:
         return {"ok": True, "summary": execute(spec)}
     except (TreesimError, MemoryError) as exc:
+        if is_disk_full(exc):  # a reader's wrapped ENOSPC: the path stays in the job log
+            traceback.print_exc()
         return {"ok": False, "problem": problem_for(exc)}
     except Exception as exc:  # a bug: the traceback goes to the job's log, not the user
+        if is_disk_full(exc):
+            traceback.print_exc()
+            return {"ok": False, "problem": problem_for(exc)}
         traceback.print_exc()
         return {
             "ok": False,

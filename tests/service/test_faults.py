@@ -6,6 +6,7 @@ is the limit or status the issue asks for, not anything the code computed.
 
 from __future__ import annotations
 
+import errno
 import io
 import zipfile
 from pathlib import Path
@@ -18,8 +19,10 @@ from treesim.errors import ResourceLimitError
 from treesim.service.app import create_app
 from treesim.service.settings import Settings
 
+from .conftest import BUNDLED_CLOUD
+
 PROBLEM = "application/problem+json"
-LIMIT = 200_000
+LIMIT = 2_000_000
 _TOML = 'radius_m = 5.0\ntrees = "trees.csv"\n'
 _CSV = "tree_id,x_m,y_m,species\n1,1.0,0.0,sapling\n"
 
@@ -70,7 +73,7 @@ def _problem(r, status: int) -> dict:
 
 # -- 1. plot archives inspected inside the data folder, streamed within the limit ---------------
 def test_a_zip_bomb_is_refused_and_nothing_lands_outside_the_data_folder(app_settings, watched_tmp):
-    bomb = _bomb(500 * LIMIT)  # 100 MB of zeros in a ~100 kB zip
+    bomb = _bomb(50 * LIMIT)  # 100 MB of zeros in a ~100 kB zip
     assert len(bomb) < LIMIT
     with TestClient(create_app(app_settings)) as client:
         body = _problem(client.post("/v1/uploads?filename=bomb.zip", content=bomb), 422)
@@ -105,7 +108,7 @@ def test_a_lying_archive_never_puts_more_than_the_limit_on_disk(tmp_path, monkey
     whose member inflates far beyond the limit: the streamed counter stops it, and the bytes
     on disk never exceed the limit (counted at every write, not timed)."""
     archive = tmp_path / "bomb.zip"
-    archive.write_bytes(_bomb(50 * LIMIT))
+    archive.write_bytes(_bomb(20 * LIMIT))
     real_infolist = zipfile.ZipFile.infolist
     real_init = zipfile.ZipExtFile.__init__
 
@@ -138,3 +141,94 @@ def test_a_lying_archive_never_puts_more_than_the_limit_on_disk(tmp_path, monkey
         plots.inspect_plot_archive(archive, "bomb.zip", max_bytes=LIMIT, work_dir=work)
     assert 0 < peak[0] <= LIMIT
     assert list(work.iterdir()) == []
+
+
+# -- 2. a full disk: 507 on upload and on submission, a clear failure in a job, /readyz ------
+def _enospc(*args, **kwargs):
+    raise OSError(errno.ENOSPC, "No space left on device", "/srv/secret/data/x.part")
+
+
+def test_a_full_disk_on_upload_is_507_not_500(app_settings, monkeypatch):
+    import treesim.service.api.uploads as uploads
+
+    with TestClient(create_app(app_settings), raise_server_exceptions=False) as client:
+        monkeypatch.setattr(uploads.os, "replace", _enospc)  # placing the upload fails
+        r = client.post("/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes())
+        body = _problem(r, 507)
+        assert body["type"] == "/problems#insufficient-storage"
+        assert "/srv/secret" not in r.text and "a bug" not in r.text
+        assert list((app_settings.data_dir / "tmp").glob("*.part")) == []  # nothing kept
+
+
+def test_a_full_disk_while_unpacking_a_plot_is_507(tmp_path):
+    """The inspector's child wraps a full disk in treesim's error; it still comes back as
+    a full disk (its cause does not cross the process boundary by itself)."""
+    from treesim.service.inspect import _inspect
+
+    archive = tmp_path / "p.zip"
+    archive.write_bytes(_bomb(10))
+    real = plots.unpack_plot
+
+    def full(*args, **kwargs):
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        except OSError:
+            raise plots._bad("p.zip", "entry is corrupt") from None
+
+    plots.unpack_plot = full
+    try:
+        with pytest.raises(OSError) as info:
+            _inspect(str(archive), "p.zip", LIMIT)
+    finally:
+        plots.unpack_plot = real
+    assert info.value.errno == errno.ENOSPC
+
+
+def test_a_full_disk_on_job_submission_is_507(app_settings, monkeypatch):
+    from treesim.service.jobs.store import Store
+
+    with TestClient(create_app(app_settings), raise_server_exceptions=False) as client:
+        r = client.post("/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes())
+        assert r.status_code == 201, r.text
+        monkeypatch.setattr(Store, "create_job", _enospc)
+        r = client.post(
+            "/v1/processes/reconstruct/execution", json={"inputs": {"cloud": r.json()["id"]}}
+        )
+        body = _problem(r, 507)
+        assert "/srv/secret" not in body["detail"]
+
+
+def test_a_full_disk_inside_a_job_fails_it_with_a_clear_message(tmp_path, monkeypatch):
+    """A reader that wraps ENOSPC in treesim's InputFormatError (with the server's path)
+    used to end the job as 'bad-input-file'; it is out of disk space, without paths."""
+    from treesim.errors import InputFormatError
+    from treesim.service.jobs import runner
+
+    def execute(spec):
+        try:
+            _enospc()
+        except OSError as exc:
+            raise InputFormatError(f"/srv/secret/data/jobs/j/out.ply: {exc}") from exc
+
+    monkeypatch.setattr(runner, "execute", execute)
+    spec = runner.JobSpec("j", 1, "reconstruct", {}, {}, str(tmp_path), str(tmp_path), 1)
+    out = runner._outcome(spec)
+    assert out["ok"] is False
+    p = out["problem"]
+    assert (p["status"], p["type"]) == (507, "/problems#insufficient-storage")
+    assert "out of disk space" in p["detail"] and "/srv" not in p["detail"]
+
+
+def test_readyz_is_503_below_the_free_space_floor(app_settings):
+    import shutil
+
+    free_mb = shutil.disk_usage(app_settings.data_dir.parent).free / 2**20
+    low = app_settings.model_copy(update={"min_free_mb": free_mb * 4 + 1})
+    with TestClient(create_app(low)) as client:
+        r = client.get("/readyz")
+        assert r.status_code == 503
+        assert r.json()["checks"]["disk"]["ok"] is False
+        assert "TREESIM_MIN_FREE_MB" in r.json()["checks"]["disk"]["detail"]
+    with TestClient(create_app(app_settings)) as client:  # the default floor, 500 MiB
+        disk = client.get("/readyz").json()["checks"]["disk"]
+        assert disk["ok"] is (free_mb >= 500), disk
