@@ -75,9 +75,11 @@ def is_loopback(host: str) -> bool:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
-    if not is_loopback(settings.host) and settings.api_token is None and not args.insecure:
+    tokenless = settings.api_token is None and settings.tokens_file is None
+    if not is_loopback(settings.host) and tokenless and not args.insecure:
         raise InvalidParameterError(
-            f"refusing to serve on {settings.host} without TREESIM_API_TOKEN: anyone who "
+            f"refusing to serve on {settings.host} without TREESIM_API_TOKEN or "
+            "TREESIM_TOKENS_FILE: anyone who "
             "reaches the port could run jobs and read results. Set a token, or give --insecure"
         )
     import uvicorn

@@ -44,6 +44,17 @@ class Settings(BaseSettings):
         None,
         description="if set, every /v1 request must send 'Authorization: Bearer <token>'",
     )
+    tokens_file: Path | None = Field(
+        None,
+        description="a TOML file of named users: [name] token_sha256 = '<hex>', role = "
+        "'user' or 'admin'; each user sees only their own uploads and jobs, an admin all "
+        "(api_token, if set too, is one more admin)",
+    )
+    metrics_open: bool = Field(
+        False,
+        description="serve /metrics to anyone; off: /metrics needs an admin's token when "
+        "a token is set",
+    )
     max_upload_bytes: int = Field(
         4 * 1024**3, gt=0, description="largest upload accepted, in bytes (larger: 413)"
     )
@@ -111,7 +122,9 @@ class Settings(BaseSettings):
     def _absolute(cls, v: Path) -> Path:
         return v.expanduser().resolve()
 
-    @field_validator("database_url", "scheduler", "api_token", "heartbeat_file", mode="before")
+    @field_validator(
+        "database_url", "scheduler", "api_token", "heartbeat_file", "tokens_file", mode="before"
+    )
     @classmethod
     def _empty_is_unset(cls, v: object) -> object:
         # compose files pass ${VAR:-} through as an empty string: that means "not set"

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import hashlib
 import hmac
+import tomllib
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 from typing import Annotated
 
 from fastapi import Depends, Request
@@ -34,23 +39,185 @@ StoreDep = Annotated[Store, Depends(get_store)]
 BaseDep = Annotated[str, Depends(get_base)]
 
 
-def require_token(request: Request) -> None:
-    """With ``TREESIM_API_TOKEN`` set, every ``/v1`` request needs ``Authorization: Bearer
-    <token>`` (compared in constant time). Reading requests (GET, HEAD) may carry it in the
-    jobs page's cookie instead, so that a browser can follow links to reports."""
-    token = request.app.state.settings.token()
-    if token is None:
-        return
-    given = None
+@dataclass(frozen=True)
+class User:
+    """Who sent a request: a named user (``role`` ``"user"`` or ``"admin"``).
+
+    Examples
+    --------
+    >>> User("ana", "user").owner, User("root", "admin").owner
+    ('ana', None)
+    """
+
+    name: str
+    role: str
+
+    @property
+    def owns_as(self) -> str | None:
+        """The name recorded as the owner of what the user makes (None on an open service)."""
+        return self.name or None
+
+    @property
+    def owner(self) -> str | None:
+        """The owner the store narrows to: the user's name, or None (everything) for an
+        admin."""
+        return None if self.role == "admin" else self.name
+
+
+#: Who a request is from while no token is set: anyone, seeing everything (an open service).
+OPEN = User("", "admin")
+ROLES = ("user", "admin")
+
+
+def hash_token(token: str) -> str:
+    """A token's SHA-256 in hex, as the tokens file keeps it (``token_sha256``).
+
+    The same in a shell: ``printf %s "$TOKEN" | sha256sum`` (the first field).
+
+    Examples
+    --------
+    >>> hash_token("secret")[:16]
+    '2bb80d537b1da3e3'
+    """
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def load_tokens(path: Path) -> dict[str, User]:
+    """The tokens file (TOML): token hash → user. Each table is a user::
+
+        [ana]
+        token_sha256 = "<64 hex digits>"
+        role = "user"          # or "admin"
+
+    Raises :class:`~treesim.errors.InputFormatError` naming the file and the user when an
+    entry is malformed, so that the service refuses to start rather than lock people out.
+
+    Examples
+    --------
+    >>> load_tokens(Path("tokens.toml"))  # doctest: +SKIP
+    {'2bb8…': User(name='ana', role='user')}
+    """
+    from treesim.errors import InputFormatError
+
+    try:
+        doc = tomllib.loads(path.read_text("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputFormatError(f"tokens file {path}: cannot read it: {exc}") from None
+    users: dict[str, User] = {}
+    for name, entry in doc.items():
+        digest = entry.get("token_sha256") if isinstance(entry, dict) else None
+        role = entry.get("role", "user") if isinstance(entry, dict) else None
+        if not isinstance(digest, str) or len(digest) != 64 or role not in ROLES:
+            raise InputFormatError(
+                f"tokens file {path}: user {name!r} needs token_sha256 (64 hex digits) and "
+                f"role 'user' or 'admin'"
+            )
+        try:
+            bytes.fromhex(digest)
+        except ValueError:
+            raise InputFormatError(
+                f"tokens file {path}: user {name!r}: token_sha256 is not hexadecimal"
+            ) from None
+        if len(name) > 64:
+            raise InputFormatError(f"tokens file {path}: user name {name[:20]!r}… is too long")
+        users[digest.lower()] = User(name, role)
+    return users
+
+
+@lru_cache(maxsize=8)
+def _tokens_cached(path: Path, mtime_ns: int) -> dict[str, User]:
+    return load_tokens(path)
+
+
+def known_tokens(settings: Settings) -> dict[str, User] | None:
+    """Token hash → user, from the tokens file (re-read when it changes) and the single
+    ``api_token`` (an admin named ``admin``); None when neither is set (an open service)."""
+    users: dict[str, User] = {}
+    if settings.tokens_file is not None:
+        path = settings.tokens_file
+        try:
+            mtime = path.stat().st_mtime_ns
+        except OSError:
+            mtime = -1
+        users.update(_tokens_cached(path, mtime))
+    token = settings.token()
+    if token is not None:
+        users[hash_token(token)] = User("admin", "admin")
+    if not users and settings.tokens_file is None and token is None:
+        return None
+    return users
+
+
+def _given_token(request: Request) -> str | None:
     auth = request.headers.get("authorization", "")
     scheme, _, value = auth.partition(" ")
     if scheme.lower() == "bearer" and value.strip():
-        given = value.strip()
-    elif request.method in ("GET", "HEAD"):
-        given = request.cookies.get(TOKEN_COOKIE)
-    if given is None or not hmac.compare_digest(given.encode(), token.encode()):
+        return value.strip()
+    return None
+
+
+def find_user(users: dict[str, User], token: str) -> User | None:
+    """The user whose token hash matches ``token``'s, compared in constant time against
+    every entry (no early exit).
+
+    Examples
+    --------
+    >>> find_user({hash_token("s3"): User("ana", "user")}, "s3")
+    User(name='ana', role='user')
+    >>> find_user({hash_token("s3"): User("ana", "user")}, "s4") is None
+    True
+    """
+    digest = hash_token(token).encode()
+    found = None
+    for h, user in users.items():
+        if hmac.compare_digest(digest, h.encode()):
+            found = user
+    return found
+
+
+def require_token(request: Request) -> User:
+    """Who sent the request. With a token set (``TREESIM_API_TOKEN`` or
+    ``TREESIM_TOKENS_FILE``), every ``/v1`` request needs ``Authorization: Bearer <token>``
+    (or, reading, the jobs page's session cookie); no token set: anyone, seeing all."""
+    settings = request.app.state.settings
+    users = known_tokens(settings)
+    if users is None:
+        request.state.user = OPEN
+        return OPEN
+    user = None
+    given = _given_token(request)
+    if given is not None:
+        user = find_user(users, given)
+    else:
+        user = session_user(request, users)
+    if user is None:
         raise ServiceProblem(
             "unauthorized",
-            "missing or wrong token: send 'Authorization: Bearer <TREESIM_API_TOKEN>'",
+            "missing or wrong token: send 'Authorization: Bearer <your token>'",
             headers={"WWW-Authenticate": 'Bearer realm="treesim"'},
         )
+    request.state.user = user
+    return user
+
+
+def session_user(request: Request, users: dict[str, User]) -> User | None:
+    """The user of the jobs page's session cookie, for reading requests (GET, HEAD)."""
+    if request.method not in ("GET", "HEAD"):
+        return None
+    given = request.cookies.get(TOKEN_COOKIE)
+    return find_user(users, given) if given else None
+
+
+def require_admin(request: Request) -> User:
+    """Like :func:`require_token`, and the user must be an admin (401 otherwise)."""
+    user = require_token(request)
+    if user.role != "admin":
+        raise ServiceProblem(
+            "unauthorized",
+            f"{user.name} is not an admin: this needs an admin's token",
+            headers={"WWW-Authenticate": 'Bearer realm="treesim"'},
+        )
+    return user
+
+
+UserDep = Annotated[User, Depends(require_token)]
