@@ -24,7 +24,7 @@ from ..schemas import (
     StatusInfo,
     iso,
 )
-from .deps import BaseDep, SettingsDep, StoreDep
+from .deps import BaseDep, SettingsDep, StoreDep, UserDep
 from .responses import PROBLEM_RESPONSES
 
 router = APIRouter()
@@ -90,8 +90,10 @@ def status_info(job: dict[str, Any], base: str = "") -> StatusInfo:
     )
 
 
-def _job(store: Store, job_id: str) -> dict[str, Any]:
-    job = store.job(job_id)
+def _job(store: Store, job_id: str, owner: str | None = None) -> dict[str, Any]:
+    """The job; no-such-job (404) when there is none or ``owner`` (if given) did not
+    submit it: another user's job is as absent as one that never was."""
+    job = store.job(job_id, owner=owner)
     if job is None:
         raise ServiceProblem("no-such-job", f"no job {job_id!r}", field="job_id")
     return job
@@ -108,6 +110,7 @@ def _job(store: Store, job_id: str) -> dict[str, Any]:
 def list_jobs(
     store: StoreDep,
     base: BaseDep,
+    user: UserDep,
     status: Annotated[
         list[str] | None,
         Query(description="only these statuses (repeat, or comma-separated)"),
@@ -132,7 +135,7 @@ def list_jobs(
             "cursor is not one this service made: take it from a 'next' link",
             field="cursor",
         )
-    rows, nxt = store.list_jobs(status=wanted, limit=limit, cursor=cursor)
+    rows, nxt = store.list_jobs(status=wanted, limit=limit, cursor=cursor, owner=user.owner)
     q = "".join(f"&status={s}" for s in wanted)
     url = f"{base}/v1/jobs?limit={limit}{q}"
     links = [
@@ -156,8 +159,8 @@ def list_jobs(
     tags=["jobs"],
     summary="A job's status, progress and links to its results",
 )
-def get_job(job_id: str, store: StoreDep, base: BaseDep) -> StatusInfo:
-    return status_info(_job(store, job_id), base)
+def get_job(job_id: str, store: StoreDep, base: BaseDep, user: UserDep) -> StatusInfo:
+    return status_info(_job(store, job_id, user.owner), base)
 
 
 @router.delete(
@@ -168,8 +171,10 @@ def get_job(job_id: str, store: StoreDep, base: BaseDep) -> StatusInfo:
     tags=["jobs"],
     summary="Dismiss a job: stop it if running, remove its files",
 )
-def dismiss_job(job_id: str, store: StoreDep, settings: SettingsDep, base: BaseDep) -> StatusInfo:
-    job, before, readers = store.dismiss(job_id)
+def dismiss_job(
+    job_id: str, store: StoreDep, settings: SettingsDep, base: BaseDep, user: UserDep
+) -> StatusInfo:
+    job, before, readers = store.dismiss(job_id, owner=user.owner)
     if job is None:
         raise ServiceProblem("no-such-job", f"no job {job_id!r}", field="job_id")
     if readers:
@@ -191,10 +196,10 @@ _REPORT_CSP = (
 )
 
 
-def _successful(store: Store, job_id: str) -> dict[str, Any]:
+def _successful(store: Store, job_id: str, owner: str | None = None) -> dict[str, Any]:
     """The job, successful; else OGC's exception: no-such-job, result-not-ready (accepted
     or running), the job's own error (failed), not-found (dismissed)."""
-    job = _job(store, job_id)
+    job = _job(store, job_id, owner)
     status = job["status"]
     if status in ("accepted", "running"):
         raise ServiceProblem(
@@ -239,6 +244,7 @@ def get_results(
     job_id: str,
     store: StoreDep,
     base: BaseDep,
+    user: UserDep,
     outputs: Annotated[
         list[str] | None,
         Query(description="only these output ids (repeat, or comma-separated)"),
@@ -249,7 +255,7 @@ def get_results(
     mesh reconstruction) are left out."""
     from ..processes import PROCESSES
 
-    job = _successful(store, job_id)
+    job = _successful(store, job_id, user.owner)
     names = {r["name"]: r for r in job["results"] or []}
     process = PROCESSES.get(job["process"])
     ids = process.output_ids() if process else {}
@@ -277,8 +283,8 @@ def get_results(
     tags=["results"],
     summary="A successful job's files: name, size, media type (treesim's listing)",
 )
-def list_files(job_id: str, store: StoreDep, base: BaseDep) -> ResultList:
-    job = _successful(store, job_id)
+def list_files(job_id: str, store: StoreDep, base: BaseDep, user: UserDep) -> ResultList:
+    job = _successful(store, job_id, user.owner)
     url = f"{base}/v1/jobs/{job_id}/results"
     return ResultList(
         jobID=job_id,
@@ -297,8 +303,10 @@ def list_files(job_id: str, store: StoreDep, base: BaseDep) -> ResultList:
     tags=["results"],
     summary="Download one result (Range requests supported)",
 )
-def get_result(job_id: str, name: str, store: StoreDep, settings: SettingsDep) -> FileResponse:
-    job = _successful(store, job_id)
+def get_result(
+    job_id: str, name: str, store: StoreDep, settings: SettingsDep, user: UserDep
+) -> FileResponse:
+    job = _successful(store, job_id, user.owner)
     items = {r["name"]: r for r in job["results"] or []}
     clean = PurePosixPath(name).as_posix()
     if clean not in items:
@@ -327,8 +335,8 @@ def get_result(job_id: str, name: str, store: StoreDep, settings: SettingsDep) -
     tags=["results"],
     summary="The job's HTML report",
 )
-def get_report(job_id: str, store: StoreDep) -> RedirectResponse:
-    job = _successful(store, job_id)
+def get_report(job_id: str, store: StoreDep, user: UserDep) -> RedirectResponse:
+    job = _successful(store, job_id, user.owner)
     if "report.html" not in {r["name"] for r in job["results"] or []}:
         raise ServiceProblem(
             "not-found", f"job {job_id} ({job['process']}) has no report", field="job_id"

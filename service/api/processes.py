@@ -25,7 +25,7 @@ from ..schemas import (
     StatusInfo,
 )
 from ..settings import Settings
-from .deps import BaseDep
+from .deps import BaseDep, User, require_token
 from .jobs import kind_of_result, status_info
 from .responses import PROBLEM_RESPONSES
 
@@ -294,10 +294,15 @@ def _check_outputs(process: Process, body: ExecuteRequest) -> None:
 
 
 def _resolve_inputs(
-    process: Process, given: dict[str, FileRef], store: Store, settings: Settings
+    process: Process,
+    given: dict[str, FileRef],
+    store: Store,
+    settings: Settings,
+    owner: str | None = None,
 ) -> tuple[dict[str, Any], list[tuple[str, str | None, str | None]]]:
     """Each file input's record (upload or job result: its path and kind) and the links
-    the store keeps from the job to what it reads."""
+    the store keeps from the job to what it reads; with ``owner``, only that user's
+    uploads and jobs (another's is 404, as if absent)."""
     resolved: dict[str, Any] = {}
     links: list[tuple[str, str | None, str | None]] = []
     for spec in process.inputs:
@@ -313,9 +318,9 @@ def _resolve_inputs(
                 field=field,
             )
         if isinstance(ref, str):
-            resolved[name], link = _upload_input(ref, store, field)
+            resolved[name], link = _upload_input(ref, store, field, owner)
         else:
-            resolved[name], link = _result_input(ref, store, settings, field)
+            resolved[name], link = _result_input(ref, store, settings, field, owner)
         links.append((name, *link))
         kind = resolved[name]["kind"]
         if kind not in spec.kinds:
@@ -328,9 +333,9 @@ def _resolve_inputs(
 
 
 def _upload_input(
-    upload_id: str, store: Store, field: str
+    upload_id: str, store: Store, field: str, owner: str | None = None
 ) -> tuple[dict[str, Any], tuple[str | None, str | None]]:
-    up = store.upload(upload_id)
+    up = store.upload(upload_id, owner=owner)
     if up is None:
         raise ServiceProblem("not-found", f"{field}: no upload {upload_id!r}", field=field)
     rec = {"upload": up["id"], "path": up["path"], "filename": up["filename"], "kind": up["kind"]}
@@ -338,10 +343,10 @@ def _upload_input(
 
 
 def _result_input(
-    ref: tuple[str, str], store: Store, settings: Settings, field: str
+    ref: tuple[str, str], store: Store, settings: Settings, field: str, owner: str | None = None
 ) -> tuple[dict[str, Any], tuple[str | None, str | None]]:
     job_id, result = ref
-    src = store.job(job_id)
+    src = store.job(job_id, owner=owner)
     if src is None:
         raise ServiceProblem("not-found", f"{field}: no job {job_id!r}", field=field)
     if src["status"] != "successful":
@@ -371,15 +376,19 @@ def submit(
     parameters: dict[str, Any],
     store: Store,
     settings: Settings,
+    user: User | None = None,
 ) -> dict[str, Any]:
-    """Check a job's parameters and inputs and store it, accepted: its record."""
+    """Check a job's parameters and inputs and store it, accepted: its record. ``user``:
+    who submits it (its owner; a non-admin may name only their own uploads and jobs)."""
     try:
         parsed = check_parameters(process, parameters)
     except InvalidParameterError as exc:
         raise ServiceProblem(
             "invalid-parameter", str(exc), field=getattr(exc, "field", "parameters")
         ) from None
-    resolved, links = _resolve_inputs(process, inputs, store, settings)
+    resolved, links = _resolve_inputs(
+        process, inputs, store, settings, user.owner if user else None
+    )
     if process.check_inputs is not None:
         try:
             process.check_inputs(frozenset(resolved), parsed)
@@ -423,6 +432,7 @@ def submit(
         time_limit_s=settings.job_time_limit_s,
         links=links,
         check=still_there,
+        owner=user.owns_as if user else None,
     )
 
 
@@ -432,6 +442,7 @@ async def _start(
     """A request's job, accepted: 201, its status and ``Location``; ``Preference-Applied:
     respond-async`` when the client asked for it (every process runs as a job)."""
     settings: Settings = request.app.state.settings
+    user = require_token(request)
     base = str(request.base_url).rstrip("/")
     _check_outputs(process, body)
     refs, parameters = split_inputs(process, body.inputs, body.parameters, base, settings)
@@ -440,10 +451,13 @@ async def _start(
         if isinstance(ref, Remote):
             from .uploads import fetch_remote
 
-            ref = (await fetch_remote(request.app.state, ref.url, f"inputs.{name}"))["id"]
+            got = await fetch_remote(
+                request.app.state, ref.url, f"inputs.{name}", owner=user.owns_as
+            )
+            ref = got["id"]
         files[name] = ref
     store: Store = request.app.state.store
-    job = await run_in_threadpool(submit, process, files, parameters, store, settings)
+    job = await run_in_threadpool(submit, process, files, parameters, store, settings, user)
     response.status_code = 201
     response.headers["Location"] = f"{base}/v1/jobs/{job['id']}"
     tokens = {t.strip().lower() for t in (prefer or "").replace(";", ",").split(",")}

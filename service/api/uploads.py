@@ -18,7 +18,7 @@ from treesim.errors import EmptyInputError
 from ..plots import UNPACK_FACTOR
 from ..problems import ServiceProblem
 from ..schemas import Link, UploadList, UploadOut, iso
-from .deps import BaseDep, SettingsDep, StoreDep
+from .deps import BaseDep, SettingsDep, StoreDep, UserDep
 from .responses import PROBLEM_RESPONSES
 
 router = APIRouter(tags=["uploads"])
@@ -103,6 +103,7 @@ async def create_upload(
     response: Response,
     settings: SettingsDep,
     base: BaseDep,
+    user: UserDep,
     filename: Annotated[
         str | None, Query(max_length=1000, description="the file's name (a label only)")
     ] = None,
@@ -144,7 +145,9 @@ async def create_upload(
                     )
                 digest.update(chunk)
                 fh.write(chunk)
-        rec, created = await keep(request.app.state, tmp, size, digest.hexdigest(), name, filename)
+        rec, created = await keep(
+            request.app.state, tmp, size, digest.hexdigest(), name, filename, owner=user.owns_as
+        )
     finally:
         tmp.unlink(missing_ok=True)
     response.status_code = 201 if created else 200
@@ -153,10 +156,18 @@ async def create_upload(
 
 
 async def keep(
-    state: Any, tmp: Path, size: int, sha: str, name: str, filename: str | None
+    state: Any,
+    tmp: Path,
+    size: int,
+    sha: str,
+    name: str,
+    filename: str | None,
+    *,
+    owner: str | None = None,
 ) -> tuple[dict[str, Any], bool]:
     """Check a file received into ``tmp`` (``size`` bytes, SHA-256 ``sha``) and store it
-    as an upload, once per content: (its record, whether it is new)."""
+    as an upload, once per content: (its record, whether it is new). ``owner``: the user
+    who sent it (None on an open service)."""
     settings, store = state.settings, state.store
     if size == 0:
         raise EmptyInputError(f"{name}: the body is empty; send the file's bytes")
@@ -185,10 +196,12 @@ async def keep(
         },
         "path": rel.as_posix(),
     }
-    return await run_in_threadpool(store.add_upload, record, place)
+    return await run_in_threadpool(lambda: store.add_upload(record, place, owner=owner))
 
 
-async def fetch_remote(state: Any, url: str, field: str) -> dict[str, Any]:
+async def fetch_remote(
+    state: Any, url: str, field: str, *, owner: str | None = None
+) -> dict[str, Any]:
     """Download ``url`` (an input's href on another host, where
     ``TREESIM_ALLOW_REMOTE_HREFS`` allows it) and keep it as an upload, within the
     upload limit; its record."""
@@ -201,7 +214,7 @@ async def fetch_remote(state: Any, url: str, field: str) -> dict[str, Any]:
         name = "remote"
     try:
         size, sha = await run_in_threadpool(_download, url, tmp, limit, field)
-        rec, _ = await keep(state, tmp, size, sha, name, name)
+        rec, _ = await keep(state, tmp, size, sha, name, name, owner=owner)
     finally:
         tmp.unlink(missing_ok=True)
     return rec
@@ -238,10 +251,12 @@ def _download(url: str, tmp: Path, limit: int, field: str) -> tuple[int, str]:
 def list_uploads(
     store: StoreDep,
     base: BaseDep,
+    user: UserDep,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> UploadList:
-    return UploadList(uploads=[upload_out(r, base) for r in store.list_uploads(limit, offset)])
+    rows = store.list_uploads(limit, offset, owner=user.owner)
+    return UploadList(uploads=[upload_out(r, base) for r in rows])
 
 
 @router.get(
@@ -250,8 +265,8 @@ def list_uploads(
     responses=PROBLEM_RESPONSES(404),
     summary="One upload",
 )
-def get_upload(upload_id: str, store: StoreDep, base: BaseDep) -> UploadOut:
-    rec = store.upload(upload_id)
+def get_upload(upload_id: str, store: StoreDep, base: BaseDep, user: UserDep) -> UploadOut:
+    rec = store.upload(upload_id, owner=user.owner)
     if rec is None:
         raise ServiceProblem("not-found", f"no upload {upload_id!r}", field="upload_id")
     return upload_out(rec, base)
@@ -263,11 +278,13 @@ def get_upload(upload_id: str, store: StoreDep, base: BaseDep) -> UploadOut:
     responses=PROBLEM_RESPONSES(404, 409),
     summary="Delete an upload (refused while a job uses it)",
 )
-def delete_upload(upload_id: str, store: StoreDep, settings: SettingsDep) -> Response:
+def delete_upload(
+    upload_id: str, store: StoreDep, settings: SettingsDep, user: UserDep
+) -> Response:
     def remove(rec: dict[str, Any]) -> None:
         (settings.data_dir / rec["path"]).unlink(missing_ok=True)
 
-    rec, users = store.delete_upload(upload_id, remove)
+    rec, users = store.delete_upload(upload_id, remove, owner=user.owner)
     if rec is None:
         raise ServiceProblem("not-found", f"no upload {upload_id!r}", field="upload_id")
     if users:

@@ -68,6 +68,7 @@ __all__ = [
     "db_now",
     "jobs",
     "metadata",
+    "upload_owners",
     "uploads",
 ]
 
@@ -117,8 +118,19 @@ jobs = Table(
     Column("updated", Float(53), nullable=False),
     Column("results", JSON),
     Column("summary", JSON),
+    Column("owner", String(64)),
     Index("ix_jobs_status_created", "status", "created"),
+    Index("ix_jobs_owner", "owner"),
     Index("ix_jobs_created", "created", "id"),
+)
+
+#: Who owns an upload: each user who sent its content (uploads are stored once per content,
+#: so one upload may have several owners); uploads sent while no token was set have none.
+upload_owners = Table(
+    "upload_owners",
+    metadata,
+    Column("upload_id", String(36), ForeignKey("uploads.id", ondelete="CASCADE"), primary_key=True),
+    Column("owner", String(64), primary_key=True),
 )
 
 #: Which uploads and earlier jobs' results a job reads (a job's inputs, queryable).
@@ -310,42 +322,78 @@ class Store:
 
     # -- uploads ---------------------------------------------------------------------------
     def add_upload(
-        self, record: Mapping[str, Any], place: Callable[[], None] | None = None
+        self,
+        record: Mapping[str, Any],
+        place: Callable[[], None] | None = None,
+        *,
+        owner: str | None = None,
     ) -> tuple[dict[str, Any], bool]:
         """Insert an upload; if the same content (sha256) is stored already, return that
         record instead. Returns ``(record, created)``. ``place()`` (which moves the file
         into the store) runs inside the transaction, just before the insert, so a
-        concurrent delete of the same content cannot remove the new file."""
+        concurrent delete of the same content cannot remove the new file. ``owner`` (a
+        user's name) becomes one of the upload's owners, new content or not."""
         values = dict(record)
         values.setdefault("id", str(uuid.uuid4()))
         try:
             with self.write() as conn:
-                existing = conn.execute(
-                    select(uploads).where(uploads.c.sha256 == values["sha256"])
-                ).first()
-                if existing is not None:
-                    return _row(existing), False  # type: ignore[return-value]
-                if place is not None:
-                    place()
-                conn.execute(insert(uploads).values(**values, created=db_now()))
-                row = conn.execute(select(uploads).where(uploads.c.id == values["id"])).one()
-                return _row(row), True  # type: ignore[return-value]
+                existing = _row(
+                    conn.execute(
+                        select(uploads).where(uploads.c.sha256 == values["sha256"])
+                    ).first()
+                )
+                if existing is None:
+                    if place is not None:
+                        place()
+                    conn.execute(insert(uploads).values(**values, created=db_now()))
+                    row = conn.execute(select(uploads).where(uploads.c.id == values["id"])).one()
+                    existing = _row(row)
+                self._own(conn, existing["id"], owner)  # type: ignore[index]
+                return existing, existing["id"] == values["id"]  # type: ignore[return-value,index]
         except IntegrityError:  # a concurrent upload of the same content won
             got = self.upload_by_sha(values["sha256"])
             if got is None:
                 raise
+            if owner is not None:
+                with self.write() as conn:
+                    self._own(conn, got["id"], owner)
             return got, False
 
-    def upload(self, upload_id: str) -> dict[str, Any] | None:
+    @staticmethod
+    def _own(conn: Connection, upload_id: str, owner: str | None) -> None:
+        if owner is None:
+            return
+        have = conn.execute(
+            select(upload_owners.c.owner).where(
+                upload_owners.c.upload_id == upload_id, upload_owners.c.owner == owner
+            )
+        ).first()
+        if have is None:
+            conn.execute(insert(upload_owners).values(upload_id=upload_id, owner=owner))
+
+    @staticmethod
+    def _uploads_of(q: Any, owner: str | None) -> Any:
+        """``q`` (a select over uploads) narrowed to ``owner``'s uploads; all with None."""
+        if owner is None:
+            return q
+        mine = select(upload_owners.c.upload_id).where(upload_owners.c.owner == owner)
+        return q.where(uploads.c.id.in_(mine))
+
+    def upload(self, upload_id: str, *, owner: str | None = None) -> dict[str, Any] | None:
+        """The upload, or None when there is none or ``owner`` (if given) does not own it."""
+        q = self._uploads_of(select(uploads).where(uploads.c.id == upload_id), owner)
         with self.read() as conn:
-            return _row(conn.execute(select(uploads).where(uploads.c.id == upload_id)).first())
+            return _row(conn.execute(q).first())
 
     def upload_by_sha(self, sha256: str) -> dict[str, Any] | None:
         with self.read() as conn:
             return _row(conn.execute(select(uploads).where(uploads.c.sha256 == sha256)).first())
 
-    def list_uploads(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
+    def list_uploads(
+        self, limit: int = 100, offset: int = 0, *, owner: str | None = None
+    ) -> list[dict[str, Any]]:
         q = select(uploads).order_by(uploads.c.created.desc(), uploads.c.id)
+        q = self._uploads_of(q, owner)
         with self.read() as conn:
             return [
                 _row(r)  # type: ignore[misc]
@@ -353,20 +401,40 @@ class Store:
             ]
 
     def delete_upload(
-        self, upload_id: str, remove: Callable[[dict[str, Any]], None] | None = None
+        self,
+        upload_id: str,
+        remove: Callable[[dict[str, Any]], None] | None = None,
+        *,
+        owner: str | None = None,
     ) -> tuple[dict[str, Any] | None, list[str]]:
         """Delete an upload's record unless an accepted or running job reads it;
-        ``remove(record)`` (which deletes the file) runs inside the transaction.
+        ``remove(record)`` (which deletes the file) runs inside the transaction. With
+        ``owner``, only an upload that user owns; while others own it too, only the
+        user's ownership goes (the content stays for them).
 
         Returns ``(record, [])`` when deleted, ``(record, job_ids)`` when refused, and
-        ``(None, [])`` when there is no such upload."""
+        ``(None, [])`` when there is no such upload (for ``owner``)."""
         with self.write() as conn:
-            q = select(uploads).where(uploads.c.id == upload_id)
+            q = self._uploads_of(select(uploads).where(uploads.c.id == upload_id), owner)
             if not self.is_sqlite:
                 q = q.with_for_update()
             rec = _row(conn.execute(q).first())
             if rec is None:
                 return None, []
+            if owner is not None:
+                others = conn.execute(
+                    select(func.count()).where(
+                        upload_owners.c.upload_id == upload_id, upload_owners.c.owner != owner
+                    )
+                ).scalar()
+                if others:
+                    conn.execute(
+                        delete(upload_owners).where(
+                            upload_owners.c.upload_id == upload_id,
+                            upload_owners.c.owner == owner,
+                        )
+                    )
+                    return rec, []
             users = [
                 r[0]
                 for r in conn.execute(
@@ -377,6 +445,7 @@ class Store:
             ]
             if users:
                 return rec, users
+            conn.execute(delete(upload_owners).where(upload_owners.c.upload_id == upload_id))
             conn.execute(delete(uploads).where(uploads.c.id == upload_id))
             if remove is not None:
                 remove(rec)
@@ -393,10 +462,12 @@ class Store:
         time_limit_s: float,
         links: Sequence[tuple[str, str | None, str | None]] = (),
         check: Any = None,
+        owner: str | None = None,
     ) -> dict[str, Any]:
         """Insert an accepted job. ``links`` are ``(input name, upload id, source job id)``;
         ``check(conn)`` runs first inside the transaction (with the uploads and source jobs
-        locked on Postgres) and may raise to refuse the job."""
+        locked on Postgres) and may raise to refuse the job. ``owner``: the user who
+        submitted it (None: no token was set)."""
         job_id = str(uuid.uuid4())
         with self.write() as conn:
             upload_ids = [u for _, u, _ in links if u]
@@ -424,6 +495,7 @@ class Store:
                     time_limit_s=float(time_limit_s),
                     created=db_now(),
                     updated=db_now(),
+                    owner=owner,
                 )
             )
             for name, upload_id, source in links:
@@ -434,15 +506,27 @@ class Store:
                 )
             return _row(conn.execute(select(jobs).where(jobs.c.id == job_id)).one())  # type: ignore[return-value]
 
-    def job(self, job_id: str) -> dict[str, Any] | None:
+    def job(self, job_id: str, *, owner: str | None = None) -> dict[str, Any] | None:
+        """The job, or None when there is none or ``owner`` (if given) did not submit it."""
+        q = select(jobs).where(jobs.c.id == job_id)
+        if owner is not None:
+            q = q.where(jobs.c.owner == owner)
         with self.read() as conn:
-            return _row(conn.execute(select(jobs).where(jobs.c.id == job_id)).first())
+            return _row(conn.execute(q).first())
 
     def list_jobs(
-        self, *, status: Sequence[str] = (), limit: int = 50, cursor: str | None = None
+        self,
+        *,
+        status: Sequence[str] = (),
+        limit: int = 50,
+        cursor: str | None = None,
+        owner: str | None = None,
     ) -> tuple[list[dict[str, Any]], str | None]:
-        """Jobs, newest first; ``(jobs, next_cursor)`` (keyset pagination)."""
+        """Jobs, newest first; ``(jobs, next_cursor)`` (keyset pagination); with
+        ``owner``, only that user's."""
         q = select(jobs).order_by(jobs.c.created.desc(), jobs.c.id.desc())
+        if owner is not None:
+            q = q.where(jobs.c.owner == owner)
         if status:
             q = q.where(jobs.c.status.in_(list(status)))
         if cursor:
@@ -476,12 +560,17 @@ class Store:
                 )
             ]
 
-    def dismiss(self, job_id: str) -> tuple[dict[str, Any] | None, str | None, list[str]]:
+    def dismiss(
+        self, job_id: str, *, owner: str | None = None
+    ) -> tuple[dict[str, Any] | None, str | None, list[str]]:
         """Mark a job dismissed (a running one's worker sees it at its next write and stops
         it). Returns ``(job after, status before, active jobs reading its results)``; when
-        the last list is not empty nothing changed."""
+        the last list is not empty nothing changed. With ``owner``, only that user's job
+        (another's is None, as if there were none)."""
         with self.write() as conn:
             q = select(jobs).where(jobs.c.id == job_id)
+            if owner is not None:
+                q = q.where(jobs.c.owner == owner)
             if not self.is_sqlite:
                 q = q.with_for_update()
             before = _row(conn.execute(q).first())
