@@ -188,7 +188,7 @@ PROBLEMS: dict[str, ProblemType] = {
             "internal-error",
             "Internal error",
             500,
-            "a bug in treesim; the job's log has the traceback",
+            "a bug in treesim; a failed job's status shows its log (error.log) with the traceback",
         ),
     )
 }

@@ -182,6 +182,44 @@ def list_results(folder: Path) -> list[dict[str, Any]]:
     return out
 
 
+#: The most of a failed job's log kept with it (its end: where the traceback is).
+LOG_TAIL_BYTES = 64 * 1024
+
+
+def log_tail(path: Path, limit: int = LOG_TAIL_BYTES) -> str:
+    """The last ``limit`` bytes of a job's log (from a line's start where one is near),
+    or "" when there is none.
+
+    Examples
+    --------
+    >>> log_tail(Path("/nonexistent/job.log"))
+    ''
+    """
+    try:
+        with open(path, "rb") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, size - limit))
+            data = fh.read(limit)
+    except OSError:
+        return ""
+    if size > limit:
+        cut = data.find(b"\n")
+        data = b"[... the log's start is cut ...]\n" + (
+            data[cut + 1 :] if 0 <= cut < 4096 else data
+        )
+    return data.decode("utf-8", "replace")
+
+
+def with_log(outcome: Outcome, path: Path) -> Outcome:
+    """A failed outcome whose problem carries the job log's end as ``log`` (a treesim
+    extension member the job's status shows)."""
+    tail = log_tail(path)
+    if not tail.strip():
+        return outcome
+    base = outcome.problem or problem("internal-error", "no result")
+    return Outcome(False, problem={**base, "log": tail}, crashed=outcome.crashed)
+
+
 def _rmtree(path: Path) -> None:
     shutil.rmtree(path, ignore_errors=True)
 
@@ -358,11 +396,16 @@ class Worker:
                         f"stopped after the job time limit of {claim.time_limit_s:g} s "
                         "(TREESIM_JOB_TIME_LIMIT_S)"
                     )
+                    stopped = with_log(
+                        Outcome(False, problem=problem("time-limit", why)), spec.log_path
+                    )
                     _rmtree(ctl)
                     _rmtree(work)
-                    self.store.fail(claim, problem("time-limit", why), retry=False)
+                    self.store.fail(claim, stopped.problem or {}, retry=False)
                     return
             outcome = handle.outcome()
+            if not outcome.ok:  # the log goes with the failure: the attempt folder does not
+                outcome = with_log(outcome, spec.log_path)
             # a job is seen ended only once its attempt's files are gone (a client that
             # lists the job folder at once finds no control files)
             _rmtree(ctl)

@@ -232,3 +232,47 @@ def test_readyz_is_503_below_the_free_space_floor(app_settings):
     with TestClient(create_app(app_settings)) as client:  # the default floor, 500 MiB
         disk = client.get("/readyz").json()["checks"]["disk"]
         assert disk["ok"] is (free_mb >= 500), disk
+
+
+# -- 3. a failed job keeps its log's end, shown in its status -----------------------------------
+def test_a_failed_job_keeps_its_log_and_its_status_shows_it(app_settings, monkeypatch):
+    from treesim.service.jobs import worker as worker_mod
+    from treesim.service.problems import problem
+
+    settings = app_settings.model_copy(update={"workers": 1, "job_threads": 1})
+    boom = "Traceback (most recent call last):\nZeroDivisionError: division by zero\n"
+
+    class FailingHandle:  # a job's process that printed a traceback and wrote its result
+        def __init__(self, spec):
+            spec.log_path.write_text("x" * 100 + "\n" + "filler line\n" * 20_000 + boom)
+
+        def wait(self, timeout):
+            return True
+
+        def stop(self):
+            pass
+
+        def outcome(self):
+            bug = problem("internal-error", "ZeroDivisionError: division by zero (a bug)")
+            return worker_mod.Outcome(False, problem=bug)
+
+    with TestClient(create_app(app_settings)) as client:
+        up = client.post("/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes())
+        r = client.post(
+            "/v1/processes/reconstruct/execution", json={"inputs": {"cloud": up.json()["id"]}}
+        )
+        job_id = r.json()["jobID"] if "jobID" in r.json() else r.json()["id"]
+        store = client.app.state.store
+        w = worker_mod.Worker(settings, store)
+        monkeypatch.setattr(w, "_start", FailingHandle)
+        claim = store.claim(w.id, settings.lease_s)
+        assert claim is not None and claim.id == job_id
+        w._run(claim)
+        status = client.get(f"/v1/jobs/{job_id}").json()
+    assert status["status"] == "failed"
+    log = status["error"]["log"]
+    assert log.endswith(boom)  # the traceback, the log's end
+    assert len(log.encode()) <= worker_mod.LOG_TAIL_BYTES + 64  # bounded (the cut's note)
+    assert log.startswith("[... the log's start is cut ...]\nfiller line\n")
+    jobdir = settings.data_dir / "jobs" / job_id
+    assert not any(p.name.startswith("attempt-") for p in jobdir.iterdir())  # attempts gone
