@@ -221,3 +221,10 @@ def require_admin(request: Request) -> User:
 
 
 UserDep = Annotated[User, Depends(require_token)]
+
+
+def metrics_access(request: Request) -> None:
+    """``/metrics`` is for an admin while a token is set, unless ``TREESIM_METRICS_OPEN``
+    opens it (a Prometheus that cannot send a token)."""
+    if not request.app.state.settings.metrics_open:
+        require_admin(request)

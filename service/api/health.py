@@ -12,7 +12,7 @@ from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from ..schemas import Health, Readiness
-from .deps import SettingsDep, StoreDep
+from .deps import SettingsDep, StoreDep, metrics_access
 
 router = APIRouter(tags=["health"])
 
@@ -77,5 +77,6 @@ def _disk_check(data_dir: Path, min_free_mb: float) -> dict:
     summary="Prometheus metrics",
 )
 def metrics(request: Request) -> Response:
+    metrics_access(request)  # an admin's token while a token is set (TREESIM_METRICS_OPEN)
     data = generate_latest(request.app.state.metrics.registry)
     return Response(data, media_type=CONTENT_TYPE_LATEST, headers={"X-Pid": str(os.getpid())})

@@ -239,3 +239,20 @@ def test_migration_keeps_old_rows_without_owner(tmp_path):
         assert s.upload("u-old") is not None and s.upload("u-old", owner="ana") is None
     finally:
         s.dispose()
+
+
+def test_metrics_need_an_admin_unless_opened(app_and_client, tmp_path):
+    _, client = app_and_client
+    assert client.get("/metrics").status_code == 401
+    assert client.get("/metrics", headers=_auth("ana")).status_code == 401
+    r = client.get("/metrics", headers=_auth("root"))
+    assert r.status_code == 200 and "treesim" in r.text
+    opened = Settings(
+        data_dir=tmp_path / "open",
+        workers=0,
+        api_token="legacy-token",
+        database_url=None,
+        metrics_open=True,
+    )
+    with TestClient(create_app(opened)) as c:
+        assert c.get("/metrics").status_code == 200
