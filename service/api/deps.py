@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import hmac
+import os
+import secrets
+import time
 import tomllib
 from dataclasses import dataclass
 from functools import lru_cache
@@ -16,8 +20,12 @@ from ..jobs.store import Store
 from ..problems import ServiceProblem
 from ..settings import Settings
 
-#: The cookie the jobs page sets so that a browser can open reports while a token is set.
-TOKEN_COOKIE = "treesim_token"
+#: The jobs page's session cookie (HttpOnly, SameSite=Strict: set by the server from a
+#: token sent once to ``POST /session``; JavaScript never reads it). It opens reading
+#: requests only, so that a browser can follow links to reports.
+SESSION_COOKIE = "treesim_session"
+#: How long a session lasts (s).
+SESSION_S = 12 * 3600
 
 
 def get_settings(request: Request) -> Settings:
@@ -200,12 +208,71 @@ def require_token(request: Request) -> User:
     return user
 
 
+def _session_key(settings: Settings) -> bytes:
+    """The key sessions are signed with: a random file in the data folder (0600), made
+    once, shared by every process of the service."""
+    path = settings.data_dir / "session.key"
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        pass
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(secrets.token_bytes(32))
+    try:
+        os.link(tmp, path)  # the first process to make one wins
+    except FileExistsError:
+        pass
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path.read_bytes()
+
+
+def _sign(key: bytes, name: str, expires: int, token_hash: str) -> str:
+    msg = f"{name}|{expires}|{token_hash}".encode()
+    return hmac.new(key, msg, hashlib.sha256).hexdigest()
+
+
+def make_session(settings: Settings, users: dict[str, User], token: str) -> str | None:
+    """A session value for the user of ``token`` (None if no user has it):
+    ``name.expires.signature``, signed with the service's key and the token's hash, so
+    that changing or removing the user's token ends their sessions."""
+    user = find_user(users, token)
+    if user is None:
+        return None
+    expires = int(time.time()) + SESSION_S
+    sig = _sign(_session_key(settings), user.name, expires, hash_token(token))
+    return f"{base64.urlsafe_b64encode(user.name.encode()).decode()}.{expires}.{sig}"
+
+
 def session_user(request: Request, users: dict[str, User]) -> User | None:
     """The user of the jobs page's session cookie, for reading requests (GET, HEAD)."""
     if request.method not in ("GET", "HEAD"):
         return None
-    given = request.cookies.get(TOKEN_COOKIE)
-    return find_user(users, given) if given else None
+    return check_session(request.app.state.settings, users, request.cookies.get(SESSION_COOKIE))
+
+
+def check_session(settings: Settings, users: dict[str, User], value: str | None) -> User | None:
+    """The user a session value names, if its signature holds, it has not expired and the
+    user still has the token it was made with."""
+    if not value or value.count(".") != 2:
+        return None
+    b64, expires_s, sig = value.split(".")
+    try:
+        name = base64.urlsafe_b64decode(b64.encode()).decode()
+        expires = int(expires_s)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if expires < time.time():
+        return None
+    key = _session_key(settings)
+    found = None
+    for digest, user in users.items():
+        if user.name == name and hmac.compare_digest(_sign(key, name, expires, digest), sig):
+            found = user
+    return found
 
 
 def require_admin(request: Request) -> User:

@@ -9,8 +9,10 @@ from importlib import resources
 
 from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse, JSONResponse, Response
+from pydantic import BaseModel, Field
 
-from ..problems import PROBLEMS
+from ..problems import PROBLEMS, ServiceProblem
+from .deps import SESSION_COOKIE, SESSION_S, check_session, known_tokens, make_session
 
 router = APIRouter(include_in_schema=False)
 
@@ -80,3 +82,74 @@ def problems() -> HTMLResponse:
         "<code>/problems#SLUG</code>.</p><table><tr><th>slug</th><th>status</th><th>title"
         f"</th><th>meaning</th></tr>{rows}</table>"
     )
+
+
+class SessionRequest(BaseModel):
+    token: str = Field(min_length=1, max_length=4096)
+
+
+def _whoami(request: Request) -> JSONResponse:
+    users = known_tokens(request.app.state.settings)
+    if users is None:
+        return JSONResponse({"user": None, "role": "admin", "token_required": False})
+    user = check_session(request.app.state.settings, users, request.cookies.get(SESSION_COOKIE))
+    if user is None:
+        raise ServiceProblem("unauthorized", "no session: send your token to POST /session")
+    return JSONResponse({"user": user.name, "role": user.role, "token_required": True})
+
+
+@router.post("/session")
+def start_session(body: SessionRequest, request: Request) -> Response:
+    """The jobs page's sign-in: the token, sent once, is exchanged for a session cookie
+    (``HttpOnly``, ``SameSite=Strict``, ``Secure`` over https) that opens reading requests;
+    the page never stores the token where script or a cookie could leak it."""
+    settings = request.app.state.settings
+    users = known_tokens(settings)
+    if users is None:  # an open service: nothing to sign in to
+        return JSONResponse({"user": None, "role": "admin", "token_required": False})
+    value = make_session(settings, users, body.token)
+    if value is None:
+        raise ServiceProblem(
+            "unauthorized",
+            "wrong token",
+            headers={"WWW-Authenticate": 'Bearer realm="treesim"'},
+        )
+    response = _whoami_after(value, request)
+    response.set_cookie(
+        SESSION_COOKIE,
+        value,
+        max_age=SESSION_S,
+        path="/",
+        httponly=True,
+        samesite="strict",
+        secure=request.url.scheme == "https",
+    )
+    return response
+
+
+def _whoami_after(value: str, request: Request) -> JSONResponse:
+    settings = request.app.state.settings
+    user = check_session(settings, known_tokens(settings) or {}, value)
+    assert user is not None
+    return JSONResponse({"user": user.name, "role": user.role, "token_required": True})
+
+
+@router.get("/session")
+def get_session(request: Request) -> Response:
+    """Who the page's session is (401 without one; ``token_required`` false on an open
+    service)."""
+    return _whoami(request)
+
+
+@router.delete("/session")
+def end_session(request: Request) -> Response:
+    """Sign out: the cookie is cleared."""
+    response = Response(status_code=204)
+    response.delete_cookie(
+        SESSION_COOKIE,
+        path="/",
+        httponly=True,
+        samesite="strict",
+        secure=request.url.scheme == "https",
+    )
+    return response

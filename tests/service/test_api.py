@@ -417,12 +417,16 @@ def test_token_required_on_every_v1_route(locked, samples):
 
 
 def test_the_pages_cookie_opens_reads_only(locked):
+    # the page's session (set by the server from the token, HttpOnly), never the raw token
     locked.cookies.set("treesim_token", "s3cret")
+    _assert_problem(locked.get("/v1/jobs"), 401)
+    locked.cookies.clear()
+    assert locked.post("/session", json={"token": "s3cret"}).status_code == 200
     try:
         assert locked.get("/v1/jobs").status_code == 200
         r = locked.post("/v1/jobs", json={"process": "run", "inputs": {"cloud": "x"}})
         _assert_problem(r, 401)
-        locked.cookies.set("treesim_token", "wrong")
+        locked.cookies.set("treesim_session", "wrong")
         _assert_problem(locked.get("/v1/jobs"), 401)
     finally:
         locked.cookies.clear()

@@ -6,6 +6,7 @@ added later is checked without being named here."""
 
 from __future__ import annotations
 
+import base64
 import hashlib
 from pathlib import Path
 
@@ -256,3 +257,37 @@ def test_metrics_need_an_admin_unless_opened(app_and_client, tmp_path):
     )
     with TestClient(create_app(opened)) as c:
         assert c.get("/metrics").status_code == 200
+
+
+def test_the_pages_session_is_an_httponly_cookie_for_reading(app_and_client):
+    app, client = app_and_client
+    up_a = _upload(client, "ana", CLOUD_A)
+    assert client.post("/session", json={"token": "wrong"}).status_code == 401
+    assert "set-cookie" not in client.post("/session", json={"token": "wrong"}).headers
+    r = client.post("/session", json={"token": TOKENS["ana"]})
+    assert r.status_code == 200 and r.json()["user"] == "ana"
+    cookie = r.headers["set-cookie"]
+    attrs = {a.strip().split("=")[0].lower() for a in cookie.split(";")}
+    assert {"httponly", "samesite"} <= attrs and "samesite=strict" in cookie.lower()
+    assert "secure" not in attrs  # plain http here; https sets Secure
+    value = cookie.split(";")[0].split("=", 1)[1]
+    assert (
+        TOKENS["ana"] not in cookie
+        and hashlib.sha256(TOKENS["ana"].encode()).hexdigest()[:16] not in value
+    )
+    # the session reads as ana (her upload, not another's), and never writes
+    assert client.get("/session").json()["user"] == "ana"
+    assert client.get(f"/v1/uploads/{up_a}").status_code == 200
+    assert client.post("/v1/uploads?filename=c.xyz", content=CLOUD_B).status_code == 401
+    # a forged session (another name with ana's signature) is refused
+    name, expires, sig = value.strip('"').split(".")
+    forged = f"{base64.urlsafe_b64encode(b'root').decode()}.{expires}.{sig}"
+    client.cookies.set("treesim_session", forged)
+    assert client.get("/v1/jobs").status_code == 401
+    client.cookies.clear()
+    # over https the cookie is Secure too
+    https = TestClient(app, base_url="https://testserver")
+    r = https.post("/session", json={"token": TOKENS["ben"]})
+    assert "secure" in {a.strip().lower() for a in r.headers["set-cookie"].split(";")}
+    # signing out clears it
+    assert client.delete("/session").status_code == 204
