@@ -19,6 +19,8 @@ from typing import Any
 from ..errors import InvalidParameterError
 
 __all__ = [
+    "MAX_INT",
+    "MAX_REAL",
     "NONE_WORDS",
     "ParamInfo",
     "check_bounds",
@@ -29,6 +31,13 @@ __all__ = [
     "read_int",
     "walk",
 ]
+
+#: The largest magnitude of a real-valued parameter declared without a bound on that side:
+#: every number is bounded, so no setting reaches a computation as 1e308 and overflows.
+MAX_REAL = 1e9
+#: The largest magnitude of an integer parameter declared without a bound on that side
+#: (JSON's largest safe integer, 2**53 - 1: what every client reads exactly).
+MAX_INT = 2**53 - 1
 
 #: Words that stand for ``None`` ("the rule", "off") in text settings.
 NONE_WORDS = ("none", "off", "auto")
@@ -119,7 +128,9 @@ class ParamInfo:
     help, unit, choices, none_means, execution_only, flag
         As given to :func:`param`.
     bounds : (4,) tuple of float or None
-        ``ge``, ``gt``, ``le``, ``lt`` as given to :func:`param`.
+        ``ge``, ``gt``, ``le``, ``lt`` as given to :func:`param`; a number's side left
+        open is closed at :data:`MAX_REAL` (:data:`MAX_INT` for an integer), so every
+        number has a range.
     """
 
     owner: type
@@ -193,18 +204,34 @@ class ParamInfo:
 
     def range_text(self) -> str:
         """The values a number may take, as a reader says it: ``"a whole number >= 1"``,
-        ``"a number in (0, 45]"``, ``"a finite number"``."""
-        ge, gt, le, lt = self.bounds
+        ``"a number in (0, 45]"``, ``"a finite number"`` (a side closed only at
+        :data:`MAX_REAL` or :data:`MAX_INT` reads as open: see :meth:`cap_text`)."""
+        ge, gt, le, lt = (None if b is not None and abs(b) == self._cap else b for b in self.bounds)
         what = "a whole number" if self.integer else "a number"
         lo = ("[", ge) if ge is not None else ("(", gt) if gt is not None else None
         hi = ("]", le) if le is not None else (")", lt) if lt is not None else None
         if lo and hi:
-            return f"{what} in {lo[0]}{lo[1]:g}, {hi[1]:g}{hi[0]}"
+            return f"{what} in {lo[0]}{_num(lo[1])}, {_num(hi[1])}{hi[0]}"
         if lo:
-            return f"{what} {'>=' if lo[0] == '[' else '>'} {lo[1]:g}"
+            return f"{what} {'>=' if lo[0] == '[' else '>'} {_num(lo[1])}"
         if hi:
-            return f"{what} {'<=' if hi[0] == ']' else '<'} {hi[1]:g}"
+            return f"{what} {'<=' if hi[0] == ']' else '<'} {_num(hi[1])}"
         return what if self.integer else "a finite number"
+
+    @property
+    def _cap(self) -> float:
+        return MAX_INT if self.integer else MAX_REAL
+
+    def cap_text(self, value: Any) -> str:
+        """`` (at most <cap> in magnitude)`` when ``value`` is past the cap every number
+        has (:data:`MAX_REAL`, :data:`MAX_INT`), else ""."""
+        if not any(b is not None and abs(b) == self._cap for b in self.bounds):
+            return ""  # the declared range says it all
+        try:
+            past = not abs(float(value)) <= self._cap
+        except (TypeError, ValueError, OverflowError):
+            past = True
+        return f" (at most {_num(self._cap)} in magnitude)" if past else ""
 
     def in_range(self, value: float) -> bool:
         """Whether the number ``value`` is finite, whole for an integer field, and within
@@ -261,8 +288,32 @@ def _info(cls: type, f: dataclasses.Field, path: tuple[str, ...]) -> ParamInfo:
         none_means=md["none_means"],
         execution_only=md["execution_only"],
         flag=md["flag"],
-        bounds=md.get("bounds", (None,) * 4),
+        bounds=_closed(md.get("bounds", (None,) * 4), str(f.type)),
     )
+
+
+def _num(b: float) -> str:
+    """A bound as text: ``0.5``, ``1e+09``, ``2^53 - 1``."""
+    if abs(b) == MAX_INT:
+        return "-(2^53 - 1)" if b < 0 else "2^53 - 1"
+    return f"{b:g}"
+
+
+def _closed(bounds: tuple[Any, Any, Any, Any], annotation: str) -> tuple[Any, Any, Any, Any]:
+    """A number field's bounds with an open side closed at ±:data:`MAX_REAL` (±:data:`MAX_INT`
+    for an integer field); other fields' as declared."""
+    base = annotation.replace(" | None", "").replace("None | ", "").strip()
+    if base.startswith(("tuple[", "list[")):
+        base = base.split("[", 1)[1].split(",")[0].strip(" ]")
+    if base not in ("int", "float"):
+        return bounds
+    cap = MAX_INT if base == "int" else MAX_REAL
+    ge, gt, le, lt = bounds
+    if ge is None and gt is None:
+        ge = -cap
+    if le is None and lt is None:
+        le = cap
+    return (ge, gt, le, lt)
 
 
 def describe(cls: type) -> list[ParamInfo]:
@@ -306,7 +357,8 @@ def check_bounds(obj: Any) -> None:
             if isinstance(v, bool) or not isinstance(v, numbers.Real) or not info.in_range(v):
                 each = "each value of " if many else ""
                 raise InvalidParameterError(
-                    f"{each}{info.name} must be {info.range_text()}, got {value!r}"
+                    f"{each}{info.name} must be {info.range_text()}{info.cap_text(v)}, "
+                    f"got {value!r}"
                 )
 
 

@@ -74,13 +74,24 @@ class ScanParams:
         unit="m",
         none_means="the station rule",
         gt=0,
+        le=10_000,
     )
     min_distance_m: float = param(
-        5.0, help="smallest distance the station rule gives", unit="m", gt=0
+        5.0, help="smallest distance the station rule gives", unit="m", gt=0, le=10_000
     )
-    height_m: float = param(1.5, help="instrument height above the scene's lowest point", unit="m")
+    height_m: float = param(
+        1.5,
+        help="instrument height above the scene's lowest point",
+        unit="m",
+        ge=-1_000,
+        le=1_000,
+    )
     start_angle_deg: float = param(
-        0.0, help="polar angle of the first station, counter-clockwise from +x", unit="deg"
+        0.0,
+        help="polar angle of the first station, counter-clockwise from +x",
+        unit="deg",
+        ge=-360,
+        le=360,
     )
     scanner: ScannerSpec = param(help="the scanner", factory=ScannerSpec)
     lod: Lod = param(

@@ -146,6 +146,11 @@ class ScannerSpec:
 
     def __post_init__(self) -> None:
         check_bounds(self)
+        for label, r in self.reflectance.items():
+            if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 <= r <= 1:
+                raise InvalidParameterError(
+                    f"reflectance[{label!r}] must be a number in [0, 1], got {r!r}"
+                )
         h0, h1 = (finite("horizontal_fov_deg", a) for a in self.horizontal_fov_deg)
         if not 0 < h1 - h0 <= 360:
             raise InvalidParameterError(

@@ -365,7 +365,9 @@ def json_schema(cls: type = RunParams) -> dict[str, Any]:
                 n = t.split("[", 1)[1].count(",") + 1
                 schema.update(minItems=n, maxItems=n)
         elif t.startswith("dict"):
-            schema = {"type": "object", "additionalProperties": {"type": "number"}}
+            # the one table of numbers, reflectance per label, is checked in [0, 1]
+            values = {"type": "number", "minimum": 0, "maximum": 1}
+            schema = {"type": "object", "additionalProperties": values}
         elif info.choices:
             schema = {"type": "string", "enum": list(info.choices)}
         else:

@@ -69,7 +69,7 @@ def box_ply(tmp_path: Path) -> Path:
         (["scan", "m.ply", "-o", "o.laz", "--h-resolution-deg", "nan"], "in (0, 45]"),
         (
             ["scan", "m.ply", "-o", "o.laz", "--distance-m", "-3"],
-            "--distance-m: expected a number > 0, or 0/none for the station rule",
+            "--distance-m: expected a number in (0, 10000], or 0/none for the station rule",
         ),
         (
             ["scan", "m.ply", "-o", "o.laz", "--subrays", "1"],

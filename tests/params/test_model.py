@@ -73,7 +73,7 @@ def test_json_schema_mirrors_the_dataclasses():
     assert scanner["return_mode"]["enum"] == ["first", "last", "strongest", "all"]
     dist = s["properties"]["scan"]["properties"]["distance_m"]
     assert dist["anyOf"][1] == {"type": "null"} and "station rule" in dist["description"]
-    assert dist["anyOf"][0] == {"type": "number", "exclusiveMinimum": 0}
+    assert dist["anyOf"][0] == {"type": "number", "exclusiveMinimum": 0, "maximum": 10_000}
 
 
 def test_json_schema_states_every_declared_range():

@@ -276,3 +276,58 @@ def test_a_failed_job_keeps_its_log_and_its_status_shows_it(app_settings, monkey
     assert log.startswith("[... the log's start is cut ...]\nfiller line\n")
     jobdir = settings.data_dir / "jobs" / job_id
     assert not any(p.name.startswith("attempt-") for p in jobdir.iterdir())  # attempts gone
+
+
+# -- 4. every numeric parameter bounded ---------------------------------------------------------
+#: Numbers a process's own schema (not the parameter model) declares without a range.
+_OPEN_BY_DESIGN = {"plot-scan.stations"}  # world coordinates, x, y[, z]: any finite value
+
+
+def _unbounded(schema, path: str, out: set[str]) -> None:
+    if isinstance(schema, list):
+        for s in schema:
+            _unbounded(s, path, out)
+        return
+    if not isinstance(schema, dict):
+        return
+    t = schema.get("type")
+    if t in ("number", "integer") or (isinstance(t, list) and {"number", "integer"} & set(t)):
+        lo = "minimum" in schema or "exclusiveMinimum" in schema
+        hi = "maximum" in schema or "exclusiveMaximum" in schema
+        if not (lo and hi):
+            out.add(path)
+    for key, value in schema.items():
+        if key == "properties":
+            for name, sub in value.items():
+                _unbounded(sub, f"{path}.{name}", out)
+        elif isinstance(value, (dict, list)):
+            _unbounded(value, path, out)
+
+
+def test_every_number_of_every_process_has_a_minimum_and_a_maximum():
+    from treesim.service.processes import PROCESSES
+
+    open_: set[str] = set()
+    for pid, proc in PROCESSES.items():
+        _unbounded(proc.parameters_schema(), pid, open_)
+    assert open_ <= _OPEN_BY_DESIGN, sorted(open_ - _OPEN_BY_DESIGN)
+
+
+@pytest.mark.parametrize(
+    ("parameters", "field"),
+    [
+        ({"scan": {"min_distance_m": 1e308}}, "min_distance_m"),
+        ({"scan": {"distance_m": 1e12}}, "distance_m"),
+        ({"compare": {"seed": 10**30}}, "seed"),
+        ({"scan": {"scanner": {"reflectance": {"wood": 1e308}}}}, "reflectance"),
+    ],
+)
+def test_a_huge_parameter_is_a_422_naming_it(app_settings, parameters, field):
+    with TestClient(create_app(app_settings)) as client:
+        up = client.post("/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes())
+        r = client.post(
+            "/v1/processes/run/execution",
+            json={"inputs": {"cloud": up.json()["id"], **parameters}},
+        )
+    body = _problem(r, 422)
+    assert field in body["detail"], body
