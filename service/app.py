@@ -74,6 +74,8 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
             app.state.inspector.close()
 
     app = FastAPI(
+        docs_url=None,  # /docs and /redoc: pages.py, from the package's files (no CDN)
+        redoc_url=None,
         title="treesim",
         version=__version__,
         summary="Reconstruct trees from field point clouds, scan them with a virtual TLS "

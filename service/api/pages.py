@@ -4,7 +4,10 @@ the problem types."""
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import html
+import re
 from importlib import resources
 
 from fastapi import APIRouter, Request
@@ -153,3 +156,83 @@ def end_session(request: Request) -> Response:
         secure=request.url.scheme == "https",
     )
     return response
+
+
+# -- /docs and /redoc from the package's own files (service/static/THIRD_PARTY.md) ---------
+_ASSETS = {
+    "swagger-ui-bundle.js": "text/javascript",
+    "swagger-ui.css": "text/css",
+    "redoc.standalone.js": "text/javascript",
+}
+
+
+def docs_csp(page: str) -> str:
+    """The Content-Security-Policy of a docs page: scripts from this origin and the page's
+    own inline script (by its hash), nothing from elsewhere.
+
+    Examples
+    --------
+    >>> "'sha256-" in docs_csp("<script>init()</script>")
+    True
+    """
+    hashes = " ".join(
+        "'sha256-" + base64.b64encode(hashlib.sha256(m.encode()).digest()).decode() + "'"
+        for m in re.findall(r"<script>(.*?)</script>", page, flags=re.DOTALL)
+    )
+    return (
+        f"default-src 'none'; script-src 'self' {hashes}; style-src 'self' 'unsafe-inline'; "
+        "img-src 'self' data:; font-src 'self' data:; connect-src 'self'; "
+        "worker-src 'self' blob:; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
+    )
+
+
+def _docs_page(html_response: HTMLResponse) -> HTMLResponse:
+    page = bytes(html_response.body).decode()
+    return HTMLResponse(
+        page, headers={"Content-Security-Policy": docs_csp(page), "Cache-Control": "no-store"}
+    )
+
+
+@router.get("/docs", response_class=HTMLResponse)
+def swagger_ui(request: Request) -> HTMLResponse:
+    """Swagger UI, from the package's files (no CDN)."""
+    from fastapi.openapi.docs import get_swagger_ui_html
+
+    return _docs_page(
+        get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title="treesim API",
+            swagger_js_url="/static/swagger-ui-bundle.js",
+            swagger_css_url="/static/swagger-ui.css",
+            swagger_favicon_url="/favicon.ico",
+        )
+    )
+
+
+@router.get("/redoc", response_class=HTMLResponse)
+def redoc(request: Request) -> HTMLResponse:
+    """ReDoc, from the package's files (no CDN, no web fonts)."""
+    from fastapi.openapi.docs import get_redoc_html
+
+    return _docs_page(
+        get_redoc_html(
+            openapi_url="/openapi.json",
+            title="treesim API",
+            redoc_js_url="/static/redoc.standalone.js",
+            redoc_favicon_url="/favicon.ico",
+            with_google_fonts=False,
+        )
+    )
+
+
+@router.get("/static/{name}")
+def static_asset(name: str) -> Response:
+    """The docs pages' scripts and styles (a fixed list; anything else is 404)."""
+    if name not in _ASSETS:
+        raise ServiceProblem("not-found", f"no file {name!r}", field="name")
+    path = resources.files("treesim.service") / "static" / name
+    return Response(
+        path.read_bytes(),
+        media_type=_ASSETS[name],
+        headers={"Cache-Control": "public, max-age=86400", "X-Content-Type-Options": "nosniff"},
+    )
