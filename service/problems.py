@@ -157,6 +157,18 @@ PROBLEMS: dict[str, ProblemType] = {
             411,
             "an upload must say how long it is or be sent in chunks",
         ),
+        ProblemType(
+            "upload-stalled",
+            "Upload stalled",
+            408,
+            "the upload's body stopped arriving for TREESIM_UPLOAD_STALL_S; send it again",
+        ),
+        ProblemType(
+            "client-closed",
+            "Client closed the request",
+            400,
+            "the client closed the connection before its request's body arrived",
+        ),
         ProblemType("not-ready", "Not ready", 503, "a dependency of the service is down"),
         ProblemType(
             "time-limit",

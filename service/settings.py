@@ -64,6 +64,13 @@ class Settings(BaseSettings):
         description="free space the data folder's disk must keep, in MiB: below it /readyz "
         "answers 503 (0: no floor)",
     )
+    upload_stall_s: float = Field(
+        60.0,
+        gt=0,
+        le=3600,
+        description="an upload whose body sends no bytes for this long is refused (408) and "
+        "its partial file removed (s)",
+    )
     job_time_limit_s: float = Field(
         6 * 3600.0, gt=0, description="a job running longer than this is stopped and failed (s)"
     )

@@ -10,6 +10,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from treesim.errors import TreesimError
 
@@ -22,6 +23,7 @@ _HTTP_SLUGS = {
     401: "unauthorized",
     404: "not-found",
     405: "method-not-allowed",
+    408: "upload-stalled",
     409: "conflict",
     411: "length-required",
     413: "payload-too-large",
@@ -80,6 +82,14 @@ def install(app: FastAPI) -> None:
                 detail = f"no route {request.url.path}; the API is described at /docs"
             body = problem(slug, detail)
         return problem_response(body, dict(exc.headers or {}))
+
+    @app.exception_handler(ClientDisconnect)
+    async def _gone(request: Request, exc: ClientDisconnect) -> JSONResponse:
+        # the client's choice, not a bug: one warning line, no traceback, not a 500
+        log.warning("%s %s: the client closed the connection", request.method, request.url.path)
+        return problem_response(
+            problem("client-closed", "the connection closed before the body arrived")
+        )
 
     @app.exception_handler(OSError)
     async def _os_error(request: Request, exc: OSError) -> JSONResponse:

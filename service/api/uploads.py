@@ -3,10 +3,12 @@ stored once by content."""
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import os
 import unicodedata
 import uuid
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -74,6 +76,25 @@ def upload_out(rec: dict[str, Any], base: str = "") -> UploadOut:
     )
 
 
+async def stall_limited(chunks: AsyncIterator[bytes], stall_s: float) -> AsyncIterator[bytes]:
+    """The body's chunks, ending in a 408 problem when none arrives for ``stall_s``
+    seconds (``TREESIM_UPLOAD_STALL_S``): a stalled client holds no connection and no
+    ``.part`` file for long."""
+    it = chunks.__aiter__()
+    while True:
+        try:
+            async with asyncio.timeout(stall_s):
+                chunk = await it.__anext__()
+        except StopAsyncIteration:
+            return
+        except TimeoutError:
+            raise ServiceProblem(
+                "upload-stalled",
+                f"no bytes of the upload arrived for {stall_s:g} s (TREESIM_UPLOAD_STALL_S)",
+            ) from None
+        yield chunk
+
+
 def _tmp_dir(data_dir: Path) -> Path:
     d = data_dir / "uploads" / "tmp"
     d.mkdir(parents=True, exist_ok=True)
@@ -135,7 +156,7 @@ async def create_upload(
     size = 0
     try:
         with open(tmp, "wb") as fh:
-            async for chunk in request.stream():
+            async for chunk in stall_limited(request.stream(), settings.upload_stall_s):
                 size += len(chunk)
                 if size > limit:
                     raise ServiceProblem(

@@ -37,6 +37,11 @@ def _bomb(inflated: int) -> bytes:
     return buf.getvalue()
 
 
+def _parts(data_dir: Path) -> list[Path]:
+    """The partial uploads in the data folder."""
+    return sorted(data_dir.rglob("*.part")) if data_dir.exists() else []
+
+
 def _files(root: Path) -> list[Path]:
     return sorted(p for p in root.rglob("*") if p.exists()) if root.exists() else []
 
@@ -157,7 +162,7 @@ def test_a_full_disk_on_upload_is_507_not_500(app_settings, monkeypatch):
         body = _problem(r, 507)
         assert body["type"] == "/problems#insufficient-storage"
         assert "/srv/secret" not in r.text and "a bug" not in r.text
-        assert list((app_settings.data_dir / "tmp").glob("*.part")) == []  # nothing kept
+        assert _parts(app_settings.data_dir) == []  # nothing kept
 
 
 def test_a_full_disk_while_unpacking_a_plot_is_507(tmp_path):
@@ -331,3 +336,88 @@ def test_a_huge_parameter_is_a_422_naming_it(app_settings, parameters, field):
         )
     body = _problem(r, 422)
     assert field in body["detail"], body
+
+
+# -- 5. a client that drops mid-upload; a stalled upload ----------------------------------------
+def _raw_upload(app, receive) -> tuple[int | None, bytes]:
+    """POST /v1/uploads straight into the ASGI app with the given ``receive``: (status,
+    body) of what the app answered (None: it answered nothing)."""
+    import asyncio
+
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": "/v1/uploads",
+        "raw_path": b"/v1/uploads",
+        "query_string": b"filename=tree.txt",
+        "root_path": "",
+        "headers": [(b"host", b"testserver"), (b"content-length", b"100000")],
+        "client": ("127.0.0.1", 5000),
+        "server": ("testserver", 80),
+        "state": {},
+    }
+    sent: list[dict] = []
+
+    async def send(message):
+        sent.append(message)
+
+    async def main():
+        await app(scope, receive, send)
+
+    asyncio.run(main())
+    start = next((m for m in sent if m["type"] == "http.response.start"), None)
+    body = b"".join(m.get("body", b"") for m in sent if m["type"] == "http.response.body")
+    return (start["status"] if start else None), body
+
+
+def test_a_client_dropping_mid_upload_is_a_warning_not_a_500(app_settings, caplog):
+    import logging
+
+    steps = iter(
+        [
+            {"type": "http.request", "body": b"1 2 3\n" * 100, "more_body": True},
+            {"type": "http.disconnect"},
+        ]
+    )
+
+    async def receive():
+        return next(steps)
+
+    with TestClient(create_app(app_settings)) as client:
+        with caplog.at_level(logging.WARNING):
+            status, _ = _raw_upload(client.app, receive)
+    assert status is not None and status < 500
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert errors == [], [r.getMessage() for r in errors]
+    warned = [r for r in caplog.records if "closed the connection" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].exc_info is None  # one line, no traceback
+    assert _parts(app_settings.data_dir) == []
+
+
+def test_a_stalled_upload_times_out_and_its_part_file_is_removed(app_settings):
+    import asyncio
+    import time
+
+    settings = app_settings.model_copy(update={"upload_stall_s": 0.5})
+    parts_seen: list[int] = []
+    sent_first = [False]
+
+    async def receive():
+        if not sent_first[0]:
+            sent_first[0] = True
+            return {"type": "http.request", "body": b"1 2 3\n" * 100, "more_body": True}
+        parts_seen.append(len(_parts(settings.data_dir)))
+        await asyncio.sleep(3600)  # the client stalls
+
+    with TestClient(create_app(settings)) as client:
+        t0 = time.monotonic()
+        status, body = _raw_upload(client.app, receive)
+        waited_s = time.monotonic() - t0
+    assert status == 408, body
+    assert b"TREESIM_UPLOAD_STALL_S" in body
+    assert parts_seen == [1]  # the .part file existed while the body stalled ...
+    assert _parts(settings.data_dir) == []  # ... and is gone
+    assert waited_s < 30
