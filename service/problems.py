@@ -158,6 +158,12 @@ PROBLEMS: dict[str, ProblemType] = {
             "an upload must say how long it is or be sent in chunks",
         ),
         ProblemType(
+            "range-not-satisfiable",
+            "Range not satisfiable",
+            416,
+            "the Range header asks for bytes past the file's end, or is inverted",
+        ),
+        ProblemType(
             "upload-stalled",
             "Upload stalled",
             408,

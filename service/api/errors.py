@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 from typing import Any
 
@@ -28,6 +29,7 @@ _HTTP_SLUGS = {
     411: "length-required",
     413: "payload-too-large",
     415: "unsupported-format",
+    416: "range-not-satisfiable",
     422: "validation-error",
     503: "not-ready",
     507: "insufficient-storage",
@@ -45,7 +47,79 @@ def _loc(loc: tuple[Any, ...]) -> str:
     return ".".join(parts)
 
 
+class ProblemsAndHead:
+    """ASGI middleware: an error answered as plain text by the framework itself (a file's
+    416 or malformed Range, ...) becomes ``application/problem+json``; ``HEAD`` is served
+    as the ``GET`` of the same route, headers only."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        head = scope["method"] == "HEAD"
+        if head:
+            scope = {**scope, "method": "GET"}
+        state: dict[str, Any] = {"start": None, "done": False}
+
+        async def wrapped(message: dict) -> None:
+            if state["done"]:
+                return  # HEAD: the body is not sent
+            if message["type"] == "http.response.start":
+                headers = dict(message.get("headers") or [])
+                ctype = headers.get(b"content-type", b"")
+                if message["status"] >= 400 and not ctype.startswith(
+                    (b"application/problem+json", b"application/json")
+                ):
+                    state["start"] = message  # rewritten once its body is read
+                    state["text"] = b""
+                    return
+                await send(message)
+                if head:
+                    await send({"type": "http.response.body", "body": b"", "more_body": False})
+                    state["done"] = True
+                return
+            if state["start"] is not None and message["type"] == "http.response.body":
+                state["text"] += message.get("body", b"")
+                if message.get("more_body"):
+                    return
+                await _send_problem(send, state["start"], state["text"], head)
+                state["done"] = True
+                return
+            await send(message)
+
+        await self.app(scope, receive, wrapped)
+
+
+async def _send_problem(send: Any, start: dict, text: bytes, head: bool) -> None:
+    """The plain error ``start``/``text`` sent as a problem object (its headers kept, but
+    the type and length)."""
+    status = int(start["status"])
+    slug = _HTTP_SLUGS.get(status)
+    detail = text.decode("utf-8", "replace").strip() or f"HTTP {status}"
+    if status == 416:
+        detail = f"{detail}: the Range asks for bytes past the file's end, or is inverted"
+    body = (
+        problem(slug, detail)
+        if slug
+        else {"type": "about:blank", "title": detail, "status": status, "detail": detail}
+    )
+    data = json.dumps(body).encode()
+    keep = [
+        (k, v)
+        for k, v in start.get("headers") or []
+        if k.lower() not in (b"content-type", b"content-length")
+    ]
+    keep += [(b"content-type", MEDIA_TYPE.encode()), (b"content-length", str(len(data)).encode())]
+    await send({"type": "http.response.start", "status": status, "headers": keep})
+    await send({"type": "http.response.body", "body": b"" if head else data, "more_body": False})
+
+
 def install(app: FastAPI) -> None:
+    app.add_middleware(ProblemsAndHead)
+
     @app.exception_handler(ServiceProblem)
     async def _service(request: Request, exc: ServiceProblem) -> JSONResponse:
         return problem_response(exc.body(), exc.headers)

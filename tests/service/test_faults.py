@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import io
+import re
 import zipfile
 from pathlib import Path
 
@@ -421,3 +422,56 @@ def test_a_stalled_upload_times_out_and_its_part_file_is_removed(app_settings):
     assert parts_seen == [1]  # the .part file existed while the body stalled ...
     assert _parts(settings.data_dir) == []  # ... and is gone
     assert waited_s < 30
+
+
+# -- 6. problem+json for every error status; HEAD on every GET route ----------------------------
+def _successful_job(client, settings) -> str:
+    """A successful job with one 1000-byte result, made through the store."""
+    from treesim.service.jobs.worker import list_results
+
+    store = client.app.state.store
+    job_id = store.create_job(
+        process="run", inputs={}, parameters={}, max_attempts=1, time_limit_s=60
+    )["id"]
+    claim = store.claim("test-worker", 30.0)
+    results = settings.data_dir / "jobs" / job_id / "results"
+    results.mkdir(parents=True)
+    (results / "data.bin").write_bytes(bytes(range(250)) * 4)
+    assert store.succeed(claim, results=list_results(results), summary={}, message="done")
+    return job_id
+
+
+@pytest.mark.parametrize("byte_range", ["bytes=5000-6000", "bytes=600-100"])
+def test_an_unsatisfiable_or_inverted_range_is_a_problem(app_settings, byte_range):
+    with TestClient(create_app(app_settings)) as client:
+        job_id = _successful_job(client, app_settings)
+        url = f"/v1/jobs/{job_id}/results/data.bin"
+        assert client.get(url, headers={"Range": "bytes=10-19"}).content == bytes(range(10, 20))
+        r = client.get(url, headers={"Range": byte_range})
+    assert r.status_code in (400, 416), r.text
+    body = _problem(r, r.status_code)
+    assert body["detail"]
+
+
+def test_head_answers_on_every_get_route_as_get_does(app_settings):
+    """Every GET route of the API's definition (and the pages left out of it): HEAD gets
+    GET's status and content type, and no body."""
+    with TestClient(create_app(app_settings)) as client:
+        job_id = _successful_job(client, app_settings)
+        fill = {"job_id": job_id, "name": "data.bin", "process_id": "run"}
+        paths = [p for p, ops in client.app.openapi()["paths"].items() if "get" in ops]
+        paths += ["/docs", "/redoc", "/openapi.json"]
+        checked = 0
+        for template in paths:
+            path = template
+            for key, value in fill.items():
+                path = path.replace(f"{{{key}}}", value)
+            path = re.sub(r"\{[^}]+\}", "nope", path)
+            get = client.get(path, follow_redirects=False)
+            head = client.head(path, follow_redirects=False)
+            assert head.status_code == get.status_code, (template, head.status_code)
+            assert head.content == b"", template
+            ctype = get.headers.get("content-type", "").split(";")[0]
+            assert head.headers.get("content-type", "").split(";")[0] == ctype, template
+            checked += 1
+    assert checked >= 15, checked
