@@ -19,6 +19,8 @@ from treesim.service.app import create_app
 from treesim.service.jobs.store import Store
 from treesim.service.settings import Settings
 
+from .conftest import store_url
+
 TOKENS = {"ana": "ana-secret-1", "ben": "ben-secret-2", "root": "root-secret-3"}
 ROLES = {"ana": "user", "ben": "user", "root": "admin"}
 # two different small clouds (the service stores each content once)
@@ -40,13 +42,13 @@ def _tokens_file(path: Path) -> Path:
     return path
 
 
-@pytest.fixture
-def app_and_client(tmp_path):
+@pytest.fixture(params=["sqlite", "postgres"])
+def app_and_client(request, tmp_path):
     settings = Settings(
         data_dir=tmp_path / "data",
         workers=0,
         api_token="legacy-token",
-        database_url=None,
+        database_url=store_url(request.param, tmp_path),
         tokens_file=_tokens_file(tmp_path / "tokens.toml"),
     )
     app = create_app(settings)
@@ -240,6 +242,15 @@ def test_migration_keeps_old_rows_without_owner(tmp_path):
         assert s.upload("u-old") is not None and s.upload("u-old", owner="ana") is None
     finally:
         s.dispose()
+    # and back: 0002's downgrade leaves the first schema, with the rows
+    engine = sa.create_engine(url)
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.downgrade(cfg, "0001")
+        cols = {c["name"] for c in sa.inspect(conn).get_columns("jobs")}
+        assert "owner" not in cols and "upload_owners" not in sa.inspect(conn).get_table_names()
+        assert conn.execute(sa.text("SELECT id FROM jobs")).scalar() == "j-old"
+    engine.dispose()
 
 
 def test_metrics_need_an_admin_unless_opened(app_and_client, tmp_path):
