@@ -65,12 +65,19 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
 
             worker = Worker(settings, store)
             worker.start()
+            expirer = None
+        else:  # no worker here: the API itself hands back jobs whose worker died
+            from .jobs.worker import LeaseExpirer
+
+            expirer = LeaseExpirer(store, min(settings.lease_s / 2, 5.0)).start()
         app.state.worker = worker
         try:
             yield
         finally:
             if worker is not None:
                 worker.stop()
+            if expirer is not None:
+                expirer.stop()
             app.state.inspector.close()
 
     app = FastAPI(

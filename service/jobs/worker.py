@@ -40,7 +40,7 @@ from ..settings import Settings
 from .runner import JobSpec, child_main, read_json
 from .store import Claim, Store
 
-__all__ = ["Worker", "list_results", "run_worker"]
+__all__ = ["LeaseExpirer", "Worker", "list_results", "run_worker"]
 
 log = logging.getLogger("treesim.worker")
 
@@ -494,6 +494,41 @@ class Worker:
                 self._clean_attempts(jobdir)
             if job["status"] == "dismissed":
                 _rmtree(jobdir / "results")
+
+
+class LeaseExpirer:
+    """A thread that hands back (or fails) jobs whose lease ran out, as a worker's
+    housekeeping does: the API runs one when it has no worker of its own, so a job whose
+    worker died does not stay ``running`` while no worker is alive to notice.
+
+    Examples
+    --------
+    >>> expirer = LeaseExpirer(store, interval_s=1.0).start()  # doctest: +SKIP
+    >>> expirer.stop()  # doctest: +SKIP
+    """
+
+    def __init__(self, store: Store, interval_s: float) -> None:
+        self.store = store
+        self.interval_s = interval_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="treesim-leases", daemon=True)
+
+    def start(self) -> LeaseExpirer:
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                for job_id, status in self.store.expire_leases():
+                    log.warning("job %s: lease expired; now %s", job_id, status)
+            except Exception:  # noqa: BLE001 - retried next time; the database may recover
+                log.warning("expiring leases failed; retrying", exc_info=True)
+            self._stop.wait(self.interval_s)
 
 
 def run_worker(settings: Settings) -> int:

@@ -475,3 +475,25 @@ def test_head_answers_on_every_get_route_as_get_does(app_settings):
             assert head.headers.get("content-type", "").split(";")[0] == ctype, template
             checked += 1
     assert checked >= 15, checked
+
+
+# -- 7. leases expired by the API, with no worker alive -----------------------------------------
+def test_the_api_hands_back_a_job_whose_worker_died_with_no_worker_alive(app_settings):
+    import time
+
+    settings = app_settings.model_copy(update={"lease_s": 2.0})  # workers=0: the API alone
+    with TestClient(create_app(settings)) as client:
+        store = client.app.state.store
+        job_id = store.create_job(
+            process="run", inputs={}, parameters={}, max_attempts=2, time_limit_s=60
+        )["id"]
+        claim = store.claim("a-worker-that-dies", 2.0)  # ... and never renews its lease
+        assert claim is not None and store.job(job_id)["status"] == "running"
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 15 and store.job(job_id)["status"] == "running":
+            time.sleep(0.2)
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        waited_s = time.monotonic() - t0
+    assert job["status"] == "accepted", job  # an attempt is left: handed back
+    assert "stopped renewing its lease" in job["message"]
+    assert 1.5 <= waited_s < 8.0  # after the lease, within the API's check interval
