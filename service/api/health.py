@@ -1,4 +1,5 @@
-"""``/healthz``, ``/readyz`` and ``/metrics`` (no token needed)."""
+"""``/healthz`` and ``/readyz`` (no token needed), ``/metrics`` (an admin's token while a
+token is set, unless ``TREESIM_METRICS_OPEN``)."""
 
 from __future__ import annotations
 
