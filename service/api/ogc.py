@@ -85,15 +85,19 @@ def get_conformance() -> Conformance:
     return Conformance(conformsTo=CONFORMANCE)
 
 
+class OpenAPIResponse(JSONResponse):
+    """An OpenAPI document, as its media type says."""
+
+    media_type = "application/vnd.oai.openapi+json"
+
+
 @router.get(
     "/openapi-3.0.json",
     summary="The API's definition in OpenAPI 3.0 (the oas30 conformance class)",
-    response_class=JSONResponse,
+    response_class=OpenAPIResponse,
 )
-def get_openapi30(request: Request) -> JSONResponse:
-    return JSONResponse(
-        to_openapi30(request.app.openapi()), media_type="application/vnd.oai.openapi+json"
-    )
+def get_openapi30(request: Request) -> OpenAPIResponse:
+    return OpenAPIResponse(to_openapi30(request.app.openapi()))
 
 
 def _to_v1(request: Request) -> RedirectResponse:
