@@ -15,6 +15,7 @@ import asyncio
 import concurrent.futures as cf
 import errno
 import multiprocessing
+import os
 import threading
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -78,6 +79,15 @@ def _inspect_cylinders(path: str) -> dict[str, Any] | None:
     }
 
 
+def _watch_parent(parent_pid: int) -> None:
+    """A pool process's initializer: end with the API's process, however it ends (kill -9
+    leaves no one to shut the pool down; the process and multiprocessing's resource
+    tracker would outlive it)."""
+    from treesim._process import exit_with_parent
+
+    exit_with_parent(parent_pid, interval_s=0.5)
+
+
 def _warm() -> bool:
     import treesim.io  # noqa: F401 - import the readers once, before the first upload
 
@@ -97,7 +107,10 @@ class Inspector:
         with self._lock:
             if self._pool is None:
                 self._pool = cf.ProcessPoolExecutor(
-                    max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")
+                    max_workers=self.workers,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_watch_parent,
+                    initargs=(os.getpid(),),
                 )
             return self._pool
 
@@ -128,4 +141,8 @@ class Inspector:
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:
+            procs = list((getattr(pool, "_processes", None) or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
+            for p in procs:  # an inspection in progress is of no use now: end it
+                if p.is_alive():
+                    p.terminate()

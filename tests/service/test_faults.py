@@ -497,3 +497,47 @@ def test_the_api_hands_back_a_job_whose_worker_died_with_no_worker_alive(app_set
     assert job["status"] == "accepted", job  # an attempt is left: handed back
     assert "stopped renewing its lease" in job["message"]
     assert 1.5 <= waited_s < 8.0  # after the lease, within the API's check interval
+
+
+# -- 8. no orphan processes after kill -9 or SIGTERM of serve -----------------------------------
+def _session_members(sid: int) -> list[int]:
+    """Pids of the live processes in session ``sid`` (Linux /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()
+        if int(fields[3]) == sid and fields[0] != "Z":  # fields: state, ppid, pgrp, session
+            out.append(int(d.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="counts processes in /proc")
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_no_process_outlives_serve(serve, tmp_path, sig):
+    import os
+    import signal
+    import time
+
+    import httpx
+
+    base, srv = serve(tmp_path / "data", workers=0)
+    r = httpx.post(
+        f"{base}/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes(), timeout=60
+    )
+    assert r.status_code == 201, r.text  # the inspector ran
+    pid = srv.proc.pid
+    assert len(_session_members(pid)) >= 3  # the API, its inspector, the resource tracker
+    os.kill(pid, getattr(signal, sig))  # the server alone, not its process group
+    srv.proc.wait(30)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 5 and _session_members(pid):
+        time.sleep(0.1)
+    left = _session_members(pid)
+    for p in left:  # clean up what this test started before failing
+        os.kill(p, signal.SIGKILL)
+    assert left == [], f"{len(left)} processes outlived the server after {sig}"
