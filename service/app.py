@@ -93,7 +93,9 @@ def create_app(settings: Settings | None = None, *, store: Store | None = None) 
         "job (`GET /v1/jobs/{id}`), and fetch its results (`GET /v1/jobs/{id}/results`) "
         "and report. Every error is `application/problem+json` (types at `/problems`, "
         "OGC's exception URIs for no-such-process, no-such-job, result-not-ready). With "
-        "`TREESIM_API_TOKEN` set, `/v1` needs `Authorization: Bearer <token>`.",
+        "users (`TREESIM_TOKENS_FILE`) or one token (`TREESIM_API_TOKEN`) set, `/v1` needs "
+        "`Authorization: Bearer <token>`, and each user sees only their own uploads and "
+        "jobs (an admin sees all).",
         lifespan=lifespan,
     )
     app.state.settings = settings
