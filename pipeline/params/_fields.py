@@ -228,9 +228,13 @@ class ParamInfo:
         if not any(b is not None and abs(b) == self._cap for b in self.bounds):
             return ""  # the declared range says it all
         try:
-            past = not abs(float(value)) <= self._cap
-        except (TypeError, ValueError, OverflowError):
+            v = float(value)
+        except OverflowError:  # an int beyond any float
             past = True
+        except (TypeError, ValueError):  # not a number: the range says what is wanted
+            past = False
+        else:
+            past = not math.isnan(v) and abs(v) > self._cap  # NaN is no magnitude
         return f" (at most {_num(self._cap)} in magnitude)" if past else ""
 
     def in_range(self, value: float) -> bool:
