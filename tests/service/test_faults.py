@@ -536,7 +536,7 @@ def test_no_process_outlives_serve(serve, tmp_path, sig):
     os.kill(pid, getattr(signal, sig))  # the server alone, not its process group
     srv.proc.wait(30)
     t0 = time.monotonic()
-    while time.monotonic() - t0 < 5 and _session_members(pid):
+    while time.monotonic() - t0 < 30 and _session_members(pid):  # (a loaded host is slow)
         time.sleep(0.1)
     left = _session_members(pid)
     for p in left:  # clean up what this test started before failing
