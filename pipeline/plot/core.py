@@ -367,6 +367,20 @@ class Plot:
             self.tree_parts(tree_id)
         return self._bounds[tree_id].copy()
 
+    def tree_table(self, tree_id: int) -> Any:
+        """The tree's cylinder table placed as its mesh is in the plot (world coordinates:
+        its stem base at the tree's position, on the terrain), or None for a tree with no
+        table (a plain mesh). Built once if needed."""
+        bounds = self.tree_bounds(tree_id)
+        table = self._tables.get(tree_id)
+        if table is None:
+            return None
+        t = self.tree(tree_id)
+        # as _place: the source's stem base (its lowest point) to the tree's position,
+        # standing on the terrain, which puts the placed mesh's lowest point at the base
+        shift = np.array([t.x_m, t.y_m, bounds[0, 2]])
+        return placed_table(table, self._origin[tree_id], t.scale, rotation(t.rotation_deg), shift)
+
     def tree_triangles(self, tree_id: int) -> int:
         """Number of triangles of the tree's mesh (built once if needed)."""
         if tree_id not in self._ntri:

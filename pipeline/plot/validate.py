@@ -603,30 +603,19 @@ def _placed_stem(plot: Plot, tid: int, frame: LocalFrame) -> dict[str, np.ndarra
     """The tree's stem cylinders (branch order 0) as the plot places its mesh, in the
     local frame: ``start``, unit ``axis``, ``length_m``, ``r0_m`` and ``r1_m`` (radius at
     the start and the end); None for a tree without a cylinder table (a plain mesh)."""
-    from ._sources import rotation
-
-    # Plot.tree_parts keeps each tree's table and the stem base its mesh was moved from
-    table = plot._tables.get(tid)
+    table = plot.tree_table(tid)
     if table is None:
         return None
     stem = np.flatnonzero(np.asarray(table.branch_order) == 0)
     if len(stem) == 0:
         return None
-    t = plot.tree(tid)
-    base = np.asarray(plot._origin[tid], dtype=np.float64)
-    rot = rotation(t.rotation_deg)
-    # as Plot._place: the source's stem base (its lowest point) to the tree's position,
-    # standing on the terrain, which puts the placed mesh's lowest point at the base
-    shift = np.array([t.x_m, t.y_m, plot.tree_bounds(tid)[0, 2]]) - frame.origin_array
-    axis = np.asarray(table.axis, dtype=np.float64)[stem] @ rot.T
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    start = ((np.asarray(table.start, dtype=np.float64)[stem] - base) * t.scale) @ rot.T
+    axis = np.asarray(table.axis, dtype=np.float64)[stem]
     return {
-        "start": start + shift,
-        "axis": axis,
-        "length_m": np.asarray(table.length_m, dtype=np.float64)[stem] * t.scale,
-        "r0_m": np.asarray(table.radius_m, dtype=np.float64)[stem] * t.scale,
-        "r1_m": np.asarray(table.end_radius_m, dtype=np.float64)[stem] * t.scale,
+        "start": frame.to_local(np.asarray(table.start, dtype=np.float64)[stem]),
+        "axis": axis / np.linalg.norm(axis, axis=1, keepdims=True),
+        "length_m": np.asarray(table.length_m, dtype=np.float64)[stem],
+        "r0_m": np.asarray(table.radius_m, dtype=np.float64)[stem],
+        "r1_m": np.asarray(table.end_radius_m, dtype=np.float64)[stem],
     }
 
 
