@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_path
+from ..batch import RowCounts
 from ..errors import EmptyInputError, InputFormatError, InvalidParameterError
 from ..jsonio import write_json
 from .core import TwinParams, _params_dict, finished_twin, plot_from_cloud
@@ -68,7 +69,7 @@ Progress = Callable[[float, str], None]
 
 
 @dataclass
-class PlotsResult:
+class PlotsResult(RowCounts):
     """What :func:`plots_from_clouds` did.
 
     Attributes
@@ -99,20 +100,9 @@ class PlotsResult:
     summary_csv: Path = field(default_factory=Path)
     summary_json: Path = field(default_factory=Path)
 
-    def count(self, status: str) -> int:
-        """Plots of this ``status`` (``ok``, ``failed`` or ``reused``)."""
-        return sum(1 for r in self.rows if r["status"] == status)
-
-    @property
-    def n_ok(self) -> int:
-        return self.count("ok")
-
-    @property
-    def n_failed(self) -> int:
-        return self.count("failed")
-
     @property
     def n_reused(self) -> int:
+        """Plots reused (a status of their own here, not a flag beside ``ok``)."""
         return self.count("reused")
 
     @property
