@@ -99,6 +99,11 @@ def _job(store: Store, job_id: str, owner: str | None = None) -> dict[str, Any]:
     return job
 
 
+def _listed(values: list[str] | None) -> list[str]:
+    """A query parameter's values, repeated or comma-separated (``?a=x,y&a=z``)."""
+    return [x.strip() for v in values or [] for x in v.split(",") if x.strip()]
+
+
 @router.get(
     "/jobs",
     response_model=JobList,
@@ -118,9 +123,7 @@ def list_jobs(
     limit: Annotated[int, Query(ge=1, le=10000)] = 10,
     cursor: Annotated[str | None, Query(max_length=500, description="from a 'next' link")] = None,
 ) -> JobList:
-    wanted: list[str] = []
-    for s in status or []:
-        wanted.extend(x.strip() for x in s.split(",") if x.strip())
+    wanted = _listed(status)
     for s in wanted:
         if s not in STATUSES:
             raise ServiceProblem(
@@ -259,7 +262,7 @@ def get_results(
     names = {r["name"]: r for r in job["results"] or []}
     process = PROCESSES.get(job["process"])
     ids = process.output_ids() if process else {}
-    wanted = [x.strip() for o in outputs or [] for x in o.split(",") if x.strip()]
+    wanted = _listed(outputs)
     for oid in wanted:
         if oid not in ids:
             raise ServiceProblem(
