@@ -459,8 +459,7 @@ class Worker:
         while not self._stop.is_set():
             try:
                 self.store.worker_heartbeat(self.id)
-                for job_id, status in self.store.expire_leases():
-                    log.warning("job %s: lease expired; now %s", job_id, status)
+                expire_leases(self.store)
                 if self.settings.heartbeat_file:
                     p = Path(self.settings.heartbeat_file)
                     p.parent.mkdir(parents=True, exist_ok=True)
@@ -496,6 +495,13 @@ class Worker:
                 _rmtree(jobdir / "results")
 
 
+def expire_leases(store: Store) -> None:
+    """Hand back (or fail) the jobs whose lease ran out, each said in the log: a worker's
+    housekeeping and the API's :class:`LeaseExpirer` both do this."""
+    for job_id, status in store.expire_leases():
+        log.warning("job %s: lease expired; now %s", job_id, status)
+
+
 class LeaseExpirer:
     """A thread that hands back (or fails) jobs whose lease ran out, as a worker's
     housekeeping does: the API runs one when it has no worker of its own, so a job whose
@@ -524,8 +530,7 @@ class LeaseExpirer:
     def _loop(self) -> None:
         while not self._stop.is_set():
             try:
-                for job_id, status in self.store.expire_leases():
-                    log.warning("job %s: lease expired; now %s", job_id, status)
+                expire_leases(self.store)
             except Exception:  # noqa: BLE001 - retried next time; the database may recover
                 log.warning("expiring leases failed; retrying", exc_info=True)
             self._stop.wait(self.interval_s)
