@@ -250,24 +250,55 @@ DISK_FULL_DETAIL = (
 )
 
 
+#: SQLite's result code of a full database or disk (``SQLITE_FULL``).
+SQLITE_FULL = 13
+#: Postgres's SQLSTATE of a full disk (``disk_full``).
+PG_DISK_FULL = "53100"
+
+
+def _db_disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` is a database driver's own "disk full": SQLite's ``SQLITE_FULL``
+    ("database or disk is full", also past ``max_page_count``) or Postgres's
+    ``disk_full``; SQLAlchemy's wrapper is looked through by the caller (``orig``)."""
+    import sqlite3
+
+    if isinstance(exc, sqlite3.Error):
+        code = getattr(exc, "sqlite_errorcode", None)
+        if code is not None:
+            return code & 0xFF == SQLITE_FULL
+        return "database or disk is full" in str(exc)
+    return getattr(exc, "sqlstate", None) == PG_DISK_FULL  # psycopg's DiskFull
+
+
 def is_disk_full(exc: BaseException | None) -> bool:
     """Whether ``exc``, or an error it was raised from or while handling, is a full
-    disk (``ENOSPC`` or ``EDQUOT``), however a reader wrapped it.
+    disk (``ENOSPC`` or ``EDQUOT``; a database's "disk full": SQLite's ``SQLITE_FULL``,
+    Postgres's ``53100``), however a reader or SQLAlchemy wrapped it.
 
     Examples
     --------
-    >>> import errno
+    >>> import errno, sqlite3
     >>> is_disk_full(OSError(errno.ENOSPC, "No space left on device"))
+    True
+    >>> is_disk_full(sqlite3.OperationalError("database or disk is full"))
     True
     >>> is_disk_full(ValueError("x"))
     False
     """
     seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
+    todo = [exc]
+    while todo:
+        exc = todo.pop()
+        if exc is None or id(exc) in seen:
+            continue
         seen.add(id(exc))
         if isinstance(exc, OSError) and exc.errno in DISK_FULL_ERRNOS:
             return True
-        exc = exc.__cause__ or exc.__context__
+        if _db_disk_full(exc):
+            return True
+        orig = getattr(exc, "orig", None)  # SQLAlchemy's DBAPIError: the driver's error
+        todo += [orig if isinstance(orig, BaseException) else None]
+        todo += [exc.__cause__, exc.__context__]
     return False
 
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import json
 import logging
+import sqlite3
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
@@ -165,13 +167,17 @@ def install(app: FastAPI) -> None:
             problem("client-closed", "the connection closed before the body arrived")
         )
 
-    @app.exception_handler(OSError)
-    async def _os_error(request: Request, exc: OSError) -> JSONResponse:
+    async def _disk_full_or_bug(request: Request, exc: Exception) -> JSONResponse:
         # a full disk is the operator's to fix (507, no paths); any other is a bug
         if is_disk_full(exc):
             log.warning("%s %s: out of disk space (%s)", request.method, request.url.path, exc)
             return problem_response(problem_for(exc))
         return await _internal(request, exc)
+
+    # OSError: ENOSPC, EDQUOT; the job store's errors: SQLite's "database or disk is full"
+    # (SQLAlchemy's OperationalError around sqlite3's), Postgres's disk_full
+    for cls in (OSError, sqlite3.Error, DBAPIError):
+        app.add_exception_handler(cls, _disk_full_or_bug)
 
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception) -> JSONResponse:

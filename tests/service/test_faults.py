@@ -204,6 +204,59 @@ def test_a_full_disk_on_job_submission_is_507(app_settings, monkeypatch):
         assert "/srv/secret" not in body["detail"]
 
 
+def test_a_full_job_store_is_507_not_500(app_settings):
+    """SQLite's own "database or disk is full" (SQLITE_FULL, raised by the real driver: the
+    store's connections may not grow the file past its size now) is a full disk: 507,
+    not a 500 "bug in treesim"."""
+    from sqlalchemy import event
+
+    with TestClient(create_app(app_settings), raise_server_exceptions=False) as client:
+        up = client.post("/v1/uploads?filename=tree.txt", content=BUNDLED_CLOUD.read_bytes())
+        assert up.status_code == 201, up.text
+        engine = client.app.state.store.engine
+
+        @event.listens_for(engine, "connect")
+        def _no_growth(dbapi_conn, _record):
+            cur = dbapi_conn.cursor()
+            pages = cur.execute("PRAGMA page_count").fetchone()[0]
+            cur.execute(f"PRAGMA max_page_count={pages}")
+            cur.close()
+
+        engine.dispose()  # the pool's next connections are capped
+        body = {"inputs": {"cloud": up.json()["id"]}, "parameters": {"preset": "draft"}}
+        statuses = []
+        for _ in range(200):  # each job's row takes room, until a page must be added
+            r = client.post("/v1/processes/reconstruct/execution", json=body)
+            statuses.append(r.status_code)
+            if r.status_code != 201:
+                break
+    assert statuses[-1] == 507 and set(statuses[:-1]) <= {201}, statuses
+    problem = _problem(r, 507)
+    assert problem["type"] == "/problems#insufficient-storage"
+    assert "a bug" not in r.text and "treesim.db" not in r.text
+
+
+def test_a_wrapped_database_disk_full_is_recognised():
+    """The forms a full job store reaches the API in: sqlite3's error (by its code or,
+    built by hand, its message), SQLAlchemy's wrapper around it, Postgres's disk_full."""
+    import sqlite3
+
+    from sqlalchemy.exc import OperationalError
+
+    from treesim.service.problems import is_disk_full
+
+    full = sqlite3.OperationalError("database or disk is full")
+    assert is_disk_full(full)
+    assert is_disk_full(OperationalError("INSERT INTO jobs ...", {}, full))
+    locked = sqlite3.OperationalError("database is locked")
+    assert not is_disk_full(OperationalError("INSERT INTO jobs ...", {}, locked))
+
+    class DiskFull(Exception):  # psycopg.errors.DiskFull's SQLSTATE
+        sqlstate = "53100"
+
+    assert is_disk_full(OperationalError("INSERT", {}, DiskFull("could not extend file")))
+
+
 def test_a_full_disk_inside_a_job_fails_it_with_a_clear_message(tmp_path, monkeypatch):
     """A reader that wraps ENOSPC in treesim's InputFormatError (with the server's path)
     used to end the job as 'bad-input-file'; it is out of disk space, without paths."""
