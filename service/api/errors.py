@@ -49,6 +49,11 @@ def _loc(loc: tuple[Any, ...]) -> str:
     return ".".join(parts)
 
 
+#: The scope key that marks a HEAD request the middleware routes as its GET: a response
+#: that would read a file (:class:`~.responses.Download`) sends its headers only.
+HEAD_KEY = "treesim.head"
+
+
 class ProblemsAndHead:
     """ASGI middleware: an error answered as plain text by the framework itself (a file's
     416 or malformed Range, ...) becomes ``application/problem+json``; ``HEAD`` is served
@@ -62,8 +67,8 @@ class ProblemsAndHead:
             await self.app(scope, receive, send)
             return
         head = scope["method"] == "HEAD"
-        if head:
-            scope = {**scope, "method": "GET"}
+        if head:  # routed as GET; a download reads the flag and sends no file (HEAD_KEY)
+            scope = {**scope, "method": "GET", HEAD_KEY: True}
         state: dict[str, Any] = {"start": None, "done": False}
 
         async def wrapped(message: dict) -> None:

@@ -25,7 +25,7 @@ from ..schemas import (
     iso,
 )
 from .deps import BaseDep, SettingsDep, StoreDep, UserDep
-from .responses import PROBLEM_RESPONSES
+from .responses import PROBLEM_RESPONSES, Download
 
 router = APIRouter()
 
@@ -308,7 +308,7 @@ def list_files(job_id: str, store: StoreDep, base: BaseDep, user: UserDep) -> Re
 )
 def get_result(
     job_id: str, name: str, store: StoreDep, settings: SettingsDep, user: UserDep
-) -> FileResponse:
+) -> Download:
     job = _successful(store, job_id, user.owner)
     items = {r["name"]: r for r in job["results"] or []}
     clean = PurePosixPath(name).as_posix()
@@ -324,7 +324,7 @@ def get_result(
         headers["Content-Security-Policy"] = _REPORT_CSP
     else:
         headers["Content-Disposition"] = f'attachment; filename="{PurePosixPath(clean).name}"'
-    return FileResponse(path, media_type=items[clean]["media_type"], headers=headers)
+    return Download(path, media_type=items[clean]["media_type"], headers=headers)
 
 
 @router.get(

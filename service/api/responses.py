@@ -1,8 +1,11 @@
-"""OpenAPI declarations of the problem responses a route can give."""
+"""OpenAPI declarations of the problem responses a route can give; :class:`Download`, a file
+response that answers HEAD without reading the file."""
 
 from __future__ import annotations
 
 from typing import Any
+
+from fastapi.responses import FileResponse
 
 from ..problems import MEDIA_TYPE
 from ..schemas import Problem
@@ -30,3 +33,17 @@ def PROBLEM_RESPONSES(*codes: int) -> dict[int | str, dict[str, Any]]:  # noqa: 
         }
         for code in codes
     }
+
+
+class Download(FileResponse):
+    """A file's response: for a HEAD (which :class:`~.errors.ProblemsAndHead` routes as
+    the GET of the same path) the same headers as the GET (size, type, ETag,
+    Last-Modified, Range's 206 and Content-Range) from the file's ``stat``, and the file
+    is never opened."""
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        from .errors import HEAD_KEY
+
+        if scope.get(HEAD_KEY):
+            scope = {**scope, "method": "HEAD"}  # starlette then sends headers only
+        await super().__call__(scope, receive, send)

@@ -530,6 +530,58 @@ def test_head_answers_on_every_get_route_as_get_does(app_settings):
     assert checked >= 15, checked
 
 
+def test_head_on_a_large_result_answers_get_s_headers_without_reading_it(app_settings, monkeypatch):
+    """HEAD on a download gives GET's headers (size, type, ETag, Last-Modified, a range's
+    206 and Content-Range) from the file's stat: the file is never opened (it used to be
+    read whole and the bytes thrown away)."""
+    import anyio
+
+    from treesim.service.jobs.worker import list_results
+
+    opened: list[str] = []
+    real_open = anyio.open_file
+
+    async def spy(file, *args, **kwargs):
+        opened.append(Path(file).name)
+        return await real_open(file, *args, **kwargs)
+
+    size = 64 * 2**20  # sparse: 64 MiB that a HEAD must not read
+    with TestClient(create_app(app_settings)) as client:
+        store = client.app.state.store
+        job_id = store.create_job(
+            process="run", inputs={}, parameters={}, max_attempts=1, time_limit_s=60
+        )["id"]
+        claim = store.claim("test-worker", 30.0)
+        results = app_settings.data_dir / "jobs" / job_id / "results"
+        results.mkdir(parents=True)
+        with open(results / "big.laz", "wb") as fh:
+            fh.truncate(size)
+        assert store.succeed(claim, results=list_results(results), summary={}, message="ok")
+        url = f"/v1/jobs/{job_id}/results/big.laz"
+        monkeypatch.setattr(anyio, "open_file", spy)
+        for extra in ({}, {"Range": "bytes=100-199"}):
+            head = client.head(url, headers=extra)
+            assert opened == [], (extra, opened)  # HEAD never opened the file
+            get = client.get(url, headers=extra)
+            assert opened == ["big.laz"], opened  # (GET does: the spy sees it)
+            opened.clear()
+            assert head.status_code == get.status_code == (206 if extra else 200)
+            assert head.content == b""
+            assert len(get.content) == (100 if extra else size)
+            for key in (
+                "content-length",
+                "content-type",
+                "etag",
+                "last-modified",
+                "content-range",
+                "content-disposition",
+                "accept-ranges",
+            ):
+                assert head.headers.get(key) == get.headers.get(key), key
+            assert head.headers["content-length"] == str(100 if extra else size)
+            assert head.headers["etag"] and head.headers["last-modified"]
+
+
 # -- 7. leases expired by the API, with no worker alive -----------------------------------------
 def test_the_api_hands_back_a_job_whose_worker_died_with_no_worker_alive(app_settings):
     import time
