@@ -265,6 +265,9 @@ def check_parameters(process: Process, parameters: Mapping[str, Any]) -> Any:
                 f"unknown parameter {where}{extra[0]!r}; known here: {known}",
             )
         message = err.message
+        if err.validator in ("maxItems", "minItems"):  # not the whole list echoed back
+            most = "most" if err.validator == "maxItems" else "least"
+            message = f"{len(err.instance)} items given; at {most} {err.validator_value}"
         if len(message) > 300:
             message = message[:300] + "…"
         raise field_error(f"parameters.{path}" if path else "parameters", f"{path}: {message}")

@@ -31,6 +31,12 @@ class PlotScanJob:
 #: ScanParams fields a plot scan does not use (the station rule is one tree's).
 _NOT_FOR_PLOTS = ("min_distance_m",)
 
+#: The most stations one plot scan takes (given as positions or as a stations CSV).
+MAX_STATIONS = 1000
+#: The largest magnitude of a station's coordinate (m): every projected coordinate on
+#: Earth fits (UTM northings reach 1e7 m); a larger one is a unit or typing error.
+STATION_COORD_MAX_M = 1e8
+
 
 def _plot_scan_schema() -> dict[str, Any]:
     schema = job_schema(ScanParams)
@@ -52,11 +58,21 @@ def _plot_scan_extra() -> dict[str, Any]:
         "stations": {
             "type": "array",
             "minItems": 1,
-            "maxItems": 1000,
-            "items": {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 3},
+            "maxItems": MAX_STATIONS,
+            "items": {
+                "type": "array",
+                "items": {
+                    "type": "number",
+                    "minimum": -STATION_COORD_MAX_M,
+                    "maximum": STATION_COORD_MAX_M,
+                },
+                "minItems": 2,
+                "maxItems": 3,
+            },
             "description": "station positions in the plot's frame (m): [x, y] stands "
             "height_m above the terrain, [x, y, z] where given (default a ring of n_stations "
-            "at distance_m; or inputs.stations, a plan job's stations.csv)",
+            "at distance_m; or inputs.stations, a plan job's stations.csv); each within the "
+            "plot's radius plus the scanner's max_range_m of its centre",
         },
         "tolerance_m": tol,
         "figures": {
@@ -80,12 +96,69 @@ def _parse_plot_scan(parameters: Mapping[str, Any]) -> PlotScanJob:
             stations = tuple(tuple(float(c) for c in s) for s in stations)
         except (TypeError, ValueError, OverflowError):
             stations = ((math.nan,),)
-        if not all(math.isfinite(c) for s in stations for c in s):
-            raise field_error("stations", "stations: every coordinate must be a finite number")
+        _check_station_values(stations)
     tol = data.pop("tolerance_m", None)
     compare = merge(CompareParams(), {} if tol is None else {"tolerance_m": tol})
     figures = bool(data.pop("figures", True))
     return PlotScanJob(parse_scan(data), stations, compare, figures, source)
+
+
+def _check_station_values(stations: tuple[tuple[float, ...], ...]) -> None:
+    """At most :data:`MAX_STATIONS`, every coordinate finite and within
+    :data:`STATION_COORD_MAX_M` (the schema's range; the model words it)."""
+    import math
+
+    if len(stations) > MAX_STATIONS:
+        raise field_error(
+            "stations", f"stations: {len(stations)} given; a plot scan takes at most {MAX_STATIONS}"
+        )
+    if not all(math.isfinite(c) for s in stations for c in s):
+        raise field_error("stations", "stations: every coordinate must be a finite number")
+    far = [c for s in stations for c in s if abs(c) > STATION_COORD_MAX_M]
+    if far:
+        raise field_error(
+            "stations",
+            f"stations: a coordinate of {far[0]:g} m is past {STATION_COORD_MAX_M:g} m, "
+            "farther than any place on Earth in a projected frame; give the stations in "
+            "metres in the plot's frame",
+        )
+
+
+def check_stations_reach(
+    stations: list[Any], centre_xy: tuple[float, float], radius_m: float, max_range_m: float
+) -> None:
+    """Refuse stations that could record no tree of the plot: farther (horizontally) from
+    its centre than its radius plus the scanner's ``max_range_m`` (a unit or frame error,
+    e.g. local coordinates for a plot in UTM); at most :data:`MAX_STATIONS`.
+
+    Examples
+    --------
+    >>> from treesim.plot.scan import Station
+    >>> check_stations_reach([Station(position_m=(10.0, 0.0, 1.5))], (0.0, 0.0), 15.0, 100.0)
+    >>> check_stations_reach([Station(position_m=(500.0, 0.0, 1.5))], (0.0, 0.0), 15.0, 100.0)
+    Traceback (most recent call last):
+    ...
+    treesim.errors.InvalidParameterError: stations: station 1 at (500, 0) is 500 m from the plot's centre (0, 0), farther than its radius plus the scanner's max_range_m (115 m): it can record no tree of this plot; give the stations in the plot's frame
+    """  # noqa: E501
+    import math
+
+    if len(stations) > MAX_STATIONS:
+        raise field_error(
+            "stations", f"stations: {len(stations)} given; a plot scan takes at most {MAX_STATIONS}"
+        )
+    cx, cy = (float(c) for c in centre_xy)
+    reach_m = float(radius_m) + float(max_range_m)
+    for i, st in enumerate(stations, start=1):
+        x, y = float(st.position_m[0]), float(st.position_m[1])
+        d_m = math.hypot(x - cx, y - cy)
+        if not d_m <= reach_m:
+            raise field_error(
+                "stations",
+                f"stations: station {i} at ({x:g}, {y:g}) is {d_m:.4g} m from the plot's "
+                f"centre ({cx:g}, {cy:g}), farther than its radius plus the scanner's "
+                f"max_range_m ({reach_m:.4g} m): it can record no tree of this plot; give "
+                "the stations in the plot's frame",
+            )
 
 
 def _check_plot_scan(inputs: frozenset[str], job: PlotScanJob) -> None:
@@ -122,6 +195,7 @@ def _execute_plot_scan(
                 height_m=sp.height_m,
                 start_angle_deg=sp.start_angle_deg,
             )
+        check_stations_reach(stations, plot.centre_xy, plot.radius_m, sp.scanner.max_range_m)
         step = plot_scan_files(
             plot,
             out,

@@ -339,7 +339,7 @@ def test_a_failed_job_keeps_its_log_and_its_status_shows_it(app_settings, monkey
 
 # -- 4. every numeric parameter bounded ---------------------------------------------------------
 #: Numbers a process's own schema (not the parameter model) declares without a range.
-_OPEN_BY_DESIGN = {"plot-scan.stations"}  # world coordinates, x, y[, z]: any finite value
+_OPEN_BY_DESIGN: set[str] = set()  # (plot-scan.stations was, until its coordinates had one)
 
 
 def _unbounded(schema, path: str, out: set[str]) -> None:
@@ -390,6 +390,51 @@ def test_a_huge_parameter_is_a_422_naming_it(app_settings, parameters, field):
         )
     body = _problem(r, 422)
     assert field in body["detail"], body
+
+
+@pytest.mark.parametrize(
+    ("stations", "says"),
+    [
+        ([[0.0, 0.0]] * 1001, "1000"),  # more stations than a plot scan takes
+        ([[1e12, 0.0]], "1e+12"),  # farther than any place on Earth
+        ([[0.0, 0.0, -1e300]], "-1e+300"),
+    ],
+)
+def test_absurd_stations_are_a_422_naming_them(app_settings, stations, says):
+    with TestClient(create_app(app_settings)) as client:
+        r = client.post(
+            "/v1/processes/plot-scan/execution",
+            json={"inputs": {"stand": {}, "stations": {"value": stations}}},
+        )
+        body = _problem(r, 422)
+        assert body["field"].startswith("parameters.stations"), body
+        assert says in body["detail"], body
+        # a plot in UTM (northing 5e6 m) is not absurd: accepted
+        utm = [[500_000.0, 5_000_000.0], [500_010.0, 5_000_000.0, 301.5]]
+        r = client.post(
+            "/v1/processes/plot-scan/execution",
+            json={"inputs": {"stand": {}, "stations": {"value": utm}}},
+        )
+        assert r.status_code == 201, r.text
+
+
+def test_stations_out_of_the_plot_s_reach_are_refused_before_scanning():
+    """A station farther from the plot's centre than its radius plus the scanner's range
+    records no tree (e.g. local coordinates for a plot in UTM): refused, naming it."""
+    from treesim.errors import InvalidParameterError
+    from treesim.plot.scan import Station
+    from treesim.service.processes.plot_scan import check_stations_reach
+
+    centre, radius_m, range_m = (500_000.0, 5_000_000.0), 15.0, 100.0
+    # 3-4-5 triangles: 69 + 46 = 115 m from the centre, exactly the reach
+    edge = Station(position_m=(500_069.0, 5_000_092.0, 300.0))
+    check_stations_reach([edge], centre, radius_m, range_m)  # at the reach: kept
+    past = Station(position_m=(500_069.0, 5_000_092.1, 300.0))
+    local = Station(position_m=(3.0, 4.0, 1.5))
+    for i, bad in ((2, past), (2, local)):
+        with pytest.raises(InvalidParameterError, match=f"station {i} at") as info:
+            check_stations_reach([edge, bad], centre, radius_m, range_m)
+        assert info.value.field == "stations"
 
 
 # -- 5. a client that drops mid-upload; a stalled upload ----------------------------------------
