@@ -254,15 +254,16 @@ def get_results(
     ] = None,
 ) -> Results:
     """OGC API - Processes' results document: output id → ``{href, type, title}`` of its
-    file (every output by reference). Outputs a run did not write (``cylinders`` of a
-    mesh reconstruction) are left out."""
+    file (every output by reference): the outputs the execute request asked for (its
+    ``outputs``; every output when it named none), or those ``?outputs=`` names. Outputs
+    a run did not write (``cylinders`` of a mesh reconstruction) are left out."""
     from ..processes import PROCESSES
 
     job = _successful(store, job_id, user.owner)
     names = {r["name"]: r for r in job["results"] or []}
     process = PROCESSES.get(job["process"])
     ids = process.output_ids() if process else {}
-    wanted = _listed(outputs)
+    wanted = _listed(outputs) or list(job.get("outputs") or [])
     for oid in wanted:
         if oid not in ids:
             raise ServiceProblem(

@@ -377,9 +377,12 @@ def submit(
     store: Store,
     settings: Settings,
     user: User | None = None,
+    outputs: list[str] | None = None,
 ) -> dict[str, Any]:
     """Check a job's parameters and inputs and store it, accepted: its record. ``user``:
-    who submits it (its owner; a non-admin may name only their own uploads and jobs)."""
+    who submits it (its owner; a non-admin may name only their own uploads and jobs);
+    ``outputs``: the output ids the request asked for (its results document lists
+    those; None: every output)."""
     try:
         parsed = check_parameters(process, parameters)
     except InvalidParameterError as exc:
@@ -433,6 +436,7 @@ def submit(
         links=links,
         check=still_there,
         owner=user.owns_as if user else None,
+        outputs=outputs,
     )
 
 
@@ -457,7 +461,10 @@ async def _start(
             ref = got["id"]
         files[name] = ref
     store: Store = request.app.state.store
-    job = await run_in_threadpool(submit, process, files, parameters, store, settings, user)
+    outputs = list(body.outputs) or None  # checked above: ids of the process's outputs
+    job = await run_in_threadpool(
+        submit, process, files, parameters, store, settings, user, outputs
+    )
     response.status_code = 201
     response.headers["Location"] = f"{base}/v1/jobs/{job['id']}"
     tokens = {t.strip().lower() for t in (prefer or "").replace(";", ",").split(",")}

@@ -119,6 +119,8 @@ jobs = Table(
     Column("results", JSON),
     Column("summary", JSON),
     Column("owner", String(64)),
+    # the output ids the execute request asked for (its "outputs"); NULL: every output
+    Column("outputs", JSON),
     Index("ix_jobs_status_created", "status", "created"),
     Index("ix_jobs_owner", "owner"),
     Index("ix_jobs_created", "created", "id"),
@@ -463,11 +465,13 @@ class Store:
         links: Sequence[tuple[str, str | None, str | None]] = (),
         check: Any = None,
         owner: str | None = None,
+        outputs: Sequence[str] | None = None,
     ) -> dict[str, Any]:
         """Insert an accepted job. ``links`` are ``(input name, upload id, source job id)``;
         ``check(conn)`` runs first inside the transaction (with the uploads and source jobs
         locked on Postgres) and may raise to refuse the job. ``owner``: the user who
-        submitted it (None: no token was set)."""
+        submitted it (None: no token was set). ``outputs``: the output ids the request
+        asked for (None or empty: every output)."""
         job_id = str(uuid.uuid4())
         with self.write() as conn:
             upload_ids = [u for _, u, _ in links if u]
@@ -496,6 +500,7 @@ class Store:
                     created=db_now(),
                     updated=db_now(),
                     owner=owner,
+                    outputs=list(outputs) if outputs else None,
                 )
             )
             for name, upload_id, source in links:

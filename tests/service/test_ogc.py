@@ -405,6 +405,42 @@ def test_results_document_maps_output_ids_to_links(finished):
     assert names == set(files)
 
 
+def test_the_requested_outputs_are_kept_and_the_results_document_lists_them(tmp_path):
+    """An execute request's ``outputs`` select what its results document lists (OGC API -
+    Processes: the requested outputs; all when none is named), after the job ran, with
+    ``?outputs=`` still choosing among every output written."""
+    data_dir = tmp_path / "data"
+    app = create_app(_settings(data_dir))
+    with TestClient(app) as c:
+        up = c.post("/v1/uploads?filename=cloud.txt", content=BUNDLED_CLOUD.read_bytes()).json()
+        asked = {"tree_json": {"transmissionMode": "reference"}}
+        picked = _execute(c, "reconstruct", {"inputs": {"cloud": up["id"]}, "outputs": asked})
+        every = c.post(  # treesim's way, no outputs named: every output
+            "/v1/jobs", json={"process": "reconstruct", "inputs": {"cloud": up["id"]}}
+        )
+        assert picked.status_code == every.status_code == 201, (picked.text, every.text)
+        store = app.state.store
+        assert store.job(picked.json()["jobID"])["outputs"] == ["tree_json"]
+        assert store.job(every.json()["jobID"])["outputs"] is None
+        files = {"tree.ply": b"ply\n", "tree.json": b"{}", "cylinders.csv": b"x\n"}
+        for _ in range(2):  # both jobs run, writing the same files
+            claim = store.claim("test-worker", 30)
+            out = data_dir / "jobs" / claim.id / "results"
+            out.mkdir(parents=True)
+            results = []
+            for name, data in files.items():
+                (out / name).write_bytes(data)
+                results.append({"name": name, "size_bytes": len(data), "media_type": "x/y"})
+            assert store.succeed(claim, results=results, summary={})
+        doc = c.get(picked.headers["location"] + "/results").json()
+        assert set(doc) == {"tree_json"}
+        assert doc["tree_json"]["href"].endswith("/results/tree.json")
+        every_doc = c.get(every.headers["location"] + "/results").json()
+        assert set(every_doc) == {"tree_ply", "tree_json", "cylinders"}
+        chosen = c.get(picked.headers["location"] + "/results?outputs=cylinders").json()
+        assert set(chosen) == {"cylinders"}
+
+
 def test_a_result_by_href_or_output_id_is_an_input(finished):
     client, job_id, _ = finished
     href = client.get(f"/v1/jobs/{job_id}/results").json()["tree_ply"]["href"]
