@@ -1,6 +1,7 @@
-"""``GET /``: the jobs page (plain HTML and JavaScript, no build step, no external
-resources) or, for a client asking for JSON, the OGC landing page; and ``GET /problems``:
-the problem types."""
+"""``GET /``: the jobs page (plain HTML and JavaScript, ``static/index.html`` and
+``static/jobs.js``, no build step, no external resources, under a Content-Security-Policy)
+or, for a client asking for JSON, the OGC landing page; and ``GET /problems``: the problem
+types."""
 
 from __future__ import annotations
 
@@ -61,7 +62,30 @@ def index(request: Request, f: str | None = None) -> Response:
         doc = landing_page(str(request.base_url).rstrip("/"))
         return JSONResponse(doc.model_dump(), headers=headers)
     page = (resources.files("treesim.service") / "static" / "index.html").read_text("utf-8")
-    return HTMLResponse(page, headers=headers)
+    return HTMLResponse(page, headers={**headers, "Content-Security-Policy": page_csp(page)})
+
+
+def page_csp(page: str) -> str:
+    """The jobs page's Content-Security-Policy: its script from this origin only
+    (``/static/jobs.js``; no inline script), its own ``<style>`` by hash, requests and the
+    embedded reports (``frame-src``) to this origin only, nothing from elsewhere.
+
+    Examples
+    --------
+    >>> csp = page_csp("<style>p { color: red }</style>")
+    >>> "script-src 'self';" in csp and "style-src 'sha256-" in csp
+    True
+    """
+    hashes = " ".join(
+        "'sha256-" + base64.b64encode(hashlib.sha256(m.encode()).digest()).decode() + "'"
+        for m in re.findall(r"<style>(.*?)</style>", page, flags=re.DOTALL)
+    )
+    styles = hashes or "'none'"
+    return (
+        f"default-src 'none'; script-src 'self'; style-src {styles}; "
+        "img-src 'self' data:; connect-src 'self'; frame-src 'self'; base-uri 'none'; "
+        "form-action 'self'; frame-ancestors 'none'"
+    )
 
 
 @router.get("/favicon.ico")
@@ -163,7 +187,10 @@ _ASSETS = {
     "swagger-ui-bundle.js": "text/javascript",
     "swagger-ui.css": "text/css",
     "redoc.standalone.js": "text/javascript",
+    "jobs.js": "text/javascript",  # the jobs page's own script
 }
+#: the page's own script changes with the package: revalidated, not kept a day
+_NO_CACHE = {"jobs.js"}
 
 
 def docs_csp(page: str) -> str:
@@ -227,12 +254,14 @@ def redoc(request: Request) -> HTMLResponse:
 
 @router.get("/static/{name}")
 def static_asset(name: str) -> Response:
-    """The docs pages' scripts and styles (a fixed list; anything else is 404)."""
+    """The docs pages' and the jobs page's scripts and styles (a fixed list; anything else
+    is 404)."""
     if name not in _ASSETS:
         raise ServiceProblem("not-found", f"no file {name!r}", field="name")
     path = resources.files("treesim.service") / "static" / name
+    cache = "no-cache" if name in _NO_CACHE else "public, max-age=86400"
     return Response(
         path.read_bytes(),
         media_type=_ASSETS[name],
-        headers={"Cache-Control": "public, max-age=86400", "X-Content-Type-Options": "nosniff"},
+        headers={"Cache-Control": cache, "X-Content-Type-Options": "nosniff"},
     )
