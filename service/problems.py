@@ -140,6 +140,15 @@ PROBLEMS: dict[str, ProblemType] = {
             "uploads and job results unless TREESIM_ALLOW_REMOTE_HREFS is set",
         ),
         ProblemType(
+            "remote-input-blocked",
+            "Remote input blocked",
+            422,
+            "an input's href (or a redirect it took) resolves to a loopback, link-local, "
+            "private, multicast or otherwise non-public address, and its host is not one "
+            "TREESIM_REMOTE_HREF_HOSTS lists: the service does not read its own network for "
+            "a request",
+        ),
+        ProblemType(
             "method-not-allowed", "Method not allowed", 405, "the route does not take this method"
         ),
         ProblemType(

@@ -8,10 +8,10 @@ the field's name in capitals (``data_dir`` → ``TREESIM_DATA_DIR``). ``treesim 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["ENV_PREFIX", "Settings"]
 
@@ -119,6 +119,20 @@ class Settings(BaseSettings):
         "(the service downloads it as an upload, within max_upload_bytes); off: only this "
         "service's own uploads and job results",
     )
+    remote_href_hosts: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="with allow_remote_hrefs: hosts (names or addresses, comma-separated) "
+        "whose hrefs may be fetched although they resolve to a loopback, link-local, "
+        "private or multicast address (a lab's file server); any other such href is "
+        "refused (422), so that a request cannot make the service read its own network",
+    )
+    remote_href_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        le=3600,
+        description="with allow_remote_hrefs: a remote href's download (connect, redirects "
+        "and body) must end within this many seconds, else it is refused (s)",
+    )
     cors_origins: list[str] = Field(
         default_factory=list,
         description="origins allowed to call the API from a browser (CORS off when empty)",
@@ -128,6 +142,22 @@ class Settings(BaseSettings):
     @classmethod
     def _absolute(cls, v: Path) -> Path:
         return v.expanduser().resolve()
+
+    @field_validator("remote_href_hosts", mode="before")
+    @classmethod
+    def _host_list(cls, v: object) -> object:
+        # the environment's text: comma-separated (or a JSON list); names compared lowercase
+        if isinstance(v, str):
+            text = v.strip()
+            if text.startswith("["):
+                import json
+
+                v = json.loads(text)
+            else:
+                v = text.split(",")
+        if isinstance(v, list | tuple):
+            return [str(h).strip().lower().strip("[]") for h in v if str(h).strip()]
+        return v
 
     @field_validator(
         "database_url", "scheduler", "api_token", "heartbeat_file", "tokens_file", mode="before"

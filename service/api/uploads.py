@@ -5,12 +5,18 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import http.client
+import ipaddress
 import os
+import socket
+import ssl
+import time
 import unicodedata
 import uuid
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Annotated, Any
+from urllib.parse import SplitResult, urljoin, urlsplit
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -225,47 +231,218 @@ async def fetch_remote(
 ) -> dict[str, Any]:
     """Download ``url`` (an input's href on another host, where
     ``TREESIM_ALLOW_REMOTE_HREFS`` allows it) and keep it as an upload, within the
-    upload limit; its record."""
-    limit = state.settings.max_upload_bytes
-    tmp = _tmp_dir(state.settings.data_dir) / f"{uuid.uuid4().hex}.part"
+    upload limit and ``TREESIM_REMOTE_HREF_TIMEOUT_S``; its record. An href whose host
+    resolves to a non-public address is refused (:func:`remote_address`)."""
+    settings = state.settings
+    limit = settings.max_upload_bytes
+    tmp = _tmp_dir(settings.data_dir) / f"{uuid.uuid4().hex}.part"
     last = url.split("?", 1)[0].rstrip("/").rsplit("/", 1)[-1]
     try:
         name = check_filename(last or None)
     except ServiceProblem:
         name = "remote"
+    guard = RemoteGuard(
+        frozenset(settings.remote_href_hosts), settings.remote_href_timeout_s, limit
+    )
     try:
-        size, sha = await run_in_threadpool(_download, url, tmp, limit, field)
+        size, sha = await run_in_threadpool(guard.download, url, tmp, field)
         rec, _ = await keep(state, tmp, size, sha, name, name, owner=owner)
     finally:
         tmp.unlink(missing_ok=True)
     return rec
 
 
-def _download(url: str, tmp: Path, limit: int, field: str) -> tuple[int, str]:
-    """Stream ``url`` into ``tmp``, at most ``limit`` bytes: (size, SHA-256)."""
-    import urllib.error
-    import urllib.request
+#: Redirects a remote href may take; every hop is checked as the href itself.
+MAX_REDIRECTS = 5
 
-    digest = hashlib.sha256()
-    size = 0
-    try:
-        with urllib.request.urlopen(url, timeout=60) as r, open(tmp, "wb") as fh:  # noqa: S310 - http(s) only, checked by the caller
-            while chunk := r.read(1 << 20):
-                size += len(chunk)
-                if size > limit:
+
+def blocked_address(address: str) -> str | None:
+    """Why a request must not make the service connect to ``address``: it is loopback,
+    link-local (the cloud's metadata service, 169.254.169.254), private, multicast,
+    unspecified, reserved or otherwise not public; None for a public address. An IPv6
+    address that maps an IPv4 one is judged as that.
+
+    Examples
+    --------
+    >>> blocked_address("169.254.169.254"), blocked_address("::ffff:10.1.2.3")
+    ('link-local', 'private')
+    >>> blocked_address("93.184.216.34") is None
+    True
+    """
+    ip = ipaddress.ip_address(address.split("%", 1)[0])  # an IPv6 zone is no part of it
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped
+    for why, bad in (
+        ("loopback", ip.is_loopback),
+        ("link-local", ip.is_link_local),
+        ("multicast", ip.is_multicast),
+        ("unspecified", ip.is_unspecified),
+        ("private", ip.is_private),
+        ("reserved", ip.is_reserved),
+    ):
+        if bad:
+            return why
+    return None if ip.is_global else "not public"
+
+
+class RemoteGuard:
+    """How the service fetches a remote href: http(s) only; the host resolved once and
+    every address it resolves to public, unless the host is in ``allowed_hosts``
+    (``TREESIM_REMOTE_HREF_HOSTS``); the connection made to the address checked (a
+    second lookup cannot swap it); redirects followed, each checked the same way; at most
+    ``limit_bytes``, all within ``timeout_s``."""
+
+    def __init__(self, allowed_hosts: frozenset[str], timeout_s: float, limit_bytes: int):
+        self.allowed_hosts = allowed_hosts
+        self.timeout_s = float(timeout_s)
+        self.limit_bytes = int(limit_bytes)
+
+    def address(self, url: str, field: str) -> tuple[SplitResult, str]:
+        """The href's parts and the address to connect to; a problem when it is not an
+        http(s) URL (400), cannot be resolved (400) or resolves to an address the
+        service does not fetch from (422 ``remote-input-blocked``)."""
+        parts = urlsplit(url)
+        try:
+            port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+        except ValueError:
+            port = None
+        host = (parts.hostname or "").lower()
+        if parts.scheme not in ("http", "https") or not host or port is None:
+            raise ServiceProblem(
+                "bad-request", f"{field}: href {url!r} is not an http(s) URL", field=field
+            )
+        try:
+            infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        except (OSError, UnicodeError) as exc:
+            raise ServiceProblem(
+                "bad-request", f"{field}: could not resolve the host of {url}: {exc}", field=field
+            ) from None
+        addresses = list(dict.fromkeys(str(info[4][0]) for info in infos))
+        if host not in self.allowed_hosts:
+            for a in addresses:
+                why = blocked_address(a)
+                if why:
                     raise ServiceProblem(
-                        "payload-too-large",
-                        f"{field}: {url} is larger than the upload limit of {limit:,} bytes "
-                        "(TREESIM_MAX_UPLOAD_BYTES)",
+                        "remote-input-blocked",
+                        f"{field}: href {url!r} names {host}, a {why} address ({a}); the "
+                        "service fetches only from public hosts and those its operator "
+                        "lists in TREESIM_REMOTE_HREF_HOSTS",
                         field=field,
                     )
+        return parts, addresses[0]
+
+    def download(self, url: str, tmp: Path, field: str) -> tuple[int, str]:
+        """Stream ``url`` into ``tmp`` (redirects followed, each hop checked): (size,
+        SHA-256)."""
+        deadline = time.monotonic() + self.timeout_s
+        for _ in range(MAX_REDIRECTS + 1):
+            parts, address = self.address(url, field)
+            try:
+                got = self._get(parts, address, tmp, field, deadline)
+            except (OSError, http.client.HTTPException) as exc:
+                if time.monotonic() >= deadline or isinstance(exc, TimeoutError):
+                    raise self._timeout(url, field) from None
+                raise ServiceProblem(
+                    "bad-request", f"{field}: could not fetch {url}: {exc}", field=field
+                ) from None
+            if isinstance(got, str):  # a redirect
+                url = urljoin(url, got)
+                continue
+            return got
+        raise ServiceProblem(
+            "bad-request", f"{field}: {url} redirects more than {MAX_REDIRECTS} times", field=field
+        )
+
+    def _timeout(self, url: str, field: str) -> ServiceProblem:
+        return ServiceProblem(
+            "bad-request",
+            f"{field}: {url} did not arrive within {self.timeout_s:g} s "
+            "(TREESIM_REMOTE_HREF_TIMEOUT_S)",
+            field=field,
+        )
+
+    def _get(
+        self, parts: SplitResult, address: str, tmp: Path, field: str, deadline: float
+    ) -> tuple[int, str] | str:
+        """One GET to ``address``: (size, SHA-256) of the body written to ``tmp``, or a
+        redirect's Location."""
+        left = max(deadline - time.monotonic(), 0.001)
+        cls = _PinnedHTTPS if parts.scheme == "https" else _PinnedHTTP
+        conn = cls(parts.hostname or "", parts.port, address, left)
+        url = parts.geturl()
+        try:
+            target = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
+            headers = {"User-Agent": "treesim", "Accept-Encoding": "identity"}
+            conn.request("GET", target, headers=headers)
+            r = conn.getresponse()
+            if r.status in (301, 302, 303, 307, 308) and r.getheader("Location"):
+                return str(r.getheader("Location"))
+            if r.status != 200:
+                raise ServiceProblem(
+                    "bad-request",
+                    f"{field}: could not fetch {url}: the server answered HTTP {r.status} "
+                    f"{r.reason}",
+                    field=field,
+                )
+            declared = r.getheader("Content-Length")
+            if declared and declared.isdigit() and int(declared) > self.limit_bytes:
+                raise self._too_large(url, field)
+            return self._body(r, conn, tmp, url, field, deadline)
+        finally:
+            conn.close()
+
+    def _too_large(self, url: str, field: str) -> ServiceProblem:
+        return ServiceProblem(
+            "payload-too-large",
+            f"{field}: {url} is larger than the upload limit of {self.limit_bytes:,} bytes "
+            "(TREESIM_MAX_UPLOAD_BYTES)",
+            field=field,
+        )
+
+    def _body(
+        self, r: Any, conn: Any, tmp: Path, url: str, field: str, deadline: float
+    ) -> tuple[int, str]:
+        digest = hashlib.sha256()
+        size = 0
+        with open(tmp, "wb") as fh:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise self._timeout(url, field)
+                if conn.sock is not None:
+                    conn.sock.settimeout(left)  # a read waits no longer than what is left
+                chunk = r.read1(1 << 20)
+                if not chunk:
+                    return size, digest.hexdigest()
+                size += len(chunk)
+                if size > self.limit_bytes:
+                    raise self._too_large(url, field)
                 digest.update(chunk)
                 fh.write(chunk)
-    except (urllib.error.URLError, OSError, ValueError) as exc:
-        raise ServiceProblem(
-            "bad-request", f"{field}: could not fetch {url}: {exc}", field=field
-        ) from None
-    return size, digest.hexdigest()
+
+
+class _PinnedHTTP(http.client.HTTPConnection):
+    """An HTTP connection to ``address`` (checked) for ``host`` (its Host header)."""
+
+    def __init__(self, host: str, port: int | None, address: str, timeout: float) -> None:
+        super().__init__(host, port, timeout=timeout)
+        self._address = address
+
+    def connect(self) -> None:
+        self.sock = socket.create_connection((self._address, self.port), self.timeout)
+
+
+class _PinnedHTTPS(http.client.HTTPSConnection):
+    """An HTTPS connection to ``address`` (checked); the certificate checked for
+    ``host``."""
+
+    def __init__(self, host: str, port: int | None, address: str, timeout: float) -> None:
+        super().__init__(host, port, timeout=timeout, context=ssl.create_default_context())
+        self._address = address
+
+    def connect(self) -> None:
+        sock = socket.create_connection((self._address, self.port), self.timeout)
+        self.sock = self._context.wrap_socket(sock, server_hostname=self.host)
 
 
 @router.get("/uploads", response_model=UploadList, summary="List uploads, newest first")

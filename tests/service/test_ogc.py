@@ -315,7 +315,8 @@ def test_an_input_that_is_a_file_or_a_value(client):
 
 def test_remote_hrefs_are_fetched_where_the_setting_allows(tmp_path):
     """With TREESIM_ALLOW_REMOTE_HREFS an href on another origin (here a file server on
-    this machine's loopback, never the network) is downloaded and kept as an upload."""
+    this machine's loopback, never the network, so TREESIM_REMOTE_HREF_HOSTS lists it:
+    test_hrefs.py has the refusals) is downloaded and kept as an upload."""
     import functools
     import http.server
     import threading
@@ -328,7 +329,10 @@ def test_remote_hrefs_are_fetched_where_the_setting_allows(tmp_path):
     threading.Thread(target=httpd.serve_forever, daemon=True).start()
     url = f"http://127.0.0.1:{httpd.server_address[1]}"
     try:
-        app = create_app(_settings(tmp_path / "data", allow_remote_hrefs=True))
+        settings = _settings(
+            tmp_path / "data", allow_remote_hrefs=True, remote_href_hosts=["127.0.0.1"]
+        )
+        app = create_app(settings)
         with TestClient(app) as c:
             r = _execute(c, "reconstruct", {"inputs": {"cloud": {"href": f"{url}/tree.xyz"}}})
             assert r.status_code == 201, r.text
