@@ -484,7 +484,7 @@ _SUBMIT_RESPONSES = {
             },
         },
     },
-    **PROBLEM_RESPONSES(400, 404, 409, 413, 415, 422),
+    **PROBLEM_RESPONSES(400, 404, 409, 413, 415, 422, 507),
 }
 
 PreferHeader = Annotated[

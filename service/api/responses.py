@@ -20,6 +20,7 @@ _WHAT = {
     415: "unsupported file format",
     422: "invalid input or parameters",
     503: "not ready",
+    507: "out of disk space: the data folder's disk (or the job store) is full",
 }
 
 

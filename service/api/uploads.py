@@ -114,7 +114,7 @@ def _tmp_dir(data_dir: Path) -> Path:
     summary="Upload a point cloud, a mesh or a plot archive (the raw file as the body)",
     responses={
         200: {"model": UploadOut, "description": "the same content was uploaded before"},
-        **PROBLEM_RESPONSES(411, 413, 415, 422),
+        **PROBLEM_RESPONSES(411, 413, 415, 422, 507),
     },
     openapi_extra={
         "requestBody": {

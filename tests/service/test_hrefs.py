@@ -14,6 +14,7 @@ and the bytes and requests the test's own servers saw.
 from __future__ import annotations
 
 import http.server
+import shutil
 import socket
 import threading
 import time
@@ -279,6 +280,48 @@ def test_the_connection_goes_to_the_address_checked_with_the_host_s_name(
         assert r.status_code == 201, r.text
     assert lookups == ["lab.example"]
     assert srv.seen == [("/tree.xyz", f"lab.example:{srv.port}")]
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="makes its certificate with openssl")
+def test_https_checks_the_host_s_certificate_on_the_pinned_connection(
+    tmp_path, served, monkeypatch
+):
+    """An https href of a listed host, resolved to this machine: the TLS handshake names
+    the host (SNI) and its certificate is verified against that name although the
+    connection goes to the checked address: refused while the certificate's issuer is
+    unknown, fetched once the service trusts it."""
+    import ssl
+    import subprocess
+
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
+         "-keyout", str(key), "-out", str(cert), "-subj", "/CN=lab.example",
+         "-addext", "subjectAltName=DNS:lab.example"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    srv = served({"/tree.xyz": _file(CLOUD)})
+    tls = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    tls.load_cert_chain(cert, key)
+    srv.httpd.socket = tls.wrap_socket(srv.httpd.socket, server_side=True)
+    real = socket.getaddrinfo
+
+    def fake(host, port, *args, **kwargs):
+        if host == "lab.example":
+            return [(socket.AF_INET, socket.SOCK_STREAM, 6, "", ("127.0.0.1", port))]
+        return real(host, port, *args, **kwargs)
+
+    monkeypatch.setattr(uploads.socket, "getaddrinfo", fake)
+    href = f"https://lab.example:{srv.port}/tree.xyz"
+    with _client(tmp_path, remote_href_hosts=["lab.example"]) as client:
+        body = _problem(_execute(client, href), 400, "bad-request")
+        assert "CERTIFICATE_VERIFY_FAILED" in body["detail"], body
+        assert client.get("/v1/uploads").json()["uploads"] == []
+        monkeypatch.setenv("SSL_CERT_FILE", str(cert))  # the service now trusts its issuer
+        r = _execute(client, href)
+        assert r.status_code == 201, r.text
+        assert client.get("/v1/uploads").json()["uploads"][0]["n_points"] == N_POINTS
+    assert srv.seen == [("/tree.xyz", f"lab.example:{srv.port}")]  # only the trusted try
 
 
 @pytest.mark.parametrize("length", [True, False], ids=["content-length", "until-close"])
