@@ -880,22 +880,28 @@ def _fit_nodes(
     # the other half (the real pine: 180-240 degrees per node against 240-350 in a
     # horizontal slab), and half-ring circles read its DBH +4 %
     tree_all = cache(lambda: cKDTree(p))  # every point, built for the first wide stem node
+    wide = STEM_SLAB_MIN_EXTENT_SLICES * h
     for bi, seq in enumerate(sk.branches):
+        r_below = 0.0  # the stem's last full-ring radius below (0 until one is fitted)
         for i, v in enumerate(seq):
             a = _node_axis(sk, seq, i)
             f.axes[v] = a
             if not sk.keep[v]:
                 continue
             idx = sk.members(v)
-            if len(idx) < 6:
+            # inside a crown the stem's slices break into fragments (the paths to its far
+            # side come through the branches): a fragment of a stem known to be wide
+            # fits the slab too, reaching as far as the stem's radius below it does
+            fragment = bi == 0 and r_below >= wide
+            if len(idx) < (1 if fragment else 6):
                 continue
             u, vv = _basis(a)
             rel = p[idx] - sk.centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
             f.extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
-            if bi == 0 and f.extent[v] >= STEM_SLAB_MIN_EXTENT_SLICES * h:
+            if bi == 0 and max(f.extent[v], r_below) >= wide:
                 idx, q, u, vv = _stem_slab(
-                    p, sk, seq, i, a, f.extent[v], h, tree_all, (idx, q, u, vv)
+                    p, sk, seq, i, a, max(f.extent[v], r_below), h, tree_all, (idx, q, u, vv)
                 )
             fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
             if fit is None:
@@ -906,6 +912,8 @@ def _fit_nodes(
                 f.good_fit[v] = True
                 f.quality[v] = (fit.coverage_deg / 360.0) * fit.inlier_share
                 f.fit_centre[v] = sk.centroid[v] + fit.centre[0] * u + fit.centre[1] * vv
+                if bi == 0 and fit.coverage_deg >= params.min_coverage_deg:
+                    r_below = fit.radius
     return f
 
 

@@ -259,3 +259,50 @@ def test_a_stem_slab_too_sparse_to_fit_keeps_the_nodes_own_basis():
     assert abs(u @ lean) < 1e-12 and abs(v @ lean) < 1e-12
     rel = pts[idx] - centroid[10]
     np.testing.assert_allclose(q, np.stack([rel @ u, rel @ v], axis=1), atol=1e-15)
+
+
+def test_a_stem_broken_into_fragments_inside_the_crown_fits_its_whole_ring():
+    """Inside a needle-on crown the stem's geodesic slices break into fragments: the
+    paths to its far side come through the branches, so a stem node holds one arc of its
+    ring and the rest sits in other nodes (the real pine from 12 m up: nodes of 2-40
+    points on 60-140 degrees, fits of 2.7-5.3 cm on a stem of 7.2 cm). A fragment of a
+    stem known to be wide below must fit the slab of every point square to the axis: the
+    whole ring, at the stem's radius (the geometry's, 8 cm), on a full arc."""
+    from types import SimpleNamespace
+
+    from treesim.reconstruct.qsm import _fit_nodes
+
+    r_m, h = 0.08, 0.06
+    rng = np.random.default_rng(5)
+    z_nodes = np.arange(0.03, 3.0, h)
+    pts, owner = [], []
+    for k, z in enumerate(z_nodes):  # 120 points a slice, the ring scanned all round
+        t = rng.uniform(0.0, 2.0 * np.pi, 120)
+        zz = z + rng.uniform(-h / 2, h / 2, 120)
+        ring = np.column_stack([r_m * np.cos(t), r_m * np.sin(t), zz])
+        ring[:, :2] += rng.normal(0.0, 0.002, (120, 2))
+        pts.append(ring)
+        # below 1.5 m the node holds its whole slice; above it, a 60-degree arc of it,
+        # the rest in a node of another chain (node k + len(z_nodes))
+        frag = (z < 1.5) | (np.mod(t, 2 * np.pi) < np.pi / 3)
+        owner.append(np.where(frag, k, k + len(z_nodes)))
+    p, cl = np.vstack(pts), np.concatenate(owner)
+    m = 2 * len(z_nodes)
+    order = np.argsort(cl, kind="stable")
+    bounds = np.searchsorted(cl[order], np.arange(m + 1))
+    centroid = np.array(
+        [p[cl == v].mean(axis=0) if (cl == v).any() else np.zeros(3) for v in range(m)]
+    )
+    stem = list(range(len(z_nodes)))
+    sk = SimpleNamespace(
+        branches=[stem],
+        keep=np.ones(m, dtype=bool),
+        centroid=centroid,
+        node_parent=np.array([-1, *stem[:-1], *[-1] * len(z_nodes)]),
+        members=lambda v: order[bounds[v] : bounds[v + 1]],
+    )
+    f = _fit_nodes(p, np.ones(len(p)), sk, QSMParams(), 0.01, h)
+    upper = [v for v in stem if z_nodes[v] > 1.6]
+    assert len(sk.members(upper[0])) < 40  # the fragments hold a sixth of their ring
+    np.testing.assert_allclose(f.radius[upper], r_m, rtol=0.03)
+    assert (f.coverage[upper] >= 300).all() and f.good_fit[upper].all()

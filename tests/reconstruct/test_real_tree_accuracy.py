@@ -73,12 +73,7 @@ def repo_clouds() -> list[str]:
 
 #: Failing today, with the figures measured when they were marked (strict: each flips to a
 #: failure the day it passes, and is then removed here).
-XFAIL: dict[tuple[str, str], str] = {
-    ("radius", "shared:treels_pine/pine.laz"): (
-        "2026-11-26: 1 of 28 clean slabs off by > 10 %: 12.5 m 6.3 vs 7.2 cm, inside the "
-        "needle-on crown (partial arcs under the hidden top)"
-    ),
-}
+XFAIL: dict[tuple[str, str], str] = {}
 
 TREES = [f"shared:{a}/{b}" for a, b in SHARED] + [f"repo:{p}" for p in repo_clouds()]
 
