@@ -98,6 +98,7 @@ def test_the_wheel_installs_treesim_alone_at_the_top(wheel):
         "treesim/cli/__init__.py",
         "treesim/service/app.py",
         "treesim/service/static/index.html",
+        "treesim/service/static/jobs.js",
         "treesim/service/jobs/migrations/env.py",
         "treesim/data/coffee_tree/cloud.txt",
     ):
