@@ -87,6 +87,9 @@ class Input:
             },
             "minOccurs": 1 if self.required else 0,
             "maxOccurs": 1,
+            # treesim's extension: the kinds of upload or result the input takes (a media
+            # type alone cannot tell a QSM table from a stations table: both are text/csv)
+            "x-treesim-kinds": list(self.kinds),
         }
 
 

@@ -215,7 +215,8 @@ function changed(control) {
 }
 
 function fileField(name, spec, media) {
-  const kinds = kindsOf(media);
+  // the service names the kinds (x-treesim-kinds); the media types are the fallback
+  const kinds = spec["x-treesim-kinds"] ? new Set(spec["x-treesim-kinds"]) : kindsOf(media);
   const required = (spec.minOccurs ?? 1) > 0;
   const select = el("select", {id: "in-" + name, required,
                                dataset: {file: name, kinds: Array.from(kinds).join(",")}});

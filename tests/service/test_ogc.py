@@ -198,6 +198,18 @@ def test_run_describes_preset_as_an_input(client):
     assert "[m]" in max_range["description"]
 
 
+def test_file_inputs_name_the_kinds_they_take(client):
+    """Two text/csv inputs take different files (a QSM table, a stations table): the
+    description names the kind in treesim's extension, which a client (the jobs page)
+    reads to offer only fitting uploads."""
+    run = client.get("/v1/processes/run").json()["inputs"]
+    scan = client.get("/v1/processes/plot-scan").json()["inputs"]
+    assert run["reference_qsm"]["x-treesim-kinds"] == ["cylinders"]
+    assert run["cloud"]["x-treesim-kinds"] == ["cloud"]
+    assert scan["stations"]["x-treesim-kinds"] == ["table"]
+    assert scan["plot"]["x-treesim-kinds"] == ["plot"]
+
+
 def test_unknown_process_is_ogcs_no_such_process(client):
     _ogc_problem(client.get("/v1/processes/nope"), 404, "no-such-process")
     _ogc_problem(client.post("/v1/processes/nope/execution", json={}), 404, "no-such-process")
