@@ -385,6 +385,7 @@ def _run_task(task: _Task) -> dict[str, Any]:
                 tmp,
                 name=task.id,
                 reference_qsm=task.reference_qsm,
+                report_auto="summary",  # report.level auto: pages, no plots, per tree
             )
             row = {
                 **base,

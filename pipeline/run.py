@@ -282,6 +282,7 @@ def run_tree(
     name: str | None = None,
     reference_qsm: str | Path | None = None,
     progress: Progress | None = None,
+    report_auto: str = "full",
 ) -> RunResult:
     """Run the whole loop on one tree and write every artefact into ``outdir``.
 
@@ -301,6 +302,10 @@ def run_tree(
         (:func:`reference_qsm_figures`; ``run.json``'s ``reference_qsm``).
     progress : callable(fraction, message), optional
         Called as the stages advance.
+    report_auto : {"full", "summary", "none"}
+        The reports drawn when ``params.report.level`` is ``"auto"``
+        (:meth:`~treesim.params.ReportParams.resolved`): ``"full"`` for one run;
+        :func:`treesim.run_batch` and the sweep ask for ``"summary"``.
 
     Returns
     -------
@@ -359,13 +364,18 @@ def run_tree(
     # -- report ----------------------------------------------------------------------------
     say(0.72, "drawing the reports")
     t0 = time.perf_counter()
+    level = params.report.resolved(report_auto)
     clouds, viewer = _draw_reports(
-        field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say
+        field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level
     )
     summary = _run_summary(
         name, inputs, params, threads, model, written, tolerance, clouds, scanned, vs_mesh, vs_field
     )
-    summary["summary_text"] = _summary_texts(out)
+    summary["report_level"] = level
+    if level == "none":  # no comparison report: its files go, its page's links with them
+        for key in ("vs_mesh_report", "vs_field_report"):
+            summary["files"].pop(key)
+    summary["summary_text"] = _summary_texts(out, level)
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     summary["timings_s"] = timings
@@ -568,17 +578,28 @@ def _draw_reports(
     out: Path,
     params: RunParams,
     say: Progress,
+    level: str = "full",
 ) -> tuple[dict[str, Any], Any]:
     """Each comparison's report (drawn from the written files, so that drawing them
     again gives the same report), the clouds side by side, and the run page's viewer
-    payload. Returns the clouds' record and the payload."""
-    from .report import build_report
+    payload, as ``level`` says (``full``, ``summary``: no PNG plot, ``none``: no report,
+    no viewer). Returns the clouds' record and the payload (None under ``none``)."""
+    from .report import build_report, remove_report
 
-    build_report(out / "vs_mesh", params=params.report)
-    say(0.86, "drawing the reports")
-    build_report(out / "vs_field", params=params.report)
     mesh_data = ReportData.from_comparison(vs_mesh)
-    clouds = _clouds_side_by_side(field_cloud, scanned.cloud, mesh_data, tolerance, out, params)
+    if level == "none":
+        for key in ("vs_mesh", "vs_field"):
+            remove_report(out / key)
+        return _clouds_side_by_side(
+            field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=False
+        ), None
+    rp = replace(params.report, plots=level == "full")
+    build_report(out / "vs_mesh", params=rp)
+    say(0.86, "drawing the reports")
+    build_report(out / "vs_field", params=rp)
+    clouds = _clouds_side_by_side(
+        field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=level == "full"
+    )
     viewer = run_viewer_payload(
         mesh_data,
         ReportData.from_comparison(vs_field),
@@ -652,8 +673,10 @@ def _clouds_side_by_side(
     tolerance: dict[str, Any],
     out: Path,
     params: RunParams,
+    *,
+    draw: bool = True,
 ) -> dict[str, Any]:
-    """The field and simulated clouds' sizes and densities in one table, and
+    """The field and simulated clouds' sizes and densities in one table, and (``draw``)
     ``clouds.png``: both in the same views on the same axes (the comparison with the
     mesh's display origin)."""
     from .report import figures
@@ -678,7 +701,7 @@ def _clouds_side_by_side(
 
     rp = params.report
     figure = out / "clouds.png"
-    if not rp.plots:  # report.plots = false: the table only
+    if not draw or not rp.plots:  # no plots (summary, none): the table only
         figure.unlink(missing_ok=True)
         return {**_cloud_table(), "figure": None}
     figures.clouds_side_by_side(
@@ -707,11 +730,20 @@ def _relative(path: str | Path, base: str | Path) -> str:
         return Path(path).resolve().as_posix()
 
 
-def _summary_texts(out: Path) -> dict[str, str]:
+def _summary_texts(out: Path, level: str = "full") -> dict[str, str]:
+    """Each comparison's summary paragraph: its report's, or (``level`` none, no report)
+    the same words made from its ``comparison.json``."""
+    from .report.text import summary_paragraph
+
     texts = {}
     for key in ("vs_mesh", "vs_field"):
+        name, pick = (
+            ("comparison.json", summary_paragraph)
+            if level == "none"
+            else ("report.json", lambda r: r["summary"])
+        )
         try:
-            texts[key] = json.loads((out / key / "report.json").read_text())["summary"]
+            texts[key] = pick(json.loads((out / key / name).read_text()))
         except (OSError, ValueError, KeyError):
             texts[key] = ""
     return texts

@@ -11,6 +11,7 @@ from ._options import execution, execution_options
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, add_settings, params_from_args
 from .progress import print_warnings
+from .run import report_option, with_report_level
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
@@ -18,7 +19,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from .progress import BatchProgressBar
 
     output_folder(args.output)
-    params = params_from_args(args, with_threads=False)
+    params = with_report_level(params_from_args(args, with_threads=False), args)
     bar = None if args.no_progress else BatchProgressBar(sys.stderr)
     try:
         result = run_batch(
@@ -75,5 +76,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("inputs", nargs="+", metavar="INPUT", help="files, folders or manifests")
     bp.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="batch folder")
     add_settings(bp)
+    report_option(bp)
     execution_options(bp)
     bp.set_defaults(func=cmd_batch)

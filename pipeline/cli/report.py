@@ -47,5 +47,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-o", "--output", metavar="DIR", help="where to write (default: beside comparison.json)"
     )
     g = rp.add_argument_group("report")
-    param_options(g, ReportParams)
+    param_options(g, ReportParams, exclude=("level",))  # which reports a run draws
     rp.set_defaults(func=cmd_report)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from ..errors import InvalidParameterError
-from ..params import RunParams, preset_measurements, to_toml
+from ..params import ReportParams, RunParams, preset_measurements, to_toml
 from ._options import param_option
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, STATION_RULE, add_settings, params_from_args
@@ -68,10 +69,24 @@ def print_run_summary(result: Any) -> None:
     print(f"report: {result.report_html.resolve()}")
 
 
+def report_option(parser: argparse.ArgumentParser) -> None:
+    """``--report auto|none|summary|full``: which reports to draw
+    (:attr:`treesim.params.ReportParams.level`)."""
+    param_option(parser, ReportParams, "level", path=("report",), flag="--report")
+
+
+def with_report_level(params: RunParams, args: argparse.Namespace) -> RunParams:
+    """``params`` with the ``--report`` level given (unchanged without one)."""
+    level = getattr(args, "param:report.level", None)
+    if level is None:
+        return params
+    return replace(params, report=replace(params.report, level=level))
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from ..run import run_tree
 
-    params = params_from_args(args)
+    params = with_report_level(params_from_args(args), args)
     if args.print_params:
         sys.stdout.write(to_toml(params))
         return 0
@@ -114,6 +129,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_settings(rp)
     param_option(rp, RunParams, "threads", metavar="N")
+    report_option(rp)
     rp.add_argument(
         "--print-params", action="store_true", help="print the settings as TOML and exit"
     )

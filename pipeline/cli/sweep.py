@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from ._options import execution, whole_number
 from ._outputs import output_folder
+from .run import report_option
 
 if TYPE_CHECKING:
     from ..sweep import SweepConfig
@@ -38,6 +39,19 @@ def _list(cfg: SweepConfig) -> int:
     return 0
 
 
+def _with_report_level(cfg: SweepConfig, args: argparse.Namespace) -> SweepConfig:
+    """``cfg`` with every design drawing the ``--report`` level given (a level changes
+    no figure, but a point run at another level is run again, into the same folder)."""
+    level = getattr(args, "param:report.level", None)
+    if level is None:
+        return cfg
+    designs = [
+        replace(d, params=replace(d.params, report=replace(d.params.report, level=level)))
+        for d in cfg.designs
+    ]
+    return replace(cfg, designs=type(cfg.designs)(designs))
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from ..sweep import load_sweep, run_sweep
     from .progress import BatchProgressBar
@@ -46,7 +60,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         args._parser.error("the following arguments are required: -o/--output")
     if args.output:
         output_folder(args.output)
-    cfg = load_sweep(args.config)
+    cfg = _with_report_level(load_sweep(args.config), args)
     if args.list:
         return _list(cfg if args.repeat is None else replace(cfg, repeat=args.repeat))
     bar = (
@@ -115,6 +129,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "finished points get only the missing timings",
     )
     sp.add_argument("--list", action="store_true", help="list the points and exit")
+    report_option(sp)
     sp.add_argument(
         "--fresh",
         action="store_true",

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from ..errors import InvalidParameterError
 from ._fields import check_bounds, param
 
-__all__ = ["HIDDEN_SURFACE", "CompareParams", "ReportParams"]
+__all__ = ["HIDDEN_SURFACE", "REPORT_LEVELS", "CompareParams", "ReportLevel", "ReportParams"]
+
+ReportLevel = Literal["auto", "none", "summary", "full"]
+#: Which reports a run draws (:attr:`ReportParams.level`).
+REPORT_LEVELS: tuple[str, ...] = ("auto", "none", "summary", "full")
 
 #: What a comparison does with mesh surface inside another closed part of the same mesh.
 HIDDEN_SURFACE = ("drop", "keep")
@@ -113,6 +118,13 @@ class ReportParams:
     profile_bin_m : float, optional
         Height of the occlusion profile's slices (m); default a round height giving about
         20 slices (:func:`treesim.report.profile.auto_bin_m`).
+    level : {"auto", "full", "summary", "none"}
+        Which reports a run draws (``--report``): ``full`` every page and PNG plot;
+        ``summary`` every page with its figures, tables and 3D view but no PNG plot (as
+        ``plots = false``); ``none`` no comparison report, only ``run.json`` and a run
+        page of tables. ``auto``: ``full`` for one run (``treesim run``, ``demo``),
+        ``summary`` for each tree of a batch and each point of a sweep (drawing was most
+        of their time). No level changes a figure of the run.
     """
 
     max_view_points: int = param(40_000, help="points per data set in the 3D view", ge=1)
@@ -127,6 +139,29 @@ class ReportParams:
         none_means="a round height giving about 20 slices",
         gt=0,
     )
+    level: ReportLevel = param(
+        "auto",
+        help="which reports to draw: full (every page and plot), summary (pages, figures "
+        "and 3D views, no PNG plots), none (run.json and a page of tables); auto: full "
+        "for one run, summary for each tree of a batch or point of a sweep",
+        choices=REPORT_LEVELS,
+        flag="--report-level",  # run, batch and sweep name it --report (compare's is a switch)
+    )
 
     def __post_init__(self) -> None:
         check_bounds(self)
+
+    def resolved(self, auto: str = "full") -> str:
+        """The level drawn: :attr:`level`, with ``auto`` read as ``auto`` (``"full"``
+        for one run, ``"summary"`` for a batch's tree or a sweep's point) and ``plots =
+        false`` lowering ``full`` to ``summary``.
+
+        Examples
+        --------
+        >>> ReportParams(level="auto").resolved("summary")
+        'summary'
+        >>> ReportParams(plots=False).resolved()
+        'summary'
+        """
+        level = auto if self.level == "auto" else self.level
+        return "summary" if level == "full" and not self.plots else level

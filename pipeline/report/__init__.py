@@ -35,7 +35,14 @@ from .html import build_html
 from .profile import occlusion_profile
 from .text import exactness_note, summary_paragraph
 
-__all__ = ["PNG_FILES", "ReportData", "ReportParams", "build_report", "summary_paragraph"]
+__all__ = [
+    "PNG_FILES",
+    "ReportData",
+    "ReportParams",
+    "build_report",
+    "remove_report",
+    "summary_paragraph",
+]
 
 #: The PNG files a report writes, by key.
 PNG_FILES = {
@@ -136,6 +143,26 @@ def build_report(
     json_path = out / "report.json"
     write_json(json_path, report)
     return {"report_json": json_path, "report_html": html_path, **pngs}
+
+
+def remove_report(folder: str | Path) -> list[Path]:
+    """Remove a report that :func:`build_report` wrote into ``folder`` (``report.json``,
+    ``report.html``, the PNG plots), so that no stale report stays beside a comparison
+    that a run chose not to report (``report.level = "none"``). Returns what it removed.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> ts.report.remove_report("out/run/vs_mesh")  # doctest: +SKIP
+    []
+    """
+    gone = []
+    for name in ("report.json", "report.html", *PNG_FILES.values()):
+        p = Path(folder) / name
+        if p.is_file():
+            p.unlink()
+            gone.append(p)
+    return gone
 
 
 def _draw(

@@ -87,6 +87,44 @@ def _new_figure(w: float, h: float) -> Any:
     return fig
 
 
+def _fixed_figure(w: float, h: float) -> Any:
+    """A figure laid out by :func:`_grid`'s fixed margins: a report's plots have known
+    labels, and the constrained layout's solver cost about half of their drawing time."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w, h))
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _grid(
+    fig: Any,
+    rows: int,
+    cols: int,
+    *,
+    margins_in: tuple[float, float, float, float],
+    wgap_in: float = 0.0,
+    hgap_in: float = 0.0,
+    **kw: Any,
+) -> Any:
+    """``fig.subplots(rows, cols)`` inside fixed margins (left, right, bottom, top) and
+    gaps between panels, all in inches."""
+    w, h = fig.get_size_inches()
+    left, right, bottom, top = margins_in
+    avg_w = max((w - left - right - (cols - 1) * wgap_in) / cols, 0.1)
+    avg_h = max((h - bottom - top - (rows - 1) * hgap_in) / rows, 0.1)
+    grid = {
+        "left": left / w,
+        "right": 1.0 - right / w,
+        "bottom": bottom / h,
+        "top": 1.0 - top / h,
+        "wspace": wgap_in / avg_w,
+        "hspace": hgap_in / avg_h,
+    }
+    return fig.subplots(rows, cols, gridspec_kw=grid, **kw)
+
+
 def _save(fig: Any, path: Path, dpi: int) -> Path:
     fig.savefig(path, dpi=dpi, metadata={"Software": None})
     return path
@@ -129,8 +167,8 @@ def histograms(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
         ),
     ]
     with matplotlib.rc_context(_RC):
-        fig = _new_figure(11.0, 3.7)
-        axes = fig.subplots(1, 2)
+        fig = _fixed_figure(11.0, 3.7)
+        axes = _grid(fig, 1, 2, margins_in=(0.7, 0.15, 0.5, 0.55), wgap_in=0.85)
         for ax, (title, d, st, colour, ylabel) in zip(axes, panels, strict=True):
             d = np.asarray(d, dtype=np.float64)
             top = float(st["p99_m"] or 0.0)
@@ -202,8 +240,8 @@ def cumulative(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
     unit, k = unit_for(xmax)
     probs = np.linspace(0.0, 1.0, 1001)
     with matplotlib.rc_context(_RC):
-        fig = _new_figure(11.0, 3.9)
-        ax = fig.subplots()
+        fig = _fixed_figure(11.0, 3.9)
+        ax = _grid(fig, 1, 1, margins_in=(0.7, 0.15, 0.5, 0.35))
         for name, d, colour in (
             (f"accuracy (cloud → {ref})", data.cloud_distance_m, ACCURACY_COLOUR),
             (f"completeness ({ref} → cloud)", data.reference_distance_m, COMPLETENESS_COLOUR),
@@ -229,6 +267,72 @@ def _subsample(n: int, cap: int, seed: int) -> np.ndarray:
     if n <= cap:
         return np.arange(n)
     return np.sort(np.random.default_rng(seed).choice(n, size=cap, replace=False))
+
+
+def _dot_px(n: int, area_pt2: float, clip: tuple[float, float], dpi: int) -> float:
+    """Side (pixels) of one point's cell in an aggregated view of ``n`` points: the
+    diameter of a scatter marker of ``area_pt2 / n`` points² (within ``clip``) at ``dpi``,
+    at least one pixel. Sparse clouds get larger cells, as they got larger markers."""
+    size_pt2 = float(np.clip(area_pt2 / max(n, 1), *clip))
+    return max(1.0, float(np.sqrt(size_pt2)) * dpi / 72.0)
+
+
+#: A raster panel: x0, x1, y0, y1 (data units, display frame) and its cells nx, ny.
+RasterBox = tuple[float, float, float, float, int, int]
+
+
+def _panel_box(
+    lo: np.ndarray, hi: np.ndarray, i: int, j: int, w_px: float, h_px: float, dot_px: float
+) -> RasterBox:
+    """The cells of one view (axes ``i``, ``j`` of the points' box ``lo``-``hi``) drawn
+    about ``w_px`` × ``h_px`` pixels large: square cells of ``dot_px`` pixels, centred
+    on the data."""
+    ext_i, ext_j = float(hi[i] - lo[i]), float(hi[j] - lo[j])
+    cell = max(ext_i / max(w_px, 1.0), ext_j / max(h_px, 1.0), 1e-12) * dot_px
+    nx, ny = max(1, int(np.ceil(ext_i / cell))), max(1, int(np.ceil(ext_j / cell)))
+    cx, cy = 0.5 * float(hi[i] + lo[i]), 0.5 * float(hi[j] + lo[j])
+    return (
+        cx - 0.5 * nx * cell,
+        cx + 0.5 * nx * cell,
+        cy - 0.5 * ny * cell,
+        cy + 0.5 * ny * cell,
+        nx,
+        ny,
+    )
+
+
+def _axes_px(ax: Any, dpi: int) -> tuple[float, float]:
+    """Width and height (pixels at ``dpi``) of the box laid out for ``ax``."""
+    pos = ax.get_position()
+    w_in, h_in = ax.figure.get_size_inches()
+    return pos.width * w_in * dpi, pos.height * h_in * dpi
+
+
+def _cells(u: np.ndarray, v: np.ndarray, box: RasterBox) -> np.ndarray:
+    """Flat cell index (row-major, row 0 at the bottom) of each point ``(u, v)``."""
+    x0, x1, y0, y1, nx, ny = box
+    ix = np.clip(((u - x0) * (nx / (x1 - x0))).astype(np.int64), 0, nx - 1)
+    iy = np.clip(((v - y0) * (ny / (y1 - y0))).astype(np.int64), 0, ny - 1)
+    return iy * nx + ix
+
+
+def _max_raster(u: np.ndarray, v: np.ndarray, values: np.ndarray, box: RasterBox) -> np.ndarray:
+    """The largest of ``values`` per cell of ``box`` ((ny, nx), ``-inf`` where no point
+    falls): what a scatter drawing the largest values last shows on top."""
+    out = np.full(box[4] * box[5], -np.inf)
+    np.maximum.at(out, _cells(u, v, box), values)
+    return out.reshape(box[5], box[4])
+
+
+def _count_raster(u: np.ndarray, v: np.ndarray, box: RasterBox) -> np.ndarray:
+    """Points per cell of ``box`` ((ny, nx))."""
+    return np.bincount(_cells(u, v, box), minlength=box[4] * box[5]).reshape(box[5], box[4])
+
+
+def _show_raster(ax: Any, rgba: np.ndarray, box: RasterBox) -> None:
+    """Draw an aggregated view (RGBA cells, transparent where empty) over ``box``."""
+    x0, x1, y0, y1, _, _ = box
+    ax.imshow(rgba, extent=(x0, x1, y0, y1), origin="lower", interpolation="antialiased", zorder=1)
 
 
 def _view_layout(
@@ -274,40 +378,43 @@ def views(
         Scanner positions drawn in the top view.
     """
     import matplotlib
+    from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
     idx = _subsample(len(points), max_points, seed)
     p = np.asarray(points, dtype=np.float64)[idx] - origin
     d = np.asarray(distance_m, dtype=np.float64)[idx]
-    order = np.argsort(d, kind="stable")  # largest distances drawn last, on top
-    p, d = p[order], d[order]
     lo, hi = p.min(axis=0), p.max(axis=0)
     ext = np.maximum(hi - lo, 1e-6 + 1e-3 * float((hi - lo).max()))
-    ratios, panel_h, width = _view_layout(ext, 4.6, 1.4, 13.0)
+    ratios, panel_h, width = _view_layout(ext, 4.5, 3.1, 13.0)
+    pad = 0.02 * float(ext.max())  # the outermost cells clear of the frame
+    lo, hi = lo - pad, hi + pad
     unit, k = unit_for(vmax_m)
     norm = Normalize(0.0, vmax_m * k)
-    size = float(np.clip(25_000 / max(len(p), 1), 0.15, 6.0))
+    colours = cmap()
+    dot_px = _dot_px(len(p), 25_000, (0.15, 6.0), dpi)
     offs = "" if not np.any(origin) else " − origin"
     with matplotlib.rc_context({**_RC, "axes.grid": False}):
-        fig = _new_figure(width, panel_h + 0.9)
-        axes = fig.subplots(1, 3, width_ratios=list(ratios))
+        fig = _fixed_figure(width, panel_h + 1.1)
+        axes = _grid(
+            fig,
+            1,
+            3,
+            margins_in=(0.7, 1.05, 0.5, 0.6),
+            wgap_in=0.75,
+            width_ratios=list(ratios),
+        )
         specs = (
             (0, 2, "side view (looking along +y)", "x", "z"),
             (1, 2, "side view (looking along −x)", "y", "z"),
             (0, 1, "top view", "x", "y"),
         )
-        sc = None
         for ax, (i, j, name, xl, yl) in zip(axes, specs, strict=True):
-            sc = ax.scatter(
-                p[:, i],
-                p[:, j],
-                c=d * k,
-                s=size,
-                cmap=cmap(),
-                norm=norm,
-                linewidths=0,
-                rasterized=True,
-            )
+            box = _panel_box(lo, hi, i, j, *_axes_px(ax, dpi), dot_px)
+            top = _max_raster(p[:, i], p[:, j], d * k, box)
+            rgba = colours(norm(np.nan_to_num(top, neginf=0.0)))
+            rgba[..., 3] = np.isfinite(top)  # empty cells stay white
+            _show_raster(ax, rgba, box)
             ax.set_aspect("equal", adjustable="datalim")
             ax.set_xlabel(f"{xl}{offs} (m)")
             ax.set_ylabel(f"{yl}{offs} (m)")
@@ -317,8 +424,13 @@ def views(
                 spine.set_color("#cbd2d9")
         if stations:
             _draw_stations(axes[2], stations, origin, lo[:2], hi[:2])
-        assert sc is not None
-        cb = fig.colorbar(sc, ax=list(axes), extend="max", shrink=0.85, pad=0.01, aspect=30)
+        sc = ScalarMappable(norm=norm, cmap=colours)
+        w_in, h_in = fig.get_size_inches()
+        y0, y1 = 0.5 / h_in, 1.0 - 0.6 / h_in
+        cax = fig.add_axes(
+            (1.0 - 0.9 / w_in, y0 + 0.075 * (y1 - y0), 0.14 / w_in, 0.85 * (y1 - y0))
+        )
+        cb = fig.colorbar(sc, cax=cax, extend="max")
         cb.set_label(f"{colour_label} ({unit})")
         if tau_m is not None and tau_m <= vmax_m:
             cb.ax.axhline(tau_m * k, color="#b83232", lw=2.0)
@@ -400,8 +512,10 @@ def coverage_bars(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
     with matplotlib.rc_context(_RC):
         n_panels = 2 if labels else 1
         width = 3.2 + 0.55 * (len(stations) + 1) + (2.0 + 0.6 * len(labels) if labels else 0.0)
-        fig = _new_figure(min(max(width, 5.5), 11.0), 3.6)
-        axes = np.atleast_1d(fig.subplots(1, n_panels, width_ratios=None))
+        fig = _fixed_figure(min(max(width, 5.5), 11.0), 3.6)
+        axes = np.atleast_1d(
+            _grid(fig, 1, n_panels, margins_in=(0.7, 0.15, 0.55, 0.35), wgap_in=0.85)
+        )
         names = ["all"] + [f"S{key}" for key in stations]
         values = [s["coverage"]] + [v["coverage"] for v in stations.values()]
         colours = ["#1f2933"] + [COMPLETENESS_COLOUR] * len(stations)
@@ -450,8 +564,8 @@ def occlusion_profile(
     names = ["all", *profile["stations"]]
     dens = profile.get("density_per_m2")
     with matplotlib.rc_context(_RC):
-        fig = _new_figure(11.0, 4.6)
-        ax_c, ax_d = fig.subplots(1, 2, sharey=True)
+        fig = _fixed_figure(11.0, 4.6)
+        ax_c, ax_d = _grid(fig, 1, 2, margins_in=(0.7, 0.15, 0.5, 0.35), wgap_in=0.3, sharey=True)
         for i, name in enumerate(names):
             whole = name == "all"
             colour = "#1f2933" if whole else STATION_COLOURS[(i - 1) % len(STATION_COLOURS)]
@@ -513,6 +627,7 @@ def clouds_side_by_side(
         Subtracted for display.
     """
     import matplotlib
+    from matplotlib.colors import to_rgba
 
     shown = []
     for i, (name, pts, colour) in enumerate(clouds):
@@ -523,17 +638,34 @@ def clouds_side_by_side(
     pad = 0.03 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
     ext = np.maximum(hi - lo, 1e-6)
-    ratios, panel_h, width = _view_layout(ext, 3.6, 0.8, 12.0)
+    ratios, panel_h, width = _view_layout(ext, 3.5, 2.6, 12.0)
     specs = ((0, 2, "side view (along +y)"), (1, 2, "side view (along −x)"), (0, 1, "top view"))
     axis = "xyz"
     offs = "" if not np.any(origin) else " − origin"
     with matplotlib.rc_context({**_RC, "axes.grid": False}):
-        fig = _new_figure(width, (panel_h + 0.5) * len(shown))
-        axes = np.atleast_2d(fig.subplots(len(shown), 3, width_ratios=list(ratios)))
+        fig = _fixed_figure(width, (panel_h + 0.75) * len(shown))
+        axes = np.atleast_2d(
+            _grid(
+                fig,
+                len(shown),
+                3,
+                margins_in=(1.3, 0.1, 0.45, 0.3),
+                wgap_in=0.6,
+                hgap_in=0.75,
+                width_ratios=list(ratios),
+            )
+        )
         for row, (name, p, colour, n) in zip(axes, shown, strict=True):
-            size = float(np.clip(12_000 / max(len(p), 1), 0.1, 4.0))
+            dot_px = _dot_px(len(p), 12_000, (0.1, 4.0), dpi)
+            rgb = to_rgba(colour)
             for ax, (i, j, view) in zip(row, specs, strict=True):
-                ax.scatter(p[:, i], p[:, j], s=size, c=colour, linewidths=0, rasterized=True)
+                box = _panel_box(lo, hi, i, j, *_axes_px(ax, dpi), dot_px)
+                count = _count_raster(p[:, i], p[:, j], box)
+                rgba = np.empty((*count.shape, 4))
+                rgba[...] = rgb
+                # one point: a light dot; three or more: the full colour (depth read as density)
+                rgba[..., 3] = np.clip(0.45 + 0.275 * (count - 1), 0.0, 1.0) * (count > 0)
+                _show_raster(ax, rgba, box)
                 ax.set_xlim(lo[i], hi[i])
                 ax.set_ylim(lo[j], hi[j])
                 ax.set_aspect("equal", adjustable="box")

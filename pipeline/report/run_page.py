@@ -153,15 +153,21 @@ def clouds_section(s: dict[str, Any]) -> str:
     return (
         '<h2 id="clouds">Field and simulated clouds</h2>'
         '<p class="muted">Both clouds in the same views on the same axes; densities over the '
-        f"reconstructed mesh's surface ({cell(area, ' m²')}). The occlusion profile of "
-        '<a href="vs_field/report.html#occlusion">the comparison with the field cloud</a> '
-        "sets their densities side by side by height.</p>"
+        f"reconstructed mesh's surface ({cell(area, ' m²')})."
+        + (
+            " The occlusion profile of "
+            '<a href="vs_field/report.html#occlusion">the comparison with the field cloud</a> '
+            "sets their densities side by side by height."
+            if report_level(s) != "none"
+            else ""
+        )
+        + "</p>"
         "<table><tr><th></th><th>field cloud</th><th>simulated cloud</th>"
         f"<th>simulated / field</th></tr>{body}</table>"
         + (
             f'<img src="{html.escape(c["figure"])}" alt="field and simulated clouds, same views">'
             if c.get("figure")
-            else '<p class="note">views not drawn (report.plots = false)</p>'
+            else f'<p class="note">views not drawn ({_level_note(s)})</p>'
         )
     )
 
@@ -261,7 +267,7 @@ def _table(rows: list[tuple[str, str]]) -> str:
 def _comparison_cards(s: dict[str, Any]) -> str:
     """Both comparisons side by side: summary, figures, links and a view each."""
     esc = html.escape
-    plotted = s["parameters"]["report"].get("plots", True)
+    level = report_level(s)
     cards = []
     for key, title, what, view in (
         (
@@ -287,17 +293,32 @@ def _comparison_cards(s: dict[str, Any]) -> str:
                 if trivially_exact(s[key])
                 else ""
             )
-            + f"<table>{_cmp_rows(s[key])}</table>"
-            f'<p><a href="{key}/report.html">full report</a> · '
-            f'<a href="{key}/comparison.json">comparison.json</a></p>'
+            + f"<table>{_cmp_rows(s[key])}</table><p>"
+            + (f'<a href="{key}/report.html">full report</a> · ' if level != "none" else "")
+            + f'<a href="{key}/comparison.json">comparison.json</a></p>'
             + (
                 f'<a href="{key}/report.html"><img src="{key}/{view}" alt="distances ({key})"></a>'
-                if plotted
-                else '<p class="note">views not drawn (report.plots = false)</p>'
+                if level == "full"
+                else f'<p class="note">views not drawn ({_level_note(s)})</p>'
             )
             + "</div>"
         )
     return "".join(cards)
+
+
+def report_level(s: dict[str, Any]) -> str:
+    """The reports a run drew (``run.json``'s ``report_level``; an older run.json says
+    only whether it drew plots)."""
+    if "report_level" in s:
+        return str(s["report_level"])
+    return "full" if s["parameters"]["report"].get("plots", True) else "summary"
+
+
+def _level_note(s: dict[str, Any]) -> str:
+    level = report_level(s)
+    if level == "full":  # plots = false under an older run.json
+        return "report.plots = false"
+    return f"--report {level}"
 
 
 def run_page(s: dict[str, Any], version: str, viewer: dict[str, Any] | None = None) -> str:

@@ -133,6 +133,23 @@ def _colours(trees: list[str]) -> dict[str, str]:
 
 
 # -- accuracy against time -------------------------------------------------------------------
+#: The x axis of the fronts by the sweep's time key (``sweep.json``'s ``time``).
+TIME_LABELS = {
+    "time_science_s": "time of the loop without reports (s)",
+    "time_total_s": "time of the loop (s)",
+}
+
+
+def _time_key(doc: dict[str, Any]) -> str:
+    """The time the sweep's fronts are drawn against: its ``time`` (the loop without
+    drawing reports since treesim 0.2; an older sweep's whole loop)."""
+    key = doc.get("time", "time_total_s")
+    rows = [r for r in doc.get("rows", []) if r.get("status") == "ok"]
+    if key not in TIME_LABELS or any(r.get(key) is None for r in rows):
+        return "time_total_s"
+    return key
+
+
 def _front_row_png(
     doc: dict[str, Any], key: str, ok: list[dict[str, Any]], trees: list[str]
 ) -> str | None:
@@ -156,9 +173,11 @@ def _front_row_png(
         axes = fig.subplots(1, max(len(panels), 2), squeeze=False)[0]
         for ax in axes[len(panels) :]:
             ax.set_visible(False)
+        tk = _time_key(doc)
         for ax, (t, real, mine, front) in zip(axes, panels, strict=False):
-            x = [r["time_total_s"] for r in mine]
+            x = [r[tk] for r in mine]
             y = [_value(r, real, meta) for r in mine]
+            # the repeats' spread of the whole loop, about the point's mean
             lo = [
                 r["time_total_s"] - (r.get("time_total_min_s") or r["time_total_s"]) for r in mine
             ]
@@ -169,7 +188,7 @@ def _front_row_png(
                 ax.errorbar(x, y, xerr=[lo, hi], fmt="none", ecolor="#b8c2cc", lw=0.8, zorder=1)
             ax.scatter(x, y, s=16, color=colours[t], alpha=0.55, lw=0, zorder=2, label="points")
             fr = sorted(
-                ((r["time_total_s"], _value(r, real, meta)) for r in mine if r["id"] in front),
+                ((r[tk], _value(r, real, meta)) for r in mine if r["id"] in front),
                 key=lambda p: p[0],
             )
             if fr:
@@ -189,7 +208,7 @@ def _front_row_png(
                 if r.get("label"):
                     ax.annotate(
                         r["label"],
-                        (r["time_total_s"], _value(r, real, meta)),
+                        (r[tk], _value(r, real, meta)),
                         xytext=(4, 4),
                         textcoords="offset points",
                         fontsize=8,
@@ -201,7 +220,7 @@ def _front_row_png(
                 else ("field cloud" if real.startswith("vs_field") else "")
             )
             ax.set_title(f"{t}" + (f" (vs {word})" if key.startswith("ref_") else ""))
-            ax.set_xlabel("time of the loop (s)")
+            ax.set_xlabel(TIME_LABELS[tk])
             ax.set_ylabel(f"{unit}" if unit else "")
         axes[0].legend(loc="best", fontsize=8)
         fig.suptitle(
@@ -365,6 +384,8 @@ def _table(doc: dict[str, Any], rows: list[dict[str, Any]], front_ids: set[str])
     cols: list[tuple[str, str]] = [
         ("time_total_s", "time s"),
         ("time_total_sd_s", "sd s"),
+        ("time_science_s", "no reports s"),
+        ("time_report_s", "reports s"),
         ("peak_rss_mib", "peak MiB"),
         ("points", "points"),
         ("rays", "rays"),

@@ -158,7 +158,8 @@ def run_point(task: dict[str, Any]) -> dict[str, Any]:
         raise RuntimeError("the point's settings changed on their way to its process")
     params = params.with_threads(int(task["threads"]))
     out = Path(task["outdir"])
-    res = run_tree(task["cloud"], params, out, name=task["name"])
+    # report.level auto: the point's pages without plots (its figures are run.json's)
+    res = run_tree(task["cloud"], params, out, name=task["name"], report_auto="summary")
     peak = peak_rss_mib()
     result: dict[str, Any] = {
         "kind": "treesim.sweep_point",
