@@ -151,6 +151,12 @@ class PlotTree:
         >= 1, unique in the plot: the ``tree_id`` of its points in a scan.
     x_m, y_m : float
         Stem base position in the plot's frame.
+    z_m : float, optional
+        Stem base height in the plot's frame. Default: on the terrain, at its lowest
+        point under the stem's footprint. A tree whose source already stands where it
+        grew (a twin's QSM, on the field cloud's own terrain) gives it, so that the
+        plot does not seat it again: re-seated on a 15° slope, twin trees were lifted by
+        up to 21 cm and their crowns missed the field scan's points.
     rotation_deg : float
         Turn about the vertical through the stem base, counter-clockwise.
     source : {"species", "mesh", "qsm", "cloud"}
@@ -188,6 +194,7 @@ class PlotTree:
     tree_id: int
     x_m: float
     y_m: float
+    z_m: float | None = None
     rotation_deg: float = 0.0
     source: str = "species"
     species: str | None = None
@@ -207,6 +214,8 @@ class PlotTree:
             raise InvalidParameterError(f"tree_id must be in [1, {MAX_TREE_ID}], got {tid}")
         for name in ("x_m", "y_m", "rotation_deg"):
             finite(f"tree {tid}: {name}", getattr(self, name))
+        if self.z_m is not None:
+            finite(f"tree {tid}: z_m", self.z_m)
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise InvalidParameterError(f"tree {tid}: scale must be > 0, got {self.scale!r}")
         if self.source not in TREE_SOURCES:
@@ -406,8 +415,11 @@ class Plot:
         return out
 
     def base_z(self, t: PlotTree, placed: np.ndarray | None = None) -> float:
-        """Height of the tree's stem base: the terrain's lowest point within the stem's
-        footprint (its vertices within 5 cm of its base height), or at its position."""
+        """Height of the tree's stem base: its ``z_m`` where given, else the terrain's
+        lowest point within the stem's footprint (its vertices within 5 cm of its base
+        height), or at its position."""
+        if t.z_m is not None:
+            return float(t.z_m)
         if placed is None:
             return float(self.terrain.height_at(t.x_m, t.y_m))
         low = placed[:, 2] <= placed[:, 2].min() + 0.05

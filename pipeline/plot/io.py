@@ -59,6 +59,7 @@ TREE_COLUMNS = (
     "tree_id",
     "x_m",
     "y_m",
+    "z_m",
     "rotation_deg",
     "source",
     "species",
@@ -75,7 +76,7 @@ _PATHS = ("path", "field_cloud")
 _PLOT_KEYS = {"radius_m", "centre_xy", "facets", "terrain_cell_m", "trees", "terrain", "stand"}
 _TERRAIN_KEYS = {"kind", "z0_m", "slope_deg", "aspect_deg", "path"}
 _INT = {"tree_id", "seed"}
-_FLOAT = {"x_m", "y_m", "rotation_deg", "scale", "dbh_m", "height_m"}
+_FLOAT = {"x_m", "y_m", "z_m", "rotation_deg", "scale", "dbh_m", "height_m"}
 
 
 def _tree_from_row(row: dict[str, Any], where: str) -> PlotTree:

@@ -400,6 +400,9 @@ def _twin_trees(
                 tree_id=int(r["tree_id"]),
                 x_m=float(base[0]),
                 y_m=float(base[1]),
+                # the table stands where the tree grew (its foot on the DTM): placed as
+                # it is, not seated on the terrain again
+                z_m=float(base[2]),
                 source="qsm",
                 path=table_path,
                 # the figures measured in the field cloud (the QSM's are in from_cloud.json)

@@ -46,6 +46,28 @@ def test_mesh_tree_stands_its_stem_base_on_its_position(tmp_path):
     assert t["height_m"] == pytest.approx(3.0) and t["dbh_m"] is None
 
 
+def test_a_tree_with_a_base_height_stands_there_not_on_the_terrain(tmp_path):
+    """``z_m`` puts the stem base at that height (a twin's QSM stands where its field
+    cloud put it); without it the tree is seated on the terrain. On a 15° slope the
+    post's footprint spans 0.4 m, so the terrain's lowest point under it lies
+    0.2 tan(15°) below the terrain at its position: a seated twin tree was lifted."""
+    _box_mesh(tmp_path / "post.ply", (99.8, 199.9, 50.0), (100.2, 200.1, 53.0))
+    ter = Terrain(kind="slope", z0_m=2.0, slope_deg=15.0, aspect_deg=90.0)
+    trees = [
+        PlotTree(tree_id=1, x_m=1.0, y_m=-2.0, source="mesh", path="post.ply"),
+        PlotTree(tree_id=2, x_m=1.0, y_m=-2.0, z_m=-0.25, source="mesh", path="post.ply"),
+    ]
+    plot = Plot(trees, terrain=ter, base_dir=str(tmp_path))
+    seated, given = plot.tree_bounds(1), plot.tree_bounds(2)
+    lowest = min(float(ter.height_at(x, y)) for x in (0.8, 1.2) for y in (-2.1, -1.9))
+    assert seated[0, 2] == pytest.approx(lowest, abs=1e-9)
+    assert given[0, 2] == pytest.approx(-0.25, abs=1e-12)
+    assert given[1, 2] == pytest.approx(2.75, abs=1e-12)
+    np.testing.assert_allclose(given[:, :2], seated[:, :2], atol=1e-12)
+    with pytest.raises(InvalidParameterError, match="z_m"):
+        PlotTree(tree_id=3, x_m=0.0, y_m=0.0, z_m=float("nan"))
+
+
 def test_qsm_tree_is_meshed_and_its_truth_is_its_table():
     from treesim.models import read_cylinders
 
@@ -166,6 +188,7 @@ def test_plot_files_round_trip(tmp_path):
         PlotTree(tree_id=3, x_m=1.0 / 3, y_m=-2.5, rotation_deg=12.5, species="aspen", seed=7,
                  dbh_m=0.3, height_m=17.25, leaves=False),
         PlotTree(tree_id=9, x_m=4.0, y_m=0.1, source="qsm", path="q.csv", scale=1.1),
+        PlotTree(tree_id=11, x_m=-4.0, y_m=0.2, z_m=0.1 + 0.2, source="qsm", path="q.csv"),
     ]  # fmt: skip
     plot = Plot(
         trees,
@@ -183,7 +206,7 @@ def test_plot_files_round_trip(tmp_path):
         back = read_plot(out.parent)
         # the paths on their own: the species tree has none, the QSM tree's is written
         # relative to the plot's folder ("q.csv" was relative to "a") and names the same file
-        synthetic, qsm = back.trees
+        synthetic, qsm, _ = back.trees
         assert synthetic.path is None
         assert qsm.path == "../a/q.csv"
         assert (out.parent / qsm.path).resolve() == (tmp_path / "a" / "q.csv").resolve()

@@ -12,24 +12,20 @@ import pytest
 
 import treesim as ts
 from treesim.errors import InputFormatError
+from treesim.models import read_cylinders
 from treesim.plot.scan import read_stations
 from treesim.twin import TwinParams, plot_from_cloud
 
-from .field_plot import make_field_plot
+from .field_plot import small_field_plot
 
 #: Acceptance (issue 23): DBH within 1 cm.
 DBH_M = 0.01
 
 
-def _small_plot(tmp_path: Path, **kw):
-    return make_field_plot(
-        tmp_path, n_trees=4, radius_m=5.0, n_stations=2, resolution_deg=0.25, facets=16, **kw
-    )
-
-
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    return _small_plot(tmp_path_factory.mktemp("small"), slope_deg=10.0)
+    """The small field plot (``field_plot.SMALL_PLOT``), made once per test run."""
+    return small_field_plot(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +50,11 @@ def test_from_cloud_writes_a_twin_that_reads_and_scans(small, twin) -> None:
         # the twin's tree stands where a true tree stands
         assert np.linalg.norm(true_xy - [tree.x_m, tree.y_m], axis=1).min() < 0.15
         assert plot.tree_bounds(tree.tree_id)[1, 2] > plot.tree_bounds(tree.tree_id)[0, 2] + 2
+        # ... exactly where its table stands (on the field cloud's terrain): the plot
+        # places it as it is, not re-seated on the slope (that lifted crowns off the
+        # field scan's points by up to 21 cm)
+        written = read_cylinders(out / tree.path)
+        np.testing.assert_allclose(plot.tree_table(tree.tree_id).start, written.start, atol=1e-9)
     if small.e57 is not None:
         stations = read_stations(small.e57, plot)
         assert np.allclose([s.position_m for s in stations], small.stations)
