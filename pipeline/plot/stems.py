@@ -67,6 +67,14 @@ LOW_HAG_M = 2.0
 LOW_REACH_M = 1.5
 #: Graph edges join voxels whose centres are at most this many voxel sizes apart.
 LINK_VOXELS = 1.8
+#: A part of the canopy no stem reaches through the graph (a leader or a branch tip seen
+#: in pieces, with gaps wider than the links) goes to the tree whose voxels are nearest,
+#: within this distance (m, horizontal parts counted ``sideways_factor`` times), when it
+#: lies wholly above :data:`LOW_HAG_M`: sparse tops were left out, and the twins of a
+#: generated plot stood 1-5 m short of their trees.
+FRAGMENT_REACH_M = 1.0
+#: Rounds of joining fragments (a fragment joined in one round can reach the next).
+FRAGMENT_ROUNDS = 8
 #: A tree's height is its highest point with at least this many of its points ...
 TOP_SUPPORT = 3
 #: ... at most this far below it (m): isolated points (a bird, noise) are not the top.
@@ -668,6 +676,7 @@ def segment_trees(
         graph, directed=False, indices=seeds, min_only=True, return_predecessors=True
     )
     vlab = np.where(src >= 0, seed_of[np.maximum(src, 0)] + 1, 0).astype(np.int32)
+    _join_fragments(vlab, graph, centre, vh, float(sideways_factor))
     lab = vlab[inv]
     low = (lab > 0) & (h[use] < LOW_HAG_M)
     li = np.flatnonzero(low)
@@ -676,6 +685,42 @@ def segment_trees(
     labels[use] = lab
     _label_feet(labels, pts - origin, h, gmask, base, slope, radius)
     return labels
+
+
+def _join_fragments(
+    vlab: np.ndarray, graph: sparse.csr_matrix, centre: np.ndarray, vh: np.ndarray, sideways: float
+) -> None:
+    """Give the canopy's unreached components (in ``vlab``, in place) to the nearest
+    tree (see :data:`FRAGMENT_REACH_M`), nearest first, over several rounds."""
+    free = np.flatnonzero(vlab == 0)
+    if len(free) == 0 or not (vlab > 0).any():
+        return
+    sub = graph[free][:, free]
+    n_comp, comp = connected_components(sub, directed=False)
+    low = np.full(n_comp, np.inf)
+    np.minimum.at(low, comp, vh[free])
+    keep = low[comp] >= LOW_HAG_M
+    free, comp = free[keep], comp[keep]
+    scale = np.array([sideways, sideways, 1.0])
+    for _ in range(FRAGMENT_ROUNDS):
+        if len(free) == 0:
+            return
+        owned = np.flatnonzero(vlab > 0)
+        d, j = cKDTree(centre[owned] * scale).query(
+            centre[free] * scale, distance_upper_bound=FRAGMENT_REACH_M
+        )
+        hit = np.isfinite(d)
+        if not hit.any():
+            return
+        # each component takes the label of its voxel nearest to a tree
+        best = np.full(comp.max() + 1, np.inf)
+        np.minimum.at(best, comp[hit], d[hit])
+        first = hit & (d == best[comp])
+        label_of = np.zeros(comp.max() + 1, np.int32)
+        label_of[comp[first]] = vlab[owned[j[first]]]
+        joined = label_of[comp] > 0
+        vlab[free[joined]] = label_of[comp[joined]]
+        free, comp = free[~joined], comp[~joined]
 
 
 def _nearest_axis(xy, h, base, slope, radius) -> tuple[np.ndarray, np.ndarray]:

@@ -56,7 +56,8 @@ def _frame(lean_deg: float, az: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def _stem_points(rng, base, a, u, v, r13, height, density=1000.0):
-    """Bark seen from the stations (outward normal facing one), 3 mm noise; and a leader."""
+    """Bark seen from the stations (outward normal facing one), 3 mm noise; and a leader
+    in pieces."""
     t_top = 0.9 * height
     n = int(density * 2 * math.pi * r13 * 0.8 * (t_top + 0.3))
     t = rng.uniform(-0.3, t_top, n)
@@ -66,7 +67,11 @@ def _stem_points(rng, base, a, u, v, r13, height, density=1000.0):
     p = base + t[:, None] * a + r[:, None] * nrm
     st = np.array([[x, y, _ground_z(np.array([x, y])) + 1.5] for x, y in STATIONS_XY])
     seen = (np.einsum("nk,mnk->mn", nrm, st[:, None, :] - p[None, :, :]) > 0).any(axis=0)
+    # the leader seen in pieces (the needles and twigs around it hide the rest): 15 cm
+    # seen, 45 cm hidden, wider gaps than the tree graph's links (the real scans' sparse
+    # tops were left out of their trees)
     tl = np.arange(t_top, height, 0.01)
+    tl = tl[(tl - t_top) % 0.6 < 0.15]
     leader = base + tl[:, None] * a + rng.normal(0, 0.005, (len(tl), 3))
     return p[seen], leader
 
