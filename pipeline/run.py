@@ -49,6 +49,7 @@ from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
+from .report.background import BackgroundDrawer, draw_report
 from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
@@ -338,53 +339,74 @@ def run_tree(
     threads = int(params.threads) or cpu_count()
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
-
-    # -- read ------------------------------------------------------------------------------
-    ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
-    say(0.0, "reading")
-    t0 = time.perf_counter()
-    field_cloud, inputs, name = _read_field_cloud(cloud, out, name)
-    timings["read"] = time.perf_counter() - t0
-
-    # -- reconstruct -----------------------------------------------------------------------
-    t0 = time.perf_counter()
-    model, written = _reconstruct_stage(field_cloud, params, threads, out, say)
-    timings["reconstruct"] = time.perf_counter() - t0
-
-    # -- scan ------------------------------------------------------------------------------
-    t0 = time.perf_counter()
-    scanned = _scan_stage(model, written, params, threads, out, say)
-    timings["scan"] = time.perf_counter() - t0
-
-    # -- compare ---------------------------------------------------------------------------
-    tolerance, vs_mesh, vs_field = _compare_stage(
-        cloud, field_cloud, inputs, scanned, params, threads, out, say, timings
-    )
-
-    # -- report ----------------------------------------------------------------------------
-    say(0.72, "drawing the reports")
-    t0 = time.perf_counter()
     level = params.report.resolved(report_auto)
-    clouds, viewer = _draw_reports(
-        field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level
-    )
-    summary = _run_summary(
-        name, inputs, params, threads, model, written, tolerance, clouds, scanned, vs_mesh, vs_field
-    )
-    summary["report_level"] = level
-    if level == "none":  # no comparison report: its files go, its page's links with them
-        for key in ("vs_mesh_report", "vs_field_report"):
-            summary["files"].pop(key)
-    summary["summary_text"] = _summary_texts(out, level)
-    timings["report"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_all
-    summary["timings_s"] = timings
-    if ref_table is not None:
-        summary["reference_qsm"] = {
-            "path": _relative(reference_qsm, out),
-            **reference_qsm_figures(ref_table, model.figures),
-            "sha256": file_sha256(reference_qsm),
-        }
+    ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
+    # full reports: drawing processes forked now, drawing as soon as their inputs exist
+    with BackgroundDrawer.start() if level == "full" else BackgroundDrawer(0) as drawer:
+        # -- read --------------------------------------------------------------------------
+        say(0.0, "reading")
+        t0 = time.perf_counter()
+        field_cloud, inputs, name = _read_field_cloud(cloud, out, name)
+        timings["read"] = time.perf_counter() - t0
+
+        # -- reconstruct -------------------------------------------------------------------
+        t0 = time.perf_counter()
+        model, written = _reconstruct_stage(field_cloud, params, threads, out, say)
+        timings["reconstruct"] = time.perf_counter() - t0
+
+        # -- scan --------------------------------------------------------------------------
+        t0 = time.perf_counter()
+        scanned = _scan_stage(model, written, params, threads, out, say)
+        timings["scan"] = time.perf_counter() - t0
+
+        # -- compare -----------------------------------------------------------------------
+        tolerance, vs_mesh, vs_field = _compare_stage(
+            cloud,
+            field_cloud,
+            inputs,
+            scanned,
+            params,
+            threads,
+            out,
+            say,
+            timings,
+            on_mesh=_early_drawing(drawer, field_cloud, scanned, params, out),
+        )
+
+        # -- report ------------------------------------------------------------------------
+        say(0.72, "drawing the reports")
+        t0 = time.perf_counter()
+        clouds, viewer = _draw_reports(
+            field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level, drawer
+        )
+        summary = _run_summary(
+            name,
+            inputs,
+            params,
+            threads,
+            model,
+            written,
+            tolerance,
+            clouds,
+            scanned,
+            vs_mesh,
+            vs_field,
+        )
+        summary["report_level"] = level
+        if level == "none":  # no comparison report: its files go, its page's links with them
+            for key in ("vs_mesh_report", "vs_field_report"):
+                summary["files"].pop(key)
+        summary["summary_text"] = _summary_texts(out, level)
+        summary["report_drawing"] = {"forked": drawer.forked, "seconds": drawer.seconds}
+        timings["report"] = time.perf_counter() - t0
+        timings["total"] = time.perf_counter() - t_all
+        summary["timings_s"] = timings
+        if ref_table is not None:
+            summary["reference_qsm"] = {
+                "path": _relative(reference_qsm, out),
+                **reference_qsm_figures(ref_table, model.figures),
+                "sha256": file_sha256(reference_qsm),
+            }
     write_text(out / "report.html", run_page(summary, __version__, viewer))
     _write_json(out / "run.json", summary)
     say(1.0, "done")
@@ -533,6 +555,7 @@ def _compare_stage(
     out: Path,
     say: Progress,
     timings: dict[str, float],
+    on_mesh: Callable[[Any], None] | None = None,
 ) -> tuple[dict[str, Any], Any, Any]:
     """The compare stage: the run's τ, then the simulated cloud against the mesh it was
     scanned from (``vs_mesh/``) and against the field cloud (``vs_field/``); each one's
@@ -552,6 +575,8 @@ def _compare_stage(
     }
     write_comparison(vs_mesh, out / "vs_mesh", inputs=in_mesh, formats=(".laz",))
     timings["compare_mesh"] = time.perf_counter() - t0
+    if on_mesh is not None:  # what can be drawn now, beside the next comparison
+        on_mesh(vs_mesh)
     say(0.62, "comparing with the field cloud")
     t0 = time.perf_counter()
     vs_field = compare(scanned.cloud, field_cloud, params=cp)
@@ -579,6 +604,7 @@ def _draw_reports(
     params: RunParams,
     say: Progress,
     level: str = "full",
+    drawer: BackgroundDrawer | None = None,
 ) -> tuple[dict[str, Any], Any]:
     """Each comparison's report (drawn from the written files, so that drawing them
     again gives the same report), the clouds side by side, and the run page's viewer
@@ -593,20 +619,62 @@ def _draw_reports(
         return _clouds_side_by_side(
             field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=False
         ), None
-    rp = replace(params.report, plots=level == "full")
-    build_report(out / "vs_mesh", params=rp)
-    say(0.86, "drawing the reports")
-    build_report(out / "vs_field", params=rp)
-    clouds = _clouds_side_by_side(
-        field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=level == "full"
-    )
+    if level == "summary" or drawer is None:
+        rp = replace(params.report, plots=level == "full")
+        build_report(out / "vs_mesh", params=rp)
+        say(0.86, "drawing the reports")
+        build_report(out / "vs_field", params=rp)
+        clouds = _clouds_side_by_side(
+            field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=level == "full"
+        )
+    else:  # full: what the drawer has not drawn yet, then every piece waited for
+        if not drawer.forked:  # inline: drawn here, in the report stage's time
+            _early_drawing(drawer, field_cloud, scanned, params, out, inline=True)(vs_mesh)
+        drawer.submit("vs_field", draw_report, out / "vs_field", params.report)
+        clouds = _clouds_side_by_side(
+            field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=None
+        )
     viewer = run_viewer_payload(
         mesh_data,
         ReportData.from_comparison(vs_field),
         max_points=params.report.max_view_points,
         seed=params.report.seed,
     )
+    if drawer is not None and level == "full":
+        say(0.86, "drawing the reports")
+        clouds["figure"] = drawer.results()["clouds"]
     return clouds, viewer
+
+
+def _early_drawing(
+    drawer: BackgroundDrawer,
+    field_cloud: Cloud,
+    scanned: _Scanned,
+    params: RunParams,
+    out: Path,
+    *,
+    inline: bool = False,
+) -> Callable[[Any], None] | None:
+    """What the drawer draws once the comparison with the mesh is written (its report and
+    the clouds side by side), beside the comparison with the field cloud; None when the
+    drawer draws inline (then the report stage draws them, ``inline``)."""
+    if not (drawer.forked or inline):
+        return None
+
+    def submit(vs_mesh: Any) -> None:
+        rp = params.report
+        drawer.submit("vs_mesh", draw_report, out / "vs_mesh", rp)
+        drawer.submit(
+            "clouds",
+            draw_clouds,
+            field_cloud.points,
+            scanned.cloud.points,
+            out / "clouds.png",
+            ReportData.from_comparison(vs_mesh).origin,
+            rp,
+        )
+
+    return submit
 
 
 def _run_summary(
@@ -674,12 +742,11 @@ def _clouds_side_by_side(
     out: Path,
     params: RunParams,
     *,
-    draw: bool = True,
+    draw: bool | None = True,
 ) -> dict[str, Any]:
     """The field and simulated clouds' sizes and densities in one table, and (``draw``)
     ``clouds.png``: both in the same views on the same axes (the comparison with the
-    mesh's display origin)."""
-    from .report import figures
+    mesh's display origin); ``draw`` None: drawn apart (:func:`draw_clouds`)."""
 
     area = vs_mesh.summary["reference"].get("area_m2")
 
@@ -699,23 +766,41 @@ def _clouds_side_by_side(
             "mesh_area_m2": area,
         }
 
-    rp = params.report
     figure = out / "clouds.png"
-    if not draw or not rp.plots:  # no plots (summary, none): the table only
+    if draw is None:  # drawn apart (draw_clouds, the drawer's): the table only
+        return {**_cloud_table(), "figure": None}
+    if not draw:  # no plots (summary, none): the table only, and no stale figure
         figure.unlink(missing_ok=True)
         return {**_cloud_table(), "figure": None}
+    return {
+        **_cloud_table(),
+        "figure": draw_clouds(field.points, sim.points, figure, vs_mesh.origin, params.report),
+    }
+
+
+def draw_clouds(
+    field_m: np.ndarray, sim_m: np.ndarray, figure: Path, origin: np.ndarray, rp: Any
+) -> str | None:
+    """``clouds.png``: the field and simulated clouds (points ``field_m``, ``sim_m``) in
+    the same views on the same axes, ``origin`` subtracted for display; its file name, or
+    None (and no file) when ``rp.plots`` is off."""
+    from .report import figures
+
+    if not rp.plots:
+        figure.unlink(missing_ok=True)
+        return None
     figures.clouds_side_by_side(
         [
-            ("field cloud", field.points, figures.FIELD_COLOUR),
-            ("simulated cloud", sim.points, figures.SIMULATED_COLOUR),
+            ("field cloud", field_m, figures.FIELD_COLOUR),
+            ("simulated cloud", sim_m, figures.SIMULATED_COLOUR),
         ],
         figure,
-        origin=vs_mesh.origin,
+        origin=origin,
         max_points=rp.max_plot_points,
         seed=rp.seed,
         dpi=rp.dpi,
     )
-    return {**_cloud_table(), "figure": figure.name}
+    return figure.name
 
 
 def _relative(path: str | Path, base: str | Path) -> str:

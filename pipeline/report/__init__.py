@@ -33,7 +33,7 @@ from . import figures
 from .data import ReportData
 from .html import build_html
 from .profile import occlusion_profile
-from .text import exactness_note, summary_paragraph
+from .text import exactness_note, summary_paragraph, trivially_exact
 
 __all__ = [
     "PNG_FILES",
@@ -105,12 +105,14 @@ def build_report(
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}
     profile = occlusion_profile(data, bin_m=params.profile_bin_m)
-    if params.plots:
+    not_drawn = {}
+    if params.plots and trivially_exact(s):
+        # every point coloured 0: a view that shows nothing the histogram does not say
+        not_drawn["views_accuracy"] = "every distance is float rounding, nothing to colour"
+    for key in not_drawn if params.plots else list(pngs):
+        pngs.pop(key).unlink(missing_ok=True)  # and no plot of an earlier report stays
+    if pngs:
         _draw(data, pngs, params, profile)
-    else:  # and no plot of an earlier report stays beside this one
-        for p in pngs.values():
-            p.unlink(missing_ok=True)
-        pngs = {}
 
     paragraph = summary_paragraph(s)
     generated = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -123,6 +125,7 @@ def build_report(
         seed=params.seed,
         dpi=params.dpi,
         profile=profile,
+        not_drawn=not_drawn,
     )
     html_path = out / "report.html"
     write_text(html_path, page)
@@ -132,6 +135,7 @@ def build_report(
         "generated": generated,
         "summary": paragraph,
         "notes": [n for n in (exactness_note(s),) if n],
+        "not_drawn": not_drawn,
         "figures": {k: s[k] for k in COMPARISON_FIGURES if k in s},
         "occlusion_profile": profile,
         "parameters": {**s.get("parameters", {}), "report": asdict(params)},
@@ -178,18 +182,19 @@ def _draw(
         for st in ((s.get("inputs") or {}).get("scan") or {}).get("stations", []) or []
         if "index" in st and "position_m" in st
     ]
-    figures.views(
-        data.cloud_points,
-        data.cloud_distance_m,
-        figures.accuracy_colour_limit(s),
-        pngs["views_accuracy"],
-        title=f"Cloud coloured by distance to the {ref_word} (accuracy)",
-        colour_label=f"distance to the {ref_word}",
-        origin=data.origin,
-        max_points=params.max_plot_points,
-        seed=params.seed,
-        dpi=params.dpi,
-    )
+    if "views_accuracy" in pngs:
+        figures.views(
+            data.cloud_points,
+            data.cloud_distance_m,
+            figures.accuracy_colour_limit(s),
+            pngs["views_accuracy"],
+            title=f"Cloud coloured by distance to the {ref_word} (accuracy)",
+            colour_label=f"distance to the {ref_word}",
+            origin=data.origin,
+            max_points=params.max_plot_points,
+            seed=params.seed,
+            dpi=params.dpi,
+        )
     figures.views(
         data.reference_points,
         data.reference_distance_m,

@@ -24,9 +24,9 @@ def _b64(data: bytes) -> str:
 FULL_WIDTH_IN = 11.0
 
 
-def _img(path: Path | None, alt: str, dpi: int) -> str:
+def _img(path: Path | None, alt: str, dpi: int, why: str = "report.plots = false") -> str:
     if path is None:
-        return f'<p class="note">{escape(alt)}: not drawn (report.plots = false)</p>'
+        return f'<p class="note">{escape(alt)}: not drawn ({escape(why)})</p>'
     raw = path.read_bytes()
     full = FULL_WIDTH_IN * dpi
     width_px = int.from_bytes(raw[16:20], "big") if raw[12:16] == b"IHDR" else full
@@ -510,12 +510,14 @@ def build_html(
     seed: int = 0,
     dpi: int = 130,
     profile: dict[str, Any] | None = None,
+    not_drawn: dict[str, str] | None = None,
 ) -> str:
     """The page as one string (every image and the viewer's data inline); a plot missing
-    from ``pngs`` (``report.plots = false``) is said, not drawn."""
+    from ``pngs`` is said, not drawn, and why (``not_drawn``, by key; default
+    ``report.plots = false``)."""
 
     def img(key: str, alt: str) -> str:
-        return _img(pngs.get(key), alt, dpi)
+        return _img(pngs.get(key), alt, dpi, (not_drawn or {}).get(key, "report.plots = false"))
 
     s = data.summary
     ref_word = figures._ref_word(s)

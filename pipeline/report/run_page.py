@@ -283,6 +283,7 @@ def _comparison_cards(s: dict[str, Any]) -> str:
             "views_accuracy.png",  # where the simulation departs from the field cloud
         ),
     ):
+        exact = view == "views_accuracy.png" and trivially_exact(s[key])  # nothing drawn
         cards.append(
             f'<div class="card"><h2>{title}</h2><p class="muted">{what}</p>'
             f"<p>{esc(s['summary_text'].get(key, ''))}</p>"
@@ -298,8 +299,10 @@ def _comparison_cards(s: dict[str, Any]) -> str:
             + f'<a href="{key}/comparison.json">comparison.json</a></p>'
             + (
                 f'<a href="{key}/report.html"><img src="{key}/{view}" alt="distances ({key})"></a>'
-                if level == "full"
+                if level == "full" and not exact
                 else f'<p class="note">views not drawn ({_level_note(s)})</p>'
+                if not exact
+                else ""
             )
             + "</div>"
         )

@@ -1,0 +1,116 @@
+"""Issue 25: the report's figures drawn by aggregation, in forked processes or inline, and
+the report levels of a run. Oracles: brute-force loops over the points, the inline
+drawing (a figure drawn elsewhere is the same file), the files a level promises."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.report.test_report import _case
+from treesim.compare import compare, write_comparison
+from treesim.report import PNG_FILES, ReportParams, build_report
+from treesim.report import figures as F
+from treesim.report.background import BackgroundDrawer, draw_report, parallel_pays
+
+
+def test_the_largest_distance_per_cell_is_what_a_view_shows():
+    rng = np.random.default_rng(0)
+    u, v = rng.uniform(0, 1, 5000), rng.uniform(0, 2, 5000)
+    d = rng.exponential(1.0, 5000)
+    box = (0.0, 1.0, 0.0, 2.0, 10, 20)  # 0.1 m square cells
+    top = F._max_raster(u, v, d, box)
+    count = F._count_raster(u, v, box)
+    want = np.full((20, 10), -np.inf)
+    n = np.zeros((20, 10), int)
+    for a, b, x in zip(u, v, d, strict=True):  # brute force: every point's cell
+        i, j = min(int(b / 0.1), 19), min(int(a / 0.1), 9)
+        want[i, j] = max(want[i, j], x)
+        n[i, j] += 1
+    assert np.array_equal(top, want) and np.array_equal(count, n)
+    assert count.sum() == 5000
+
+
+def test_cells_are_about_a_marker_and_square():
+    # 120k points: the old markers were under a pixel, so one pixel; 1,000: ~2.4 pixels
+    assert F._dot_px(120_000, 25_000, (0.15, 6.0), 130) == 1.0
+    assert F._dot_px(1_000, 25_000, (0.15, 6.0), 130) == pytest.approx(6**0.5 * 130 / 72)
+    lo, hi = np.zeros(3), np.array([1.0, 2.0, 4.0])
+    x0, x1, y0, y1, nx, ny = F._panel_box(lo, hi, 0, 2, 100.0, 400.0, 2.0)
+    assert (x1 - x0) / nx == pytest.approx((y1 - y0) / ny)  # square cells
+    assert (y1 - y0) / ny == pytest.approx(4.0 / 400.0 * 2.0)  # 2 px each, height-bound
+    assert x0 <= 0.0 and x1 >= 1.0 and y0 <= 0.0 and y1 >= 4.0
+
+
+@pytest.fixture(scope="module")
+def comparison_dir(tmp_path_factory):
+    cloud, scene = _case()
+    d = tmp_path_factory.mktemp("cmp")
+    write_comparison(compare(cloud, scene), d, inputs={"cloud": "a.ply", "reference": "b.obj"})
+    return d
+
+
+def test_a_report_drawn_in_a_forked_process_is_the_inline_one(comparison_dir, tmp_path):
+    params = ReportParams(max_view_points=2000, max_plot_points=20_000, dpi=60)
+    inline = build_report(comparison_dir, tmp_path / "inline", params=params)
+    with BackgroundDrawer(workers=1) as drawer:
+        assert drawer.forked
+        drawer.submit("r", draw_report, comparison_dir, params)
+        forked = drawer.results()["r"]
+    assert set(forked) == set(inline) == {"report_json", "report_html", *PNG_FILES}
+    for key in PNG_FILES:
+        assert forked[key].read_bytes() == inline[key].read_bytes(), key
+    a, b = (json.loads(p["report_json"].read_text()) for p in (forked, inline))
+    assert a["figures"] == b["figures"] and a["occlusion_profile"] == b["occlusion_profile"]
+    assert drawer.seconds["r"] > 0
+
+
+def _fails(what: str) -> None:
+    raise ValueError(what)
+
+
+def test_a_failed_piece_raises_its_error_where_the_run_waits():
+    with BackgroundDrawer(workers=1) as drawer:
+        drawer.submit("bad", _fails, "no such comparison")
+        with pytest.raises(ValueError, match="no such comparison"):
+            drawer.results()
+    inline = BackgroundDrawer(workers=0)  # inline: at once
+    with pytest.raises(ValueError, match="x"):
+        inline.submit("bad", _fails, "x")
+
+
+def test_forking_pays_only_with_idle_cores():
+    assert not parallel_pays(cores=1, load=0.0)
+    assert not parallel_pays(cores=2, load=1.5)  # a shared machine: take turns, no gain
+    assert parallel_pays(cores=4, load=0.5) is True or not Path("/proc").exists()
+
+
+def test_an_exact_comparison_draws_no_view_of_its_accuracy(tmp_path):
+    cloud, scene = _case()
+    exact = compare(cloud.subset(np.arange(len(cloud)) < 5000), scene)  # station 0 lies on the mesh
+    assert exact.to_dict()["accuracy"]["p99_m"] < 1e-9
+    files = build_report(exact, tmp_path, params=ReportParams(dpi=50), inputs={})
+    assert "views_accuracy" not in files and not (tmp_path / "views_accuracy.png").exists()
+    assert files["views_completeness"].is_file()
+    page = files["report_html"].read_text(encoding="utf-8")
+    assert page.count("data:image/png") == len(PNG_FILES) - 1
+    assert "every distance is float rounding" in page
+    rep = json.loads(files["report_json"].read_text())
+    assert set(rep["not_drawn"]) == {"views_accuracy"}
+
+
+def test_the_sweep_reads_the_trade_without_drawing_time():
+    from treesim.report.sweep_page import _time_key
+    from treesim.run import STAGES
+    from treesim.sweep.engine import SCIENCE_STAGES, TIME, sweep_columns
+
+    assert TIME == "time_science_s" and set(SCIENCE_STAGES) == set(STAGES) - {"report"}
+    assert {"time_science_s", "time_report_s"} <= set(sweep_columns([]))
+    rows = [{"status": "ok", "time_total_s": 3.0, "time_science_s": 1.0}]
+    assert _time_key({"time": TIME, "rows": rows}) == "time_science_s"
+    old = [{"status": "ok", "time_total_s": 3.0}]  # a sweep run before the column
+    assert _time_key({"time": "time_total_s", "rows": old}) == "time_total_s"
+    assert _time_key({"time": TIME, "rows": old}) == "time_total_s"
