@@ -22,32 +22,28 @@ True
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
-from .batch import BatchResult, run_batch
-from .cloud import LABEL_CODES, Cloud
-from .compare import compare
 from .errors import TreesimError
-from .frame import LocalFrame
-from .io import load_scene, read_cloud, write_cloud
-from .params import (
-    CompareParams,
-    ReconstructParams,
-    RunParams,
-    ScannerSpec,
-    ScanParams,
-    load_config,
-    run_preset,
-)
-from .reconstruct import reconstruct
-from .report import build_report
-from .run import RunResult, run_tree
-from .scan import Station, ring_layout, scan
-from .scene import Scene
-from .sweep import SweepResult, run_sweep
 
 if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
+    from .batch import BatchResult, run_batch
+    from .cloud import LABEL_CODES, Cloud
+    from .compare import compare
+    from .frame import LocalFrame
+    from .io import load_scene, read_cloud, write_cloud
+    from .params import (
+        CompareParams,
+        ReconstructParams,
+        RunParams,
+        ScannerSpec,
+        ScanParams,
+        load_config,
+        run_preset,
+    )
     from .plan import PlanParams, PlanResult, plan_scans
     from .plan.outputs import write_plan
     from .plot import Plot, PlotTree, Terrain
@@ -55,42 +51,86 @@ if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference
     from .plot.io import read_plot, write_plot
     from .plot.scan import PlotScanResult, scan_plot, tree_figures
     from .plot.validate import ValidateParams, ValidationResult, validate_scans
+    from .reconstruct import reconstruct
+    from .report import build_report
+    from .run import RunResult, run_tree
+    from .scan import Station, ring_layout, scan
+    from .scene import Scene
+    from .sweep import SweepResult, run_sweep
     from .twin import PlotsResult, TwinParams, TwinResult, plot_from_cloud, plots_from_clouds
 
-#: The plot and plan verbs, imported on first use: every ``treesim`` command imports this
-#: package, and what only plots and plans need (their modules, the TOML reader) should not
-#: slow down the others (tests/sweep/test_import.py, tests/architecture/test_startup.py).
+#: Every name of the facade but the version and the base error, imported on first use
+#: (PEP 562): every ``treesim`` command imports this package, and what a stage needs (numpy,
+#: laspy, the stage's own modules, the TOML reader) should not slow down the others, nor
+#: ``--help`` (tests/architecture/test_startup.py, tests/sweep/test_import.py).
 _LAZY = {
-    "PlanParams": ".plan",
-    "PlanResult": ".plan",
-    "plan_scans": ".plan",
+    **dict.fromkeys(("BatchResult", "run_batch"), ".batch"),
+    **dict.fromkeys(("LABEL_CODES", "Cloud"), ".cloud"),
+    "compare": ".compare",
+    "LocalFrame": ".frame",
+    **dict.fromkeys(("load_scene", "read_cloud", "write_cloud"), ".io"),
+    **dict.fromkeys(
+        (
+            "CompareParams",
+            "ReconstructParams",
+            "RunParams",
+            "ScannerSpec",
+            "ScanParams",
+            "load_config",
+            "run_preset",
+        ),
+        ".params",
+    ),
+    **dict.fromkeys(("PlanParams", "PlanResult", "plan_scans"), ".plan"),
     "write_plan": ".plan.outputs",
-    "Plot": ".plot",
-    "PlotTree": ".plot",
-    "Terrain": ".plot",
-    "StandParams": ".plot.generate",
-    "generate_stand": ".plot.generate",
-    "read_plot": ".plot.io",
-    "write_plot": ".plot.io",
-    "PlotScanResult": ".plot.scan",
-    "scan_plot": ".plot.scan",
-    "tree_figures": ".plot.scan",
-    "TwinParams": ".twin",
-    "TwinResult": ".twin",
-    "plot_from_cloud": ".twin",
-    "PlotsResult": ".twin",
-    "plots_from_clouds": ".twin",
-    "ValidateParams": ".plot.validate",
-    "ValidationResult": ".plot.validate",
-    "validate_scans": ".plot.validate",
+    **dict.fromkeys(("Plot", "PlotTree", "Terrain"), ".plot"),
+    **dict.fromkeys(("StandParams", "generate_stand"), ".plot.generate"),
+    **dict.fromkeys(("read_plot", "write_plot"), ".plot.io"),
+    **dict.fromkeys(("PlotScanResult", "scan_plot", "tree_figures"), ".plot.scan"),
+    **dict.fromkeys(("ValidateParams", "ValidationResult", "validate_scans"), ".plot.validate"),
+    "reconstruct": ".reconstruct",
+    "build_report": ".report",
+    **dict.fromkeys(("RunResult", "run_tree"), ".run"),
+    **dict.fromkeys(("Station", "ring_layout", "scan"), ".scan"),
+    "Scene": ".scene",
+    **dict.fromkeys(("SweepResult", "run_sweep"), ".sweep"),
+    **dict.fromkeys(
+        ("TwinParams", "TwinResult", "plot_from_cloud", "PlotsResult", "plots_from_clouds"),
+        ".twin",
+    ),
 }
+
+#: Subpackages that share their name with their verb: ``treesim.scan`` is the function
+#: ``scan`` (as it was when the facade imported it eagerly), also after the subpackage
+#: ``treesim.scan`` is loaded (the import system binds a loaded subpackage to its
+#: parent's attribute of that name).
+_VERBS = frozenset(("scan", "reconstruct", "compare"))
+
+
+class _Facade(types.ModuleType):
+    """This package's module: a subpackage named as a verb never hides the verb."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _VERBS and isinstance(value, types.ModuleType):
+            return  # still reached as sys.modules["treesim.<name>"] and by from-imports
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Facade
 
 
 def __getattr__(name: str) -> Any:
-    """Import a plot or plan verb when it is first used (PEP 562)."""
+    """Import a name of the facade, or a subpackage, when it is first used (PEP 562)."""
     module = _LAZY.get(name)
     if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        if name.startswith("__"):
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        try:  # ``treesim.io`` after a bare ``import treesim``, as when the facade was eager
+            return importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
     value = getattr(importlib.import_module(module, __name__), name)
     globals()[name] = value  # found directly from now on
     return value

@@ -25,42 +25,60 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..errors import TreesimError
-from ._options import Parser
 
-#: The command modules, in the order ``treesim --help`` lists them.
-COMMANDS = (
-    "scan",
-    "plot",
-    "model",
-    "reconstruct",
-    "compare",
-    "report",
-    "run",
-    "batch",
-    "sweep",
-    "plan",
-    "validate",
-    "demo",
-)
+#: The command modules, in the order ``treesim --help`` lists them, with the line each
+#: registers there (a test checks that they agree): ``treesim --help`` and ``treesim
+#: COMMAND --help`` import only the modules of what they show.
+SUMMARIES = {
+    "scan": "scan meshes with a virtual TLS scanner",
+    "plot": "forest plots: generate a stand, make a twin of a field plot, scan a plot",
+    "model": "tree models: procedural trees, QSM cylinder tables to meshes",
+    "reconstruct": "reconstruct a tree mesh from a field point cloud (QSM, Poisson or BPA)",
+    "compare": "AVOHD comparison of a cloud with a reference mesh or cloud",
+    "report": "plots, report.json and an offline HTML page from a comparison",
+    "run": "the whole loop on one tree: reconstruct, scan, compare, report",
+    "batch": "run the loop on many trees (resumable; local processes or Dask)",
+    "sweep": "run a grid of settings on trees: time, memory, accuracy, Pareto fronts",
+    "plan": "plan scan stations for a plot or a tree: fewest stations to a per-tree goal",
+    "validate": "check a simulated plot scan against the field scan",
+    "demo": "run the whole loop on the bundled sample tree and print the report's path",
+}
+COMMANDS = tuple(SUMMARIES)
 
 #: Entry point group through which other packages add commands (``register(subparsers)``).
 PLUGIN_GROUP = "treesim.commands"
 
-__all__ = ["COMMANDS", "PLUGIN_GROUP", "build_parser", "main"]
+__all__ = ["COMMANDS", "PLUGIN_GROUP", "SUMMARIES", "build_parser", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The whole ``treesim`` parser, every command registered."""
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole ``treesim`` parser, every command registered.
+
+    ``only``: register that command alone with its options (``""``: none); the others
+    are listed by name and :data:`SUMMARIES` line, without importing their modules.
+    Commands from other packages (:data:`PLUGIN_GROUP`) are always registered.
+    """
     from .._version import __version__
+    from ._options import Parser
 
     p = Parser(prog="treesim", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--version", action="version", version=f"treesim {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMANDS:
-        importlib.import_module(f"{__name__}.{name}").register(sub)
+        if only is None or name == only:
+            importlib.import_module(f"{__name__}.{name}").register(sub)
+        else:
+            sub.add_parser(name, help=SUMMARIES[name])
     for ep in sorted(importlib.metadata.entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
         ep.load()(sub)
     return p
+
+
+def _command(argv: Sequence[str] | None) -> str:
+    """The built-in command that ``argv`` runs (its first word), or ``""``."""
+    words = sys.argv[1:] if argv is None else argv
+    first = next((w for w in words if not w.startswith("-")), "")
+    return first if first in SUMMARIES else ""
 
 
 def _watch_interrupts() -> tuple[Callable[[], bool], Callable[[], None]]:
@@ -97,7 +115,7 @@ def _interrupted() -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(only=_command(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

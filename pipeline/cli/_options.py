@@ -13,10 +13,10 @@ import argparse
 import math
 import re
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..params import ParamInfo, Setting, describe, field_info, set_path
-from ..params._fields import read_int
+if TYPE_CHECKING:  # the parameter model (and numpy) is imported when an option is made
+    from ..params import ParamInfo, Setting
 
 #: Attribute of a generated argparse action: the :class:`ParamInfo` it sets.
 PARAM = "treesim_param"
@@ -79,6 +79,8 @@ def whole_number(minimum: int) -> Callable[[str], int]:
     """The argparse ``type`` of a count that is no parameter (``batch --workers``)."""
 
     def read(text: str) -> int:
+        from ..params._fields import read_int  # when read: the parameter model needs numpy
+
         try:
             v = read_int(text.strip())
         except (ValueError, OverflowError):
@@ -141,6 +143,8 @@ def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
 
 
 def _metavar(info: ParamInfo) -> str:
+    from ..params._fields import read_int
+
     if info.scalar is read_int:
         return "N"
     if info.scalar is float:
@@ -164,6 +168,8 @@ def param_option(
     model's default (or the preset's, or the config file's) in force. ``--help`` shows the
     model's help, unit and default. Optional fields read ``0`` and ``none`` as ``None``.
     """
+    from ..params import field_info
+
     info = field_info(cls, name, path=path)
     t = info.base_type
     kw: dict[str, Any] = {"dest": "param:" + ".".join(info.path), "default": argparse.SUPPRESS}
@@ -212,6 +218,8 @@ def param_options(
 ) -> None:
     """:func:`param_option` for each of ``names`` (default: every field of ``cls`` but
     ``exclude``)."""
+    from ..params import describe
+
     for name in names if names is not None else [i.name for i in describe(cls)]:
         if name not in exclude:
             param_option(group, cls, name, path=path)
@@ -240,6 +248,8 @@ def setting_option(group: Any, setting: Setting, *, default_text: str) -> argpar
 
 def collect(args: argparse.Namespace) -> dict[str, Any]:
     """The generated options the user gave, as a nested mapping below the root dataclass."""
+    from ..params import set_path
+
     nested: dict[str, Any] = {}
     for dest, value in vars(args).items():
         if dest.startswith("param:"):

@@ -19,7 +19,6 @@ from ..params import (
     merge,
     scan_params,
 )
-from ..report.text import lod_reasons
 from ._options import collect, floats_type, number_type, param_option, param_options
 from ._outputs import output_file
 from .progress import print_warnings, progress_printer
@@ -208,6 +207,8 @@ def run_scan(
         f"models: {models}"
     )
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
+        from ..report.text import lod_reasons
+
         why = "; ".join(f"{what}: {reason}" for what, reason in lod_reasons(result.lod))
         print(f"treesim scan: no points were recorded ({why})", file=sys.stderr)
     print_warnings(result.warnings)

@@ -25,9 +25,8 @@ import json
 import struct
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
-import laspy
 import numpy as np
 from numpy.typing import DTypeLike
 
@@ -41,6 +40,18 @@ from ._common import (
     parse_label_names,
 )
 from .writer import CloudWriter
+
+if TYPE_CHECKING:
+    import laspy
+
+
+def _laspy() -> Any:
+    """laspy, imported when a LAS/LAZ file is first read or written (it takes a tenth of a
+    second and more; every ``treesim`` command imports this module, not all write LAZ)."""
+    import laspy
+
+    return laspy
+
 
 #: Suffixes handled by this module.
 SUFFIXES: tuple[str, ...] = (".las", ".laz")
@@ -81,12 +92,12 @@ _DESCRIPTIONS: dict[str, str] = {
     "reflectance": "reflectance",
 }
 
-_LAZ_BACKEND = laspy.LazBackend.Lazrs
+_LAZ_BACKEND = "Lazrs"  # laspy.LazBackend's name: laspy is imported when a file is read
 
 
 def _backends() -> tuple[laspy.LazBackend, ...]:
-    available = laspy.LazBackend.detect_available()
-    return tuple(available) or (_LAZ_BACKEND,)
+    available = _laspy().LazBackend.detect_available()
+    return tuple(available) or (_laspy().LazBackend[_LAZ_BACKEND],)
 
 
 #: A LAZ file's chunk size that means "variable" (each chunk's point count in the table).
@@ -215,7 +226,7 @@ def read_las(path: str | Path) -> Cloud:
     path = Path(path)
     _check_header(path)
     try:
-        las = laspy.read(path, laz_backend=_backends())
+        las = _laspy().read(path, laz_backend=_backends())
         header = las.header
         scales = np.asarray(header.scales, dtype=np.float64)
         offsets = np.asarray(header.offsets, dtype=np.float64)
@@ -238,7 +249,7 @@ def read_las(path: str | Path) -> Cloud:
         vlrs = list(las.vlrs) + list(getattr(las, "evlrs", None) or [])
         version = str(header.version)
         point_format_id = fmt.id
-    except laspy.errors.LaspyException as exc:
+    except _laspy().errors.LaspyException as exc:
         raise InputFormatError(
             f"{path} could not be read as LAS/LAZ ({exc}); check that the file is complete "
             "and really LAS/LAZ"
@@ -277,12 +288,12 @@ def read_las(path: str | Path) -> Cloud:
 def _standard_targets() -> dict[str, tuple[np.dtype, float, float]]:
     """Format-6 standard dimensions fields may fill: name -> (dtype, lowest, highest)."""
     targets: dict[str, tuple[np.dtype, float, float]] = {}
-    for dim in laspy.PointFormat(POINT_FORMAT).dimensions:
+    for dim in _laspy().PointFormat(POINT_FORMAT).dimensions:
         if dim.name in _SKIP_STANDARD:
             continue
-        if dim.kind == laspy.DimensionKind.BitField:
+        if dim.kind == _laspy().DimensionKind.BitField:
             dtype, lo, hi = np.dtype(np.uint8), 0.0, float(2**dim.num_bits - 1)
-        elif dim.kind == laspy.DimensionKind.FloatingPoint:
+        elif dim.kind == _laspy().DimensionKind.FloatingPoint:
             dtype, lo, hi = np.dtype(dim.dtype), -np.inf, np.inf
         else:
             info = np.iinfo(dim.dtype)
@@ -343,7 +354,7 @@ def _metadata_vlr(metadata: dict[str, Any]) -> laspy.VLR | None:
     data = json.dumps(kept).encode("utf-8")
     if len(data) > _VLR_MAX:
         return None
-    return laspy.VLR(
+    return _laspy().VLR(
         user_id=METADATA_TAG,
         record_id=METADATA_RECORD_ID,
         description="treesim metadata (JSON)",
@@ -371,9 +382,9 @@ def _write_backends(threads: int) -> tuple[laspy.LazBackend, ...]:
     exposes no thread count, so ``threads`` > 1 cannot be honoured exactly: 0 and > 1
     both give the parallel backend (all cores), 1 the sequential one.
     """
-    parallel, sequential = laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs
+    parallel, sequential = _laspy().LazBackend.LazrsParallel, _laspy().LazBackend.Lazrs
     preferred = (sequential,) if threads == 1 else (parallel, sequential)
-    available = tuple(laspy.LazBackend.detect_available())
+    available = tuple(_laspy().LazBackend.detect_available())
     ordered = [b for b in preferred if b in available]
     ordered += [b for b in available if b not in ordered]
     return tuple(ordered) or preferred
@@ -473,21 +484,21 @@ class LasCloudWriter(CloudWriter):
                     f"{_NAME_MAX} characters); rename the field"
                 )
             extras.append(
-                laspy.ExtraBytesParams(
+                _laspy().ExtraBytesParams(
                     name=name,
                     type=_extra_dtype(dtype),
                     description=_description(name, self._metadata),
                 )
             )
         try:
-            header = laspy.LasHeader(point_format=POINT_FORMAT, version=LAS_VERSION)
+            header = _laspy().LasHeader(point_format=POINT_FORMAT, version=LAS_VERSION)
             if extras:
                 header.add_extra_dims(extras)
             header.scales = np.array([self._scale] * 3)
             vlr = _metadata_vlr(self._metadata)
             if vlr is not None:
                 header.vlrs.append(vlr)
-        except laspy.errors.LaspyException as exc:
+        except _laspy().errors.LaspyException as exc:
             raise InputFormatError(f"could not write {self.path} as LAS/LAZ: {exc}") from exc
         self._header = header
         self._defaults = [name for name in _DEFAULT_ONE if name not in self._fields]
@@ -512,8 +523,8 @@ class LasCloudWriter(CloudWriter):
         writer = self._laspy.point_writer
         if type(writer).__name__ == "LazrsPointWriter":
             parallel = getattr(writer, "parallel", False)
-            return laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
-        return laspy.LazBackend.Laszip
+            return _laspy().LazBackend.LazrsParallel if parallel else _laspy().LazBackend.Lazrs
+        return _laspy().LazBackend.Laszip
 
     def _open(self, tmp: Path) -> None:
         self._stream = open(tmp, "wb")
@@ -578,7 +589,7 @@ class LasCloudWriter(CloudWriter):
         if size <= have:
             return
         # the whole batch at once: zeros are calloc'd, pages only touched when filled
-        grown = laspy.PackedPointRecord.zeros(self._batch, self._header.point_format)
+        grown = _laspy().PackedPointRecord.zeros(self._batch, self._header.point_format)
         if self._buffer is not None and self._fill:
             grown.array[: self._fill] = self._buffer.array[: self._fill]
         self._buffer = grown
@@ -588,7 +599,7 @@ class LasCloudWriter(CloudWriter):
         if self._laspy is None:
             assert self._stream is not None
             self._header.offsets = self._offsets if self._offsets is not None else np.zeros(3)
-            self._laspy = laspy.open(
+            self._laspy = _laspy().open(
                 self._stream,
                 mode="w",
                 header=self._header,
@@ -619,7 +630,7 @@ class LasCloudWriter(CloudWriter):
             self._stream.close()
 
     def _translate(self, exc: BaseException) -> BaseException:
-        if isinstance(exc, laspy.errors.LaspyException) or type(exc).__name__ == "LazrsError":
+        if isinstance(exc, _laspy().errors.LaspyException) or type(exc).__name__ == "LazrsError":
             return InputFormatError(f"could not write {self.path} as LAS/LAZ: {exc}")
         return super()._translate(exc)
 

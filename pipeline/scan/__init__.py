@@ -10,13 +10,52 @@ parameter model, :mod:`treesim.params`. ``Scene``, ``MeshPart``, ``label_from_na
 re-exported for convenience: what the scanner scans, and how it is read.
 """
 
-from ..io.mesh import load_mesh, load_scene
-from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
-from ..scene import MeshPart, Scene, label_from_name
-from .estimate import ScanEstimate, estimate_scan
-from .result import SCAN_FIELDS, ScanResult, StationStats, scan_fields, scan_metadata
-from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
-from .trace import scan
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
+    from ..io.mesh import load_mesh, load_scene
+    from ..params import INSTRUMENTS, RETURN_MODES, InstrumentPreset, ScannerSpec, instrument
+    from ..scene import MeshPart, Scene, label_from_name
+    from .estimate import ScanEstimate, estimate_scan
+    from .result import SCAN_FIELDS, ScanResult, StationStats, scan_fields, scan_metadata
+    from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
+    from .trace import scan
+
+#: Every name, imported on first use (PEP 562): a module that needs one part of the
+#: scanner (the station layouts of a plan, a command's options) loads only that part.
+_LAZY = {
+    **dict.fromkeys(("load_mesh", "load_scene"), "..io.mesh"),
+    **dict.fromkeys(
+        ("INSTRUMENTS", "RETURN_MODES", "InstrumentPreset", "ScannerSpec", "instrument"),
+        "..params",
+    ),
+    **dict.fromkeys(("MeshPart", "Scene", "label_from_name"), "..scene"),
+    **dict.fromkeys(("ScanEstimate", "estimate_scan"), ".estimate"),
+    **dict.fromkeys(
+        ("SCAN_FIELDS", "ScanResult", "StationStats", "scan_fields", "scan_metadata"), ".result"
+    ),
+    **dict.fromkeys(
+        ("Station", "ring_around", "ring_layout", "station_distance_m", "stations_for"),
+        ".stations",
+    ),
+    "scan": ".trace",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Import a name of the scanner when it is first used (PEP 562)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # found directly from now on
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "INSTRUMENTS",

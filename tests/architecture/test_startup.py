@@ -1,30 +1,112 @@
 """What every ``treesim`` command pays before it starts: the libraries a stage needs are
-imported when the stage runs, not when the command line is built."""
+imported when the stage runs, not when the command line is built, nor when ``--help`` of
+any command is printed. The oracle is ``sys.modules`` of a fresh interpreter, not a time."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 #: Libraries of one stage each (scipy: reconstruction's fits; open3d: ray casting and
-#: comparison; matplotlib: reports; pymeshlab: surfaces; the web stack: the service).
-HEAVY = ("scipy", "open3d", "matplotlib", "pymeshlab", "fastapi", "pydantic", "sqlalchemy")
+#: comparison; matplotlib: reports; pymeshlab and trimesh: surfaces; laspy: LAS/LAZ files;
+#: dask and pandas: batches on a cluster; the web stack: the service).
+HEAVY = (
+    "scipy",
+    "open3d",
+    "matplotlib",
+    "pymeshlab",
+    "trimesh",
+    "laspy",
+    "lazrs",
+    "dask",
+    "distributed",
+    "pandas",
+    "fastapi",
+    "pydantic",
+    "sqlalchemy",
+)
 
 
-def test_building_the_command_line_imports_no_stage_library():
-    code = (
-        "import sys\n"
-        "from treesim.cli import build_parser\n"
-        "build_parser()\n"
-        f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+def _loaded(code: str) -> list[str]:
+    """The modules of :data:`HEAVY` (and numpy) that ``code`` leaves in ``sys.modules``."""
+    names = (*HEAVY, "numpy")
+    probe = (
+        f"import json, sys\n{code}\nprint(json.dumps([m for m in {names!r} if m in sys.modules]))\n"
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = subprocess.run(
-        [sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True
+        [sys.executable, "-c", probe], env=env, cwd=ROOT, capture_output=True, text=True
     )
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "", f"imported at start-up: {out.stdout.strip()}"
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _help(*words: str) -> str:
+    """Code that prints ``treesim WORDS --help`` as the command does (into nothing)."""
+    return (
+        "import contextlib, io\n"
+        "from treesim.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        f"    main({[*words, '--help']!r})\n"
+    )
+
+
+def test_building_the_command_line_imports_no_stage_library():
+    loaded = _loaded("from treesim.cli import build_parser\nbuild_parser()")
+    assert [m for m in loaded if m != "numpy"] == [], f"imported at start-up: {loaded}"
+
+
+def test_importing_the_command_line_imports_not_even_numpy():
+    assert _loaded("import treesim.cli") == []
+    assert _loaded("import treesim") == []
+
+
+def test_the_commands_list_imports_not_even_numpy():
+    """``treesim --help`` lists the commands without importing their modules."""
+    assert _loaded(_help()) == []
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        "scan",
+        "plot",
+        "model",
+        "reconstruct",
+        "compare",
+        "report",
+        "run",
+        "batch",
+        "sweep",
+        "plan",
+        "validate",
+        "demo",
+    ],
+)
+def test_a_commands_help_imports_no_stage_library(command):
+    loaded = _loaded(_help(command))
+    assert [m for m in loaded if m != "numpy"] == [], f"'treesim {command} --help': {loaded}"
+
+
+def test_the_commands_list_says_what_the_commands_register():
+    """The lines of ``treesim --help`` (``SUMMARIES``, written out so that the list imports
+    no command) are those the command modules register, in the same order."""
+    from treesim.cli import COMMANDS, SUMMARIES, build_parser
+
+    full = build_parser()
+    listed = build_parser(only="")
+    assert listed.format_help() == full.format_help()
+    sub = next(a for a in full._actions if a.dest == "command")
+    registered = {a.dest: a.help for a in sub._choices_actions}
+    assert {c: registered[c] for c in COMMANDS} == SUMMARIES
+    for command in COMMANDS:  # each command's own parser is the full one
+        alone = build_parser(only=command)
+        one = next(a for a in alone._actions if a.dest == "command").choices[command]
+        assert one.format_help() == sub.choices[command].format_help()
