@@ -49,7 +49,7 @@ from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
-from .report.background import BackgroundDrawer, draw_report
+from .report.background import BackgroundDrawer, draw_report, preload_drawing
 from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
@@ -343,6 +343,8 @@ def run_tree(
     ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
     # full reports: drawing processes forked now, drawing as soon as their inputs exist
     with BackgroundDrawer.start() if level == "full" else BackgroundDrawer(0) as drawer:
+        if level == "full" and not drawer.forked:
+            preload_drawing()  # matplotlib loaded beside the science, not in the report stage
         # -- read --------------------------------------------------------------------------
         say(0.0, "reading")
         t0 = time.perf_counter()

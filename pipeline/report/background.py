@@ -19,13 +19,14 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BackgroundDrawer", "parallel_pays"]
+__all__ = ["BackgroundDrawer", "parallel_pays", "preload_drawing"]
 
 
 def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
@@ -76,6 +77,32 @@ def _warm_up() -> float:
     ax.set_title("warm-up")
     fig.savefig(io.BytesIO(), format="png")
     return time.perf_counter() - t0
+
+
+def preload_drawing() -> threading.Thread:
+    """Import matplotlib and load its fonts in a background thread, so that a run that
+    draws inline finds them loaded when its report stage begins: the import is mostly
+    waiting on files and the run's stages mostly in numerical code, and the two overlap.
+    Returns the (daemon) thread.
+
+    Examples
+    --------
+    >>> preload_drawing().join()
+    """
+
+    def load() -> None:
+        try:
+            from matplotlib import font_manager
+            from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+            from matplotlib.figure import Figure  # noqa: F401
+
+            font_manager.get_font(font_manager.findfont("DejaVu Sans"))
+        except Exception:  # noqa: BLE001 - the report stage imports it again, and says why
+            pass
+
+    thread = threading.Thread(target=load, name="treesim-preload-matplotlib", daemon=True)
+    thread.start()
+    return thread
 
 
 def _timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, float]:
