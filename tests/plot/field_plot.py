@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,6 +100,32 @@ def make_field_plot(
         )
     )
     return FieldPlot(folder, plot_file, e57, laz, cloud.metadata["stations"], truth)
+
+
+#: The smallest field plot that still makes a twin: 4 trees on a 10° slope, scanned from 2
+#: stations at 0.25°. test_twin_inputs, test_twin_many and tests/service/test_twin_jobs all
+#: use this one plot; :func:`small_field_plot` makes it once per test run.
+SMALL_PLOT = dict(
+    n_trees=4, radius_m=5.0, slope_deg=10.0, n_stations=2, resolution_deg=0.25, facets=16
+)  # fmt: skip
+
+
+def run_folder(tmp_path_factory) -> Path:
+    """A temporary folder of this test run shared by all its pytest-xdist workers (each
+    worker's base folder is ``popen-gwN`` inside the run's own), and by no other run."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+def small_field_plot(tmp_path_factory) -> FieldPlot:
+    """The :data:`SMALL_PLOT` field plot, made by the first test file of this run that asks
+    for it (the others wait for it under a file lock, then read it: it is everyone's input,
+    so a test copies what it changes)."""
+    from filelock import FileLock
+
+    folder = run_folder(tmp_path_factory) / "small-field-plot"
+    with FileLock(f"{folder}.lock"):
+        return make_field_plot(folder, **SMALL_PLOT)
 
 
 def match(found_xy: np.ndarray, true_xy: np.ndarray, within_m: float) -> np.ndarray:

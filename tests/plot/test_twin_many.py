@@ -26,7 +26,7 @@ from treesim.errors import EmptyInputError, InputFormatError, InvalidParameterEr
 from treesim.twin import TwinParams, finished_twin, plots_from_clouds
 from treesim.twin.many import discover_plots
 
-from .field_plot import make_field_plot
+from .field_plot import small_field_plot
 
 #: The second plot's projected offset (m).
 OFFSET = np.array([5e5, 5e6, 200.0])
@@ -48,10 +48,8 @@ def _mtimes(folder: Path) -> dict[str, int]:
 
 @pytest.fixture(scope="module")
 def field(tmp_path_factory):
-    return make_field_plot(
-        tmp_path_factory.mktemp("field"), n_trees=4, radius_m=5.0, n_stations=2,
-        resolution_deg=0.25, facets=16, slope_deg=10.0,
-    )  # fmt: skip
+    """The small field plot (``field_plot.SMALL_PLOT``), made once per test run."""
+    return small_field_plot(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

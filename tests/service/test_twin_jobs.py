@@ -25,7 +25,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 import treesim as ts
-from tests.plot.field_plot import make_field_plot, match
+from tests.plot.field_plot import SMALL_PLOT, match, small_field_plot
 from treesim.service.app import create_app
 from treesim.service.settings import Settings
 
@@ -36,7 +36,7 @@ pytestmark = pytest.mark.slow
 #: Issue 23's acceptance: a twin tree stands within this of the generator's tree.
 POSITION_M = 0.10
 #: The field plot's scan (also the simulated scan's, so that the two are comparable).
-RES_DEG = 0.25
+RES_DEG = SMALL_PLOT["resolution_deg"]
 INSTRUMENT = "riegl-vz400"
 #: The validate job's τ (m).
 TAU_M = 0.03
@@ -46,16 +46,9 @@ SERVER_PATH = re.compile(r"/?[\w.-]+/[\w.-]+/")
 
 @pytest.fixture(scope="module")
 def field(tmp_path_factory):
-    """The smallest field plot that still makes a twin (as test_twin's ``small``)."""
-    return make_field_plot(
-        tmp_path_factory.mktemp("field"),
-        n_trees=4,
-        radius_m=5.0,
-        slope_deg=10.0,
-        n_stations=2,
-        resolution_deg=RES_DEG,
-        facets=16,
-    )
+    """The smallest field plot that still makes a twin (``field_plot.SMALL_PLOT``, as
+    test_twin_inputs' ``small``), made once per test run."""
+    return small_field_plot(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
