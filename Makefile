@@ -29,10 +29,13 @@ demo: $(DEMO_STAMP)
 ## The test suite (what CI runs): every test, slow ones included; those that need the
 ## project's shared data skip with a reason where it is absent (a user's clone). On every
 ## core (pytest-xdist; PYTEST_WORKERS=0 runs in one process), a test file per worker at a
-## time so that a file's cached scenes are made once. The 25 slowest tests are listed at
-## the end, to keep the suite inside its 20-minute budget.
+## time so that a file's cached scenes are made once, in the order tests/conftest.py gives
+## (files with slow tests first, the many short files last, so that no worker idles at the
+## end; xdist's own order puts the files with fewest tests, often the longest, last). The
+## 25 slowest tests are listed at the end, to keep the suite inside its 20-minute budget.
 PYTEST_WORKERS ?= auto
-PYTEST := $(VENV)/bin/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --durations=25
+PYTEST := $(VENV)/bin/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile \
+	--no-loadscope-reorder --durations=25
 test: $(TEST_STAMP)
 	$(PYTEST)
 

@@ -76,3 +76,25 @@ def tube_xyz(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("tube") / "tube.xyz"
     np.savetxt(path, pts, fmt="%.6f")
     return path
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """On a pytest-xdist worker, run the test files with slow tests first (most slow tests
+    first), then the others (most tests first, as xdist orders files by itself).
+
+    ``make test`` hands out whole files (``--dist loadfile``) in this order
+    (``--no-loadscope-reorder``): the long files start early and the many short ones fill
+    in at the end, so that no worker idles while the other finishes a long file. Every
+    worker collects the same order; a run without xdist keeps the files' own order."""
+    if not hasattr(config, "workerinput"):
+        return
+    n_tests: dict[str, int] = {}
+    n_slow: dict[str, int] = {}
+    for item in items:
+        f = item.nodeid.split("::", 1)[0]
+        n_tests[f] = n_tests.get(f, 0) + 1
+        n_slow[f] = n_slow.get(f, 0) + (item.get_closest_marker("slow") is not None)
+    # sorted() and list.sort() are stable: ties keep the collection's order
+    files = sorted(n_tests, key=lambda f: (-n_slow[f], -n_tests[f]))
+    rank = {f: k for k, f in enumerate(files)}
+    items.sort(key=lambda item: rank[item.nodeid.split("::", 1)[0]])

@@ -15,6 +15,7 @@ def plot_plan():
     return acceptance_plan()
 
 
+@pytest.mark.slow
 def test_plot_plan_against_the_classic_layouts(plot_plan):
     r = plot_plan
     d = r.to_dict()
@@ -79,6 +80,7 @@ def test_plot_plan_against_the_classic_layouts(plot_plan):
     assert np.max(np.abs(err)) < 0.11, err
 
 
+@pytest.mark.slow
 def test_plan_files(plot_plan, tmp_path):
     from treesim.plan.outputs import PLAN_FILES, write_plan
 

@@ -172,6 +172,7 @@ def test_csf_prints_nothing(capfd):
     assert out == "" and errs == ""
 
 
+@pytest.mark.slow
 def test_a_plot_in_feet_does_not_crash():
     pts, _ = _cloud(scene(3, n_stems=3)[0])
     mask, dtm, _ = D.ground_and_dtm(pts * 3.2808)

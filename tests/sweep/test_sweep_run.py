@@ -65,6 +65,7 @@ def cli_sweep(tmp_path_factory):
     return code, out, cfg
 
 
+@pytest.mark.slow
 def test_four_points_end_to_end(cli_sweep, capsys):
     code, out, _ = cli_sweep
     assert code == 0
@@ -162,6 +163,7 @@ def _front_ids(rows: list[dict], fig: dict) -> list[str]:
     return [p[2] for p in sorted(pts) if p[2] not in beaten]
 
 
+@pytest.mark.slow
 def test_the_fronts_are_the_pareto_fronts_of_the_rows(cli_sweep):
     _, out, _ = cli_sweep
     doc = json.loads((out / "sweep.json").read_text())
@@ -174,6 +176,7 @@ def test_the_fronts_are_the_pareto_fronts_of_the_rows(cli_sweep):
     assert fastest["on_fronts"] == len(FIGURES)
 
 
+@pytest.mark.slow
 def test_the_page_is_self_contained_and_shows_the_fronts(cli_sweep):
     _, out, _ = cli_sweep
     page = (out / "sweep.html").read_text(encoding="utf-8")
@@ -193,6 +196,7 @@ def test_the_page_is_self_contained_and_shows_the_fronts(cli_sweep):
     assert "--repeat 3" in page  # one timing per point: the page says how to measure noise
 
 
+@pytest.mark.slow
 def test_a_second_run_reuses_every_point(cli_sweep, capsys):
     code, out, cfg = cli_sweep
     before = result_times(out)
@@ -307,6 +311,7 @@ def test_fresh_makes_the_trees_and_runs_every_point_again(two_points):
     assert [r["points"] for r in res.rows] == [r["points"] for r in first.rows]
 
 
+@pytest.mark.slow
 def test_a_failed_point_is_recorded_and_tried_again(tmp_path):
     # scan.max_rays = 10 makes the scan refuse: one point fails, the other runs
     cfg = write(tmp_path, TINY + '[grid]\n"scan.max_rays" = [10, 1000000000]\n')
