@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -131,6 +132,7 @@ class BackgroundDrawer:
     def __init__(self, workers: int = 0) -> None:
         self._pool: ProcessPoolExecutor | None = None
         self._futures: dict[str, Future[tuple[Any, float]]] = {}
+        self._jobs: dict[str, tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]] = {}
         self._done: dict[str, Any] = {}
         #: Seconds each piece took where it was drawn (its own process's clock).
         self.seconds: dict[str, float] = {}
@@ -164,14 +166,22 @@ class BackgroundDrawer:
         if self._pool is None:
             self._done[key], self.seconds[key] = _timed(fn, *args, **kwargs)
             return
+        self._jobs[key] = (fn, args, kwargs)
         self._futures[key] = self._pool.submit(_timed, fn, *args, **kwargs)
 
     def results(self) -> dict[str, Any]:
         """Wait for every piece; their results by key. A piece that failed raises its
-        error here (the pool is closed first)."""
+        error here (the pool is closed first); one whose process died is drawn again
+        here."""
         try:
             for key, fut in self._futures.items():
-                self._done[key], self.seconds[key] = fut.result()
+                try:
+                    self._done[key], self.seconds[key] = fut.result()
+                except BrokenProcessPool:  # a drawing process died (killed, out of memory)
+                    if key.startswith("warm_up_"):
+                        continue
+                    fn, args, kwargs = self._jobs[key]  # drawn again here
+                    self._done[key], self.seconds[key] = _timed(fn, *args, **kwargs)
         except BaseException:
             self.close()
             raise

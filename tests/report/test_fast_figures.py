@@ -114,3 +114,25 @@ def test_the_sweep_reads_the_trade_without_drawing_time():
     old = [{"status": "ok", "time_total_s": 3.0}]  # a sweep run before the column
     assert _time_key({"time": "time_total_s", "rows": old}) == "time_total_s"
     assert _time_key({"time": TIME, "rows": old}) == "time_total_s"
+
+
+def _dies() -> str:
+    import multiprocessing
+    import os
+    import signal
+
+    if multiprocessing.parent_process() is not None:  # in a drawing process: killed
+        os.kill(os.getpid(), signal.SIGKILL)
+    return "drawn here"
+
+
+def _echo(x: int) -> int:
+    return x
+
+
+def test_a_piece_whose_process_died_is_drawn_again_here():
+    with BackgroundDrawer(workers=1) as drawer:
+        drawer.submit("dead", _dies)
+        drawer.submit("next", _echo, 7)
+        got = drawer.results()  # the pool broke under both: drawn again in this process
+    assert got == {"dead": "drawn here", "next": 7}
