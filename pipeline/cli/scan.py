@@ -178,10 +178,12 @@ def run_scan(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
     """Scan (:func:`treesim.steps.scan_files`), then print a per-station table."""
+    from ..scan._open3d import load_open3d
     from ..steps import scan_files
 
     output_file(out, inputs=meshes)
     output_file(out.with_name(out.stem + ".json"), flag="-o (its .json beside it)")
+    load_open3d()  # before the step's own import of it: without Plotly and Dash (~0.8 s)
     step = scan_files(
         meshes,
         out_path=out,

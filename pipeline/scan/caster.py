@@ -63,8 +63,9 @@ class Caster:
     def __init__(
         self, scene: Scene, frame: LocalFrame, nthreads: int, keep: np.ndarray | None = None
     ) -> None:
-        import open3d as o3d
+        from ._open3d import load_open3d
 
+        o3d = load_open3d()
         self.o3d = o3d
         self.nthreads = int(nthreads)
         v = frame.to_local(scene.vertices)

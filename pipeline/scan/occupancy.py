@@ -246,19 +246,22 @@ def occupancy_grid(
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
     m_ray = pointing_margin_rad(spec)
-    diff = np.zeros((n_rows + 1) * (n_cols + 1), dtype=np.int64)
+    n_diff = (n_rows + 1) * (n_cols + 1)
     stride = n_cols + 1
     k = ras.cell
+    # the boxes' corners in the difference raster, added (+) and subtracted (-): counted
+    # once at the end (two bincounts of the raster, not eight per level; integers, so the
+    # order of the boxes does not matter)
+    corners: dict[int, list[np.ndarray]] = {1: [], -1: []}
 
     def add_boxes(r0: np.ndarray, r1: np.ndarray, c0: np.ndarray, c1: np.ndarray, w: np.ndarray):
         # boxes: [r0..r1] × [c0..c1] (if c1 >= c0), plus [r0..r1] × [0..wc] where it wraps
-        # (summed into the difference raster: the order of the boxes does not matter)
         wc = np.where(w >= 0, w // k, -1)
         boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
         for a0, a1, b0, b1, ok in boxes:
             a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
             for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
-                diff[:] += np.bincount(rr * stride + cc, minlength=len(diff)) * sgn
+                corners[sgn].append(rr * stride + cc)
 
     # the pieces: the triangles at first, gathered when bounded; then bisected halves
     piece, n_pieces = (lambda sel: vertices[faces[sel]]), len(faces)
@@ -293,6 +296,11 @@ def occupancy_grid(
             break
         pieces = _bisect_longest(piece(big))
         piece, n_pieces = pieces.__getitem__, len(pieces)
+    diff = np.zeros(n_diff, dtype=np.int64)
+    for sgn, idx in corners.items():
+        if idx:
+            diff += np.bincount(np.concatenate(idx), minlength=n_diff) * sgn
+    corners.clear()
     occ = diff.reshape(n_rows + 1, n_cols + 1).cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
     return SparseGrid.from_raster(window, ras, occ)
 
