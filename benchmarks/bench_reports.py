@@ -51,13 +51,15 @@ def _treesim(args: list[str], pythonpath: Path | None = None) -> tuple[dict, flo
     out = Path(args[args.index("-o") + 1])
     load = os.getloadavg()[0]
     cpu0 = _child_cpu_s()
-    subprocess.run(
+    done = subprocess.run(
         [sys.executable, "-m", "treesim.cli", *args],
-        check=True,
         env=env,
-        stdout=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
         cwd=tempfile.gettempdir(),
     )
+    if done.returncode:
+        raise SystemExit(f"treesim {' '.join(args)} failed:\n{done.stderr}")
     return json.loads((out / "run.json").read_text()), _child_cpu_s() - cpu0, load
 
 
