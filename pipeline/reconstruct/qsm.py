@@ -855,6 +855,47 @@ def _accepted(
     )
 
 
+#: A stem fragment's slab fit stands for the stem only when it is no wider than this
+#: share of the stem's last full ring below (a slab in a fork or among fronds is wider).
+FRAGMENT_MAX_WIDENING = 1.1
+
+
+def _fragment_fit(
+    own_fit: CircleFit | None,
+    slab: tuple,
+    r_below: float,
+    w: np.ndarray,
+    rng: np.random.Generator,
+    params: QSMParams,
+    band_min: float,
+) -> tuple[CircleFit | None, tuple]:
+    """A fragment of a wide stem: its own fit, or the slab's where that is better.
+
+    Inside a crown the stem's slices break into fragments (the paths to its far side come
+    through the branches; the real pine from 12 m up: nodes of 2-40 points on 60-140
+    degrees, read 5-6 cm on a stem of 7.2 cm). Where the node's own points give no full
+    arc, the slab of every point square to the axis around it, reaching as far as the
+    stem's last full ring below (``r_below``), is fitted; its circle replaces the own fit
+    when it is a full arc no wider than :data:`FRAGMENT_MAX_WIDENING` times ``r_below``.
+    ``slab`` is :func:`_stem_slab`'s arguments but the extent, with the node's own
+    (indices, plane coordinates, u, v) last; returns (fit, the points it was fitted on).
+    """
+    p, sk, seq, i, a, h, tree_all, own = slab
+    if own_fit is not None and own_fit.coverage_deg >= params.min_coverage_deg:
+        return own_fit, own
+    got = _stem_slab(p, sk, seq, i, a, r_below, h, tree_all, own)
+    if got[0] is own[0]:
+        return own_fit, own
+    fit = fit_circle(got[1], w[got[0]], rng, band_min)
+    if (
+        fit is not None
+        and fit.coverage_deg >= params.min_coverage_deg
+        and fit.radius <= FRAGMENT_MAX_WIDENING * r_below
+    ):
+        return fit, got
+    return own_fit, own
+
+
 def _fit_nodes(
     p: np.ndarray, w: np.ndarray, sk: _Skeleton, params: QSMParams, spacing_m: float, h: float
 ) -> _Fits:
@@ -889,21 +930,22 @@ def _fit_nodes(
             if not sk.keep[v]:
                 continue
             idx = sk.members(v)
-            # inside a crown the stem's slices break into fragments (the paths to its far
-            # side come through the branches): a fragment of a stem known to be wide
-            # fits the slab too, reaching as far as the stem's radius below it does
-            fragment = bi == 0 and r_below >= wide
+            fragment = bi == 0 and r_below >= wide  # see _fragment_fit
             if len(idx) < (1 if fragment else 6):
                 continue
             u, vv = _basis(a)
             rel = p[idx] - sk.centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
             f.extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
-            if bi == 0 and max(f.extent[v], r_below) >= wide:
+            if bi == 0 and f.extent[v] >= wide:
                 idx, q, u, vv = _stem_slab(
-                    p, sk, seq, i, a, max(f.extent[v], r_below), h, tree_all, (idx, q, u, vv)
+                    p, sk, seq, i, a, f.extent[v], h, tree_all, (idx, q, u, vv)
                 )
-            fit = fit_circle(q, w[idx], np.random.default_rng(rng_base + v), band_min)
+            rng = np.random.default_rng(rng_base + v)
+            fit = fit_circle(q, w[idx], rng, band_min) if len(idx) >= 6 else None
+            if fragment and f.extent[v] < wide:
+                slab = (p, sk, seq, i, a, h, tree_all, (idx, q, u, vv))
+                fit, (idx, q, u, vv) = _fragment_fit(fit, slab, r_below, w, rng, params, band_min)
             if fit is None:
                 continue
             f.radius[v] = fit.radius
