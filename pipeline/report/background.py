@@ -7,6 +7,10 @@ piece as soon as its inputs exist: the clouds side by side after the scan, a com
 report after that comparison is written, while the run goes on comparing. The run's
 report stage then waits only for what is left.
 
+The drawing processes run matplotlib and numpy only, never Open3D (whose thread pools
+do not survive a fork: the scanner's and the comparisons' processes are spawned), and
+each ends with the run that forked it (:func:`treesim._process.exit_with_parent`).
+
 It pays where the run has idle cores to spare (:func:`parallel_pays`) and processes can
 be forked (Linux: a forked child needs no re-import of the caller's script, which a
 spawned one would run again). Elsewhere, in a daemonic process (a pool's worker, which may not
@@ -138,8 +142,15 @@ class BackgroundDrawer:
         self.seconds: dict[str, float] = {}
         if workers > 0:
             try:
+                from .._process import exit_with_parent
+
+                # each drawing process ends with the run (a forked child holds the ends of
+                # its own queue's pipes, so it would never see the run's end on its own)
                 self._pool = ProcessPoolExecutor(
-                    max_workers=workers, mp_context=multiprocessing.get_context("fork")
+                    max_workers=workers,
+                    mp_context=multiprocessing.get_context("fork"),
+                    initializer=exit_with_parent,
+                    initargs=(os.getpid(),),
                 )
                 for i in range(workers):  # fork them all now, before the run's threads
                     self._futures[f"warm_up_{i}"] = self._pool.submit(_timed, _warm_up)

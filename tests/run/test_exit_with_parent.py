@@ -92,3 +92,50 @@ def test_orphaned_exit_is_70_as_the_callers_always_used():
     from treesim.reconstruct._pmlworker import _EXIT_ORPHANED
 
     assert ORPHANED_EXIT == 70 and _EXIT_ORPHANED == 70
+
+
+#: A run's report drawer with its forked drawing processes busy, as a run holds it: prints
+#: the drawing processes' pids, then waits to be killed.
+DRAWER = """
+import os, time
+from treesim.report.background import BackgroundDrawer
+drawer = BackgroundDrawer(workers=2)
+for i in range(2):
+    drawer.submit(f"nap{i}", time.sleep, 60)
+time.sleep(1.0)
+print(" ".join(str(p) for p in drawer._pool._processes), flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_a_runs_forked_drawing_processes_end_when_the_run_is_killed():
+    import os
+    import signal
+
+    run = subprocess.Popen(
+        [sys.executable, "-c", DRAWER], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        pids = [int(p) for p in run.stdout.readline().split()]
+        assert len(pids) == 2
+        os.kill(run.pid, signal.SIGKILL)
+        run.wait(30)
+        deadline = time.monotonic() + 20
+        left = pids
+        while left and time.monotonic() < deadline:
+            left = [p for p in left if _alive(p)]
+            time.sleep(0.1)
+        assert not left, f"drawing processes {left} outlived the killed run"
+    finally:
+        if run.poll() is None:
+            run.kill()
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie nobody reaped yet has exited)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
