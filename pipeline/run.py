@@ -49,7 +49,8 @@ from .errors import InputFormatError, InvalidParameterError
 from .jsonio import json_ready as _jsonable
 from .jsonio import write_json as _write_json
 from .params import RunParams, params_hash, run_preset
-from .report.background import BackgroundDrawer, draw_report, preload_drawing
+from .report import draw_report
+from .report.background import BackgroundDrawer, preload_drawing
 from .report.data import ReportData
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene

@@ -40,6 +40,7 @@ __all__ = [
     "ReportData",
     "ReportParams",
     "build_report",
+    "draw_report",
     "remove_report",
     "summary_paragraph",
 ]
@@ -211,3 +212,15 @@ def _draw(
     )
     figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
     figures.occlusion_profile(profile, pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)
+
+
+def draw_report(folder: Path, params: ReportParams) -> dict[str, Path]:
+    """:func:`build_report` of a comparison folder, as one job a drawing process takes
+    (:class:`treesim.report.background.BackgroundDrawer`: module-level and picklable).
+
+    Examples
+    --------
+    >>> draw_report(Path("out/vs_field"), ReportParams())  # doctest: +SKIP
+    {'html': PosixPath('out/vs_field/report.html'), ...}
+    """
+    return build_report(folder, params=params)

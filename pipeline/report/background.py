@@ -28,7 +28,6 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from pathlib import Path
 from typing import Any
 
 __all__ = ["BackgroundDrawer", "parallel_pays", "preload_drawing"]
@@ -73,7 +72,7 @@ def _warm_up() -> float:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from . import build_report  # noqa: F401 - the report's modules, imported once
+    from . import data, figures, html, profile  # noqa: F401 - the report's modules, once
 
     fig = Figure(figsize=(2, 2), dpi=50)
     FigureCanvasAgg(fig)
@@ -140,7 +139,7 @@ class BackgroundDrawer:
         self._done: dict[str, Any] = {}
         #: Seconds each piece took where it was drawn (its own process's clock).
         self.seconds: dict[str, float] = {}
-        if workers > 0:
+        if workers > 0 and sys.platform != "win32":  # Windows cannot fork: draw inline
             try:
                 from .._process import exit_with_parent
 
@@ -210,10 +209,3 @@ class BackgroundDrawer:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-
-
-def draw_report(folder: Path, params: Any) -> dict[str, Path]:
-    """:func:`treesim.report.build_report` of a comparison folder (a picklable job)."""
-    from . import build_report
-
-    return build_report(folder, params=params)

@@ -12,9 +12,9 @@ import pytest
 
 from tests.report.test_report import _case
 from treesim.compare import compare, write_comparison
-from treesim.report import PNG_FILES, ReportParams, build_report
+from treesim.report import PNG_FILES, ReportParams, build_report, draw_report
 from treesim.report import figures as F
-from treesim.report.background import BackgroundDrawer, draw_report, parallel_pays
+from treesim.report.background import BackgroundDrawer, parallel_pays
 
 
 def test_the_largest_distance_per_cell_is_what_a_view_shows():
