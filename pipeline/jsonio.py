@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from .atomic import write_text
 from .errors import InputFormatError
@@ -21,9 +20,12 @@ def json_ready(value: Any) -> Any:
         return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_ready(v) for v in value]
-    if isinstance(value, np.ndarray):
+    # a numpy value exists only where numpy is loaded: this module does not load it (the
+    # CLI's parameters use it, and `treesim plan --help` should not pay numpy's import)
+    np = sys.modules.get("numpy")
+    if np is not None and isinstance(value, np.ndarray):
         return json_ready(value.tolist())
-    if isinstance(value, np.generic):
+    if np is not None and isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None

@@ -9,13 +9,61 @@ scan (:func:`~treesim.plan.verify.verify_plan`); :func:`write_plan` writes ``pla
 ``stations.csv``, ``map.png`` and ``curve.png``.
 """
 
-from .cover import Objective, Selection, improve, lazy_greedy
-from .layouts import Layout, candidate_grid, classic_layouts, square_grid_xy
-from .params import PlanParams
-from .planner import PlanResult, plan_scans, tree_targets
-from .samples import SampleSet, TreeTarget, sample_trees
-from .verify import verify_plan
-from .visibility import Visibility, VisibilityCaster, max_spacing_ok, visibility
+import importlib
+import sys
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
+    from .cover import Objective, Selection, improve, lazy_greedy
+    from .layouts import Layout, candidate_grid, classic_layouts, square_grid_xy
+    from .params import PlanParams
+    from .planner import PlanResult, plan_scans, tree_targets
+    from .samples import SampleSet, TreeTarget, sample_trees
+    from .verify import verify_plan
+    from .visibility import Visibility, VisibilityCaster, max_spacing_ok, visibility
+
+#: Every name, imported on first use (PEP 562): ``treesim plan --help`` needs the
+#: parameters only, not the planner (which loads numpy and the caster).
+_LAZY = {
+    **dict.fromkeys(("Objective", "Selection", "improve", "lazy_greedy"), ".cover"),
+    **dict.fromkeys(("Layout", "candidate_grid", "classic_layouts", "square_grid_xy"), ".layouts"),
+    "PlanParams": ".params",
+    **dict.fromkeys(("PlanResult", "plan_scans", "tree_targets"), ".planner"),
+    **dict.fromkeys(("SampleSet", "TreeTarget", "sample_trees"), ".samples"),
+    "verify_plan": ".verify",
+    **dict.fromkeys(
+        ("Visibility", "VisibilityCaster", "max_spacing_ok", "visibility"), ".visibility"
+    ),
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # found directly from now on
+    return value
+
+
+class _Package(ModuleType):
+    """This package's module type: loading the submodule ``visibility`` binds it on the
+    package under its own name (the import system does), which must not hide the function
+    of that name (when the package imported it eagerly, the function was bound after it)."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "visibility" and isinstance(value, ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "Layout",
