@@ -64,15 +64,13 @@ def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
     )
 
 
-def _warm_up() -> float:
-    """Import matplotlib and draw once (font cache, text layout), in a drawing process."""
+def draw_once() -> None:
+    """Draw one small figure and throw it away: matplotlib's font cache and text layout
+    loaded, so that the next figure costs its own drawing only."""
     import io
 
-    t0 = time.perf_counter()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-
-    from . import data, figures, html, profile  # noqa: F401 - the report's modules, once
 
     fig = Figure(figsize=(2, 2), dpi=50)
     FigureCanvasAgg(fig)
@@ -80,6 +78,14 @@ def _warm_up() -> float:
     ax.plot([0, 1], [0, 1])
     ax.set_title("warm-up")
     fig.savefig(io.BytesIO(), format="png")
+
+
+def _warm_up() -> float:
+    """Import matplotlib and draw once (font cache, text layout), in a drawing process."""
+    t0 = time.perf_counter()
+    from . import data, figures, html, profile  # noqa: F401 - the report's modules, once
+
+    draw_once()
     return time.perf_counter() - t0
 
 

@@ -117,23 +117,15 @@ def warm_up() -> None:
     font cache and text layout of matplotlib, Open3D's raycasting), so that the timed
     region holds the loop's own work. pymeshlab is not loaded: only the surface methods
     use it, and it would add its memory to runs that never do."""
-    import io as _io
-
     import matplotlib
     import numpy as np
     import open3d as o3d
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
     from .. import compare, io, reconstruct, report, run, scan  # noqa: F401
+    from ..report.background import draw_once
 
     matplotlib.rcParams  # noqa: B018 - loads the rc file
-    fig = Figure(figsize=(2, 2), dpi=50)
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    ax.plot([0, 1], [0, 1])
-    ax.set_title("warm-up")
-    fig.savefig(_io.BytesIO(), format="png")
+    draw_once()
     mesh = o3d.t.geometry.TriangleMesh.from_legacy(o3d.geometry.TriangleMesh.create_box())
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(mesh)
