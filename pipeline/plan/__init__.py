@@ -9,10 +9,11 @@ scan (:func:`~treesim.plan.verify.verify_plan`); :func:`write_plan` writes ``pla
 ``stations.csv``, ``map.png`` and ``curve.png``.
 """
 
-import importlib
 import sys
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
+
+from .._lazy import lazy_names
 
 if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
     from .cover import Objective, Selection, improve, lazy_greedy
@@ -38,13 +39,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value  # found directly from now on
-    return value
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
 
 
 class _Package(ModuleType):
@@ -59,10 +54,6 @@ class _Package(ModuleType):
 
 
 sys.modules[__name__].__class__ = _Package
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
 
 
 __all__ = [

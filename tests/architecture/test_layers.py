@@ -4,8 +4,8 @@ points down the layers.
 Reads every import of every module (function-local ones included) with ``ast``; nothing
 is imported. The layers, bottom to top (docs/install.md, "The repository"):
 
-* the base: ``errors``, ``_version``, ``_system``, ``_process``, ``atomic``, ``jsonio``, ``frame``,
-  ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;
+* the base: ``errors``, ``_version``, ``_system``, ``_process``, ``_lazy``, ``atomic``,
+  ``jsonio``, ``frame``, ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
   another, except ``reconstruct → models`` (cylinders to mesh);
 * ``report``, above ``compare``;
@@ -31,6 +31,7 @@ BASE_ORDER = [
     "_version",
     "_system",
     "_process",
+    "_lazy",
     "atomic",
     "jsonio",
     "frame",
