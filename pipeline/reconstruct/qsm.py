@@ -936,14 +936,14 @@ def _fit_nodes(
             u, vv = _basis(a)
             rel = p[idx] - sk.centroid[v]
             q = np.stack([rel @ u, rel @ vv], axis=1)
-            f.extent[v] = 0.5 * float(np.ptp(q, axis=0).max())
-            if bi == 0 and f.extent[v] >= wide:
-                idx, q, u, vv = _stem_slab(
-                    p, sk, seq, i, a, f.extent[v], h, tree_all, (idx, q, u, vv)
-                )
+            extent = 0.5 * float(np.ptp(q, axis=0).max())
+            if len(idx) >= 6:  # a few points of a fragment say nothing of the data's width
+                f.extent[v] = extent
+            if bi == 0 and extent >= wide:
+                idx, q, u, vv = _stem_slab(p, sk, seq, i, a, extent, h, tree_all, (idx, q, u, vv))
             rng = np.random.default_rng(rng_base + v)
             fit = fit_circle(q, w[idx], rng, band_min) if len(idx) >= 6 else None
-            if fragment and f.extent[v] < wide:
+            if fragment and extent < wide:
                 slab = (p, sk, seq, i, a, h, tree_all, (idx, q, u, vv))
                 fit, (idx, q, u, vv) = _fragment_fit(fit, slab, r_below, w, rng, params, band_min)
             if fit is None:
