@@ -22,10 +22,9 @@ True
 from __future__ import annotations
 
 import importlib
-import sys
-import types
 from typing import TYPE_CHECKING, Any
 
+from ._lazy import keep_functions
 from ._version import __version__
 from .errors import TreesimError
 
@@ -107,16 +106,7 @@ _LAZY = {
 _VERBS = frozenset(("scan", "reconstruct", "compare"))
 
 
-class _Facade(types.ModuleType):
-    """This package's module: a subpackage named as a verb never hides the verb."""
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in _VERBS and isinstance(value, types.ModuleType):
-            return  # still reached as sys.modules["treesim.<name>"] and by from-imports
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Facade
+keep_functions(__name__, _VERBS)
 
 
 def __getattr__(name: str) -> Any:

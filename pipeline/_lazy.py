@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import importlib
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from types import ModuleType
 from typing import Any
 
 
@@ -35,3 +36,25 @@ def lazy_names(
         return sorted(set(module_globals) | set(names))
 
     return __getattr__, __dir__
+
+
+def keep_functions(package: str, names: Iterable[str]) -> None:
+    """Keep the functions ``names`` of ``package`` bound when its submodules of the same
+    names load: the import system binds a loaded submodule to its parent's attribute of
+    that name, which would hide the function (as it did not when the package imported the
+    function eagerly, after its module). The submodule stays reachable in ``sys.modules``
+    and by from-imports.
+
+    Examples
+    --------
+    >>> keep_functions("treesim.plan", ["visibility"])  # doctest: +SKIP
+    """
+    kept = frozenset(names)
+
+    class _Package(ModuleType):
+        def __setattr__(self, name: str, value: Any) -> None:
+            if name in kept and isinstance(value, ModuleType):
+                return
+            super().__setattr__(name, value)
+
+    sys.modules[package].__class__ = _Package

@@ -9,11 +9,9 @@ scan (:func:`~treesim.plan.verify.verify_plan`); :func:`write_plan` writes ``pla
 ``stations.csv``, ``map.png`` and ``curve.png``.
 """
 
-import sys
-from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from .._lazy import lazy_names
+from .._lazy import keep_functions, lazy_names
 
 if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference)
     from .cover import Objective, Selection, improve, lazy_greedy
@@ -42,18 +40,8 @@ _LAZY = {
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)
 
 
-class _Package(ModuleType):
-    """This package's module type: loading the submodule ``visibility`` binds it on the
-    package under its own name (the import system does), which must not hide the function
-    of that name (when the package imported it eagerly, the function was bound after it)."""
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name == "visibility" and isinstance(value, ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
+# the function visibility shares its submodule's name
+keep_functions(__name__, ["visibility"])
 
 
 __all__ = [
