@@ -127,6 +127,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
         figures=not args.no_figures,
         threads=threads,
         progress=progress_printer(label="plot scan"),
+        executor=args.executor,
+        workers=args.workers,
+        scheduler=args.scheduler,
     )
     res = step.result
     print(
@@ -411,4 +414,22 @@ def _register_scan(psub: argparse._SubParsersAction) -> None:
     )
     param_option(x, CompareParams, "tolerance_m")
     x.add_argument("--no-figures", action="store_true", help="scan only: no per-tree comparison")
+    x.add_argument(
+        "--executor",
+        choices=["inline", "local", "dask"],
+        default="inline",
+        help="where the stations run: inline (this process, one after another: default), "
+        "local (a process pool) or dask (a Dask cluster); each station then a task that "
+        "builds only the trees it can record (the same cloud, bit for bit)",
+    )
+    x.add_argument(
+        "--workers",
+        type=whole_number(1),
+        help="worker processes of local or a local dask cluster (default one per core)",
+    )
+    x.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a running Dask scheduler (default: a local cluster); with --executor dask",
+    )
     s.set_defaults(func=cmd_scan)

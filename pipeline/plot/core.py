@@ -406,6 +406,49 @@ class Plot:
         for tid in list(self._parts) if tree_ids is None else list(tree_ids):
             self._parts.pop(tid, None)
 
+    def tree_facts(self, tree_id: int) -> dict[str, Any]:
+        """What the plot knows of a tree without holding its mesh: its bounds, triangle
+        count, source origin and cylinder table (built once if needed). A task that
+        built the tree hands them to its parent's plot (:meth:`set_tree_facts`), which
+        then places and counts the tree without building it."""
+        bounds = self.tree_bounds(tree_id)
+        return {
+            "bounds": bounds,
+            "triangles": self._ntri[tree_id],
+            "origin": self._origin[tree_id],
+            "table": self._tables.get(tree_id),
+        }
+
+    def set_tree_facts(self, tree_id: int, facts: dict[str, Any]) -> None:
+        """Take a tree's :meth:`tree_facts` as known (from another process that built
+        the same tree): bounds, triangle count and truth then need no build.
+
+        Examples
+        --------
+        >>> import treesim as ts
+        >>> a = ts.Plot([ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="sapling")])
+        >>> b = ts.Plot(a.trees)
+        >>> b.set_tree_facts(1, a.tree_facts(1))
+        >>> bool((b.tree_bounds(1) == a.tree_bounds(1)).all()), b.loaded
+        (True, [])
+        """
+        self.tree(tree_id)  # an unknown id is refused
+        self._bounds[tree_id] = np.asarray(facts["bounds"], dtype=np.float64).copy()
+        self._ntri[tree_id] = int(facts["triangles"])
+        self._origin[tree_id] = np.asarray(facts["origin"], dtype=np.float64)
+        self._tables[tree_id] = facts["table"]
+
+    def knows(self, tree_id: int) -> bool:
+        """Whether the tree's bounds and triangles are known (built once, or given)."""
+        return tree_id in self._bounds
+
+    def blank(self) -> Plot:
+        """The same plot with nothing built or known of its trees (what a task is sent:
+        it builds what it needs itself)."""
+        from dataclasses import replace
+
+        return replace(self)
+
     def _place(self, t: PlotTree, v: np.ndarray) -> np.ndarray:
         rot = rotation(t.rotation_deg)
         out = (np.asarray(v, dtype=np.float64) * t.scale) @ rot.T

@@ -271,9 +271,12 @@ class _StationScan:
         ids: list[int],
         ground: MeshPart | None,
         out: _Gathered,
+        release: Callable[[], None] | None = None,
     ) -> int:
         """Scan station ``k`` over the trees ``ids`` and the terrain within its range into
-        ``out``; returns the triangles it loaded."""
+        ``out``; returns the triangles it loaded. ``release`` is called once the
+        station's scene holds its own copy of the trees (the plot's built trees it no
+        longer needs are dropped before the cast: one copy of the geometry casts)."""
         from ..steps import scale_progress, scan_scene
 
         spec, n, say = self.params.scanner, self.n, self.say
@@ -288,11 +291,17 @@ class _StationScan:
         )
         say(k / n, f"station {k + 1}/{n}: {len(ids)} trees")
         if not parts:
+            if release is not None:
+                release()
             out.stats.append(_empty_stats(k, st, spec))
             out.lods.append({"mode": self.params.lod, "note": "nothing within range or view"})
             return loaded_tri
         # a station that sees only the terrain still labels its points (tree_id 0)
         scene = Scene(parts, keep_tree_ids=True)
+        del parts
+        scene.parts = []  # the scan reads the merged arrays only: the parts may go
+        if release is not None:
+            release()
         res = scan_scene(
             scene,
             [st],
@@ -348,6 +357,9 @@ def scan_plot(
     margin_m: float = 2.0,
     cache_triangles: int = CACHE_TRIANGLES,
     check_inside: bool = True,
+    executor: str = "inline",
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> PlotScanResult:
     """Scan a plot from ``stations``, one station at a time, loading only what it can
     record (see the module notes).
@@ -364,7 +376,7 @@ def scan_plot(
         then empty.
     progress : callable(fraction, message), optional
     threads : int
-        Open3D threads (0: all cores).
+        Open3D threads (0: all cores; with an executor, its threads per task).
     window : bool
         Cast only towards the scene (False: the full field of view).
     terrain : bool
@@ -372,10 +384,23 @@ def scan_plot(
     margin_m : float
         How far the terrain reaches beyond the plot's square.
     cache_triangles : int
-        Built trees kept between stations, in triangles (the current station's trees
-        are held whatever their size); a tree dropped and needed again is rebuilt.
+        Built trees kept between stations, in triangles (inline only); a tree dropped
+        and needed again is rebuilt. A station's trees are dropped once its scene holds
+        them, before the cast.
     check_inside : bool
         Refuse stations inside geometry (see :func:`treesim.scan.scan`).
+    executor : {"inline", "local", "dask"}
+        Where the stations run (:mod:`treesim.executors`, as ``batch`` and ``sweep``):
+        ``inline`` one after another here; ``local`` or ``dask``: each station is a task
+        that builds only the trees it can record and returns its points, merged here in
+        station order (the same points, bit for bit, as inline; the trees' bounds are
+        found by tasks too). A sink then receives one chunk per station.
+    workers : int, optional
+        Worker processes of ``local`` and of a local dask cluster (default one per core,
+        at most one per station).
+    scheduler : str, optional
+        A running dask scheduler's address (``dask``; the plot's files at the same paths
+        on every worker).
 
     Returns
     -------
@@ -387,49 +412,30 @@ def scan_plot(
     >>> plot = ts.read_plot("plot/plot.toml")  # doctest: +SKIP
     >>> result = ts.scan_plot(plot, [(0.0, 0.0, 1.5), (7.0, -4.0, 1.6)])  # doctest: +SKIP
     >>> ts.write_cloud("plot_scan.laz", result.cloud)  # doctest: +SKIP
+    >>> on_two = ts.scan_plot(plot, stations, executor="dask", workers=2)  # doctest: +SKIP
     """
+    from ..executors import plan_executor
+
     params = params or ScanParams()
-    spec = params.scanner
     placed = [_as_station(s) for s in stations]
     if not placed:
         raise InvalidParameterError("give at least one station")
     if isinstance(cache_triangles, bool) or int(cache_triangles) < 0:
         raise InvalidParameterError(f"cache_triangles must be >= 0, got {cache_triangles!r}")
+    plan = plan_executor(
+        executor,
+        workers=workers,
+        threads=int(threads) or None,
+        scheduler=scheduler,
+        n_tasks=len(placed),
+    )
     t_all = time.perf_counter()
     say = progress or (lambda f, m: None)
-    frame = plot.frame()
-    n = len(placed)
-    say(0.0, "placing the trees")
-    needs, why = _station_needs(plot, placed, spec, frame.origin_array, cache_triangles)
-    ground = plot.terrain_part(margin_m) if terrain else None
-    total_tri = sum(plot.tree_triangles(t) for t in plot.tree_ids) + (
-        len(ground.faces) if ground is not None else 0
-    )
-    last_use = {
-        tid: max(k for k in range(n) if tid in needs.get(k, []))
-        for tid in {t for ids in needs.values() for t in ids}
-    }
-    scan_station = _StationScan(params, frame, n, say, threads, window, sink, check_inside)
-    out = _Gathered()
-    for k, st in enumerate(placed):
-        t_st = time.perf_counter()
-        ids = needs.get(k, [])
-        built = [t for t in ids if t not in plot.loaded]
-        loaded_tri = scan_station(plot, k, st, ids, ground, out)
-        out.loading.append(
-            {
-                "trees_loaded": list(ids),
-                "trees_beyond_range": why[k]["beyond_range"],
-                "trees_outside_fov": why[k]["outside_fov"],
-                "trees_built": built,
-                "triangles_loaded": int(loaded_tri),
-                "triangles_total": int(total_tri),
-                "time_s": time.perf_counter() - t_st,
-            }
-        )
-        # drop what no later station needs, then keep the rest within the budget
-        plot.release([t for t in plot.loaded if last_use.get(t, -1) <= k])
-        _trim(plot, set(needs.get(k + 1, [])), int(cache_triangles))
+    job = _PlotJob(plot, placed, params, window, terrain, margin_m, check_inside)
+    if plan.kind.value == "inline":
+        out = _scan_inline(job, say, int(threads), sink, int(cache_triangles))
+    else:
+        out = _scan_tasks(job, say, plan, sink)
     plot.release()
     cloud = _plot_cloud(out, placed)
     say(1.0, "done")
@@ -442,9 +448,229 @@ def scan_plot(
         warnings=out.warnings,
         points_written=out.written,
         total_s=time.perf_counter() - t_all,
-        spec=spec,
+        spec=params.scanner,
         models=out.models,
     )
+
+
+@dataclass
+class _PlotJob:
+    """A plot scan's settings, shared by the inline loop and the station tasks."""
+
+    plot: Plot
+    placed: list[Station]
+    params: ScanParams
+    window: bool
+    terrain: bool
+    margin_m: float
+    check_inside: bool
+
+    def ground(self, plot: Plot) -> MeshPart | None:
+        return plot.terrain_part(self.margin_m) if self.terrain else None
+
+    def total_triangles(self, ground: MeshPart | None) -> int:
+        plot = self.plot
+        return sum(plot.tree_triangles(t) for t in plot.tree_ids) + (
+            len(ground.faces) if ground is not None else 0
+        )
+
+    def loading(
+        self, k: int, ids: list[int], why: list[dict[str, list[int]]], built: list[int]
+    ) -> dict[str, Any]:
+        """Station ``k``'s loading figures (its triangles and time added by the caller)."""
+        return {
+            "trees_loaded": list(ids),
+            "trees_beyond_range": why[k]["beyond_range"],
+            "trees_outside_fov": why[k]["outside_fov"],
+            "trees_built": built,
+        }
+
+
+def _scan_inline(
+    job: _PlotJob, say: Progress, threads: int, sink: Any, cache_triangles: int
+) -> _Gathered:
+    """The stations one after another in this process, trees kept between them within
+    ``cache_triangles``."""
+    plot, placed, spec = job.plot, job.placed, job.params.scanner
+    frame = plot.frame()
+    n = len(placed)
+    say(0.0, "placing the trees")
+    needs, why = _station_needs(plot, placed, spec, frame.origin_array, cache_triangles)
+    ground = job.ground(plot)
+    total_tri = job.total_triangles(ground)
+    last_use = {
+        tid: max(k for k in range(n) if tid in needs.get(k, []))
+        for tid in {t for ids in needs.values() for t in ids}
+    }
+    scan_station = _StationScan(
+        job.params, frame, n, say, threads, job.window, sink, job.check_inside
+    )
+    out = _Gathered()
+    for k, st in enumerate(placed):
+        t_st = time.perf_counter()
+        ids = needs.get(k, [])
+        built = [t for t in ids if t not in plot.loaded]
+
+        def release(k: int = k) -> None:
+            # drop what no later station needs, then keep the rest within the budget
+            plot.release([t for t in plot.loaded if last_use.get(t, -1) <= k])
+            _trim(plot, set(needs.get(k + 1, [])), cache_triangles)
+
+        before = _rss_bytes()
+        loaded_tri = scan_station(plot, k, st, ids, ground, out, release)
+        out.loading.append(
+            {
+                **job.loading(k, ids, why, built),
+                "triangles_loaded": int(loaded_tri),
+                "triangles_total": int(total_tri),
+                "time_s": time.perf_counter() - t_st,
+                **_memory(before),
+            }
+        )
+        release()
+    return out
+
+
+def _scan_tasks(job: _PlotJob, say: Progress, plan: Any, sink: Any) -> _Gathered:
+    """Each station a task on ``plan``'s executor; results merged in station order."""
+    from ..executors import open_executor, slots
+
+    plot, placed, spec = job.plot, job.placed, job.params.scanner
+    frame = plot.frame()
+    n = len(placed)
+    out = _Gathered()
+    with open_executor(plan) as ex:
+        unknown = [t for t in plot.tree_ids if not plot.knows(t)]
+        if unknown:
+            say(0.0, f"placing {len(unknown)} trees on {plan.describe()}")
+            size = max(1, -(-len(unknown) // (2 * slots(plan, ex))))
+            chunks = [unknown[a : a + size] for a in range(0, len(unknown), size)]
+            blank = plot.blank()
+            for fut in [ex.submit(_tree_facts_task, blank, c) for c in chunks]:
+                for tid, facts in fut.result().items():
+                    plot.set_tree_facts(tid, facts)
+        needs, why = _station_needs(plot, placed, spec, frame.origin_array, 0)
+        total_tri = job.total_triangles(plot.terrain_part(job.margin_m) if job.terrain else None)
+        task = _StationTask(job.params, frame, n, plan.threads, job.window, job.check_inside)
+        task_job = _PlotJob(plot.blank(), [], job.params, *_job_tail(job))
+        futures = [
+            ex.submit(task, task_job, k, st, needs.get(k, [])) for k, st in enumerate(placed)
+        ]
+        say(0.0, f"{n} stations on {plan.describe()}")
+        for k, fut in enumerate(futures):
+            r = fut.result()
+            ids = needs.get(k, [])
+            out.stats.append(r["stats"])
+            out.lods.append(r["lod"])
+            out.warnings += r["warnings"]
+            out.models = r["models"] or out.models
+            if r["points"] is not None:
+                if sink is not None:
+                    sink(r["points"], r["fields"])
+                    out.written += len(r["points"])
+                else:
+                    out.pts.append(r["points"])
+                    out.flds.append(r["fields"])
+            out.loading.append(
+                {
+                    **job.loading(k, ids, why, list(ids)),
+                    "triangles_loaded": int(r["loaded_tri"]),
+                    "triangles_total": int(total_tri),
+                    "time_s": r["time_s"],
+                    **r["memory"],
+                }
+            )
+            futures[k] = None  # type: ignore[call-overload]  # its points may go
+            say((k + 1) / n, f"station {k + 1}/{n}: {len(ids)} trees")
+    return out
+
+
+def _job_tail(job: _PlotJob) -> tuple[bool, bool, float, bool]:
+    return job.window, job.terrain, job.margin_m, job.check_inside
+
+
+def _tree_facts_task(plot: Plot, ids: list[int]) -> dict[int, dict[str, Any]]:
+    """Build each tree of ``ids`` once and return what the parent needs to place it
+    (:meth:`Plot.tree_facts`), dropping its mesh."""
+    out = {}
+    for tid in ids:
+        out[tid] = plot.tree_facts(tid)
+        plot.release([tid])
+    return out
+
+
+@dataclass
+class _StationTask:
+    """One station's scan in a task: builds the trees ``ids`` (and the terrain), scans,
+    returns the points, the station's figures and the task's memory."""
+
+    params: ScanParams
+    frame: Any
+    n: int
+    threads: int
+    window: bool
+    check_inside: bool
+
+    def __call__(self, job: _PlotJob, k: int, st: Station, ids: list[int]) -> dict[str, Any]:
+        from ..executors import task_threads
+
+        t0 = time.perf_counter()
+        before = _rss_bytes(reset=True)
+        plot = job.plot
+        scan_station = _StationScan(
+            self.params,
+            self.frame,
+            self.n,
+            lambda f, m: None,
+            task_threads(self.threads),
+            self.window,
+            None,
+            self.check_inside,
+        )
+        out = _Gathered()
+        loaded_tri = scan_station(plot, k, st, ids, job.ground(plot), out, plot.release)
+        plot.release()
+        return {
+            "stats": out.stats[0],
+            "lod": out.lods[0],
+            "warnings": out.warnings,
+            "models": out.models,
+            "points": out.pts[0] if out.pts else None,
+            "fields": out.flds[0] if out.flds else None,
+            "loaded_tri": loaded_tri,
+            "time_s": time.perf_counter() - t0,
+            "memory": _memory(before),
+        }
+
+
+def _rss_bytes(reset: bool = False) -> int | None:
+    """This process's resident memory now (Linux; None elsewhere). ``reset`` (a task's
+    worker process only, never the caller's: it lowers the process's own ``ru_maxrss``)
+    resets its peak (``/proc/self/clear_refs``), so that :func:`_memory` reads the
+    station's own peak."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            now = next(int(x.split()[1]) * 1024 for x in fh if x.startswith("VmRSS:"))
+        if reset:
+            with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
+                fh.write("5")
+    except (OSError, StopIteration, ValueError):
+        return None
+    return now
+
+
+def _memory(before: int | None) -> dict[str, int | None]:
+    """``rss_before_bytes`` (at the station's start) and ``rss_peak_bytes`` (the
+    process's peak: since the station's start in a task, over the process's life
+    inline): what a station cost in memory (Linux; None elsewhere)."""
+    peak = None
+    if before is not None:
+        try:
+            with open("/proc/self/status", encoding="ascii") as fh:
+                peak = next(int(x.split()[1]) * 1024 for x in fh if x.startswith("VmHWM:"))
+        except (OSError, StopIteration, ValueError):
+            peak = None
+    return {"rss_before_bytes": before, "rss_peak_bytes": peak}
 
 
 def _trim(plot: Plot, wanted: set[int], budget: int, keep_last: int | None = None) -> None:
@@ -757,11 +983,18 @@ def plot_scan_files(
     threads: int = 0,
     progress: Progress | None = None,
     cache_triangles: int = CACHE_TRIANGLES,
+    executor: str = "inline",
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> Any:
     """Scan a plot into ``outdir``: the cloud (``plot_scan.laz``, written while it is
     cast), ``plot_scan.json`` (the scan, each station's loading, each tree's truth and
     figures) and ``tree_figures.csv`` (one row per tree). Interrupted or failed, it
     leaves nothing behind (no cloud, no JSON, no CSV, no folder it made).
+
+    ``executor``, ``workers`` and ``scheduler`` say where the stations run (see
+    :func:`scan_plot`: each station a task on local processes or a Dask cluster, the
+    same cloud as inline); the per-tree figures are measured here.
 
     Returns a :class:`treesim.steps.StepResult` (``result``: the
     :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
@@ -808,6 +1041,9 @@ def plot_scan_files(
                 threads=threads,
                 progress=scaled(say, 0.0, 0.7 if figures else 0.95),
                 cache_triangles=cache_triangles,
+                executor=executor,
+                workers=workers,
+                scheduler=scheduler,
             )
         written.append(cloud_path)
         t_scan = time.perf_counter() - t0
