@@ -208,6 +208,12 @@ def run_scan(
         f"(full field of view would be {result.rays_full_fov:,}) in {result.total_s:.2f} s; "
         f"models: {models}"
     )
+    m = result.spec.mechanics()
+    print(
+        f"in the field each station's scan takes {m.duration_s:.1f} s ({m.n_lines:,} lines at "
+        f"{m.line_rate_hz:.3g} lines/s, a pulse every {m.pulse_period_s * 1e6:.3g} µs); "
+        "each point's time_s (LAZ gps_time) is seconds since its station's start"
+    )
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
         from ..report.text import lod_reasons
 

@@ -13,10 +13,13 @@ coordinates keep the scale's precision: the per-axis minimum for a whole cloud
 a streamed one (:class:`LasCloudWriter`). Fields named like a format-6 standard dimension
 go there (cast to its type: ``intensity`` rounded and clipped to 0..65535,
 ``return_number`` / ``number_of_returns`` clipped to 1..15, ``classification`` to 0..255);
-every other field becomes an extra dimension with its own name and dtype (bool as uint8)
-and a short description. ``Cloud.metadata`` is stored as JSON in a VLR (user id
-``treesim``) and ``label_names`` also in the description of the ``label`` dimension
-(``0=other,1=wood,2=leaf,3=ground``).
+a scan's ``time_s`` (seconds since the station's scan started) goes to ``gps_time`` as
+GPS week time (global encoding bit 0 clear; see :mod:`treesim.scan.timing`) unless the
+cloud has a ``gps_time`` of its own, and reading a file whose treesim metadata records
+that convention gives it back as ``time_s``; every other field becomes an extra
+dimension with its own name and dtype (bool as uint8) and a short description.
+``Cloud.metadata`` is stored as JSON in a VLR (user id ``treesim``) and ``label_names``
+also in the description of the ``label`` dimension (``0=other,1=wood,2=leaf,3=ground``).
 """
 
 from __future__ import annotations
@@ -73,6 +76,13 @@ _VLR_MAX = 65_535
 
 #: Standard dimensions that are not read or written as fields (coordinates, raw ints).
 _SKIP_STANDARD = {"X", "Y", "Z"}
+
+#: Fields written to a standard dimension of another name: a scan's pulse times (seconds
+#: since the station's scan started) are LAS's ``gps_time`` (as GPS week time).
+_ALIASES = {"time_s": "gps_time"}
+#: The metadata key a treesim scan records its time convention under: a file with it
+#: reads its ``gps_time`` back as ``time_s``.
+_TIME_KEY = "time"
 
 #: Clipping ranges for fields written to standard dimensions (others: the dtype's range).
 _STANDARD_RANGES: dict[str, tuple[float, float]] = {
@@ -275,6 +285,8 @@ def read_las(path: str | Path) -> Cloud:
         names = parse_label_names(descriptions["label"])
         if names:
             metadata["label_names"] = names
+    if _TIME_KEY in metadata and "gps_time" in fields and "time_s" not in fields:
+        fields = {("time_s" if k == "gps_time" else k): v for k, v in fields.items()}
     metadata.update(
         source_path=str(path),
         las_point_format=int(point_format_id),
@@ -474,9 +486,16 @@ class LasCloudWriter(CloudWriter):
         self._compress = self.path.suffix.lower() == ".laz"
         self._backends = _write_backends(threads) if self._compress else None
         self._standard = _standard_targets()
+        #: field -> the standard dimension it fills (its own name, or an alias's)
+        self._targets = {
+            name: target
+            for name in self._fields
+            for target in (_ALIASES.get(name, name),)
+            if target in self._standard and (target == name or target not in self._fields)
+        }
         extras: list[laspy.ExtraBytesParams] = []
         for name, dtype in self._fields.items():
-            if name in self._standard:
+            if name in self._targets:
                 continue
             if not name.isascii() or len(name.encode()) > _NAME_MAX:
                 raise InvalidGeometryError(
@@ -492,6 +511,8 @@ class LasCloudWriter(CloudWriter):
             )
         try:
             header = _laspy().LasHeader(point_format=POINT_FORMAT, version=LAS_VERSION)
+            # gps_time is GPS week time (bit 0 clear): a scan's seconds since its start
+            header.global_encoding.gps_time_type = _laspy().header.GpsTimeType.WEEK_TIME
             if extras:
                 header.add_extra_dims(extras)
             header.scales = np.array([self._scale] * 3)
@@ -560,8 +581,9 @@ class LasCloudWriter(CloudWriter):
         for name in self._defaults:
             slot[name][:] = np.ones(n, dtype=np.uint8)
         for name, values in columns.items():
-            if name in self._standard:
-                slot[name][:] = _to_standard(values, *self._standard[name])
+            target = self._targets.get(name)
+            if target is not None:
+                slot[target][:] = _to_standard(values, *self._standard[target])
             else:
                 slot[name][:] = values.astype(_extra_dtype(values.dtype), copy=False)
         self._fill += n

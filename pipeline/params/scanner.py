@@ -26,6 +26,7 @@ __all__ = [
     "INSTRUMENTS",
     "InstrumentPreset",
     "RETURN_MODES",
+    "ScanMechanics",
     "ScannerSpec",
     "instrument",
     "model_fields",
@@ -40,6 +41,60 @@ BEAM_SAMPLINGS: tuple[str, ...] = ("adaptive", "full")
 #: Near-infrared reflectance per hit label used by the intensity proxy (1550 nm-ish
 #: figures: bark ~0.45, leaves ~0.25 because water absorbs at 1550 nm, soil ~0.3).
 DEFAULT_REFLECTANCE: dict[str, float] = {"wood": 0.45, "leaf": 0.25, "ground": 0.30, "other": 0.5}
+
+
+@dataclass(frozen=True)
+class ScanMechanics:
+    """How a scanner moves at given settings (:meth:`ScannerSpec.mechanics`).
+
+    Attributes
+    ----------
+    cycle_pulses : float
+        Pulse intervals in one mirror cycle: the scan line's pulses and the unused arc.
+    line_period_s : float
+        Seconds per mirror cycle (one scan line; with a two-sided mirror, a column and
+        the one opposite).
+    pulse_period_s : float
+        Seconds between two pulses (``line_period_s / cycle_pulses``).
+    n_lines : int
+        Mirror cycles in one scan (the head's steps).
+    duration_s : float
+        The scan of one station, ``n_lines × line_period_s``.
+    head_rate_deg_s : float
+        How fast the head turns.
+    two_sided : bool
+        Whether each cycle scans a column and the one opposite (half a head turn).
+    back_offset_pulses : float
+        Two-sided: pulse intervals from the cycle's start (line 0 of the front column) to
+        line 0 of the back column; 0 otherwise.
+    """
+
+    cycle_pulses: float
+    line_period_s: float
+    pulse_period_s: float
+    n_lines: int
+    duration_s: float
+    head_rate_deg_s: float
+    two_sided: bool
+    back_offset_pulses: float
+
+    @property
+    def line_rate_hz(self) -> float:
+        """Mirror cycles (scan lines) per second."""
+        return 1.0 / self.line_period_s
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain-JSON form, with the line rate."""
+        return {
+            "duration_s": self.duration_s,
+            "line_period_s": self.line_period_s,
+            "line_rate_hz": self.line_rate_hz,
+            "pulse_period_s": self.pulse_period_s,
+            "cycle_pulses": self.cycle_pulses,
+            "n_lines": self.n_lines,
+            "head_rate_deg_s": self.head_rate_deg_s,
+            "two_sided": self.two_sided,
+        }
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -80,6 +135,11 @@ class ScannerSpec:
         Seed of every random model; outputs are reproducible for a given seed.
     reflectance : dict of str -> float
         Reflectance per hit label, used by the intensity proxy only.
+    pulse_rate_hz, mirror_cycle_deg, two_sided_mirror, max_line_rate_hz
+        The scanner's mechanics (:meth:`mechanics`): when each pulse leaves, never where
+        it goes. The defaults are a generic scanner firing 122 kHz with no unused mirror
+        arc and no line-rate limit; instruments set their data sheets' figures
+        (:data:`INSTRUMENTS`).
 
     Examples
     --------
@@ -142,6 +202,34 @@ class ScannerSpec:
     reflectance: dict[str, float] = param(
         help="reflectance per hit label (intensity proxy only)",
         factory=lambda: dict(DEFAULT_REFLECTANCE),
+    )
+    pulse_rate_hz: float = param(
+        122_000.0,
+        help="pulses the laser fires per second along the mirror's whole turn (pulse "
+        "repetition rate; the pulse times only, never the points)",
+        unit="Hz",
+        gt=0,
+        le=1e8,
+    )
+    mirror_cycle_deg: float = param(
+        0.0,
+        help="beam sweep of one mirror cycle: a scan line and the mirror's unused arc "
+        "(0: no unused arc, a cycle is the vertical field of view)",
+        unit="deg",
+        ge=0,
+        le=720,
+    )
+    two_sided_mirror: bool = param(
+        False,
+        help="one mirror turn scans both sides of the head through the zenith, so the "
+        "head turns half the full turn (a rotating flat mirror, e.g. FARO Focus)",
+    )
+    max_line_rate_hz: float | None = param(
+        None,
+        help="most mirror cycles (scan lines) per second",
+        unit="Hz",
+        none_means="no limit",
+        gt=0,
     )
 
     def __post_init__(self) -> None:
@@ -233,7 +321,64 @@ class ScannerSpec:
             "return_mode": self.return_mode,
             "seed": self.seed,
             "reflectance": dict(self.reflectance),
+            "pulse_rate_hz": self.pulse_rate_hz,
+            "mirror_cycle_deg": self.mirror_cycle_deg,
+            "two_sided_mirror": self.two_sided_mirror,
+            "max_line_rate_hz": self.max_line_rate_hz,
         }
+
+    def mechanics(self) -> ScanMechanics:
+        """How the scanner moves for these settings: the one time model.
+
+        A head turning about the vertical axis carries a mirror that sweeps the beam
+        through the vertical field of view, one scan line (one grid column) per mirror
+        cycle. The laser fires evenly along the cycle, ``pulse_rate_hz`` pulses a second;
+        the cycle is ``mirror_cycle_deg`` (at least the arc the lines need), so the
+        unused arc is dead time. A cycle lasts ``cycle pulses / pulse_rate_hz``, or
+        ``1 / max_line_rate_hz`` where the mirror cannot spin faster (the pulses then
+        spread evenly over the longer cycle). The head turns one horizontal step per
+        cycle; with ``two_sided_mirror`` over a full turn each cycle scans the column
+        and the one opposite, and the head turns half a turn.
+        :func:`treesim.scan.timing.pulse_times_s` gives each pulse its time from this,
+        and :meth:`InstrumentPreset.scan_time_s` (``treesim plan``'s field time) the
+        scan's duration.
+
+        Returns
+        -------
+        ScanMechanics
+
+        Examples
+        --------
+        >>> spec = ScannerSpec(
+        ...     horizontal_resolution_deg=10.0, vertical_resolution_deg=10.0,
+        ...     vertical_fov_deg=(0.0, 40.0), pulse_rate_hz=1000.0,
+        ... )
+        >>> m = spec.mechanics()
+        >>> (m.cycle_pulses, m.line_period_s, m.n_lines, round(m.duration_s, 9))
+        (5.0, 0.005, 36, 0.18)
+        """
+        vres = self.vertical_resolution_deg
+        two_sided = bool(self.two_sided_mirror and self.full_turn)
+        v0 = self.vertical_fov_deg[0]
+        # mirror positions (in pulses from the cycle's first) of the back side's line 0
+        back = (180.0 - 2.0 * v0) / vres if two_sided else 0.0
+        used = back + 1.0 if two_sided else float(self.n_elevation)
+        cycle = max(self.mirror_cycle_deg / vres, used)
+        period = cycle / self.pulse_rate_hz
+        if self.max_line_rate_hz is not None:
+            period = max(period, 1.0 / self.max_line_rate_hz)
+        n_az = self.n_azimuth
+        n_lines = n_az - n_az // 2 if two_sided else n_az
+        return ScanMechanics(
+            cycle_pulses=cycle,
+            line_period_s=period,
+            pulse_period_s=period / cycle,
+            n_lines=n_lines,
+            duration_s=n_lines * period,
+            head_rate_deg_s=self.horizontal_resolution_deg / period,
+            two_sided=two_sided,
+            back_offset_pulses=back,
+        )
 
 
 def resolution_fields(resolution_deg: float) -> dict[str, float]:
@@ -281,12 +426,21 @@ class InstrumentPreset:
     measurement_rate_hz: float
     setup_time_min: float
     timing_source: str
+    pulse_rate_hz: float
+    mirror_cycle_deg: float
+    two_sided_mirror: bool
+    max_line_rate_hz: float | None
+    mechanics_source: str
+
+    def mechanics_fields(self) -> dict[str, object]:
+        """The :class:`ScannerSpec` fields of this instrument's mechanics."""
+        return {k: getattr(self, k) for k in MECHANICS_FIELDS}
 
     def scan_time_s(self, spec: ScannerSpec) -> float:
-        """Seconds one scan takes: the pulses in ``spec``'s full field of view (at its
-        resolution, :attr:`ScannerSpec.n_azimuth` × :attr:`ScannerSpec.n_elevation`)
-        over :attr:`measurement_rate_hz`."""
-        return spec.n_azimuth * spec.n_elevation / float(self.measurement_rate_hz)
+        """Seconds one scan takes: ``spec``'s field of view and resolution scanned with
+        this instrument's mechanics (:meth:`ScannerSpec.mechanics`, the model that also
+        times each pulse, :func:`treesim.scan.timing.pulse_times_s`)."""
+        return spec.with_(**self.mechanics_fields()).mechanics().duration_s
 
     def station_time_s(self, spec: ScannerSpec) -> float:
         """Field time of one station (s): :attr:`setup_time_min` (carry, level, target
@@ -301,11 +455,15 @@ class InstrumentPreset:
             vertical_fov_deg=self.vertical_fov_deg,
             min_range_m=self.min_range_m,
             max_range_m=self.max_range_m,
+            **self.mechanics_fields(),
         )
         kw.update(model_fields(beam=beam, noise=noise, figures=vars(self)))
         kw.update(overrides)
         return ScannerSpec(**kw)  # type: ignore[arg-type]
 
+
+#: The :class:`ScannerSpec` fields that say how an instrument moves (its mechanics).
+MECHANICS_FIELDS = ("pulse_rate_hz", "mirror_cycle_deg", "two_sided_mirror", "max_line_rate_hz")
 
 #: Instrument presets. Figures from the makers' data sheets:
 #:
@@ -320,22 +478,40 @@ class InstrumentPreset:
 #:   0.3 mm at 10 m on 90 % reflectance (raw), wavelength 1550 nm; step 0.009° at full
 #:   resolution, 0.036° at the common 1/4 resolution setting used here.
 #:
-#: Field time (``measurement_rate_hz``, ``setup_time_min``; :meth:`InstrumentPreset.
-#: station_time_s`): one station costs its set-up plus the pulses of the full field of view
-#: at the chosen resolution over the measurement rate.
+#: Field time (:meth:`InstrumentPreset.station_time_s`): one station costs its set-up plus
+#: the scan's duration from the instrument's mechanics (:meth:`ScannerSpec.mechanics`,
+#: the model that also times every pulse, :mod:`treesim.scan.timing`).
 #:
-#: - ``riegl-vz400``: effective measurement rate 122,000 measurements/s at the 300 kHz pulse
-#:   repetition rate (high-speed mode, range up to 350 m at 90 % reflectance; the long-range
-#:   mode's 600 m above comes with 42,000 meas./s at 100 kHz) -- same data sheet. At 0.04°
-#:   the 360° × 100° field is 9,000 × 2,501 pulses: 184 s, within the 1-3 min per scan
-#:   forest teams report for it (Wilkes et al. 2017, RSE 196; treesim's planning notes).
-#:   Set-up 4 min per position (carry, level, place targets; makers publish none): with the
-#:   scan, 7.1 min per station, inside the 5-10 min per position reported for it.
-#: - ``faro-focus3d-x330``: measurement speed 122,000 points/s, the lowest of the tech
-#:   sheet's four (122k/244k/488k/976k; the higher-quality settings forest scans use run
-#:   at the low speeds). At 0.036° the 360° × 150° field is 10,000 × 4,167 pulses: 342 s,
-#:   within the 3-8 min per scan reported for FARO Focus scanners. Set-up 3 min (a lighter
-#:   instrument, no tilt mount; an assumption like the RIEGL's).
+#: - ``riegl-vz400``, same data sheet, "Scanner Performance" and "Laser Product"
+#:   tables: vertical (line) scan by a rotating multi-facet mirror at 3 to 120 lines/s,
+#:   angle step 0.0024° <= Δθ <= 0.288°; horizontal (frame) scan by the rotating head,
+#:   0 to 60°/s, 0.0024° <= Δφ <= 0.5°; laser pulse repetition rate (PRR) 300 kHz
+#:   (high-speed mode, range up to 350 m at 90 % reflectance) or 100 kHz (long-range,
+#:   600 m), effective measurement rate 122,000 and 42,000 meas./s. The mirror cycle is
+#:   not published; 240° follows from the step limits, a step being cycle × lines/s /
+#:   PRR: the finest, 0.0024°, at the slowest 3 lines/s and 300 kHz, and the coarsest,
+#:   0.288°, at the fastest 120 lines/s and 100 kHz, both give 240° (a three-facet
+#:   polygon, 720°/3). The 100° field of view is then 41.7 % of each cycle: 125,000
+#:   meas./s at 300 kHz (the sheet says 122,000, 2.4 % fewer) and 41,700 at 100 kHz
+#:   (the sheet: 42,000). At 0.04°: 6,000 pulses per cycle, 50 lines/s, the head at
+#:   2°/s, 9,000 lines: 180.0 s (the sheet's effective rate over the 9,000 × 2,501
+#:   pulses gives 184.5 s). Lines assumed swept upward (not published). Set-up 4 min
+#:   per position (carry, level, place targets; makers publish none): with the scan,
+#:   7.0 min per station, inside the 5-10 min per position reported for it (Wilkes et
+#:   al. 2017, RSE 196).
+#: - ``faro-focus3d-x330``, same tech sheet: measurement speed 122,000 / 244,000 /
+#:   488,000 / 976,000 points/s (the lowest is used: the higher-quality settings forest
+#:   scans use run at the low speeds); step 0.009° = 40,960 3D-pixels on 360°, both
+#:   axes; max. vertical scan speed 5,820 rpm or 97 Hz; field of view 300° × 360°. The
+#:   mechanics: one flat mirror turning a full turn per cycle (the pixel count is per
+#:   360° of mirror turn), the 60° below the head blind (300° field of view), each turn
+#:   measuring a column and the one opposite through the zenith, so the head turns half
+#:   a turn for a full scan. Assumed (the sheet does not say): the measurement speed is
+#:   the sampling rate along the whole mirror turn, the blind arc included; the sheet
+#:   publishes no scan duration. At 0.036°: 10,000 pulses per turn, 12.2 turns/s
+#:   (under the 97 Hz limit), 5,000 turns: 409.8 s, within the 3-8 min per scan
+#:   reported for FARO Focus scanners. Set-up 3 min (a lighter instrument, no tilt
+#:   mount; an assumption like the RIEGL's).
 INSTRUMENTS: dict[str, InstrumentPreset] = {
     "riegl-vz400": InstrumentPreset(
         name="riegl-vz400",
@@ -354,6 +530,13 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
         setup_time_min=4.0,
         timing_source="RIEGL VZ-400 data sheet, 2014-09-19 (effective measurement rate at "
         "300 kHz PRR); set-up: typical field practice (5-10 min per position with the scan)",
+        pulse_rate_hz=300_000.0,
+        mirror_cycle_deg=240.0,
+        two_sided_mirror=False,
+        max_line_rate_hz=120.0,
+        mechanics_source="RIEGL VZ-400 data sheet, 2014-09-19: PRR 300 kHz, line scan "
+        "3-120 lines/s by a multi-facet mirror; the 240° mirror cycle from the angle step "
+        "limits 0.0024° (3 lines/s, 300 kHz) and 0.288° (120 lines/s, 100 kHz)",
     ),
     "faro-focus3d-x330": InstrumentPreset(
         name="faro-focus3d-x330",
@@ -372,6 +555,13 @@ INSTRUMENTS: dict[str, InstrumentPreset] = {
         setup_time_min=3.0,
         timing_source="FARO Focus3D X 330 tech sheet, 2013 (lowest measurement speed); "
         "set-up: typical field practice (3-8 min per scan reported)",
+        pulse_rate_hz=122_000.0,
+        mirror_cycle_deg=360.0,
+        two_sided_mirror=True,
+        max_line_rate_hz=97.0,
+        mechanics_source="FARO Focus3D X 330 tech sheet, 2013: 122,000 points/s, 40,960 "
+        "3D-pixels per 360° of mirror turn, max. vertical scan speed 97 Hz; assumed: the "
+        "speed counts the blind 60° arc, one turn scans both sides (the head turns 180°)",
     ),
 }
 

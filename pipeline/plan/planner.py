@@ -164,8 +164,13 @@ class PlanResult:
                 "scan_time_min": self.instrument.scan_time_s(self.spec) / 60.0,
                 "station_time_min": self.station_time_s / 60.0,
                 "timing_source": self.instrument.timing_source,
-                "field_time_rule": "set-up + pulses of the full field of view at the "
-                "resolution / measurement rate, per station",
+                "mechanics": self.spec.with_(**self.instrument.mechanics_fields())
+                .mechanics()
+                .to_dict(),
+                "mechanics_source": self.instrument.mechanics_source,
+                "field_time_rule": "set-up + the scan's duration from the instrument's "
+                "mechanics (treesim.scan.timing: mirror cycles of the pulse rate, dead arc "
+                "included, one per head step), per station",
             },
             "scanner": self.spec.to_dict(),
             "visibility_rule": (

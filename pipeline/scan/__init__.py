@@ -3,7 +3,9 @@
 ``scan(scene, stations, spec)`` casts each station's rays at a :class:`~treesim.scene.Scene`
 and returns the simulated cloud; :func:`estimate_scan` says beforehand what it will cost
 (rays, points, file size, time: :mod:`treesim.scan.estimate`); :func:`stations_for`
-places stations by the station rule.
+places stations by the station rule; :func:`pulse_times_s` and :func:`station_duration_s`
+say when each pulse leaves the scanner and how long a station's scan takes
+(:mod:`treesim.scan.timing`).
 The scanner's settings (:class:`~treesim.params.ScannerSpec`) and instruments live in the
 parameter model, :mod:`treesim.params`. ``Scene``, ``MeshPart``, ``label_from_name``
 (:mod:`treesim.scene`) and ``load_mesh``, ``load_scene`` (:mod:`treesim.io.mesh`) are
@@ -21,6 +23,7 @@ if TYPE_CHECKING:  # for readers of the source (type checkers, the API reference
     from .estimate import ScanEstimate, estimate_scan
     from .result import SCAN_FIELDS, ScanResult, StationStats, scan_fields, scan_metadata
     from .stations import Station, ring_around, ring_layout, station_distance_m, stations_for
+    from .timing import pulse_times_s, station_duration_s
     from .trace import scan
 
 #: Every name, imported on first use (PEP 562): a module that needs one part of the
@@ -41,6 +44,7 @@ _LAZY = {
         ".stations",
     ),
     "scan": ".trace",
+    **dict.fromkeys(("pulse_times_s", "station_duration_s"), ".timing"),
 }
 
 
@@ -65,10 +69,12 @@ __all__ = [
     "load_mesh",
     "load_scene",
     "ring_around",
+    "pulse_times_s",
     "ring_layout",
     "scan",
     "scan_fields",
     "scan_metadata",
     "station_distance_m",
+    "station_duration_s",
     "stations_for",
 ]

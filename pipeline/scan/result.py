@@ -21,6 +21,7 @@ from ..frame import LocalFrame
 from ..params import ScannerSpec
 from ..scene import Scene
 from .stations import Station
+from .timing import TIME_CONVENTION, TIME_FIELD, timing_summary
 
 
 @dataclass
@@ -40,6 +41,9 @@ class StationStats:
     #: pulses given sub-rays (beam model), and why (adaptive sampling)
     pulses_subrays: int = 0
     subray_reasons: dict[str, int] | None = None
+    #: how long the station's scan takes in the field: the scanner's mechanics
+    #: (:func:`treesim.scan.timing.station_duration_s`), not the points' times
+    scan_duration_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -55,6 +59,7 @@ class StationStats:
             else None,
             "elevation_window_deg": list(self.elevation_window_deg),
             "time_s": self.time_s,
+            "scan_duration_s": self.scan_duration_s,
             "pulses_subrays": self.pulses_subrays,
             **({"subray_reasons": dict(self.subray_reasons)} if self.subray_reasons else {}),
         }
@@ -67,8 +72,10 @@ class ScanResult:
     ``cloud.fields`` holds, per point: ``station`` (uint16), ``range_m`` (float64),
     ``incidence_deg`` (float32), ``label`` (uint8, see ``cloud.metadata['label_names']``),
     ``return_number``, ``number_of_returns`` (uint8), ``intensity`` (uint16),
-    ``scan_line`` (elevation step index, int32) and ``scan_column`` (azimuth step index,
-    int32); and ``tree_id`` (uint32) when the scene's parts carry tree ids (a plot).
+    ``scan_line`` (elevation step index, int32), ``scan_column`` (azimuth step index,
+    int32) and ``time_s`` (float64, seconds since the station's scan started, from the
+    scanner's mechanics: :mod:`treesim.scan.timing`); and ``tree_id`` (uint32) when the
+    scene's parts carry tree ids (a plot).
     """
 
     cloud: Cloud
@@ -115,6 +122,7 @@ class ScanResult:
             "warnings": list(self.warnings),
             "frame_origin_m": list(self.frame.origin),
             "scanner": self.spec.to_dict(),
+            "timing": timing_summary(self.spec),
             "stations": [s.to_dict() for s in self.station_stats],
         }
 
@@ -125,6 +133,7 @@ def scan_metadata(stations: Sequence[Station]) -> dict[str, Any]:
         "label_names": dict(LABEL_NAMES),
         "source": "treesim scan",
         "stations": [st.to_dict() for st in stations],
+        "time": TIME_CONVENTION,
     }
 
 
@@ -138,6 +147,7 @@ _FIELDS: dict[str, Any] = {
     "intensity": np.uint16,
     "scan_line": np.int32,
     "scan_column": np.int32,
+    TIME_FIELD: np.float64,
 }
 #: The fields of a simulated cloud and their types (what a streaming writer declares);
 #: a scene whose parts carry tree ids adds ``tree_id`` (see :func:`scan_fields`).

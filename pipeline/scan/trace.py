@@ -10,8 +10,9 @@ A scan runs in stages, each in a module of its own:
    (:func:`_grid_blocks`) or the beam's sub-rays (:mod:`treesim.scan.beam`, adaptive
    where it may be), through the caster's float32 scene, with float64 hits
    (:mod:`treesim.scan.caster`, which states the precision);
-4. each block's returns made points and fields (:func:`_block_points`), kept or handed
-   to a sink (:class:`_Output`);
+4. each block's returns made points and fields (:func:`_block_points`; each pulse's
+   time from its line and column, :mod:`treesim.scan.timing`), kept or handed to a
+   sink (:class:`_Output`);
 5. the result and its account of what ran (:mod:`treesim.scan.result`).
 
 Memory: pulses are cast in chunks of at most ``chunk_rays`` rays (about 200 bytes per
@@ -45,6 +46,7 @@ from .planning import Plan, StationPlan, plan_scan
 from .rays import directions, hashed_normal, pulse_angles
 from .result import ScanResult, StationStats, lod_summary, scan_fields, scan_metadata
 from .stations import Station
+from .timing import TIME_FIELD, PulseClock
 
 Progress = Callable[[float, str], None]
 #: Receives each chunk of a scan: points (n, 3) float64 and per-point fields.
@@ -245,6 +247,8 @@ class _Run:
         for name, code in LABEL_CODES.items():
             self.reflect[code] = spec.reflectance.get(name, spec.reflectance.get("other", 0.5))
         self.output = _Output(plan.frame, fields, sink)
+        #: each pulse's time, from its line and column (:mod:`treesim.scan.timing`)
+        self.clock = PulseClock(spec)
         self.progress = progress
         self.total_pulses = max(1, plan.pulses_cast)
         self.done_pulses = 0
@@ -289,6 +293,7 @@ def _station(run: _Run, sp: StationPlan, k: int) -> StationStats:
         azimuth_window_deg=sp.window.azimuth_deg,
         elevation_window_deg=sp.window.elevation_deg,
         time_s=time.perf_counter() - t_st,
+        scan_duration_s=run.clock.mechanics.duration_s,
         pulses_subrays=(
             sum(beam.reasons.values()) if beam is not None else (grid.n_pulses if run.s > 1 else 0)
         ),
@@ -367,6 +372,8 @@ def _block_points(
         "intensity": np.round(inten * 65535).astype(np.uint16),
         "scan_line": lines_r[pi].astype(np.int32),
         "scan_column": cols_r[pi].astype(np.int32),
+        # every return of a pulse shares the pulse's time (its line and column)
+        TIME_FIELD: run.clock(lines_r[pi], cols_r[pi]),
     }
     if run.output.with_trees:
         fields["tree_id"] = caster.tree[prim].astype(np.uint32)
