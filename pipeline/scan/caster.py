@@ -72,7 +72,8 @@ class Caster:
         f = scene.faces if keep is None else scene.faces[keep]
         self.v, self.faces = v, f
         self._thickness: np.ndarray | None = None
-        self.v0 = v[f[:, 0]]
+        # each triangle's first corner, gathered when read (not held: 24 B a triangle)
+        self.v0 = _FirstCorners(v, f)
         self.normal = np.empty((len(f), 3))
         # each triangle's smallest height (twice its area over its longest edge: how far
         # its interior reaches from an edge) and its shortest edge squared (the
@@ -80,8 +81,7 @@ class Caster:
         self.h_min32 = np.empty(len(f), dtype=np.float32)
         short2 = np.empty(len(f))
         for a, b in triangle_chunks(len(f)):
-            p0 = self.v0[a:b]
-            v1, v2 = v[f[a:b, 1]], v[f[a:b, 2]]
+            p0, v1, v2 = v[f[a:b, 0]], v[f[a:b, 1]], v[f[a:b, 2]]
             n = np.cross(v1 - p0, v2 - p0)
             twice_area = np.linalg.norm(n, axis=1)
             self.normal[a:b] = n / twice_area[:, None]
@@ -100,7 +100,12 @@ class Caster:
         self.distorted, self.moved_m = _distorted(v, v32, f, short2)
         del short2
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
-        self.rc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f.astype(np.uint32)))
+        # Open3D copies both into its own buffers: ours go before its BVH is built
+        v32_t = o3d.core.Tensor(v32)
+        del v32
+        f32_t = o3d.core.Tensor(f.astype(np.uint32))
+        self.rc.add_triangles(v32_t, f32_t)
+        del v32_t, f32_t
         t0 = time.perf_counter()
         # Open3D builds its BVH lazily on the first query: build it now, timed apart.
         self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
@@ -185,8 +190,15 @@ class Caster:
         if self._fan is None:
             key = np.ascontiguousarray(self.v + 0.0)  # + 0.0: -0.0 becomes 0.0
             _, weld = np.unique(key.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
-            corners = weld.reshape(-1)[self.faces]
-            self._fan = (corners, *vertex_triangles(corners, int(weld.max()) + 1))
+            del key, _
+            n_welded = int(weld.max()) + 1 if len(weld) else 0
+            # held while the caster lives: int32 indices where they fit (the same values)
+            small = max(n_welded, len(self.faces)) < 2**31 - 1
+            index = np.int32 if small else np.int64
+            corners = weld.reshape(-1).astype(index)[self.faces]
+            del weld
+            ptr, inc = vertex_triangles(corners, n_welded)
+            self._fan = (corners, ptr, inc.astype(index, copy=False))
         return self._fan
 
     def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -344,6 +356,20 @@ class Caster:
                 o, d[hidx], t_coarse, pr[hidx].astype(np.int64), uv[hidx], t0
             )
         return t_out, prim
+
+
+class _FirstCorners:
+    """Each triangle's first corner, ``v[faces[i, 0]]``, gathered when indexed (the
+    values a held ``(f, 3)`` array would give, without holding it)."""
+
+    def __init__(self, v: np.ndarray, faces: np.ndarray) -> None:
+        self.v, self.faces = v, faces
+
+    def __getitem__(self, idx: Any) -> np.ndarray:
+        return self.v[self.faces[idx, 0]]
+
+    def __len__(self) -> int:
+        return len(self.faces)
 
 
 def _sq_len(e: np.ndarray) -> np.ndarray:
