@@ -48,10 +48,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import docs_part  # noqa: E402
-from tests.scan.beam_agreement import agreement  # noqa: E402
 from treesim.io.mesh import write_mesh  # noqa: E402
 from treesim.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
 from treesim.scan import ScannerSpec, Station, scan  # noqa: E402
+from treesim.scan.footprint import (  # noqa: E402
+    ERROR_NAMES,
+    REFERENCE_SUBRAYS,
+    footprint_errors,
+    reference_spec,
+    window_spec,
+)
 from treesim.scan.rays import box_window, windowed_grid  # noqa: E402
 from treesim.scene import MeshPart, Scene  # noqa: E402
 
@@ -208,48 +214,110 @@ def end_to_end(name: str, scene: Scene, station: Station, res: float, tmp: Path)
     return {**fig, "ratio_fresh": rate / (plain["pulses"] / fresh)}
 
 
-def beam_case(name: str, scene: Scene, station: Station, res: float, brute: bool) -> dict:
+#: Pulses (single-ray, after the cull) of the window the footprint reference is cast on.
+REF_BUDGET_PULSES = 250_000
+#: The beam models measured against the footprint reference, as ``ScannerSpec`` changes.
+BEAM_MODELS = {"full 19": {"beam_sampling": "full"}, "adaptive 19": {}}
+#: How each error figure is printed: (heading, scale, format).
+ERROR_FORMAT = {
+    "count_mismatch": ("returns/pulse differ", 100.0, "{:.2f} %"),
+    "multi_share_error": ("multi-return share error", 100.0, "{:.3f} pt"),
+    "range_mean_m": ("range mean", 1e3, "{:.3f} mm"),
+    "range_p99_m": ("range p99", 1e3, "{:.2f} mm"),
+    "position_mean_m": ("position mean", 1e3, "{:.3f} mm"),
+    "position_p99_m": ("position p99", 1e3, "{:.2f} mm"),
+    "intensity_mean": ("intensity mean", 1.0, "{:.1f}"),
+    "intensity_p99": ("intensity p99", 1.0, "{:.0f}"),
+    "unmatched_intensity": ("unmatched intensity", 100.0, "{:.4f} %"),
+}
+
+
+def _timed(scene: Scene, station: Station, spec: ScannerSpec):
+    t0 = time.perf_counter()
+    r = scan(scene, [station], spec)
+    return r, time.perf_counter() - t0
+
+
+def reference_window(one, budget: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The single-ray scan's angular window, its azimuth narrowed about its centre to
+    about ``budget`` cast pulses (the reference's 127 sub-rays each cost a ray)."""
+    st = one.station_stats[0]
+    el = st.elevation_window_deg
+    az = st.azimuth_window_deg or (0.0, 360.0)
+    f = min(1.0, budget / max(st.pulses_cast, 1))
+    mid, half = 0.5 * (az[0] + az[1]), 0.5 * f * (az[1] - az[0])
+    return (mid - half, mid + half), (el[0], el[1])
+
+
+def beam_case(name: str, scene: Scene, station: Station, res: float, ref_check: bool) -> dict:
+    """The beam at 0.3 mrad: single ray, brute force and adaptive at 19 sub-rays timed on
+    the whole scan, and each model's errors against the footprint reference (127
+    sub-rays, :mod:`treesim.scan.footprint`) on one window of pulses, the same for all."""
     base = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
     beam = base.with_(beam_divergence_mrad=0.3, subrays=19, return_mode="all")
     scan(scene, [station], base.with_(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0))
-    t0 = time.perf_counter()
-    one = scan(scene, [station], base)
-    t_one = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    ada = scan(scene, [station], beam)
-    t_ada = time.perf_counter() - t0
+    one, t_one = _timed(scene, station, base)
+    times, runs = {}, {}
+    for model, change in BEAM_MODELS.items():
+        runs[model], times[model] = _timed(scene, station, beam.with_(**change))
     window = one.summary()["pulses_window"]
-    b = ada.lod["beam"]
-    print(f"\n== beam 0.3 mrad x 19 sub-rays, {name} ({scene.n_triangles:,} triangles), {res}°")
+    print(f"\n== beam 0.3 mrad, {name} ({scene.n_triangles:,} triangles), {res}°: whole scan")
     print(
-        f"single ray: {one.rays_cast:,} rays, {len(one.cloud):,} points, {t_one:.2f} s "
-        f"({window / t_one / 1e6:.2f} M window pulses/s)"
+        f"single ray:   {one.rays_cast:>11,} rays, {len(one.cloud):>9,} points, "
+        f"{t_one:6.2f} s ({window / t_one / 1e6:.2f} M window pulses/s)"
     )
+    for model, r in runs.items():
+        print(
+            f"{model + ':':<13} {r.rays_cast:>11,} rays, {len(r.cloud):>9,} returns, "
+            f"{times[model]:6.2f} s: {times[model] / t_one:5.2f}× the single-ray time "
+            "(target <= 2)"
+        )
+    b = runs["adaptive 19"].lod["beam"]
     print(
-        f"adaptive:   {ada.rays_cast:,} rays, {len(ada.cloud):,} returns, {t_ada:.2f} s; "
-        f"{b['pulses_subrays']:,} of {b['pulses_cast']:,} pulses got sub-rays "
+        f"adaptive: {b['pulses_subrays']:,} of {b['pulses_cast']:,} pulses got sub-rays "
         f"({json.dumps(b['reasons'])})"
     )
-    print(f"adaptive / single-ray rate: {t_one / t_ada:.2f} (target >= 0.5)")
-    fig = {"res": res, "t_one": t_one, "t_ada": t_ada, "beam": b}
-    if brute:
-        t0 = time.perf_counter()
-        full = scan(scene, [station], beam.with_(beam_sampling="full"))
-        t_full = time.perf_counter() - t0
-        g = agreement(ada.cloud, full.cloud)
-        print(
-            f"brute force: {full.rays_cast:,} rays, {t_full:.2f} s; adaptive / brute-force "
-            f"rate {t_full / t_ada:.2f}"
-        )
-        print(
-            "agreement with brute force: "
-            f"same returns per pulse {g['same_count']:.4%} of {int(g['pulses']):,} pulses; "
-            f"ranges within 0.1 mm {g['range_within_0.1mm']:.3%}, "
-            f"max {g['range_max_m'] * 1e3:.3f} mm; intensity within 8 counts "
-            f"{g['intensity_within_8']:.4%}, max diff {int(g['intensity_max'])}"
-        )
-        fig["t_full"] = t_full
-    return fig
+    az, el = reference_window(one, REF_BUDGET_PULSES)
+    wbeam = window_spec(beam, az, el)
+    ref, t_ref = _timed(scene, station, reference_spec(wbeam))
+    n_ref = ref.station_stats[0].pulses_cast
+    print(
+        f"footprint reference ({REFERENCE_SUBRAYS} sub-rays, every pulse) on the window "
+        f"azimuth {wbeam.horizontal_fov_deg[0]:.2f} to {wbeam.horizontal_fov_deg[1]:.2f}°, "
+        f"elevation {wbeam.vertical_fov_deg[0]:.2f} to {wbeam.vertical_fov_deg[1]:.2f}°: "
+        f"{n_ref:,} pulses ({n_ref / max(one.station_stats[0].pulses_cast, 1):.0%} of the "
+        f"scan's), {len(ref.cloud):,} returns, {t_ref:.1f} s"
+    )
+    errors = {
+        m: footprint_errors(scan(scene, [station], wbeam.with_(**c)).cloud, ref.cloud)
+        for m, c in BEAM_MODELS.items()
+    }
+    if ref_check:
+        dense = scan(scene, [station], reference_spec(wbeam, 2 * REFERENCE_SUBRAYS + 1))
+        errors[f"reference {REFERENCE_SUBRAYS}"] = footprint_errors(ref.cloud, dense.cloud)
+        print(f"(the reference's own error: against {2 * REFERENCE_SUBRAYS + 1} sub-rays)")
+    print_errors(errors, int(errors["full 19"]["pulses"]))
+    return {
+        "res": res,
+        "t_one": t_one,
+        "times": times,
+        "beam": b,
+        "errors": errors,
+        "ref_pulses": n_ref,
+        "ref_share": n_ref / max(one.station_stats[0].pulses_cast, 1),
+    }
+
+
+def print_errors(errors: dict[str, dict[str, float]], pulses: int) -> None:
+    """Each model's errors against the reference, one line per figure."""
+    print(f"errors against the footprint reference ({pulses:,} pulses with a return):")
+    print(f"{'':<26}" + "".join(f"{m:>16}" for m in errors))
+    for key, (head, scale, fmt) in ERROR_FORMAT.items():
+        print(f"{head:<26}" + "".join(f"{fmt.format(e[key] * scale):>16}" for e in errors.values()))
+    best = all(
+        errors["adaptive 19"][k] <= errors["full 19"][k] * (1 + 1e-9) + 1e-12 for k in ERROR_NAMES
+    )
+    print(f"adaptive's errors no larger than the 19-sub-ray brute force's on every figure: {best}")
 
 
 def docs_table(f: dict) -> str:
@@ -306,22 +374,8 @@ def docs_table(f: dict) -> str:
             + " / ".join(_count(m["summary"]["points"]) for _, m in mem)
             + " points",
         ),
-        (
-            f"beam 0.3 mrad × 19 sub-rays, coffee TreeQSM ({f['coffee_triangles']:,} "
-            f"triangles) from 10 m at {cb['res']}°",
-            f"adaptive {cb['t_ada']:.2f} s against single-ray {cb['t_one']:.2f} s "
-            f"(**{cb['t_one'] / cb['t_ada']:.2f}×**; target 0.5×) and brute force "
-            f"{cb['t_full']:.2f} s (adaptive at {cb['t_full'] / cb['t_ada']:.2f}× its rate); "
-            f"{_count(cb['beam']['pulses_subrays'])} of {_count(cb['beam']['pulses_cast'])} "
-            "pulses needed sub-rays",
-        ),
-        (
-            f"the same beam on the aspen at {ab['res']}°",
-            f"adaptive {ab['t_ada']:.1f} s against single-ray {ab['t_one']:.2f} s "
-            f"({ab['t_one'] / ab['t_ada']:.2f}×): {_count(ab['beam']['pulses_subrays'])} of "
-            f"{_count(ab['beam']['pulses_cast'])} pulses straddle an edge or twigs thinner "
-            "than the spacing",
-        ),
+        *(beam_rows(f["beam_coffee"], f"coffee TreeQSM from 10 m at {cb['res']}°")),
+        *(beam_rows(f["beam_aspen"], f"aspen from 15 m at {ab['res']}°")),
     ]
     head = (
         f"`python benchmarks/bench_scan.py --docs` measured these side by side in one run "
@@ -329,7 +383,41 @@ def docs_table(f: dict) -> str:
         "the run: expect ±15 %).\n\n"
         "| what | figure |\n|---|---|\n"
     )
-    return head + "\n".join(f"| {a} | {b} |" for a, b in rows)
+    table = head + "\n".join(f"| {a} | {b} |" for a, b in rows)
+    return table + "\n\n" + error_table(f)
+
+
+def beam_rows(c: dict, where: str) -> list[tuple[str, str]]:
+    """The speed table's rows of one tree's beam figures."""
+    t = c["times"]
+    cost = "; ".join(f"{m} {s:.2f} s (**{s / c['t_one']:.1f}×**)" for m, s in t.items())
+    return [
+        (
+            f"beam 0.3 mrad, {where}: single ray {c['t_one']:.2f} s",
+            f"{cost}; target ≤ 2× the single ray; adaptive gave sub-rays to "
+            f"{_count(c['beam']['pulses_subrays'])} of {_count(c['beam']['pulses_cast'])} pulses",
+        )
+    ]
+
+
+def error_table(f: dict) -> str:
+    """Each beam model's errors against the footprint reference, per tree."""
+    heads = [ERROR_FORMAT[k][0] for k in ERROR_FORMAT]
+    out = [
+        f"Errors against the footprint reference ({REFERENCE_SUBRAYS} sub-rays per pulse on "
+        "the same footprint, `treesim.scan.footprint`), on one window of each scan, the same "
+        "for every model; the last row of each tree is the reference's own error against "
+        f"{2 * REFERENCE_SUBRAYS + 1} sub-rays.\n",
+        "| tree, model | " + " | ".join(heads) + " |",
+        "|---" * (len(heads) + 1) + "|",
+    ]
+    for tree, key in (("coffee", "beam_coffee"), ("aspen", "beam_aspen")):
+        c = f[key]
+        for model, e in c["errors"].items():
+            cells = [fmt.format(e[k] * sc) for k, (_, sc, fmt) in ERROR_FORMAT.items()]
+            label = f"{tree} {c['res']}° ({_count(c['ref_pulses'])} pulses), {model}"
+            out.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
 
 
 def _count(n: int) -> str:
@@ -337,32 +425,10 @@ def _count(n: int) -> str:
     return f"{n / 1e6:.1f} M" if n >= 1e6 else f"{n / 1e3:.0f} k"
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="coarser settings, for a smoke run")
-    ap.add_argument(
-        "--docs",
-        "--readme",
-        dest="docs",
-        action="store_true",
-        help="write the figures into docs/validation.md's speed-and-memory table (not --quick)",
-    )
-    args = ap.parse_args()
-    if args.quick and args.docs:
-        ap.error("--docs takes the full run's figures, not --quick's")
-    res = 0.04 if args.quick else 0.01
-    when = (
-        f"{date.today()} on {platform.machine()} with {os.cpu_count()} cores, "
-        f"python {sys.version.split()[0]}"
-    )
-    print(f"date: {when}")
-    scene = aspen_scene()
-    st = station_at(scene, 15.0)
+def speed_parts(fig: dict, quick: bool, res: float, aspen_at, coffee_at) -> None:
+    """Parts 1 and 3: end to end against the plain cast, in-process, and memory."""
+    (scene, st), (coffee, coffee_st) = aspen_at, coffee_at
     spec = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
-    fig: dict = {"when": when, "res": res, "triangles": scene.n_triangles}
-    load0 = os.getloadavg()[0]
-    coffee = coffee_scene()
-    coffee_st = station_at(coffee, 10.0)
     with tempfile.TemporaryDirectory() as tmp:
         print(f"tree: aspen (seed 0, 8 facets), {scene.n_triangles:,} triangles; station 15 m out")
         e2e = {
@@ -397,7 +463,7 @@ def main() -> None:
 
         print("\n== peak memory of treesim scan (fresh process each)")
         fig["memory"] = []
-        for r in (0.04, 0.01, 0.005) if not args.quick else (0.08, 0.04):
+        for r in (0.04, 0.01, 0.005) if not quick else (0.08, 0.04):
             m = cli_scan(mesh, Path(tmp) / "mem.laz", st, r)
             fig["memory"].append((r, m))
             s = m["summary"]
@@ -405,9 +471,49 @@ def main() -> None:
                 f"{r}°: {s['points']:>10,} points, {s['rays_cast']:>11,} rays, {m['s']:6.1f} s, "
                 f"peak RSS {m['peak_gib']:.2f} GiB"
             )
-    fig["beam_aspen"] = beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, brute=False)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="coarser settings, for a smoke run")
+    ap.add_argument(
+        "--docs",
+        "--readme",
+        dest="docs",
+        action="store_true",
+        help="write the figures into docs/validation.md's speed-and-memory table (not --quick)",
+    )
+    ap.add_argument(
+        "--beam-only", action="store_true", help="only the beam's costs and errors (part 2)"
+    )
+    ap.add_argument(
+        "--no-ref-check",
+        dest="ref_check",
+        action="store_false",
+        help="skip the reference's own error (against twice its sub-rays; slow)",
+    )
+    args = ap.parse_args()
+    if args.quick and args.docs:
+        ap.error("--docs takes the full run's figures, not --quick's")
+    if args.beam_only and args.docs:
+        ap.error("--docs needs every part, not --beam-only")
+    res = 0.04 if args.quick else 0.01
+    when = (
+        f"{date.today()} on {platform.machine()} with {os.cpu_count()} cores, "
+        f"python {sys.version.split()[0]}"
+    )
+    print(f"date: {when}")
+    scene = aspen_scene()
+    st = station_at(scene, 15.0)
+    fig: dict = {"when": when, "res": res, "triangles": scene.n_triangles}
+    load0 = os.getloadavg()[0]
+    coffee = coffee_scene()
+    coffee_st = station_at(coffee, 10.0)
+    if not args.beam_only:
+        speed_parts(fig, args.quick, res, (scene, st), (coffee, coffee_st))
     fig["coffee_triangles"] = coffee.n_triangles
-    fig["beam_coffee"] = beam_case("coffee tree TreeQSM", coffee, coffee_st, res, brute=True)
+    fig["beam_coffee"] = beam_case("coffee tree TreeQSM", coffee, coffee_st, res, args.ref_check)
+    fig["beam_aspen"] = beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, args.ref_check)
     fig["load"] = f"{load0:.1f} to {os.getloadavg()[0]:.1f}"
     print(f"\nload average (1 min) at the start and the end: {fig['load']}")
     if args.docs:
