@@ -37,12 +37,14 @@ from .core import Plot
 __all__ = [
     "PlotScanResult",
     "box_reachable",
+    "load_tree_parts",
     "PLOT_SCAN_FILES",
     "plot_fields",
     "plot_scan_files",
     "plot_stations",
     "read_stations",
     "read_stations_csv",
+    "save_tree_parts",
     "scan_plot",
     "station_trees",
     "tree_figures",
@@ -153,7 +155,11 @@ class PlotScanResult:
         Per station: ``trees_loaded`` (ids), ``trees_beyond_range``,
         ``trees_outside_fov``, ``triangles_loaded`` (trees and terrain patch),
         ``triangles_total`` (the whole plot's), ``trees_built`` (built for it: not
-        held from an earlier station), ``time_s``.
+        held from an earlier station; none with an executor, whose tasks build each tree
+        once, before the stations), ``time_s``, ``rss_before_bytes`` and
+        ``rss_peak_bytes`` (the process's resident memory at the station's start and its
+        peak: since that start in a station task, over the process's life inline; None
+        where ``/proc`` is not there).
     lod : list of dict
         Each station's scan ``lod`` account.
     warnings : list of str
@@ -262,6 +268,9 @@ class _StationScan:
     window: bool
     sink: Callable[[np.ndarray, dict[str, np.ndarray]], None] | None
     check_inside: bool
+    #: a folder of trees saved by :func:`save_tree_parts` (a station task's): its trees
+    #: are read from there rather than built
+    cache_dir: str | None = None
 
     def __call__(
         self,
@@ -282,7 +291,10 @@ class _StationScan:
         spec, n, say = self.params.scanner, self.n, self.say
         parts: list[MeshPart] = []
         for tid in ids:
-            parts += plot.tree_parts(tid)
+            if self.cache_dir is None:
+                parts += plot.tree_parts(tid)
+            else:
+                parts += load_tree_parts(self.cache_dir, tid)
         patch = _terrain_within(ground, st.position, spec.max_range_m) if ground else None
         if patch is not None:
             parts.append(patch)
@@ -360,6 +372,7 @@ def scan_plot(
     executor: str = "inline",
     workers: int | None = None,
     scheduler: str | None = None,
+    cache_dir: str | Path | None = None,
 ) -> PlotScanResult:
     """Scan a plot from ``stations``, one station at a time, loading only what it can
     record (see the module notes).
@@ -401,6 +414,11 @@ def scan_plot(
     scheduler : str, optional
         A running dask scheduler's address (``dask``; the plot's files at the same paths
         on every worker).
+    cache_dir : str or Path, optional
+        With ``local`` or ``dask``: the folder the trees are built into once each (compact
+        files, :func:`save_tree_parts`) and read from by every station that records
+        them; default a temporary folder, removed after. A remote cluster needs a folder
+        every worker reads at the same path.
 
     Returns
     -------
@@ -435,7 +453,7 @@ def scan_plot(
     if plan.kind.value == "inline":
         out = _scan_inline(job, say, int(threads), sink, int(cache_triangles))
     else:
-        out = _scan_tasks(job, say, plan, sink)
+        out = _scan_tasks(job, say, plan, sink, cache_dir)
     plot.release()
     cloud = _plot_cloud(out, placed)
     say(1.0, "done")
@@ -531,57 +549,80 @@ def _scan_inline(
     return out
 
 
-def _scan_tasks(job: _PlotJob, say: Progress, plan: Any, sink: Any) -> _Gathered:
-    """Each station a task on ``plan``'s executor; results merged in station order."""
-    from ..executors import open_executor, slots
+def _scan_tasks(
+    job: _PlotJob, say: Progress, plan: Any, sink: Any, cache_dir: str | Path | None
+) -> _Gathered:
+    """Each station a task on ``plan``'s executor; results merged in station order. The
+    trees are built once each, by tasks, into a folder of compact files (``cache_dir``,
+    or a temporary folder removed after) that the station tasks read them from."""
+    import shutil
+    import tempfile
+
+    from ..executors import open_executor
+
+    made = None
+    if cache_dir is None:
+        made = cache_dir = tempfile.mkdtemp(prefix="treesim-plot-trees-")
+    try:
+        with open_executor(plan) as ex:
+            return _run_station_tasks(job, say, plan, ex, sink, str(cache_dir))
+    finally:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+
+
+def _run_station_tasks(
+    job: _PlotJob, say: Progress, plan: Any, ex: Any, sink: Any, cache_dir: str
+) -> _Gathered:
+    """:func:`_scan_tasks` on the open executor ``ex``."""
+    from ..executors import slots
 
     plot, placed, spec = job.plot, job.placed, job.params.scanner
     frame = plot.frame()
     n = len(placed)
     out = _Gathered()
-    with open_executor(plan) as ex:
-        unknown = [t for t in plot.tree_ids if not plot.knows(t)]
-        if unknown:
-            say(0.0, f"placing {len(unknown)} trees on {plan.describe()}")
-            size = max(1, -(-len(unknown) // (2 * slots(plan, ex))))
-            chunks = [unknown[a : a + size] for a in range(0, len(unknown), size)]
-            blank = plot.blank()
-            for fut in [ex.submit(_tree_facts_task, blank, c) for c in chunks]:
-                for tid, facts in fut.result().items():
-                    plot.set_tree_facts(tid, facts)
-        needs, why = _station_needs(plot, placed, spec, frame.origin_array, 0)
-        total_tri = job.total_triangles(plot.terrain_part(job.margin_m) if job.terrain else None)
-        task = _StationTask(job.params, frame, n, plan.threads, job.window, job.check_inside)
-        task_job = _PlotJob(plot.blank(), [], job.params, *_job_tail(job))
-        futures = [
-            ex.submit(task, task_job, k, st, needs.get(k, [])) for k, st in enumerate(placed)
-        ]
-        say(0.0, f"{n} stations on {plan.describe()}")
-        for k, fut in enumerate(futures):
-            r = fut.result()
-            ids = needs.get(k, [])
-            out.stats.append(r["stats"])
-            out.lods.append(r["lod"])
-            out.warnings += r["warnings"]
-            out.models = r["models"] or out.models
-            if r["points"] is not None:
-                if sink is not None:
-                    sink(r["points"], r["fields"])
-                    out.written += len(r["points"])
-                else:
-                    out.pts.append(r["points"])
-                    out.flds.append(r["fields"])
-            out.loading.append(
-                {
-                    **job.loading(k, ids, why, list(ids)),
-                    "triangles_loaded": int(r["loaded_tri"]),
-                    "triangles_total": int(total_tri),
-                    "time_s": r["time_s"],
-                    **r["memory"],
-                }
-            )
-            futures[k] = None  # type: ignore[call-overload]  # its points may go
-            say((k + 1) / n, f"station {k + 1}/{n}: {len(ids)} trees")
+    say(0.0, f"building {len(plot.trees)} trees on {plan.describe()}")
+    ids = plot.tree_ids
+    size = max(1, -(-len(ids) // (2 * slots(plan, ex))))
+    chunks = [ids[a : a + size] for a in range(0, len(ids), size)]
+    blank = plot.blank()
+    for fut in [ex.submit(_tree_facts_task, blank, c, cache_dir) for c in chunks]:
+        for tid, facts in fut.result().items():
+            plot.set_tree_facts(tid, facts)
+    needs, why = _station_needs(plot, placed, spec, frame.origin_array, 0)
+    total_tri = job.total_triangles(job.ground(plot))
+    task = _StationTask(job.params, frame, n, plan.threads, job.window, job.check_inside, cache_dir)
+    sent = plot.blank()  # with the trees' facts: no task builds a tree
+    for tid in ids:
+        sent.set_tree_facts(tid, plot.tree_facts(tid))
+    task_job = _PlotJob(sent, [], job.params, *_job_tail(job))
+    futures = [ex.submit(task, task_job, k, st, needs.get(k, [])) for k, st in enumerate(placed)]
+    say(0.0, f"{n} stations on {plan.describe()}")
+    for k, fut in enumerate(futures):
+        r = fut.result()
+        ids_k = needs.get(k, [])
+        out.stats.append(r["stats"])
+        out.lods.append(r["lod"])
+        out.warnings += r["warnings"]
+        out.models = r["models"] or out.models
+        if r["points"] is not None:
+            if sink is not None:
+                sink(r["points"], r["fields"])
+                out.written += len(r["points"])
+            else:
+                out.pts.append(r["points"])
+                out.flds.append(r["fields"])
+        out.loading.append(
+            {
+                **job.loading(k, ids_k, why, []),
+                "triangles_loaded": int(r["loaded_tri"]),
+                "triangles_total": int(total_tri),
+                "time_s": r["time_s"],
+                **r["memory"],
+            }
+        )
+        futures[k] = None  # type: ignore[call-overload]  # its points may go
+        say((k + 1) / n, f"station {k + 1}/{n}: {len(ids_k)} trees")
     return out
 
 
@@ -589,14 +630,68 @@ def _job_tail(job: _PlotJob) -> tuple[bool, bool, float, bool]:
     return job.window, job.terrain, job.margin_m, job.check_inside
 
 
-def _tree_facts_task(plot: Plot, ids: list[int]) -> dict[int, dict[str, Any]]:
+def _tree_facts_task(
+    plot: Plot, ids: list[int], cache_dir: str | None = None
+) -> dict[int, dict[str, Any]]:
     """Build each tree of ``ids`` once and return what the parent needs to place it
-    (:meth:`Plot.tree_facts`), dropping its mesh."""
+    (:meth:`Plot.tree_facts`), saving its mesh into ``cache_dir`` when given
+    (:func:`save_tree_parts`), then dropping it."""
     out = {}
     for tid in ids:
+        if cache_dir is not None:
+            save_tree_parts(cache_dir, tid, plot.tree_parts(tid))
         out[tid] = plot.tree_facts(tid)
         plot.release([tid])
     return out
+
+
+def save_tree_parts(folder: str | Path, tree_id: int, parts: Sequence[MeshPart]) -> Path:
+    """Save a built tree's parts into ``folder`` compactly (float64 vertices as they
+    are, int32 triangles, one ``.npy`` each, and their labels and names) for
+    :func:`load_tree_parts`: a station reads the tree there instead of building it again.
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.plot.scan import load_tree_parts, save_tree_parts
+    >>> plot = ts.Plot([ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="sapling")])
+    >>> save_tree_parts("cache", 1, plot.tree_parts(1))  # doctest: +SKIP
+    >>> [p.label for p in load_tree_parts("cache", 1)]  # doctest: +SKIP
+    ['wood']
+    """
+    import json
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    meta = []
+    for j, part in enumerate(parts):
+        faces = np.asarray(part.faces)
+        small = faces.size == 0 or int(faces.max()) < 2**31 - 1
+        np.save(folder / f"tree-{tree_id}-{j}-v.npy", np.asarray(part.vertices, np.float64))
+        np.save(folder / f"tree-{tree_id}-{j}-f.npy", faces.astype(np.int32 if small else np.int64))
+        meta.append({"label": part.label, "name": part.name, "tree_id": int(part.tree_id)})
+    path = folder / f"tree-{tree_id}.json"
+    path.write_text(json.dumps(meta), encoding="utf-8")
+    return path
+
+
+def load_tree_parts(folder: str | Path, tree_id: int) -> list[MeshPart]:
+    """A tree's parts as :func:`save_tree_parts` saved them (memory-mapped: a scene built
+    from them copies each once, and the files' pages go with the parts)."""
+    import json
+
+    folder = Path(folder)
+    meta = json.loads((folder / f"tree-{tree_id}.json").read_text(encoding="utf-8"))
+    return [
+        MeshPart(
+            np.load(folder / f"tree-{tree_id}-{j}-v.npy", mmap_mode="r"),
+            np.load(folder / f"tree-{tree_id}-{j}-f.npy", mmap_mode="r"),
+            m["label"],
+            m["name"],
+            m["tree_id"],
+        )
+        for j, m in enumerate(meta)
+    ]
 
 
 @dataclass
@@ -610,6 +705,7 @@ class _StationTask:
     threads: int
     window: bool
     check_inside: bool
+    cache_dir: str | None = None
 
     def __call__(self, job: _PlotJob, k: int, st: Station, ids: list[int]) -> dict[str, Any]:
         from ..executors import task_threads
@@ -626,6 +722,7 @@ class _StationTask:
             self.window,
             None,
             self.check_inside,
+            self.cache_dir,
         )
         out = _Gathered()
         loaded_tri = scan_station(plot, k, st, ids, job.ground(plot), out, plot.release)
