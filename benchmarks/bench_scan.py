@@ -55,6 +55,7 @@ from treesim.scan.footprint import (  # noqa: E402
     ERROR_NAMES,
     REFERENCE_SUBRAYS,
     footprint_errors,
+    partial_pulses,
     reference_spec,
     window_spec,
 )
@@ -288,6 +289,12 @@ def beam_case(name: str, scene: Scene, station: Station, res: float, ref_check: 
         f"{n_ref:,} pulses ({n_ref / max(one.station_stats[0].pulses_cast, 1):.0%} of the "
         f"scan's), {len(ref.cloud):,} returns, {t_ref:.1f} s"
     )
+    split = partial_pulses(ref.cloud, wbeam)
+    print(
+        f"pulses whose footprint is split (several returns, or part missed): {split:,} "
+        f"({split / max(n_ref, 1):.1%} of the window's); adaptive gives sub-rays to "
+        f"{b['pulses_subrays'] / max(b['pulses_cast'], 1):.1%} of the scan's"
+    )
     errors = {
         m: footprint_errors(scan(scene, [station], wbeam.with_(**c)).cloud, ref.cloud)
         for m, c in BEAM_MODELS.items()
@@ -304,7 +311,7 @@ def beam_case(name: str, scene: Scene, station: Station, res: float, ref_check: 
         "beam": b,
         "errors": errors,
         "ref_pulses": n_ref,
-        "ref_share": n_ref / max(one.station_stats[0].pulses_cast, 1),
+        "split_share": split / max(n_ref, 1),
     }
 
 
@@ -395,7 +402,9 @@ def beam_rows(c: dict, where: str) -> list[tuple[str, str]]:
         (
             f"beam 0.3 mrad, {where}: single ray {c['t_one']:.2f} s",
             f"{cost}; target ≤ 2× the single ray; adaptive gave sub-rays to "
-            f"{_count(c['beam']['pulses_subrays'])} of {_count(c['beam']['pulses_cast'])} pulses",
+            f"{_count(c['beam']['pulses_subrays'])} of {_count(c['beam']['pulses_cast'])} pulses "
+            f"({c['beam']['pulses_subrays'] / max(c['beam']['pulses_cast'], 1):.0%}), where "
+            f"the reference splits {c['split_share']:.0%} of the pulses of its window",
         )
     ]
 

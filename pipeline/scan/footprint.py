@@ -173,6 +173,39 @@ def match_returns(
     return np.concatenate(ia).astype(np.int64), np.concatenate(ib).astype(np.int64)
 
 
+def partial_pulses(cloud: Any, spec: ScannerSpec) -> int:
+    """How many pulses of a scan (``return_mode="all"``) split their footprint: two or
+    more returns, or one that carries less than the pulse's whole energy (part of the
+    footprint missed). Energies are read back from the intensity proxy (reflectance of
+    the label × cosine of incidence × energy × (10 m / range)², 16-bit), so a return
+    counts as whole within two intensity counts.
+
+    Examples
+    --------
+    >>> ref = scan(scene, stations, reference_spec(spec))  # doctest: +SKIP
+    >>> partial_pulses(ref.cloud, spec) / ref.station_stats[0].pulses_cast  # doctest: +SKIP
+    0.13
+    """
+    from ..cloud import LABEL_CODES
+
+    f = cloud.fields
+    reflect = np.full(max(LABEL_CODES.values()) + 1, spec.reflectance.get("other", 0.5))
+    for name, code in LABEL_CODES.items():
+        reflect[code] = spec.reflectance.get(name, spec.reflectance.get("other", 0.5))
+    rng = f["range_m"].astype(np.float64)
+    scale = (
+        reflect[f["label"]]
+        * np.cos(np.radians(f["incidence_deg"].astype(np.float64)))
+        * np.minimum(1.0, (10.0 / np.maximum(rng, 1e-9)) ** 2)
+        * 65535.0
+    )
+    keys = pulse_keys(f)
+    uniq, inv, count = np.unique(keys, return_inverse=True, return_counts=True)
+    energy = np.bincount(inv, weights=f["intensity"] / np.maximum(scale, 1e-12))
+    slack = np.bincount(inv, weights=2.0 / np.maximum(scale, 1e-12))
+    return int(((count >= 2) | (energy < 1.0 - slack)).sum())
+
+
 def footprint_errors(model: Any, reference: Any) -> dict[str, float]:
     """How far a simulated cloud lies from the footprint reference, pulse by pulse.
 
@@ -238,6 +271,7 @@ __all__ = [
     "REFERENCE_SUBRAYS",
     "footprint_errors",
     "match_returns",
+    "partial_pulses",
     "pulse_keys",
     "reference_spec",
     "window_spec",

@@ -29,6 +29,7 @@ from treesim.scan.footprint import (
     ERROR_NAMES,
     footprint_errors,
     match_returns,
+    partial_pulses,
     reference_spec,
     window_spec,
 )
@@ -132,6 +133,19 @@ def test_a_plate_before_a_wall_splits_pulses_in_two(model):
         assert total == pytest.approx(1.0, abs=2e-4)
 
 
+def test_the_pulses_that_split_their_footprint_are_counted():
+    r = scan(edge_scene(False), [Station(position_m=(0.0, 0.0, 0.0))], MODELS["reference"])
+    every = np.radians(np.arange(-7, 8) * 0.01)
+    want = sum(0.0 < covered(-a) < 1.0 for a in every)
+    assert want == 11 and partial_pulses(r.cloud, SPEC) == want
+    whole = scan(
+        edge_scene(False),
+        [Station(position_m=(0.0, 0.0, 0.0))],
+        SPEC.with_(horizontal_fov_deg=(0.07, 0.08)),
+    )
+    assert len(whole.cloud) == 2 and partial_pulses(whole.cloud, SPEC) == 0
+
+
 def fake_cloud(keys, ranges, intensity):
     """A cloud of returns: pulses keyed by column, numbered in range order."""
     keys, ranges = np.asarray(keys), np.asarray(ranges, float)
@@ -191,7 +205,6 @@ def test_a_window_keeps_the_pulse_directions():
     assert w.n_azimuth == 5 and w.n_elevation == 13
 
 
-@pytest.mark.slow
 def test_adaptive_agrees_with_the_reference_as_well_as_the_brute_force():
     table = read_cylinders(bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv"))
     v, f = cylinders_to_mesh(table, facets=12, joints="miter")
