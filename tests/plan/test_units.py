@@ -303,10 +303,14 @@ def test_field_time_arithmetic():
     vz = instrument("riegl-vz400")
     spec = vz.spec()  # 0.04°, 360° × (-40°..60°)
     assert (spec.n_azimuth, spec.n_elevation) == (9000, 2501)
-    assert vz.scan_time_s(spec) == pytest.approx(9000 * 2501 / 122_000)
-    assert vz.station_time_s(spec) == pytest.approx(240 + 9000 * 2501 / 122_000)
+    # the mechanics (data sheet: 300 kHz pulses, a 240° mirror cycle, at most 120 lines
+    # per second): one line per 0.04° of head turn, each lasting 240/0.04 pulses
+    line_s = max(240 / 0.04 / 300_000, 1 / 120)
+    assert vz.scan_time_s(spec) == pytest.approx(9000 * line_s) == pytest.approx(180.0)
+    assert vz.station_time_s(spec) == pytest.approx(240 + 180.0)
     coarse = vz.spec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1)
-    assert vz.scan_time_s(coarse) == pytest.approx(3600 * 1001 / 122_000)
+    # at 0.1° the mirror would need 125 lines/s: the line rate's ceiling of 120 rules
+    assert vz.scan_time_s(coarse) == pytest.approx(3600 / 120)
     for p in INSTRUMENTS.values():
         assert p.measurement_rate_hz > 0 and p.setup_time_min > 0 and p.timing_source
 
