@@ -185,6 +185,9 @@ class PlotScanResult:
     total_s: float = 0.0
     spec: Any = None
     models: list[str] = field(default_factory=list)
+    #: time the tasks spent building the trees (once each) before the stations
+    #: (``local`` and ``dask`` executors; 0 inline, where stations build their own)
+    trees_build_s: float = 0.0
 
     @property
     def n_points(self) -> int:
@@ -204,6 +207,7 @@ class PlotScanResult:
             "lod": self.lod,
             "warnings": list(self.warnings),
             "total_s": self.total_s,
+            "trees_build_s": self.trees_build_s,
         }
 
 
@@ -254,6 +258,7 @@ class _Gathered:
     warnings: list[str] = field(default_factory=list)
     written: int = 0
     models: list[str] = field(default_factory=list)
+    trees_build_s: float = 0.0
 
 
 @dataclass
@@ -468,6 +473,7 @@ def scan_plot(
         total_s=time.perf_counter() - t_all,
         spec=params.scanner,
         models=out.models,
+        trees_build_s=out.trees_build_s,
     )
 
 
@@ -586,9 +592,11 @@ def _run_station_tasks(
     size = max(1, -(-len(ids) // (2 * slots(plan, ex))))
     chunks = [ids[a : a + size] for a in range(0, len(ids), size)]
     blank = plot.blank()
+    t0 = time.perf_counter()
     for fut in [ex.submit(_tree_facts_task, blank, c, cache_dir) for c in chunks]:
         for tid, facts in fut.result().items():
             plot.set_tree_facts(tid, facts)
+    out.trees_build_s = time.perf_counter() - t0
     needs, why = _station_needs(plot, placed, spec, frame.origin_array, 0)
     total_tri = job.total_triangles(job.ground(plot))
     task = _StationTask(job.params, frame, n, plan.threads, job.window, job.check_inside, cache_dir)
@@ -605,13 +613,7 @@ def _run_station_tasks(
         out.lods.append(r["lod"])
         out.warnings += r["warnings"]
         out.models = r["models"] or out.models
-        if r["points"] is not None:
-            if sink is not None:
-                sink(r["points"], r["fields"])
-                out.written += len(r["points"])
-            else:
-                out.pts.append(r["points"])
-                out.flds.append(r["fields"])
+        _take_points(r, sink, out)
         out.loading.append(
             {
                 **job.loading(k, ids_k, why, []),
@@ -725,7 +727,14 @@ class _StationTask:
             self.cache_dir,
         )
         out = _Gathered()
-        loaded_tri = scan_station(plot, k, st, ids, job.ground(plot), out, plot.release)
+        # the points go to files as they are cast (a station's cloud is never held here,
+        # nor sent back through the executor)
+        files = _PointFiles(self.cache_dir, k) if self.cache_dir is not None else None
+        scan_station.sink = files
+        try:
+            loaded_tri = scan_station(plot, k, st, ids, job.ground(plot), out, plot.release)
+        finally:
+            saved = files.close() if files is not None else None
         plot.release()
         return {
             "stats": out.stats[0],
@@ -734,10 +743,76 @@ class _StationTask:
             "models": out.models,
             "points": out.pts[0] if out.pts else None,
             "fields": out.flds[0] if out.flds else None,
+            "files": saved,
             "loaded_tri": loaded_tri,
             "time_s": time.perf_counter() - t0,
             "memory": _memory(before),
         }
+
+
+class _PointFiles:
+    """A station task's sink: each array (``xyz`` and every field) appended to a raw file
+    of its own in ``folder`` as the chunks come (:func:`_take_points` reads them)."""
+
+    def __init__(self, folder: str, k: int) -> None:
+        self.prefix = Path(folder) / f"station-{k}"
+        self.files: dict[str, Any] = {}
+        self.kinds: dict[str, tuple[str, str, tuple[int, ...]]] = {}
+        self.n = 0
+
+    def __call__(self, points: np.ndarray, fields: dict[str, np.ndarray]) -> None:
+        for name, arr in (("xyz", points), *fields.items()):
+            fh = self.files.get(name)
+            if fh is None:
+                path = f"{self.prefix}-{len(self.files)}.bin"
+                fh = self.files[name] = open(path, "wb")  # noqa: SIM115 - closed in close()
+                self.kinds[name] = (path, arr.dtype.str, tuple(arr.shape[1:]))
+            np.ascontiguousarray(arr).tofile(fh)
+        self.n += len(points)
+
+    def close(self) -> dict[str, Any] | None:
+        """Close the files; what :func:`_take_points` reads (None: no point)."""
+        for fh in self.files.values():
+            fh.close()
+        return {"n": self.n, "arrays": self.kinds} if self.n else None
+
+
+#: Points handed to a sink at once from a station task's files.
+SINK_CHUNK = 1 << 21
+
+
+def _take_points(r: dict[str, Any], sink: Any, out: _Gathered) -> None:
+    """A station task's points (``r``: its result) into the sink, a chunk at a time, or
+    into ``out``; the task's files are removed once read."""
+    saved = r.get("files")
+    if saved is None:
+        if r["points"] is not None:  # a task without files (none so far): the arrays
+            if sink is not None:
+                sink(r["points"], r["fields"])
+                out.written += len(r["points"])
+            else:
+                out.pts.append(r["points"])
+                out.flds.append(r["fields"])
+        return
+    n = int(saved["n"])
+    maps = {
+        name: np.memmap(path, dtype=np.dtype(kind), mode="r", shape=(n, *tail))
+        for name, (path, kind, tail) in saved["arrays"].items()
+    }
+    try:
+        if sink is not None:
+            for a in range(0, n, SINK_CHUNK):
+                chunk = {name: np.array(m[a : a + SINK_CHUNK]) for name, m in maps.items()}
+                sink(chunk.pop("xyz"), chunk)
+            out.written += n
+        else:
+            arrays = {name: np.array(m) for name, m in maps.items()}
+            out.pts.append(arrays.pop("xyz"))
+            out.flds.append(arrays)
+    finally:
+        del maps
+        for path, _, _ in saved["arrays"].values():
+            Path(path).unlink(missing_ok=True)
 
 
 def _rss_bytes(reset: bool = False) -> int | None:
