@@ -416,7 +416,8 @@ def error_table(f: dict) -> str:
         f"Errors against the footprint reference ({REFERENCE_SUBRAYS} sub-rays per pulse on "
         "the same footprint, `treesim.scan.footprint`), on one window of each scan, the same "
         "for every model; the last row of each tree is the reference's own error against "
-        f"{2 * REFERENCE_SUBRAYS + 1} sub-rays.\n",
+        f"{2 * REFERENCE_SUBRAYS + 1} sub-rays. Intensities in counts of 65,535; pt: "
+        "percentage points.\n",
         "| tree, model | " + " | ".join(heads) + " |",
         "|---" * (len(heads) + 1) + "|",
     ]
