@@ -130,6 +130,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
         executor=args.executor,
         workers=args.workers,
         scheduler=args.scheduler,
+        cache_dir=args.cache_dir,
     )
     res = step.result
     print(
@@ -431,5 +432,11 @@ def _register_scan(psub: argparse._SubParsersAction) -> None:
         "--scheduler",
         metavar="ADDRESS",
         help="a running Dask scheduler (default: a local cluster); with --executor dask",
+    )
+    x.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="the folder the station tasks' trees are built into and read from (default a "
+        "temporary one; with --scheduler, a folder every worker reads at the same path)",
     )
     s.set_defaults(func=cmd_scan)

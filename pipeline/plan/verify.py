@@ -74,12 +74,14 @@ def verify_plan(
     executor: str = "inline",
     workers: int | None = None,
     scheduler: str | None = None,
+    cache_dir: str | None = None,
 ) -> dict[str, Any]:
     """Scan ``stations`` at full resolution and measure every tree (module notes).
 
-    ``executor`` (``inline``, ``local``, ``dask``), ``workers`` and ``scheduler`` say
-    where the stations' scans run, as for ``batch`` (each station a task that builds
-    only the trees it can record; the same cloud, bit for bit, as inline).
+    ``executor`` (``inline``, ``local``, ``dask``), ``workers``, ``scheduler`` and
+    ``cache_dir`` say where the stations' scans run, as for ``batch`` (each station a
+    task that reads only the trees it can record; the same cloud, bit for bit, as
+    inline; see :func:`treesim.plot.scan.scan_plot`).
 
     Returns
     -------
@@ -97,7 +99,12 @@ def verify_plan(
     >>> figures["trees_meeting_goal"]  # doctest: +SKIP
     """
     t0 = time.perf_counter()
-    execution = {"executor": executor, "workers": workers, "scheduler": scheduler}
+    execution = {
+        "executor": executor,
+        "workers": workers,
+        "scheduler": scheduler,
+        "cache_dir": cache_dir,
+    }
     cloud = _scan_plot(
         plot, stations, spec, nthreads=nthreads, progress=progress, execution=execution
     )

@@ -452,6 +452,12 @@ def scan_plot(
         scheduler=scheduler,
         n_tasks=len(placed),
     )
+    if plan.scheduler and cache_dir is None:
+        raise InvalidParameterError(
+            "a running Dask scheduler's workers read the plot's trees from a folder they "
+            "share: give cache_dir (treesim plot scan --cache-dir), a folder every worker "
+            "reads and writes at the same path"
+        )
     t_all = time.perf_counter()
     say = progress or (lambda f, m: None)
     job = _PlotJob(plot, placed, params, window, terrain, margin_m, check_inside)
@@ -1158,15 +1164,16 @@ def plot_scan_files(
     executor: str = "inline",
     workers: int | None = None,
     scheduler: str | None = None,
+    cache_dir: str | Path | None = None,
 ) -> Any:
     """Scan a plot into ``outdir``: the cloud (``plot_scan.laz``, written while it is
     cast), ``plot_scan.json`` (the scan, each station's loading, each tree's truth and
     figures) and ``tree_figures.csv`` (one row per tree). Interrupted or failed, it
     leaves nothing behind (no cloud, no JSON, no CSV, no folder it made).
 
-    ``executor``, ``workers`` and ``scheduler`` say where the stations run (see
-    :func:`scan_plot`: each station a task on local processes or a Dask cluster, the
-    same cloud as inline); the per-tree figures are measured here.
+    ``executor``, ``workers``, ``scheduler`` and ``cache_dir`` say where the stations
+    run (see :func:`scan_plot`: each station a task on local processes or a Dask
+    cluster, the same cloud as inline); the per-tree figures are measured here.
 
     Returns a :class:`treesim.steps.StepResult` (``result``: the
     :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
@@ -1216,6 +1223,7 @@ def plot_scan_files(
                 executor=executor,
                 workers=workers,
                 scheduler=scheduler,
+                cache_dir=cache_dir,
             )
         written.append(cloud_path)
         t_scan = time.perf_counter() - t0

@@ -173,3 +173,11 @@ def test_a_plans_verification_on_local_workers_gives_the_inline_figures():
     inline = figures()
     assert inline["points"] > 1000
     assert figures(executor="local", workers=2, nthreads=1) == inline
+
+
+def test_a_remote_scheduler_needs_a_shared_tree_folder():
+    from treesim.errors import InvalidParameterError
+
+    pytest.importorskip("distributed", reason="the dask executor needs dask[distributed]")
+    with pytest.raises(InvalidParameterError, match="cache_dir"):
+        scan_plot(_plot(), STATIONS, _params(), executor="dask", scheduler="tcp://x:8786")
