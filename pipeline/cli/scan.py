@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -160,11 +161,39 @@ def _stations(args: argparse.Namespace) -> list[tuple[float, float, float]] | No
     return None
 
 
-def _step_args(args: argparse.Namespace, label: str | None) -> dict[str, Any]:
+def companion_table(meshes: Sequence[Path]) -> Path | None:
+    """The cylinder table beside a mesh: ``treesim model``'s ``OUT.cylinders.csv`` beside
+    ``OUT.obj``, or ``treesim reconstruct``'s ``cylinders.csv`` in the mesh's folder (the
+    first found, meshes in order); None when there is none."""
+    for mesh in meshes:
+        mesh = Path(mesh)
+        for cand in (mesh.with_name(mesh.stem + ".cylinders.csv"), mesh.with_name("cylinders.csv")):
+            if cand.is_file():
+                return cand
+    return None
+
+
+def with_wind_table(params: ScanParams, meshes: Sequence[Path]) -> ScanParams:
+    """``params`` with the swaying tree's table found beside the meshes when a wind blows
+    and no ``--wind-cylinders`` was given (unchanged otherwise: a plain mesh scans still,
+    and the scan warns)."""
+    spec = params.scanner
+    if spec.wind_speed_m_s <= 0 or spec.wind_cylinders is not None:
+        return params
+    table = companion_table(meshes)
+    if table is None:
+        return params
+    return replace(params, scanner=spec.with_(wind_cylinders=str(table)))
+
+
+def _step_args(
+    args: argparse.Namespace, label: str | None, meshes: Sequence[Path] = ()
+) -> dict[str, Any]:
     """The arguments :func:`treesim.steps.scan_files` and
     :func:`~treesim.steps.estimate_scan_files` take from the flags (all but the meshes
-    and the output)."""
+    and the output); a wind's cylinder table found beside ``meshes``."""
     params, threads = params_from_args(args)
+    params = with_wind_table(params, meshes)
     return {
         "params": params,
         "stations": _stations(args),
@@ -187,7 +216,7 @@ def run_scan(
     step = scan_files(
         meshes,
         out_path=out,
-        **_step_args(args, label),
+        **_step_args(args, label, meshes),
         progress=progress_printer(label="scan"),
         estimate=estimate_printer(),
     )
@@ -214,6 +243,8 @@ def run_scan(
         f"{m.line_rate_hz:.3g} lines/s, a pulse every {m.pulse_period_s * 1e6:.3g} µs); "
         "each point's time_s (LAZ gps_time) is seconds since its station's start"
     )
+    if result.wind is not None:
+        print(wind_line(result.wind))
     if result.n_points == 0:  # a valid result, written as an empty cloud: say why
         from ..report.text import lod_reasons
 
@@ -224,6 +255,21 @@ def run_scan(
     return step.summary
 
 
+def wind_line(wind: dict[str, Any]) -> str:
+    """One line on a windy scan: the tree's sway and the time slices it was cast in."""
+    slices = sum(s["slices"] for s in wind["stations"])
+    shortest = min(s["slice_s"] for s in wind["stations"])
+    speed = wind.get("wind_speed_m_s")
+    what = f"wind {speed:g} m/s" if speed is not None else "a steady sway"
+    return (
+        f"{what}: stem {wind['stem_frequency_hz']:.2f} Hz (DBH {wind['dbh_m']:.2f} m, "
+        f"height {wind['height_m']:.1f} m), stem top {wind['stem_tip_mean_m']:.3f} m "
+        f"downwind ± {wind['stem_tip_swing_3sigma_m']:.3f} m (3σ); cast in {slices:,} "
+        f"time slices (≥ {shortest * 1000:.3g} ms); the model and the slices: scan.json's "
+        "'wind'"
+    )
+
+
 def dry_run(
     args: argparse.Namespace, meshes: Sequence[Path], out: Path, label: str | None = None
 ) -> dict[str, Any]:
@@ -231,7 +277,7 @@ def dry_run(
     the stations' windows and the estimate; nothing is scanned or written."""
     from ..steps import estimate_scan_files
 
-    step = estimate_scan_files(meshes, out_path=out, **_step_args(args, label))
+    step = estimate_scan_files(meshes, out_path=out, **_step_args(args, label, meshes))
     est, scene = step.result, step.details["scene"]
     print(
         f"dry run of treesim scan: {', '.join(Path(m).name for m in meshes)}, "

@@ -35,8 +35,8 @@ __all__ = [
 
 ReturnMode = Literal["first", "last", "strongest", "all"]
 RETURN_MODES: tuple[str, ...] = ("first", "last", "strongest", "all")
-BeamSampling = Literal["adaptive", "full"]
-BEAM_SAMPLINGS: tuple[str, ...] = ("adaptive", "full")
+BeamSampling = Literal["adaptive", "full", "edge"]
+BEAM_SAMPLINGS: tuple[str, ...] = ("adaptive", "full", "edge")
 
 #: Near-infrared reflectance per hit label used by the intensity proxy (1550 nm-ish
 #: figures: bark ~0.45, leaves ~0.25 because water absorbs at 1550 nm, soil ~0.3).
@@ -117,10 +117,13 @@ class ScannerSpec:
         ``beam=True`` without an instrument sets :data:`GENERIC_TLS`'s 0.3 mrad.
     subrays : int
         Rays per pulse when the beam model is on (>= 2; a centre ray and rings).
-    beam_sampling : {"adaptive", "full"}
+    beam_sampling : {"adaptive", "full", "edge"}
         ``"adaptive"`` (default) casts each pulse's central ray and gives the sub-rays
         only to pulses whose footprint can straddle an edge; ``"full"`` casts every
-        sub-ray of every pulse (brute force). See :mod:`treesim.scan.beam`.
+        sub-ray of every pulse (brute force); ``"edge"`` casts the central ray and finds
+        the silhouette edges inside the footprint from the mesh, the covered energy share
+        analytic, one ray beyond each edge (sub-rays only where that cannot settle a
+        pulse). See :mod:`treesim.scan.beam`.
     range_resolution_m : float
         Two echoes of one pulse closer than this merge into one return (beam model only).
     range_noise_sd_m : float
@@ -135,6 +138,9 @@ class ScannerSpec:
         Seed of every random model; outputs are reproducible for a given seed.
     reflectance : dict of str -> float
         Reflectance per hit label, used by the intensity proxy only.
+    wind_speed_m_s, wind_direction_deg, wind_turbulence_intensity, wind_seed, wind_cylinders
+        The wind the tree sways in while it is scanned (:mod:`treesim.scan.wind`); 0 m/s
+        (the default) scans a still scene.
     pulse_rate_hz, mirror_cycle_deg, two_sided_mirror, max_line_rate_hz
         The scanner's mechanics (:meth:`mechanics`): when each pulse leaves, never where
         it goes. The defaults are a generic scanner firing 122 kHz with no unused mirror
@@ -187,7 +193,8 @@ class ScannerSpec:
     beam_sampling: BeamSampling = param(
         "adaptive",
         help="adaptive: sub-rays only for pulses whose footprint can straddle an edge; "
-        "full: sub-rays for every pulse (brute force)",
+        "full: sub-rays for every pulse (brute force); edge: the footprint's silhouette "
+        "edges from the mesh, analytic energy shares, a ray beyond each edge",
         choices=BEAM_SAMPLINGS,
     )
     range_resolution_m: float = param(
@@ -230,6 +237,28 @@ class ScannerSpec:
         unit="Hz",
         none_means="no limit",
         gt=0,
+    )
+
+    wind_speed_m_s: float = param(
+        0.0,
+        help="mean wind speed at the tree; > 0 sways a tree whose cylinder table is known "
+        "(0: a still scene, today's scan bit for bit)",
+        unit="m/s",
+        ge=0,
+        le=40,
+    )
+    wind_direction_deg: float = param(
+        0.0, help="where the wind blows to, counter-clockwise from +x", unit="deg"
+    )
+    wind_turbulence_intensity: float = param(
+        0.3, help="turbulence intensity σ_u / U of the wind (canopies: 0.2-0.5)", ge=0, le=2
+    )
+    wind_seed: int = param(0, help="seed of the wind's gusts", ge=0)
+    wind_cylinders: str | None = param(
+        None,
+        help="the swaying tree's cylinder table (treesim CSV: treesim model's "
+        "OUT.cylinders.csv, treesim reconstruct's cylinders.csv)",
+        none_means="found beside the mesh by treesim scan, else the scene stays still",
     )
 
     def __post_init__(self) -> None:
@@ -297,6 +326,11 @@ class ScannerSpec:
             out.append(f"range noise σ {self.range_noise_sd_m} m")
         if self.angular_jitter_sd_deg > 0:
             out.append(f"angular jitter σ {self.angular_jitter_sd_deg}°")
+        if self.wind_speed_m_s > 0:
+            out.append(
+                f"wind {self.wind_speed_m_s:g} m/s towards {self.wind_direction_deg:g}°, "
+                f"turbulence intensity {self.wind_turbulence_intensity:g}"
+            )
         return out
 
     def with_(self, **changes: object) -> ScannerSpec:
@@ -325,6 +359,11 @@ class ScannerSpec:
             "mirror_cycle_deg": self.mirror_cycle_deg,
             "two_sided_mirror": self.two_sided_mirror,
             "max_line_rate_hz": self.max_line_rate_hz,
+            "wind_speed_m_s": self.wind_speed_m_s,
+            "wind_direction_deg": self.wind_direction_deg,
+            "wind_turbulence_intensity": self.wind_turbulence_intensity,
+            "wind_seed": self.wind_seed,
+            "wind_cylinders": self.wind_cylinders,
         }
 
     def mechanics(self) -> ScanMechanics:

@@ -92,6 +92,9 @@ class ScanResult:
     models: list[str] = field(default_factory=list)
     #: one-line sentences: the scan ran, but maybe not as meant (:mod:`treesim.scan.checks`)
     warnings: list[str] = field(default_factory=list)
+    #: a windy scan's account: the sway model, the tree's figures, each station's time
+    #: slices (:func:`treesim.scan.wind.wind_summary`); None for a still scan
+    wind: dict[str, Any] | None = None
 
     @property
     def n_points(self) -> int:
@@ -124,6 +127,7 @@ class ScanResult:
             "scanner": self.spec.to_dict(),
             "timing": timing_summary(self.spec),
             "stations": [s.to_dict() for s in self.station_stats],
+            **({"wind": self.wind} if self.wind is not None else {}),
         }
 
 
@@ -158,13 +162,21 @@ SCAN_FIELDS: dict[str, np.dtype] = {k: np.dtype(v) for k, v in _FIELDS.items()}
 TREE_ID_FIELD: dict[str, np.dtype] = {"tree_id": np.dtype(np.uint32)}
 
 
-def scan_fields(scene: Scene) -> dict[str, np.dtype]:
+#: The field a windy scan adds (see :func:`scan_fields`): the hit part's displacement
+#: from its rest pose, float64 metres (:mod:`treesim.scan.wind`).
+WIND_FIELDS: dict[str, np.dtype] = {"wind_displacement_m": np.dtype(np.float64)}
+
+
+def scan_fields(scene: Scene, spec: ScannerSpec | None = None) -> dict[str, np.dtype]:
     """The per-point fields a scan of ``scene`` makes: :data:`SCAN_FIELDS`, plus
     ``tree_id`` (uint32; 0 where the hit part belongs to no tree) when any part of the
-    scene carries a tree id (a plot)."""
-    if scene.face_tree is None:
-        return dict(SCAN_FIELDS)
-    return {**SCAN_FIELDS, **TREE_ID_FIELD}
+    scene carries a tree id (a plot), plus ``wind_displacement_m`` (float64) when
+    ``spec`` blows a wind (``wind_speed_m_s > 0``; a sink opened with these fields is
+    handed them when :func:`~treesim.scan.scan` is told so, ``sink_fields``)."""
+    out = dict(SCAN_FIELDS) if scene.face_tree is None else {**SCAN_FIELDS, **TREE_ID_FIELD}
+    if spec is not None and spec.wind_speed_m_s > 0:
+        out.update(WIND_FIELDS)
+    return out
 
 
 def lod_summary(

@@ -22,6 +22,7 @@ memory does not grow with the resolution or the number of points.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -40,13 +41,34 @@ from .beam import (
     subray_directions,
     subray_pattern,
 )
-from .caster import RayTables, cast_central
+from .caster import Caster, RayTables, cast_central
 from .estimate import ScanEstimate, estimate_plan
 from .planning import Plan, StationPlan, plan_scan
-from .rays import directions, hashed_normal, pulse_angles
+from .rays import (
+    PulseGrid,
+    box_window,
+    column_azimuth_rad,
+    directions,
+    full_grid,
+    hashed_normal,
+    pulse_angles,
+    windowed_grid,
+)
 from .result import ScanResult, StationStats, lod_summary, scan_fields, scan_metadata
 from .stations import Station
 from .timing import TIME_FIELD, PulseClock
+from .wind import (
+    STATION_GAP_S,
+    WIND_FIELD,
+    Cylinders,
+    MovingScene,
+    Sectors,
+    Wind,
+    hit_displacement_m,
+    moving_warnings,
+    slice_duration_s,
+    wind_summary,
+)
 
 Progress = Callable[[float, str], None]
 #: Receives each chunk of a scan: points (n, 3) float64 and per-point fields.
@@ -75,6 +97,8 @@ def scan(
     estimate: Callable[[ScanEstimate], None] | None = None,
     frame: LocalFrame | None = None,
     station_offset: int = 0,
+    wind: Wind | None = None,
+    sink_fields: Sequence[str] | None = None,
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -128,6 +152,18 @@ def scan(
         the ``station`` field, the station figures and the per-station random draws
         (range noise, jitter, beam) use ``station_offset + k``, so one station scanned
         alone gives what it gives among the others.
+    wind : Wind, optional
+        What sways the tree and how (:class:`treesim.scan.wind.Wind`: its cylinder
+        table and a turbulent wind or a steady sinusoidal sway). Default: the spec's
+        ``wind_speed_m_s`` and ``wind_cylinders``; at 0 m/s (the default) the scene is
+        still and the scan is today's, bit for bit. With wind, the pulses are cast in
+        time slices against the tree posed at each slice's mid time
+        (:func:`_scan_moving`) and each point carries ``wind_displacement_m``; without a
+        cylinder table the scene stays still and the result says so in a warning.
+    sink_fields : sequence of str, optional
+        The fields the ``sink`` was opened with, when they include the wind's
+        ``wind_displacement_m`` (:func:`scan_fields` with the spec); by default a sink
+        gets :func:`scan_fields` of the scene alone.
 
     Returns
     -------
@@ -145,6 +181,15 @@ def scan(
     """
     station_offset = _checked(chunk_rays, station_offset)
     t_all = time.perf_counter()
+    wind = wind if wind is not None else Wind.from_spec(spec or ScannerSpec())
+    table = wind.cylinder_table() if wind is not None else None
+    if table is not None:
+        assert wind is not None
+        opts = {"window": window, "chunk_rays": chunk_rays, "max_rays": max_rays}
+        opts |= {"nthreads": nthreads, "check_inside": check_inside, "progress": progress}
+        opts |= {"sink": sink, "frame": frame, "station_offset": station_offset}
+        opts |= {"sink_fields": sink_fields, "t_all": t_all}
+        return _scan_moving(scene, stations, spec or ScannerSpec(), wind, table, **opts)
     plan = plan_scan(
         scene,
         stations,
@@ -163,6 +208,9 @@ def scan(
     run = _Run(plan, scan_fields(scene), int(chunk_rays), sink, progress, station_offset)
     stats = [_station(run, sp, k) for k, sp in enumerate(plan.plans, start=station_offset)]
     spec, caster, culled = plan.spec, plan.caster, window and cull
+    warnings = plan.warnings
+    if wind is not None:  # wind, but no cylinder table: a plain mesh stays still
+        warnings = [*warnings, still_warning(wind)]
     return ScanResult(
         cloud=run.output.cloud(plan.stations),
         spec=spec,
@@ -176,8 +224,246 @@ def scan(
         points_written=run.output.written,
         lod=lod_summary(lod, spec, stats, plan.geometry, culled, plan.adaptive),
         models=spec.active_models(),
-        warnings=plan.warnings,
+        warnings=warnings,
     )
+
+
+def still_warning(wind: Wind) -> str:
+    """The warning of a windy scan of a scene without a cylinder table."""
+    what = (
+        f"wind {wind.forcing.speed_m_s:g} m/s" if wind.forcing is not None else "the sway asked for"
+    )
+    return (
+        f"{what}: no cylinder table for the scene (a plain mesh has no branches to sway), "
+        "so it was scanned still; give the tree's table (--wind-cylinders, or treesim "
+        "model's OUT.cylinders.csv / treesim reconstruct's cylinders.csv beside the mesh)"
+    )
+
+
+def _scan_moving(
+    scene: Scene,
+    stations: Sequence[Station],
+    spec: ScannerSpec,
+    wind: Wind,
+    table: Cylinders,
+    *,
+    t_all: float,
+    frame: LocalFrame | None,
+    sink: Sink | None,
+    sink_fields: Sequence[str] | None,
+    **opts: Any,
+) -> ScanResult:
+    """A scan of a swaying tree: each station's pulses in time slices (runs of mirror
+    cycles), each slice cast against the triangles it can reach, posed at the slice's
+    mid time (:class:`~treesim.scan.wind.MovingScene`), through a caster of its own
+    with the still path's float64 guarantees. Beams cast every sub-ray (no adaptive
+    sampling: its thin-geometry mask is made of the rest pose)."""
+    frame = frame or LocalFrame.around(scene.used_vertices)
+    origin = np.asarray(frame.origin, dtype=np.float64)
+    moving = MovingScene(
+        frame.to_local(scene.vertices),
+        scene.faces,
+        scene.face_label,
+        scene.face_tree,
+        table.shifted(origin),
+        wind.model_for,
+    )
+    plan = plan_scan(
+        scene,
+        stations,
+        spec,
+        window=opts["window"],
+        cull=False,
+        lod="full",
+        nthreads=opts["nthreads"],
+        max_rays=opts["max_rays"],
+        check_inside=opts["check_inside"],
+        frame=frame,
+        station_offset=opts["station_offset"],
+    )
+    fields = scan_fields(scene)
+    if sink is None or (sink_fields is not None and WIND_FIELD in sink_fields):
+        fields[WIND_FIELD] = np.dtype(np.float64)
+    chunk, offset = int(opts["chunk_rays"]), opts["station_offset"]
+    run = _Run(plan, fields, chunk, sink, opts["progress"], offset)
+    run.caster_threads = int(opts["nthreads"])  # type: ignore[attr-defined]
+    grids = [_envelope_grid(moving, sp, spec, opts["window"]) for sp in plan.plans]
+    run.total_pulses = max(1, sum(g.n_pulses for g in grids))
+    stats, slicing = [], []
+    for j, (sp, grid) in enumerate(zip(plan.plans, grids, strict=True)):
+        st, info = _moving_station(run, moving, sp, grid, opts["station_offset"] + j, wind)
+        stats.append(st)
+        slicing.append(info)
+    lod = lod_summary("full", spec, stats, plan.geometry, False, False)
+    return ScanResult(
+        cloud=run.output.cloud(plan.stations),
+        spec=spec,
+        stations=plan.stations,
+        station_stats=stats,
+        frame=plan.frame,
+        bvh_build_s=sum(i["bvh_build_s"] for i in slicing),
+        total_s=time.perf_counter() - t_all,
+        window=opts["window"],
+        cull=False,
+        points_written=run.output.written,
+        lod=lod,
+        models=spec.active_models() if wind.forcing is not None else ["wind: steady sinusoid"],
+        warnings=plan.warnings + moving_warnings(moving),
+        wind=wind_summary(moving, wind, slicing),
+    )
+
+
+def _envelope_grid(moving: MovingScene, sp: StationPlan, spec: ScannerSpec, window: bool) -> Any:
+    """A station's pulses: the window of the scene with its moving vertices' bounds
+    widened by how far they can move (or the whole field of view)."""
+    if not window:
+        return full_grid(spec)
+    used = np.unique(moving.faces)
+    pts = moving.v[used]
+    mov = used[moving.cyl_of[used] >= 0]
+    if len(mov):
+        reach = float(moving.reach_v[mov].max())
+        lo, hi = moving.v[mov].min(axis=0) - reach, moving.v[mov].max(axis=0) + reach
+        box = np.stack([lo, hi])
+        corners = box[np.array(np.meshgrid([0, 1], [0, 1], [0, 1])).reshape(3, -1).T, [0, 1, 2]]
+        pts = np.concatenate([pts, corners])
+    rel = (pts - sp.o) @ sp.station.rotation
+    return windowed_grid(spec, box_window(rel.min(axis=0), rel.max(axis=0)))
+
+
+def _moving_station(
+    run: _Run, moving: MovingScene, sp: StationPlan, grid: Any, k: int, wind: Wind
+) -> tuple[StationStats, dict[str, Any]]:
+    """Cast station ``k``'s pulses (``grid``) slice by slice against the tree posed at
+    each slice's mid time; the station's figures and its slicing."""
+    t_st = time.perf_counter()
+    spec, m = run.spec, run.clock.mechanics
+    tables = RayTables(spec, sp.station)
+    slices, info = _station_slices(run, moving, sp, grid, k, wind)
+    tips = moving.model.tips_many(np.array([t for _, _, t in slices]))
+    # where the poses cast carry each vertex at most: the triangles' sectors' margins
+    bound = np.linalg.norm(tips, axis=2).max(axis=0) if len(slices) else tips[:0, :, 0].sum(0)
+    sectors = Sectors(moving, sp.o, sp.station.rotation, moving.vertex_bound(bound))
+    pad = math.radians(spec.horizontal_resolution_deg + 6.0 * spec.angular_jitter_sd_deg)
+    pad += spec.beam_divergence_mrad * 1e-3 + 1e-9
+    n_points = rays = 0
+    build_s = 0.0
+    per_chunk = max(1, run.chunk_rays // run.s)
+    for j, (lines_s, sel, t_mid) in enumerate(slices):
+        sub = PulseGrid(lines_s, sel)
+        tri = sectors.triangles(_column_runs(spec, sel, run.clock, m.two_sided), pad)
+        if not len(tri):
+            run.advance(sub.n_pulses, k)
+            continue
+        posed, faces, disp = moving.posed(t_mid, tri, tips[j])
+        posed_scene: Any = _Posed(moving, posed, faces, tri)
+        caster = Caster(posed_scene, LocalFrame(), run.caster_threads)  # type: ignore[attr-defined]
+        build_s += caster.build_s
+        sub_plan = StationPlan(sp.station, sp.o, sub, sp.window, sp.n_window, None, 0.0)
+        sub_plan.t0 = caster.entry_distance(sp.o)
+        for rec, lines, cols_r, d, n_pulses, n_rays in _grid_blocks(
+            run, sub_plan, tables, k, per_chunk, caster
+        ):
+            if len(rec["pulse"]):
+                p_local, fields = _block_points(run, sp.o, k, rec, lines, cols_r, d, caster)
+                if WIND_FIELD in run.output.fields:
+                    prim = rec["primitive"]
+                    fields[WIND_FIELD] = hit_displacement_m(posed, faces, disp, prim, p_local)
+                run.output.add(p_local, fields)
+                n_points += len(rec["pulse"])
+            rays += n_rays
+            run.advance(n_pulses, k)
+    stats = StationStats(
+        index=k,
+        position_m=sp.station.position_m,
+        pulses_full_fov=spec.n_azimuth * spec.n_elevation,
+        pulses_window=grid.n_pulses,
+        pulses_cast=grid.n_pulses,
+        rays_cast=rays,
+        points=n_points,
+        azimuth_window_deg=sp.window.azimuth_deg,
+        elevation_window_deg=sp.window.elevation_deg,
+        time_s=time.perf_counter() - t_st,
+        scan_duration_s=m.duration_s,
+        pulses_subrays=grid.n_pulses if run.s > 1 else 0,
+    )
+    info["bvh_build_s"] = build_s
+    return stats, info
+
+
+def _station_slices(
+    run: _Run, moving: MovingScene, sp: StationPlan, grid: Any, k: int, wind: Wind
+) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], dict[str, Any]]:
+    """A station's time slices, each cast against the tree posed at its mid time: the
+    longest that keep the motion within a slice under ``wind.slice_fraction`` of the
+    point spacing where the tree can come nearest. Runs of whole mirror cycles (a
+    column, and with a two-sided mirror the one opposite) where a slice lasts a cycle
+    or more; else runs of lines within one column. Each slice: its lines, its columns
+    and its mid time on the wind's clock (station ``k``'s scan starts
+    ``k × (duration + STATION_GAP_S)``). And what was chosen, for the summary."""
+    spec, clock = run.spec, run.clock
+    m = clock.mechanics
+    cols = np.asarray(grid.columns, dtype=np.int64)
+    lines = np.asarray(grid.lines, dtype=np.int64)
+    cyc = np.where(cols >= clock._front, cols - clock._half, cols) if m.two_sided else cols
+    step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+    moved = moving.cyl_of >= 0
+    near = float(np.linalg.norm(moving.v[moved] - sp.o, axis=1).min()) if moved.any() else 1.0
+    # the spacing where the tree can come nearest: its rest range less its reach
+    near = max(near - float(moving.reach_v.max()), 0.1 * near)
+    limit = wind.slice_fraction * near * step
+    span = int(cyc.max() - cyc.min() + 1) if len(cyc) else 1
+    dur = slice_duration_s(moving.model, limit, span * m.line_period_s)
+    t_offset = k * (m.duration_s + STATION_GAP_S)
+    slices: list[tuple[np.ndarray, np.ndarray, float]] = []
+    if len(lines) and len(cols):
+        if dur >= m.line_period_s:
+            n = int(dur // m.line_period_s)
+            sid = (cyc - cyc.min()) // n
+            ends = lines[[0, -1]]
+            for s_id in np.unique(sid):
+                sel = cols[sid == s_id]
+                times = clock(np.repeat(ends, len(sel)), np.tile(sel, 2))
+                mid = 0.5 * (float(times.min()) + float(times.max())) + t_offset
+                slices.append((lines, sel, mid))
+        else:  # a slice is shorter than a mirror cycle: runs of lines of one column
+            for c in cols:
+                times = clock(lines, np.full(len(lines), c))
+                gid = np.floor((times - times.min()) / dur).astype(np.int64)
+                for g in np.unique(gid):
+                    t_g = times[gid == g]
+                    mid = 0.5 * (float(t_g.min()) + float(t_g.max())) + t_offset
+                    slices.append((lines[gid == g], np.array([c]), mid))
+    info = {
+        "station": k,
+        "slices": len(slices),
+        "slice_s": min(dur, span * m.line_period_s),
+        "line_period_s": m.line_period_s,
+        "limit_m": limit,
+        "nearest_m": near,
+        "wind_clock_offset_s": t_offset,
+    }
+    return slices, info
+
+
+def _column_runs(spec: ScannerSpec, cols: np.ndarray, clock: PulseClock, two_sided: bool) -> list:
+    """The azimuths (rad, scanner frame) of a slice's columns, as runs of neighbours:
+    with a two-sided mirror the columns of the front half turn and those opposite."""
+    if not two_sided:
+        return [column_azimuth_rad(spec, cols)]
+    back = cols >= clock._front
+    return [column_azimuth_rad(spec, cols[~back]), column_azimuth_rad(spec, cols[back])]
+
+
+class _Posed:
+    """The triangles of one slice, posed: what :class:`~treesim.scan.caster.Caster`
+    reads of a scene (vertices already in the scan's local frame)."""
+
+    def __init__(self, moving: MovingScene, v: np.ndarray, faces: np.ndarray, tri: np.ndarray):
+        self.vertices, self.faces = v, faces
+        self.face_label = moving.face_label[tri]
+        self.face_tree = None if moving.face_tree is None else moving.face_tree[tri]
+        self.bounds = np.stack([v.min(axis=0), v.max(axis=0)])
 
 
 def _checked(chunk_rays: int, station_offset: int) -> int:
@@ -270,7 +556,12 @@ def _station(run: _Run, sp: StationPlan, k: int) -> StationStats:
     beam = None
     # no thin-geometry mask (thin geometry nearly everywhere): every pulse needs its
     # sub-rays anyway, cast as the full model casts them
-    if run.plan.adaptive and sp.thin is not None:
+    if run.s > 1 and run.spec.beam_sampling == "edge":
+        from .beam import EdgeBeam
+
+        beam = EdgeBeam(run.caster, run.spec, sp, tables, k)
+        blocks = beam.blocks(max(1, run.chunk_rays), run.offsets, run.weights)
+    elif run.plan.adaptive and sp.thin is not None:
         beam = AdaptiveBeam(run.caster, run.spec, sp, tables, k)
         blocks = beam.blocks(max(1, run.chunk_rays), run.offsets, run.weights)
     else:
@@ -306,12 +597,18 @@ def _station(run: _Run, sp: StationPlan, k: int) -> StationStats:
 
 
 def _grid_blocks(
-    run: _Run, sp: StationPlan, tables: RayTables, k: int, per_chunk: int
+    run: _Run,
+    sp: StationPlan,
+    tables: RayTables,
+    k: int,
+    per_chunk: int,
+    caster: Caster | None = None,
 ) -> Iterator[Block]:
     """Station ``k``'s pulses cast ``per_chunk`` at a time, every pulse alike: its grid
     ray (gathered from ``tables``, refined in float64), its jittered ray, or its
-    sub-rays."""
-    spec, caster, s, grid, o = run.spec, run.caster, run.s, sp.grid, sp.o
+    sub-rays; through ``caster`` (default the scan's)."""
+    spec, s, grid, o = run.spec, run.s, sp.grid, sp.o
+    caster = run.caster if caster is None else caster
     fast = s == 1 and spec.angular_jitter_sd_deg == 0
     for a in range(0, grid.n_pulses, per_chunk):
         b = min(grid.n_pulses, a + per_chunk)
@@ -341,10 +638,13 @@ def _block_points(
     lines_r: np.ndarray,
     cols_r: np.ndarray,
     d_r: np.ndarray,
+    caster: Caster | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The points (local frame) and per-point fields of a block's returns ``rec`` from
-    station ``k`` at ``o``: range noise, incidence, label and intensity."""
-    spec, caster = run.spec, run.caster
+    station ``k`` at ``o``: range noise, incidence, label and intensity (the triangles'
+    of ``caster``, default the scan's)."""
+    spec = run.spec
+    caster = run.caster if caster is None else caster
     n_rec = len(rec["pulse"])
     pi = rec["pulse"]
     rng = rec["range_m"]
