@@ -74,8 +74,9 @@ def group_returns(
     ----------
     t : (p, s) float
         Sub-ray ranges, ``inf`` where the sub-ray missed or fell outside the range limits.
-    weights : (s,) float
-        Sub-ray energy weights (sum 1).
+    weights : (s,) or (p, s) float
+        Sub-ray energy weights (sum 1), the same for every pulse or one row per pulse
+        (the edge model's parts of a footprint).
     range_resolution_m : float
         Echoes closer than this merge.
 
@@ -97,7 +98,7 @@ def group_returns(
     cl = cid[valid]
     tv = ts[valid]
     sub = order[valid]
-    w = weights[sub]
+    w = weights[sub] if weights.ndim == 1 else weights[pulse, sub]
     # groups are runs: rows in order, echo clusters in range order within a row
     key = pulse.astype(np.int64) * s + cl
     starts = np.ones(len(key), dtype=bool)
@@ -484,3 +485,579 @@ def _merge_records(parts: list[dict[str, Any]]) -> dict[str, Any]:
     out["pulse"] = out["pulse"].astype(np.int64)
     out["primitive"] = out["primitive"].astype(np.int64)
     return out
+
+
+# --------------------------------------------------------------------------------------
+# The edge model (``beam_sampling="edge"``): the footprint's coverage from the mesh
+# --------------------------------------------------------------------------------------
+
+#: Fine grid of the profile tables (the footprint's unit disc, offsets -1 to 1).
+_TABLE_POINTS = 8001
+#: Rim probes cast around a pulse whose central ray missed beside a hit: how many, and
+#: at which share of the footprint's radius.
+EDGE_RIM_PROBES = 6
+EDGE_RIM_RHO = 0.95
+#: Triangles the edge model walks from a pulse's first triangle across its footprint
+#: (rings of neighbours) before it gives the pulse its sub-rays instead.
+EDGE_WALK_STEPS = 4
+#: Returns carrying less than this share of a pulse's energy are not recorded by the
+#: edge model: a sliver the 127-sub-ray reference meets with at most one of its outer
+#: sub-rays (each ~0.25 % of the energy), where whether it has a return is the chance of
+#: its sampling.
+EDGE_MIN_ENERGY = 0.0025
+#: Points of the footprint (the sub-ray layout) whose ranges on the walked surface give
+#: a cut pulse's range (the surface curves across a footprint: facets of a branch).
+EDGE_RANGE_POINTS = 19
+#: A neighbour's hit farther than this from the plane of a pulse's triangle may be
+#: another surface inside its footprint, one the mesh walk cannot reach.
+EDGE_PLANE_TOL_M = 2e-3
+#: Rays cast beyond a silhouette line: at the far part's centroid and along the line,
+#: in shares of the far part's half-chord there.
+EDGE_FAR_PROBES = (0.0, 0.6, -0.6)
+#: Largest neighbourhood (steps each way) the edge model looks in for hits beside a miss.
+EDGE_MAX_NEIGHBOUR_STEPS = 8
+
+
+def _profile_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets ``x`` on [-1, 1] and the footprint's energy ``G(x)`` and first moment
+    ``H(x)`` on the side ``X < x`` of a straight line (unit disc, profile
+    ``exp(-2 r²)``, total energy 1)."""
+    from scipy.special import erf
+
+    x = np.linspace(-1.0, 1.0, _TABLE_POINTS)
+    g = (
+        np.exp(-2.0 * x * x)
+        * math.sqrt(math.pi / 2.0)
+        * erf(np.sqrt(2.0 * np.maximum(1.0 - x * x, 0.0)))
+    )
+    dx = x[1] - x[0]
+    cg = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * dx)])
+    xg = x * g
+    ch = np.concatenate([[0.0], np.cumsum(0.5 * (xg[1:] + xg[:-1]) * dx)])
+    return x, cg / cg[-1], ch / cg[-1]
+
+
+_TABLES: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+
+def footprint_share(offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Energy and first moment (along the line's normal, in footprint radii) of the
+    part of a pulse's footprint beyond a straight line at signed ``offset`` (footprint
+    radii; > 0: the axis is on the near side, so less than half is beyond). The line
+    is ``n·u + c = 0`` on the footprint's plane of unit radius with ``n`` its unit
+    normal pointing to the near side and ``c`` the offset; the moment is along ``n``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> e, m = footprint_share(np.array([0.0, 1.0, -1.0]))
+    >>> np.round(e, 3).tolist()
+    [0.5, 0.0, 1.0]
+    """
+    if not _TABLES:
+        _TABLES.append(_profile_tables())
+    x, cg, ch = _TABLES[0]
+    # the line n·u + c = 0 with the near side n·u + c >= 0: beyond is n·u < -c
+    t = -np.asarray(offset, dtype=np.float64)
+    return np.interp(t, x, cg, left=0.0, right=1.0), np.interp(t, x, ch, left=0.0, right=0.0)
+
+
+def edge_neighbours(faces: np.ndarray) -> np.ndarray:
+    """The triangle across each edge (i, j) -> (faces[i, j], faces[i, (j + 1) % 3]) of a
+    mesh, (n, 3), -1 on a boundary edge (one of them where more than two meet).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> edge_neighbours(np.array([[0, 1, 2], [2, 1, 3]])).tolist()
+    [[-1, 1, -1], [0, -1, -1]]
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    a = f.reshape(-1)
+    b = f[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(a, b) * (int(f.max(initial=0)) + 1) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    i = np.flatnonzero(key[order][1:] == key[order][:-1])
+    out = np.full(len(a), -1, dtype=np.int64)
+    out[order[i]] = order[i + 1] // 3
+    out[order[i + 1]] = order[i] // 3
+    return out.reshape(-1, 3)
+
+
+def _edge_lines(
+    v: np.ndarray, faces: np.ndarray, o: np.ndarray, th: float, frame: tuple, tri: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Each edge j of triangles ``tri`` seen along pulses ``frame = (d, e1, e2)`` as a
+    line ``nu·x + nv·y + c = 0`` on the footprint's plane (unit radius: tangents over
+    ``th``), oriented so that the triangle is on its ``>= 0`` side; ``dist``: the
+    distance from the axis to the edge's segment (the line's where a corner is behind
+    the station); ``m``: the normal of the plane through the station and the edge,
+    ``sg`` its sign towards the triangle. Arrays (n, 3) ((n, 3, 3) for ``m``)."""
+    d, e1, e2 = frame
+    a = v[faces[tri]] - o
+    ad = np.einsum("mkj,mj->mk", a, d)
+    front = ad > 1e-12 * np.linalg.norm(a, axis=2)
+    safe = np.where(front, ad, 1.0)
+    pu = np.einsum("mkj,mj->mk", a, e1) / safe / th
+    pv = np.einsum("mkj,mj->mk", a, e2) / safe / th
+    out = {k: np.empty(ad.shape) for k in ("nu", "nv", "c", "dist", "sg")}
+    out["m"] = np.empty(a.shape)
+    for j in range(3):
+        j1, j2 = (j + 1) % 3, (j + 2) % 3
+        m = np.cross(a[:, j], a[:, j1])
+        sg = np.sign(np.einsum("ij,ij->i", m, a[:, j2]))
+        la = np.einsum("ij,ij->i", m, e1) * th
+        lb = np.einsum("ij,ij->i", m, e2) * th
+        ln = np.maximum(np.hypot(la, lb), 1e-300)
+        c = sg * np.einsum("ij,ij->i", m, d) / ln
+        du, dv = pu[:, j1] - pu[:, j], pv[:, j1] - pv[:, j]
+        t = np.clip(-(pu[:, j] * du + pv[:, j] * dv) / np.maximum(du * du + dv * dv, 1e-300), 0, 1)
+        seg = np.hypot(pu[:, j] + t * du, pv[:, j] + t * dv)
+        both = front[:, j] & front[:, j1]
+        out["nu"][:, j], out["nv"][:, j], out["c"][:, j] = sg * la / ln, sg * lb / ln, c
+        out["dist"][:, j] = np.where(both, seg, np.abs(c))
+        out["sg"][:, j], out["m"][:, j] = sg, m
+    return out
+
+
+def _walk(
+    geo: tuple[np.ndarray, np.ndarray, np.ndarray],
+    o: np.ndarray,
+    th: float,
+    frame: tuple,
+    start: np.ndarray,
+    quad: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The silhouette edges inside each pulse's footprint, found by walking the mesh
+    from the triangle ``start`` (one per pulse, inside its footprint) across every edge
+    the footprint meets, as long as the surface goes on (the triangle across the edge
+    lies beyond it as seen from the station). An edge with no triangle across it, or
+    whose neighbour folds back behind it, is a silhouette edge. ``geo``: vertices,
+    faces, :func:`edge_neighbours`. Returns the silhouette lines (``pulse``, ``nu``,
+    ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side) and which
+    pulses the walk did not finish within :data:`EDGE_WALK_STEPS` rings. With ``quad``
+    (points (k, 2) on the unit footprint, their weights (k,)), ``lines["range"]``
+    holds per pulse the weighted mean range of the points on the walked surface (nan
+    where none is), the surface's range over its footprint."""
+    v, faces, nbr = geo
+    n_t = len(faces)
+    it_p = np.arange(len(start), dtype=np.int64)
+    it_t = np.asarray(start, dtype=np.int64)
+    it_e = np.full(len(start), -1, dtype=np.int64)
+    seen = np.sort(it_p * n_t + it_t)
+    lines: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "nu", "nv", "c", "tri")}
+    unresolved = np.zeros(len(start), dtype=bool)
+    q_r = None if quad is None else np.full((len(start), len(quad[1])), np.inf)
+    for step in range(EDGE_WALK_STEPS + 1):
+        if not len(it_p):
+            break
+        if step == EDGE_WALK_STEPS:
+            unresolved[it_p] = True
+            break
+        g = _edge_lines(v, faces, o, th, tuple(x[it_p] for x in frame), it_t)
+        if q_r is not None:
+            _quad_ranges(
+                q_r, g, quad[0], (v, faces, o, th), tuple(x[it_p] for x in frame), it_p, it_t
+            )
+        reach = (g["dist"] < 1.0) & (np.arange(3)[None, :] != it_e[:, None])
+        ii, jj = np.nonzero(reach)
+        tri = it_t[ii]
+        nb = nbr[tri, jj]
+        ia, ib = faces[tri, jj], faces[tri, (jj + 1) % 3]
+        nf = faces[np.maximum(nb, 0)]
+        opp = nf.sum(axis=1) - ia - ib
+        side = np.sign(np.einsum("ij,ij->i", g["m"][ii, jj], v[opp] - o))
+        cont = (nb >= 0) & (side == -g["sg"][ii, jj])
+        sil = ~cont
+        for k in ("nu", "nv", "c"):
+            lines[k].append(g[k][ii[sil], jj[sil]])
+        lines["pulse"].append(it_p[ii[sil]])
+        lines["tri"].append(tri[sil])
+        # the walk goes on into the triangles across, each once per pulse
+        np_, nt = it_p[ii[cont]], nb[cont]
+        key = np_ * n_t + nt
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        once = np.ones(len(ks), dtype=bool)
+        once[1:] = ks[1:] != ks[:-1]
+        pos = np.minimum(np.searchsorted(seen, ks), max(len(seen) - 1, 0))
+        fresh = once & ~((seen[pos] == ks) if len(seen) else np.zeros(len(ks), bool))
+        first = order[fresh]
+        seen = np.sort(np.concatenate([seen, ks[fresh]]))
+        k_opp = np.argmax(nf[cont][first] == opp[cont][first][:, None], axis=1)
+        it_p, it_t, it_e = np_[first], nt[first], (k_opp + 1) % 3
+    out = {k: np.concatenate(x) if x else np.empty(0) for k, x in lines.items()}
+    out["pulse"] = out["pulse"].astype(np.int64)
+    out["tri"] = out["tri"].astype(np.int64)
+    if q_r is not None:
+        on = np.isfinite(q_r)
+        wq = np.where(on, quad[1][None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["range"] = (np.where(on, q_r, 0.0) * wq).sum(axis=1) / wq.sum(axis=1)
+    return out, unresolved
+
+
+def _quad_ranges(q_r, g, pts, geo, frame, it_p, it_t) -> None:
+    """Ranges (into ``q_r``, nearest kept) of the footprint points ``pts`` that fall
+    inside the walked triangles ``it_t`` (edge lines ``g``) of pulses ``it_p``."""
+    v, faces, o, th = geo
+    x, y = pts[:, 0][None, None, :], pts[:, 1][None, None, :]
+    val = g["nu"][:, :, None] * x + g["nv"][:, :, None] * y + g["c"][:, :, None]
+    ii, kk = np.nonzero((val >= -1e-9).all(axis=1))
+    if not len(ii):
+        return
+    d, e1, e2 = (a[ii] for a in frame)
+    w = d + th * (pts[kk, :1] * e1 + pts[kk, 1:2] * e2)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    tri = faces[it_t[ii]]
+    p0 = v[tri[:, 0]]
+    n = np.cross(v[tri[:, 1]] - p0, v[tri[:, 2]] - p0)
+    r = np.einsum("ij,ij->i", p0 - o, n) / np.einsum("ij,ij->i", n, w)
+    np.minimum.at(q_r, (it_p[ii], kk), np.where(r > 0, r, np.inf))
+
+
+def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The surface's share of each of ``n`` pulses' footprints bounded by its silhouette
+    ``lines`` (:func:`_walk`): ``ok`` where at most two lines cut it without crossing
+    inside it and their far sides do not overlap; ``energy`` and ``centroid`` (x, y on
+    the unit footprint) of the covered part; per line its far side's ``far_energy`` and
+    ``far_centroid``."""
+    p = lines["pulse"]
+    count = np.bincount(p, minlength=n)
+    ok = count <= 2
+    nu, nv, c = lines["nu"], lines["nv"], lines["c"]
+    eb, hm = footprint_share(c)
+    far_c = np.stack([nu, nv], axis=1) * (hm / np.maximum(eb, 1e-300))[:, None]
+    energy = 1.0 - np.bincount(p, weights=eb, minlength=n)
+    mom = -np.stack(
+        [
+            np.bincount(p, weights=nu * hm, minlength=n),
+            np.bincount(p, weights=nv * hm, minlength=n),
+        ],
+        axis=1,
+    )
+    two = np.flatnonzero(count[p] == 2)
+    if len(two):
+        order = two[np.argsort(p[two], kind="stable")]
+        a, b = order[0::2], order[1::2]
+        det = nu[a] * nv[b] - nv[a] * nu[b]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = (-c[a] * nv[b] + c[b] * nv[a]) / det
+            y = (-nu[a] * c[b] + nu[b] * c[a]) / det
+        crossing = np.abs(det) > 1e-12
+        crossing &= x * x + y * y < 1.0
+        # nested far sides: the deepest point of one far side lies beyond the other
+        nested = (nu[b] * -nu[a] + nv[b] * -nv[a] + c[b] < 0) | (
+            nu[a] * -nu[b] + nv[a] * -nv[b] + c[a] < 0
+        )
+        ok[p[a][crossing | nested]] = False
+    ok &= energy > -1e-9
+    cen = mom / np.maximum(energy, 1e-300)[:, None]
+    return {
+        "ok": ok,
+        "energy": np.maximum(energy, 0.0),
+        "centroid": cen,
+        "far_energy": eb,
+        "far_centroid": far_c,
+    }
+
+
+class EdgeBeam(AdaptiveBeam):
+    """The footprint at the price of about one ray a pulse (``beam_sampling="edge"``).
+
+    Every pulse's central ray is cast (column blocks with a halo of neighbours, as
+    :class:`AdaptiveBeam`). Then, from the mesh itself:
+
+    * a hit whose footprint lies inside its triangle (the axis farther than the
+      footprint's radius from each edge, seen from the station) is one return of full
+      energy at the central range;
+    * otherwise the mesh is walked from that triangle across every edge the footprint
+      meets (:func:`_walk`) while the surface goes on; the edges where it ends (a
+      boundary, or a neighbour folding back: the silhouette) are straight lines across
+      the footprint. With one, or two that do not cross inside it, the surface's share of
+      the energy is analytic (:func:`footprint_share`, the profile integrated once into
+      a table) and its range is that of its triangle's plane at the covered part's
+      centroid; beyond each line one ray, cast at the far part's centroid, finds what lies
+      behind (a second return of the far part's energy, merged within the range
+      resolution);
+    * a miss beside a hit (a neighbour within ``k`` steps hit) casts
+      :data:`EDGE_RIM_PROBES` rays on the footprint's rim; the first that hits starts the
+      same walk, and the covered share is the sliver's energy;
+    * returns under :data:`EDGE_MIN_ENERGY` of the pulse's energy are not recorded;
+    * pulses the walk cannot settle (a corner, two crossing silhouettes, more than two,
+      probes on several surfaces, a walk longer than :data:`EDGE_WALK_STEPS` rings,
+      ranges near a range limit) get the sub-rays, as ``beam_sampling="full"`` does.
+
+    Not seen: a surface in front of part of a footprint whose central ray meets a
+    triangle behind it, and thin geometry between pulses whose neighbours all missed.
+    """
+
+    def __init__(self, caster, spec, plan, tables, station_index) -> None:  # noqa: D107
+        super().__init__(caster, spec, plan, tables, station_index)
+        # every neighbour a footprint reaches (a miss's sliver needs a hit to be seen)
+        step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+        half = 0.5 * spec.beam_divergence_mrad * 1e-3
+        self.k = int(min(EDGE_MAX_NEIGHBOUR_STEPS, max(1, math.ceil(1.01 * half / step))))
+        self.th = math.tan(0.5 * spec.beam_divergence_mrad * 1e-3)
+        self.geo = (caster.v, np.asarray(caster.faces, dtype=np.int64), None)
+        self.geo = (self.geo[0], self.geo[1], edge_neighbours(self.geo[1]))
+        ang = 2.0 * math.pi * np.arange(EDGE_RIM_PROBES) / EDGE_RIM_PROBES
+        q_off, q_w = subray_pattern(EDGE_RANGE_POINTS, 2.0e3)
+        #: the points (unit footprint) and weights of the walked surface's mean range
+        self.quad = (q_off, q_w)
+        self.rim = EDGE_RIM_RHO * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        self.reasons = {
+            "corner or several surfaces": 0,
+            "another surface beside": 0,
+            "range_limit": 0,
+        }
+        #: pulses resolved by the walk (hits, misses) and rays cast beyond edges / rims
+        self.edge_stats = {"walked hits": 0, "rim-probed misses": 0, "probe rays": 0}
+
+    def _ray(self, frame: tuple, xy: np.ndarray) -> np.ndarray:
+        """Unit directions at footprint-plane points ``xy`` (unit radius) of pulses."""
+        d, e1, e2 = frame
+        w = d + self.th * (xy[:, :1] * e1 + xy[:, 1:2] * e2)
+        return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+    def _plane_range(self, w: np.ndarray, prim: np.ndarray) -> np.ndarray:  # type: ignore[override]
+        """Range along unit directions ``w`` to the plane of triangle ``prim``."""
+        n = self.caster.normal[prim]
+        num = np.einsum("ij,ij->i", self.caster.v0[prim] - self.o, n)
+        return num / np.einsum("ij,ij->i", n, w)
+
+    def _neighbours(self, lines, cols, t, prim, n_core) -> tuple[np.ndarray, np.ndarray]:
+        """Core pulses whose central ray missed while a neighbour within k steps hit,
+        and core hits with a neighbour hit off the plane of their triangle by more than
+        :data:`EDGE_PLANE_TOL_M` (another surface may lie inside the footprint)."""
+        key = cols * self.n_lines + lines
+        find = self._neighbour_finder(lines, cols, key)
+        cl, cc, tc = lines[:n_core], cols[:n_core], t[:n_core]
+        hit = np.isfinite(t)
+        x = np.zeros((len(t), 3))
+        x[hit] = self.o + t[hit, None] * self._directions(lines[hit], cols[hit])
+        pp = np.where(hit[:n_core], prim[:n_core], 0)
+        n_p, v0_p = self.caster.normal[pp], self.caster.v0[pp]
+        near = np.zeros(n_core, dtype=bool)
+        jump = np.zeros(n_core, dtype=bool)
+        for dc in range(-self.k, self.k + 1):
+            qc = (cc + dc) % self.n_az if self.full_turn else cc + dc
+            col_ok = np.ones(n_core, bool) if self.full_turn else (qc >= 0) & (qc < self.n_az)
+            for dl in range(-self.k, self.k + 1):
+                if dc or dl:
+                    ql = cl + dl
+                    ok = col_ok & (ql >= 0) & (ql < self.n_lines)
+                    q = np.maximum(find(np.where(ok, qc, 0), ql, ok), -1)
+                    q_hit = (q >= 0) & hit[np.maximum(q, 0)]
+                    near |= q_hit
+                    dev = np.abs(np.einsum("ij,ij->i", x[np.maximum(q, 0)] - v0_p, n_p))
+                    jump |= q_hit & (dev > EDGE_PLANE_TOL_M)
+        miss = ~np.isfinite(tc)
+        return np.flatnonzero(miss & near), jump & ~miss
+
+    def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing
+        the scanner records (a miss, or out of its range limits)."""
+        t, p = self.caster.cast(self.o, w)
+        keep = in_range(self.spec, t) & (p >= 0)
+        return np.where(keep, t, np.inf), np.where(keep, p, -1)
+
+    def _hits(self, d: np.ndarray, t: np.ndarray, prim: np.ndarray, jump: np.ndarray):
+        """Parts (ranges, energies, triangles; (m, 3): the hit surface and what lies
+        beyond up to two silhouette lines) of pulses whose central ray hit, and the
+        indices of those left to the sub-rays; plus the rays cast. ``jump``: pulses with
+        a neighbour on another surface, left to the sub-rays unless a silhouette edge
+        inside their footprint accounts for it."""
+        m = len(d)
+        frame = (d, *beam_basis(d))
+        g = _edge_lines(self.geo[0], self.geo[1], self.o, self.th, frame, prim)
+        inside = (g["c"] >= 1.0).all(axis=1)
+        cut = np.flatnonzero(~inside)
+        sub = tuple(x[cut] for x in frame)
+        lines, unres = _walk(self.geo, self.o, self.th, sub, prim[cut], self.quad)
+        cov = _coverage(len(cut), lines)
+        alone = jump[cut] & (np.bincount(lines["pulse"], minlength=len(cut)) == 0)
+        fb = unres | ~cov["ok"] | alone
+        self.reasons["another surface beside"] += int(alone.sum() + (jump & inside).sum())
+        tt = np.full((m, 3), np.inf)
+        ww = np.zeros((m, 3))
+        pp = np.full((m, 3), -1, dtype=np.int64)
+        tt[:, 0], ww[:, 0], pp[:, 0] = t, 1.0, prim
+        gi = np.flatnonzero(~fb)
+        good = cut[gi]
+        ww[good, 0] = cov["energy"][gi]
+        w0 = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
+        r_quad = lines["range"][gi]
+        tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
+        lp = lines["pulse"]
+        li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
+        li = li[np.argsort(lp[li], kind="stable")]
+        rank = np.arange(len(li)) - np.searchsorted(lp[li], lp[li], side="left")
+        tf, pf, share = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
+        rows = cut[lp[li]]
+        ww[rows, 1 + rank] = cov["far_energy"][li] * share
+        tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
+        self.edge_stats["walked hits"] += len(gi)
+        fall = np.concatenate([cut[fb], np.flatnonzero(jump & inside)])
+        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES)
+
+    def _far_probes(self, frame, lines, cov, li):
+        """What lies beyond silhouette lines ``li``: rays at the far part's centroid
+        and beside it along the line (:data:`EDGE_FAR_PROBES`); the range and triangle
+        of the central one that hits (else the first), and the share of them that hit
+        (the share of the far part's energy given to it)."""
+        nu, nv = lines["nu"][li], lines["nv"][li]
+        fc = cov["far_centroid"][li]
+        depth = fc[:, 0] * nu + fc[:, 1] * nv
+        half_chord = np.sqrt(np.maximum(1.0 - depth * depth, 0.0))
+        along = np.stack([-nv, nu], axis=1)
+        n, k = len(li), len(EDGE_FAR_PROBES)
+        pts = fc[:, None, :] + np.asarray(EDGE_FAR_PROBES)[None, :, None] * (
+            half_chord[:, None, None] * along[:, None, :]
+        )
+        rep = np.repeat(np.arange(n), k)
+        tf, pf = self._cast(self._ray(tuple(x[rep] for x in frame), pts.reshape(-1, 2)))
+        tf, pf = tf.reshape(n, k), pf.reshape(n, k)
+        fin = np.isfinite(tf)
+        pick = np.argmax(fin, axis=1)
+        rows = np.arange(n)
+        return tf[rows, pick], pf[rows, pick], fin.mean(axis=1)
+
+    def _misses(self, d: np.ndarray):
+        """The sliver each pulse whose central ray missed has from the surface its rim
+        probes meet: (range, energy, triangle) per pulse (energy 0: none), the indices
+        of those left to the sub-rays, and the rays cast."""
+        m, k = len(d), len(self.rim)
+        frame = (d, *beam_basis(d))
+        rep = np.repeat(np.arange(m), k)
+        tp, pp = self._cast(self._ray(tuple(x[rep] for x in frame), np.tile(self.rim, (m, 1))))
+        tp, pp = tp.reshape(m, k), pp.reshape(m, k)
+        fin = np.isfinite(tp)
+        has = fin.any(axis=1)
+        lo = np.where(fin, tp, np.inf).min(axis=1)
+        hi = np.where(fin, tp, -np.inf).max(axis=1)
+        several = has & (hi - lo > self.spec.range_resolution_m)
+        idx = np.flatnonzero(has & ~several)
+        start = pp[idx, np.argmax(fin[idx], axis=1)]
+        sub = tuple(x[idx] for x in frame)
+        lines, unres = _walk(self.geo, self.o, self.th, sub, start, self.quad)
+        cov = _coverage(len(idx), lines)
+        fb = unres | ~cov["ok"] | (np.bincount(lines["pulse"], minlength=len(idx)) == 0)
+        # the probes must agree: those that hit inside the covered part, the rest beyond
+        lp = lines["pulse"]
+        val = (
+            lines["nu"][:, None] * self.rim[None, :, 0]
+            + lines["nv"][:, None] * self.rim[None, :, 1]
+        )
+        out = np.zeros((len(idx), k), dtype=bool)
+        np.logical_or.at(out, lp, val + lines["c"][:, None] < 0.0)
+        fb |= (fin[idx] == out).any(axis=1)
+        r = np.full(m, np.inf)
+        e = np.zeros(m)
+        p = np.full(m, -1, dtype=np.int64)
+        gi = np.flatnonzero(~fb)
+        # the sliver's strongest point lies on its nearest silhouette line: the
+        # triangle of that edge is the return's (its incidence, its plane)
+        order = np.lexsort((-lines["c"], lp))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = lp[order][1:] != lp[order][:-1]
+        near_tri = start.copy()
+        near_tri[lp[order][first]] = lines["tri"][order][first]
+        w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
+        r_quad = lines["range"][gi]
+        r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
+        e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
+        self.edge_stats["rim-probed misses"] += m
+        return (r, e, p), np.concatenate([np.flatnonzero(several), idx[fb]]), m * k
+
+    def _records(self, lines, cols, t, prim, n_core, offsets, weights, step):
+        """The return records of one block's core pulses (central rays cast) and the
+        rays cast for them beyond the central ones."""
+        spec = self.spec
+        tc, pc = t[:n_core], prim[:n_core]
+        hit = np.flatnonzero(in_range(spec, tc) & (pc >= 0))
+        lim = _RANGE_LIMIT_FRACTION
+        near_limit = (np.abs(tc[hit] - spec.max_range_m) < lim * spec.max_range_m) | (
+            np.abs(tc[hit] - spec.min_range_m) < lim * max(spec.min_range_m, 1.0)
+        )
+        self.reasons["range_limit"] += int(near_limit.sum())
+        fall = [hit[near_limit]]
+        hit = hit[~near_limit]
+        miss, jump = self._neighbours(lines, cols, t, prim, n_core)
+        d_hit = self._directions(lines[hit], cols[hit])
+        beside0 = self.reasons["another surface beside"]
+        (tt, ww, pp), fb, n_rays = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
+        fall.append(hit[fb])
+        keep = (ww >= EDGE_MIN_ENERGY) & in_range(spec, tt) & (pp >= 0)
+        keep[fb] = False
+        g = group_returns(np.where(keep, tt, np.inf), ww, spec.range_resolution_m)
+        sel = select_returns(g, spec.return_mode)
+        parts = [
+            {
+                "pulse": hit[g["pulse"][sel]],
+                "range_m": g["range_m"][sel],
+                "primitive": pp[g["pulse"][sel], g["subray"][sel]],
+                "direction": None,
+                "energy": g["energy"][sel],
+                "return_number": g["return_number"][sel],
+                "number_of_returns": g["number_of_returns"][sel],
+            }
+        ]
+        (r, e, p), fb, n_probe = self._misses(self._directions(lines[miss], cols[miss]))
+        n_rays += n_probe
+        fall.append(miss[fb])
+        ok = np.flatnonzero((e >= EDGE_MIN_ENERGY) & in_range(spec, r))
+        one = np.ones(len(ok), dtype=np.int64)
+        parts.append(
+            {
+                "pulse": miss[ok],
+                "range_m": r[ok],
+                "primitive": p[ok],
+                "direction": None,
+                "energy": e[ok],
+                "return_number": one,
+                "number_of_returns": one,
+            }
+        )
+        cand = np.sort(np.concatenate(fall))
+        self.reasons["corner or several surfaces"] += (
+            len(cand) - int(near_limit.sum()) - (self.reasons["another surface beside"] - beside0)
+        )
+        self.edge_stats["probe rays"] += n_rays
+        s = len(weights)
+        for a in range(0, len(cand), step):
+            cp = cand[a : a + step]
+            sd = subray_directions(self._directions(lines[cp], cols[cp]), offsets).reshape(-1, 3)
+            ts, ps = self.caster.cast(self.o, sd)
+            n_rays += len(sd)
+            rec = beam_returns(spec, ts.reshape(-1, s), ps.reshape(-1, s), sd, weights)
+            rec["pulse"] = cp[rec["pulse"]]
+            parts.append(rec)
+        return _merge_records(parts), n_rays
+
+    def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
+        """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
+        grid, off = self.grid, self.col_offsets
+        step = max(1, per_chunk // self.spec.rays_per_pulse)
+        n_cols = len(grid.columns)
+        ca = 0
+        while ca < n_cols:
+            cb = int(np.searchsorted(off, off[ca] + per_chunk, side="right")) - 1
+            cb = max(ca + 1, min(cb, n_cols))
+            lines, cols = grid.indices(int(off[ca]), int(off[cb]))
+            core_cols = grid.columns[ca:cb]
+            near = (core_cols[:, None] + np.arange(-self.k, self.k + 1)[None, :]).reshape(-1)
+            if self.full_turn:
+                near = near % self.n_az
+            hl, hc = self._pulses_of_columns(np.setdiff1d(near, core_cols))
+            n_core = len(lines)
+            all_l, all_c = np.concatenate([lines, hl]), np.concatenate([cols, hc])
+            t, prim = self._central(all_l, all_c)
+            rec, n_rays = self._records(all_l, all_c, t, prim, n_core, offsets, weights, step)
+            fresh = np.ones(len(rec["pulse"]), dtype=bool)
+            fresh[1:] = rec["pulse"][1:] != rec["pulse"][:-1]
+            used = rec["pulse"][fresh]
+            rec["pulse"] = np.cumsum(fresh) - 1
+            d_used = self._directions(lines[used], cols[used])
+            yield rec, lines[used], cols[used], d_used, n_core, n_rays + len(all_l)
+            ca = cb
