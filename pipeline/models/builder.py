@@ -55,6 +55,17 @@ def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
     return v * c + _cross(axis, v) * s + axis * (float(axis @ v) * (1.0 - c))
 
 
+def _droop(radial: np.ndarray, axis: np.ndarray, droop: float) -> np.ndarray:
+    """``radial`` (unit, square to ``axis``) turned by the fraction ``droop`` toward the
+    ground's direction square to ``axis`` (unchanged where the axis is vertical)."""
+    g = np.array([0.0, 0.0, -1.0])[None, :] - axis * (-axis[:, 2:3])
+    g_norm = np.linalg.norm(g, axis=1, keepdims=True)
+    g = np.where(g_norm > 1e-9, g / np.maximum(g_norm, 1e-300), radial)
+    out = (1.0 - droop) * radial + droop * g
+    n = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(n > 1e-9, out / np.maximum(n, 1e-300), radial)
+
+
 def _perpendicular(d: np.ndarray) -> np.ndarray:
     """A unit vector perpendicular to the unit ``d``."""
     world = np.zeros(3)
@@ -405,6 +416,8 @@ class TreeBuilder:
             side = np.cross(t_axis, ref)
             phi = float(rng.random()) * 2 * math.pi + np.radians(lp.rotate_deg) * np.arange(count)
             radial = np.cos(phi)[:, None] * ref + np.sin(phi)[:, None] * side
+            if lp.droop > 0.0:
+                radial = _droop(radial, t_axis, lp.droop)
             down = np.radians(lp.down_angle_deg + lp.down_angle_var_deg * rng.uniform(-1, 1, count))
             mid = np.cos(down)[:, None] * t_axis + np.sin(down)[:, None] * radial
             width = np.cross(t_axis, radial)

@@ -217,6 +217,11 @@ class LeafParams:
     petiole_m : float
         Gap between the stem's surface and the blade's base, metres, > 0 (the leaf stalk,
         not modelled): blades never touch the wood.
+    droop : float
+        In [0, 1]: how far each leaf's direction around its stem turns toward the ground
+        (0: as ``rotate_deg`` sets it; 1: straight down the stem's side). With
+        ``rotate_deg`` 180 (two ranks) it hangs a pinnate frond's leaflets in a V, as a
+        coconut palm's hang.
     """
 
     leaves_per_stem: int = 20
@@ -229,6 +234,7 @@ class LeafParams:
     rotate_deg: float = 137.5
     bend: float = 0.5
     petiole_m: float = 0.01
+    droop: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.leaves_per_stem, bool) or int(self.leaves_per_stem) != (
@@ -257,6 +263,7 @@ class LeafParams:
         _check("rotate_deg", self.rotate_deg, -360.0, 360.0)
         _check("bend", self.bend, 0.0, 1.0)
         _check("petiole_m", self.petiole_m, 0.0, 1.0, open_lo=True)
+        _check("droop", self.droop, 0.0, 1.0)
 
 
 @dataclass(frozen=True, kw_only=True)
