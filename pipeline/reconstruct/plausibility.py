@@ -21,7 +21,9 @@ The figures and where their ranges come from (each threshold is a module constan
   FORM_HIGH_SLACK · f_paraboloid(H)]``: at 20 m 0.30 .. 0.62, consistent with published
   breast-height form factors of 0.33 .. 0.68 over conifers and broadleaves (review table
   of the Forests 2025, 16(1), 29 review, doi:10.3390/f16010029: Pinus 0.49 .. 0.63, Abies
-  0.56, Tsuga 0.48, broadleaves 0.33 .. 0.68). A cylinder has 1.0.
+  0.56, Tsuga 0.48, broadleaves 0.33 .. 0.68). A cylinder has 1.0. A stem with a palm's
+  terminal crown (figure ``terminal_crown``, :func:`terminal_crown`) may reach a
+  cylinder's 1.0 times the slack: a palm's stem does not taper.
 * **Taper** along the stem (branch-order-0 cylinders): the largest rise of the radius
   upwards, the longest stretch over which the radius is held constant, the mean taper
   (cm of diameter per m from 1.3 m to the stem's top; figure only).
@@ -53,7 +55,13 @@ import numpy as np
 if TYPE_CHECKING:
     from ..models import CylinderTable
 
-__all__ = ["add_plausibility", "assess", "form_factor_range", "solid_form_factor"]
+__all__ = [
+    "add_plausibility",
+    "assess",
+    "form_factor_range",
+    "solid_form_factor",
+    "terminal_crown",
+]
 
 #: Breast height, m (the DBH convention of the whole project: 1.3 m above the stem base).
 BREAST_HEIGHT_M = 1.3
@@ -134,6 +142,27 @@ LEAF_ON_BRANCH_TO_STEM_MAX = 1.2
 STEM_MEASURED_MIN = 0.25
 
 
+#: A palm's architecture (Corner's model, Hallé, Oldeman & Tomlinson 1978, *Tropical
+#: Trees and Forests*, Springer: one unbranched stem carrying a terminal crown of leaves)
+#: is recognised on a cylinder table by where its laterals leave the stem: 90 % of the
+#: order-1 branch volume (the 5th to 95th volume-weighted percentile of the heights where
+#: they leave it) within ``TERMINAL_CROWN_SPAN`` of the stem's height, none of it below
+#: ``TERMINAL_CROWN_BASE`` of that height, and no lateral thicker at its base than
+#: ``TERMINAL_CROWN_LATERAL_RATIO`` times the bare stem's median radius (a frond's rachis
+#: is thin beside a palm's stem; a fork's or a pollard's limbs are not). Such a stem
+#: barely tapers (a palm's stem has no secondary growth), so its form factor's plausible
+#: ceiling is a cylinder's (1.0) times ``FORM_HIGH_SLACK``. Measured (2026-11-27): the
+#: procedural palm's exact table 0.93 .. 1.0 of its stem, its QSM from a noisy 0.04° scan
+#: 0.74 .. 0.85 (the QSM follows a frond up as the stem's top and merges crossing fronds,
+#: so neither "at the top" nor "unbranched" holds there); the broadleaf and conifer
+#: presets' crowns span 0.3 .. 0.7 of their stems. Of the real clouds (bench_real_trees'
+#: QSMs), a lodgepole pine with a short crown (0.59 .. 0.76) passes the span and base
+#: rules; its thickest lateral is as thick as its stem (a fork), against 0.36 on the
+#: palm's QSM.
+TERMINAL_CROWN_SPAN = 0.2
+TERMINAL_CROWN_BASE = 0.5
+TERMINAL_CROWN_LATERAL_RATIO = 0.5
+
 #: Causes and remedies that several warnings name.
 DBH_INFLATED = "a DBH inflated at 1.3 m (a fork, a buttress, a neighbour's stem)"
 SEE_THE_STEM = "scan from more sides, or separate the leaves (--separate-leaves on)"
@@ -143,6 +172,7 @@ FIGURES: tuple[str, ...] = (
     "stem_height_m",
     "stem_form_factor",
     "stem_form_factor_range",
+    "terminal_crown",
     "stem_taper_cm_per_m",
     "stem_radius_rise_m",
     "stem_radius_held_m",
@@ -243,6 +273,47 @@ def _profile(table: CylinderTable, rows: np.ndarray) -> tuple[np.ndarray, np.nda
     z = np.c_[table.start[rows, 2], table.end[rows, 2]].ravel()
     r = np.c_[table.radius_m[rows], table.end_radius_m[rows]].ravel()
     return z - z.min(), r
+
+
+def terminal_crown(table: CylinderTable, rows: np.ndarray) -> bool:
+    """Whether the stem (its cylinder ``rows``, base to top) carries a palm's terminal
+    crown: see :data:`TERMINAL_CROWN_SPAN`.
+
+    Examples
+    --------
+    >>> from treesim.models import generate_tree
+    >>> t = generate_tree("palm", seed=0, leaves=False).cylinders
+    >>> terminal_crown(t, np.flatnonzero(t.branch_order == 0))
+    True
+    >>> t = generate_tree("sapling", seed=0).cylinders
+    >>> terminal_crown(t, np.flatnonzero(t.branch_order == 0))
+    False
+    """
+    order = table.branch_order
+    first = np.flatnonzero((order == 1) & (table.position_in_branch == 1))
+    if first.size == 0 or rows.size == 0:
+        return False
+    z0 = float(table.start[rows, 2].min())
+    h = float(table.end[rows, 2].max()) - z0
+    if h <= 0:
+        return False
+    # each order-1 branch's volume, at the height (share of the stem's) where it leaves
+    branch_vol = np.bincount(table.branch[order == 1], weights=table.volume_m3[order == 1])
+    per = branch_vol[table.branch[first]]
+    if per.sum() <= 0:
+        return False
+    at = (table.start[first, 2] - z0) / h
+    k = np.argsort(at)
+    cum = np.cumsum(per[k]) / per.sum()
+    lo = float(at[k][np.searchsorted(cum, 0.05)])
+    hi = float(at[k][min(np.searchsorted(cum, 0.95), len(k) - 1)])
+    if lo < TERMINAL_CROWN_BASE or hi - lo > TERMINAL_CROWN_SPAN:
+        return False
+    bare = rows[table.start[rows, 2] - z0 < lo * h]
+    if bare.size == 0:
+        return False
+    thickest = float(table.radius_m[first].max())
+    return thickest <= TERMINAL_CROWN_LATERAL_RATIO * float(np.median(table.radius_m[bare]))
 
 
 def _largest_rise(r: np.ndarray, noise_m: float) -> tuple[float, float]:
@@ -557,6 +628,7 @@ def _assess_stem(
     out["stem_height_m"] = h_stem
     vol = float(table.volume_m3[table.branch_order == 0].sum())
     noise = float(figures.get("noise_sd_m") or 0.0)
+    out["terminal_crown"] = terminal_crown(table, rows)
     _stem_form(dbh, vol, h_stem, out, warns, ground_fix)
     _stem_radii(z, r, dbh, h_stem, noise, out, warns)
     _stem_hidden(table, rows, out, warns)
@@ -576,6 +648,8 @@ def _stem_form(
     if dbh and h_stem >= MIN_HEIGHT_FOR_FORM_M:
         f = vol / (math.pi / 4.0 * dbh * dbh * h_stem)
         lo, hi = form_factor_range(h_stem)
+        if out.get("terminal_crown"):
+            hi = FORM_HIGH_SLACK * solid_form_factor(h_stem, 0.0)
         out["stem_form_factor"] = f
         out["stem_form_factor_range"] = [lo, hi]
         what = (

@@ -274,3 +274,13 @@ def test_presets_truth_tables_are_plausible(species, seed):
     f = res["figures"]
     lo, hi = f["stem_form_factor_range"]
     assert lo <= f["stem_form_factor"] <= hi
+
+
+@pytest.mark.parametrize("species", sorted(SPECIES))
+def test_only_the_palm_has_a_terminal_crown(species):
+    """Corner's model (an unbranched stem, a terminal crown of unbranched laterals) is the
+    palm's alone among the presets: the broadleaves and the fir branch along the crown."""
+    from treesim.reconstruct.plausibility import terminal_crown
+
+    t = generate_tree(species, seed=0, leaves=False).cylinders
+    assert terminal_crown(t, np.flatnonzero(t.branch_order == 0)) == (species == "palm")

@@ -130,3 +130,15 @@ def test_qsm_is_deterministic_on_a_preset():
     a = reconstruct(Cloud(cloud.points)).cylinders
     b = reconstruct(Cloud(cloud.points.copy())).cylinders
     assert a.identical(b)
+
+
+@pytest.mark.slow
+def test_the_palms_qsm_is_read_as_a_palm():
+    """The palm's QSM (the scan above) shows Corner's model: a terminal crown, whose stem
+    may be as full as a cylinder; its truth table does (test_plausibility), and so must
+    the QSM, or every palm's untapered stem is reported as implausible."""
+    _, fig = rebuilt("palm")
+    assert fig["plausibility"]["terminal_crown"] is True
+    lo, hi = fig["plausibility"]["stem_form_factor_range"]
+    assert lo <= fig["plausibility"]["stem_form_factor"] <= hi
+    assert "form_factor_high" not in [w["code"] for w in fig["warnings"]]
