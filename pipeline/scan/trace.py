@@ -331,6 +331,11 @@ def _envelope_grid(moving: MovingScene, sp: StationPlan, spec: ScannerSpec, wind
     return windowed_grid(spec, box_window(rel.min(axis=0), rel.max(axis=0)))
 
 
+#: Slices that share one reference pose for choosing their triangles (:class:`~treesim.
+#: scan.wind.Sectors`): the tree's motion within a block widens their sectors.
+SECTOR_BLOCK = 16
+
+
 def _moving_station(
     run: _Run, moving: MovingScene, sp: StationPlan, grid: Any, k: int, wind: Wind
 ) -> tuple[StationStats, dict[str, Any]]:
@@ -341,54 +346,105 @@ def _moving_station(
     tables = RayTables(spec, sp.station)
     slices, info = _station_slices(run, moving, sp, grid, k, wind)
     tips = moving.model.tips_many(np.array([t for _, _, t in slices]))
-    # where the poses cast carry each vertex at most: the triangles' sectors' margins
-    bound = np.linalg.norm(tips, axis=2).max(axis=0) if len(slices) else tips[:0, :, 0].sum(0)
-    sectors = Sectors(moving, sp.o, sp.station.rotation, moving.vertex_bound(bound))
     pad = math.radians(spec.horizontal_resolution_deg + 6.0 * spec.angular_jitter_sd_deg)
     pad += spec.beam_divergence_mrad * 1e-3 + 1e-9
-    n_points = rays = 0
-    build_s = 0.0
-    per_chunk = max(1, run.chunk_rays // run.s)
-    for j, (lines_s, sel, t_mid) in enumerate(slices):
-        sub = PulseGrid(lines_s, sel)
-        tri = sectors.triangles(_column_runs(spec, sel, run.clock, m.two_sided), pad)
-        if not len(tri):
-            run.advance(sub.n_pulses, k)
-            continue
-        posed, faces, disp = moving.posed(t_mid, tri, tips[j])
-        posed_scene: Any = _Posed(moving, posed, faces, tri)
-        caster = Caster(posed_scene, LocalFrame(), run.caster_threads)  # type: ignore[attr-defined]
-        build_s += caster.build_s
-        sub_plan = StationPlan(sp.station, sp.o, sub, sp.window, sp.n_window, None, 0.0)
-        sub_plan.t0 = caster.entry_distance(sp.o)
-        for rec, lines, cols_r, d, n_pulses, n_rays in _grid_blocks(
-            run, sub_plan, tables, k, per_chunk, caster
-        ):
-            if len(rec["pulse"]):
-                p_local, fields = _block_points(run, sp.o, k, rec, lines, cols_r, d, caster)
-                if WIND_FIELD in run.output.fields:
-                    prim = rec["primitive"]
-                    fields[WIND_FIELD] = hit_displacement_m(posed, faces, disp, prim, p_local)
-                run.output.add(p_local, fields)
-                n_points += len(rec["pulse"])
-            rays += n_rays
-            run.advance(n_pulses, k)
+    counts = np.zeros(3)  # points, rays, seconds building the slices' BVHs
+    # every pose of the station lies within its branches' largest tips from rest
+    reach = np.linalg.norm(tips, axis=2).max(axis=0) if len(slices) else np.zeros(0)
+    rot = sp.station.rotation
+    whole = Sectors(moving.v, moving.faces, sp.o, rot, moving.vertex_bound(reach))
+    for b0 in range(0, len(slices), SECTOR_BLOCK):
+        block = np.arange(b0, min(len(slices), b0 + SECTOR_BLOCK))
+        sel_all = np.unique(np.concatenate([slices[j][1] for j in block]))
+        cand = whole.triangles(_column_runs(spec, sel_all, run.clock, m.two_sided), pad)
+        sectors = _block_sectors(moving, sp, cand, block, slices, tips) if len(cand) else None
+        for j in block:
+            lines_s, sel, t_mid = slices[j]
+            sub = PulseGrid(lines_s, sel)
+            tri = (
+                cand[sectors.triangles(_column_runs(spec, sel, run.clock, m.two_sided), pad)]
+                if sectors is not None
+                else cand
+            )
+            if not len(tri):
+                run.advance(sub.n_pulses, k)
+                continue
+            counts += _cast_slice(run, moving, sp, sub, tables, k, tri, (t_mid, tips[j]))
     stats = StationStats(
         index=k,
         position_m=sp.station.position_m,
         pulses_full_fov=spec.n_azimuth * spec.n_elevation,
         pulses_window=grid.n_pulses,
         pulses_cast=grid.n_pulses,
-        rays_cast=rays,
-        points=n_points,
+        rays_cast=int(counts[1]),
+        points=int(counts[0]),
         azimuth_window_deg=sp.window.azimuth_deg,
         elevation_window_deg=sp.window.elevation_deg,
         time_s=time.perf_counter() - t_st,
         scan_duration_s=m.duration_s,
         pulses_subrays=grid.n_pulses if run.s > 1 else 0,
     )
-    info["bvh_build_s"] = build_s
+    info["bvh_build_s"] = float(counts[2])
     return stats, info
+
+
+def _block_sectors(
+    moving: MovingScene,
+    sp: StationPlan,
+    cand: np.ndarray,
+    block: np.ndarray,
+    slices: list[tuple[np.ndarray, np.ndarray, float]],
+    tips: np.ndarray,
+) -> Sectors:
+    """The sectors of triangles ``cand`` for a block of slices: posed exactly at the
+    block's middle slice, widened by how far the other slices' poses lie from it."""
+    ref = block[len(block) // 2]
+    f = moving.faces[cand]
+    mark = np.zeros(len(moving.v), dtype=bool)
+    mark[f.ravel()] = True
+    used = np.flatnonzero(mark)
+    index = np.cumsum(mark) - 1
+    model = moving.model
+    at = (moving.branch[used], moving.xi[used], tips[ref], moving.phi[used])
+    shift = model.displacement(slices[ref][2], *at)
+    chain = model.chain_sum(np.linalg.norm(tips[block] - tips[ref], axis=2).max(axis=0))
+    bound = np.where(moving.cyl_of[used] >= 0, chain[np.maximum(moving.branch[used], 0)], 0.0)
+    return Sectors(moving.v[used] + shift, index[f], sp.o, sp.station.rotation, bound)
+
+
+def _cast_slice(
+    run: _Run,
+    moving: MovingScene,
+    sp: StationPlan,
+    sub: PulseGrid,
+    tables: RayTables,
+    k: int,
+    tri: np.ndarray,
+    when: tuple[float, np.ndarray],
+) -> np.ndarray:
+    """Cast one slice's pulses ``sub`` against triangles ``tri`` posed at ``when`` (the
+    time and the model's tips then) through a caster of their own; the points go to the
+    output. Returns (points, rays, seconds building the BVH)."""
+    posed, faces, disp = moving.posed(when[0], tri, when[1])
+    posed_scene: Any = _Posed(moving, posed, faces, tri)
+    caster = Caster(posed_scene, LocalFrame(), run.caster_threads)  # type: ignore[attr-defined]
+    sub_plan = StationPlan(sp.station, sp.o, sub, sp.window, sp.n_window, None, 0.0)
+    sub_plan.t0 = caster.entry_distance(sp.o)
+    n_points = rays = 0
+    per_chunk = max(1, run.chunk_rays // run.s)
+    for rec, lines, cols_r, d, n_pulses, n_rays in _grid_blocks(
+        run, sub_plan, tables, k, per_chunk, caster
+    ):
+        if len(rec["pulse"]):
+            p_local, fields = _block_points(run, sp.o, k, rec, lines, cols_r, d, caster)
+            if WIND_FIELD in run.output.fields:
+                prim = rec["primitive"]
+                fields[WIND_FIELD] = hit_displacement_m(posed, faces, disp, prim, p_local)
+            run.output.add(p_local, fields)
+            n_points += len(rec["pulse"])
+        rays += n_rays
+        run.advance(n_pulses, k)
+    return np.array([n_points, rays, caster.build_s])
 
 
 def _station_slices(

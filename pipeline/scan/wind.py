@@ -567,15 +567,21 @@ class SwayModel:
         return base
 
     def displacement(
-        self, t_s: float, branch: np.ndarray, xi: np.ndarray, tips: np.ndarray | None = None
+        self,
+        t_s: float,
+        branch: np.ndarray,
+        xi: np.ndarray,
+        tips: np.ndarray | None = None,
+        phi: np.ndarray | None = None,
     ) -> np.ndarray:
         """(n, 3) displacement (m) at time ``t_s`` of axis points at ``xi`` (position
         over length) along branches ``branch`` (indices; -1: a still point, 0);
-        ``tips``: the branches' :meth:`tips` at ``t_s`` when already known."""
+        ``tips``: the branches' :meth:`tips` at ``t_s`` and ``phi`` the points'
+        :func:`mode_shape`, when already known."""
         tips = self.tips(t_s) if tips is None else tips
         base = self.bases(tips)
         b = np.maximum(branch, 0)
-        out = base[b] + mode_shape(xi)[:, None] * tips[b]
+        out = base[b] + (mode_shape(xi) if phi is None else phi)[:, None] * tips[b]
         out[branch < 0] = 0.0
         return out
 
@@ -758,6 +764,7 @@ class MovingScene:
         rel = vertices - cyl.start[c]
         along = np.clip(np.einsum("ij,ij->i", rel, cyl.axis[c]), 0.0, cyl.length_m[c])
         self.xi = (st.s0[c] + along) / st.length_b[st.branch_of[c]]
+        self.phi = mode_shape(self.xi)
         #: how far (m) each vertex can go (mean + 6σ of each branch, :attr:`SwayModel.
         #: reach_m`, its ancestors' added): the pulses a station casts cover it
         self.reach_v = self.vertex_bound(self.model.reach_m)
@@ -782,7 +789,7 @@ class MovingScene:
         mark[f.ravel()] = True
         used = np.flatnonzero(mark)
         index = np.cumsum(mark) - 1
-        disp = self.model.displacement(t_s, self.branch[used], self.xi[used], tips)
+        disp = self.model.displacement(t_s, self.branch[used], self.xi[used], tips, self.phi[used])
         return self.v[used] + disp, index[f], disp
 
 
@@ -932,38 +939,47 @@ __all__ += ["SLICE_FRACTION", "Wind"]
 
 
 class Sectors:
-    """Which triangles a run of scan columns of one station can meet, whatever the pose.
+    """Which triangles a run of scan columns of one station can meet, in any pose near a
+    reference pose.
 
     Each triangle's azimuth interval seen from the station (scanner frame, relative to
-    the direction of the scene's centre), widened by the angle its vertices' motion
-    bound subtends at its nearest horizontal distance; triangles whose interval spans
-    more than a half turn, or that the motion can carry over the station's vertical
-    axis, are always taken.
+    the direction of the scene's centre) in the reference pose, widened by the angle its
+    vertices' distance from that pose subtends at its nearest horizontal distance;
+    triangles whose interval spans more than a half turn, or that the motion can carry
+    over the station's vertical axis, are always taken.
 
     Parameters
     ----------
-    moving : MovingScene
+    vertices : (v, 3) float64
+        The reference pose (local frame).
+    faces : (f, 3) int64
     o : (3,) float64
         The station (local frame).
     rot : (3, 3) float64
         The station's rotation (scanner to scene frame).
     bound_v : (v,) float64
-        How far each vertex moves at most in the poses cast (m).
+        How far each vertex lies at most from the reference pose in the poses cast (m).
     """
 
     def __init__(
-        self, moving: MovingScene, o: np.ndarray, rot: np.ndarray, bound_v: np.ndarray
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        o: np.ndarray,
+        rot: np.ndarray,
+        bound_v: np.ndarray,
     ) -> None:
-        rel = (moving.v - o) @ rot
-        used = np.unique(moving.faces)
-        c = rel[used].mean(axis=0)
+        rel = (vertices - o) @ rot
+        lo, hi = rel.min(axis=0), rel.max(axis=0)
+        c = 0.5 * (lo + hi)
         self.ref = math.atan2(c[1], c[0])
         az = _wrap(np.arctan2(rel[:, 1], rel[:, 0]) - self.ref)
         dist = np.hypot(rel[:, 0], rel[:, 1])
-        f = moving.faces
+        f = faces
         taz = az[f]
         self.lo, self.hi = taz.min(axis=1), taz.max(axis=1)
-        edge = np.linalg.norm(rel[f] - rel[np.roll(f, 1, axis=1)], axis=2).max(axis=1)
+        r0, r1, r2 = rel[f[:, 0]], rel[f[:, 1]], rel[f[:, 2]]
+        edge = np.sqrt(np.maximum(np.maximum(_sq(r1 - r0), _sq(r2 - r1)), _sq(r0 - r2)))
         near = dist[f].min(axis=1) - edge
         reach = bound_v[f].max(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -985,6 +1001,10 @@ class Sectors:
                 return self.all
             keep |= (self.hi >= a.min() - pad_rad) & (self.lo <= a.max() + pad_rad)
         return np.flatnonzero(keep)
+
+
+def _sq(e: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", e, e)
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
