@@ -222,3 +222,32 @@ def test_still_pose_through_the_moving_path_is_the_still_scan():
     a, b = still.cloud, frozen.cloud
     assert len(a) == len(b)
     assert np.abs(a.points[order(a)] - b.points[order(b)]).max() <= 1e-9
+
+
+def test_cli_sways_a_procedural_model_and_warns_on_a_plain_mesh(tmp_path, capsys):
+    """`treesim scan --wind-speed-m-s` finds `treesim model`'s table beside the mesh;
+    a copy of the mesh without it scans still, with a warning on stderr and in the JSON."""
+    import json
+    import shutil
+
+    from treesim.cli import main
+
+    mesh = tmp_path / "tree.obj"
+    assert (
+        main(["model", "generate", "--species", "sapling", "--facets", "8", "-o", str(mesh)]) == 0
+    )
+    flags = ["--resolution-deg", "0.5", "--stations", "2", "--wind-speed-m-s", "5"]
+    assert main(["scan", str(mesh), "-o", str(tmp_path / "w.laz"), *flags]) == 0
+    side = json.loads((tmp_path / "w.json").read_text())
+    assert side["wind"]["wind_speed_m_s"] == 5.0 and side["warnings"] == []
+    assert side["scanner"]["wind_cylinders"].endswith("tree.cylinders.csv")
+    assert sum(s["slices"] for s in side["wind"]["stations"]) > 2
+    plain = tmp_path / "plain" / "tree.obj"
+    plain.parent.mkdir()
+    shutil.copy(mesh, plain)
+    capsys.readouterr()
+    assert main(["scan", str(plain), "-o", str(tmp_path / "p.laz"), *flags]) == 0
+    err = capsys.readouterr().err
+    side = json.loads((tmp_path / "p.json").read_text())
+    assert "wind" not in side and any("scanned still" in w for w in side["warnings"])
+    assert "scanned still" in err
