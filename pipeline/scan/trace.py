@@ -345,20 +345,25 @@ def _moving_station(
     spec, m = run.spec, run.clock.mechanics
     tables = RayTables(spec, sp.station)
     slices, info = _station_slices(run, moving, sp, grid, k, wind)
-    tips = moving.model.tips_many(np.array([t for _, _, t in slices]))
+    times = np.array([t for _, _, t in slices])
     pad = math.radians(spec.horizontal_resolution_deg + 6.0 * spec.angular_jitter_sd_deg)
     pad += spec.beam_divergence_mrad * 1e-3 + 1e-9
     counts = np.zeros(3)  # points, rays, seconds building the slices' BVHs
-    # every pose of the station lies within its branches' largest tips from rest
-    reach = np.linalg.norm(tips, axis=2).max(axis=0) if len(slices) else np.zeros(0)
+    # every pose of the station lies within its branches' largest tips from rest (the
+    # tips computed a block at a time: memory does not grow with the slices)
+    reach = np.zeros(moving.structure.nb)
+    for b0 in range(0, len(slices), 256):
+        tips = moving.model.tips_many(times[b0 : b0 + 256])
+        reach = np.maximum(reach, np.linalg.norm(tips, axis=2).max(axis=0))
     rot = sp.station.rotation
     whole = Sectors(moving.v, moving.faces, sp.o, rot, moving.vertex_bound(reach))
     for b0 in range(0, len(slices), SECTOR_BLOCK):
         block = np.arange(b0, min(len(slices), b0 + SECTOR_BLOCK))
+        tips = moving.model.tips_many(times[block])
         sel_all = np.unique(np.concatenate([slices[j][1] for j in block]))
         cand = whole.triangles(_column_runs(spec, sel_all, run.clock, m.two_sided), pad)
         sectors = _block_sectors(moving, sp, cand, block, slices, tips) if len(cand) else None
-        for j in block:
+        for i, j in enumerate(block):
             lines_s, sel, t_mid = slices[j]
             sub = PulseGrid(lines_s, sel)
             tri = (
@@ -369,7 +374,7 @@ def _moving_station(
             if not len(tri):
                 run.advance(sub.n_pulses, k)
                 continue
-            counts += _cast_slice(run, moving, sp, sub, tables, k, tri, (t_mid, tips[j]))
+            counts += _cast_slice(run, moving, sp, sub, tables, k, tri, (t_mid, tips[i]))
     stats = StationStats(
         index=k,
         position_m=sp.station.position_m,
@@ -396,18 +401,20 @@ def _block_sectors(
     slices: list[tuple[np.ndarray, np.ndarray, float]],
     tips: np.ndarray,
 ) -> Sectors:
-    """The sectors of triangles ``cand`` for a block of slices: posed exactly at the
-    block's middle slice, widened by how far the other slices' poses lie from it."""
-    ref = block[len(block) // 2]
+    """The sectors of triangles ``cand`` for a block of slices (``tips``: the model's
+    tips at each of them): posed exactly at the block's middle slice, widened by how far
+    the other slices' poses lie from it."""
+    mid = len(block) // 2
+    ref = block[mid]
     f = moving.faces[cand]
     mark = np.zeros(len(moving.v), dtype=bool)
     mark[f.ravel()] = True
     used = np.flatnonzero(mark)
     index = np.cumsum(mark) - 1
     model = moving.model
-    at = (moving.branch[used], moving.xi[used], tips[ref], moving.phi[used])
+    at = (moving.branch[used], moving.xi[used], tips[mid], moving.phi[used])
     shift = model.displacement(slices[ref][2], *at)
-    chain = model.chain_sum(np.linalg.norm(tips[block] - tips[ref], axis=2).max(axis=0))
+    chain = model.chain_sum(np.linalg.norm(tips - tips[mid], axis=2).max(axis=0))
     bound = np.where(moving.cyl_of[used] >= 0, chain[np.maximum(moving.branch[used], 0)], 0.0)
     return Sectors(moving.v[used] + shift, index[f], sp.o, sp.station.rotation, bound)
 

@@ -251,3 +251,36 @@ def test_cli_sways_a_procedural_model_and_warns_on_a_plain_mesh(tmp_path, capsys
     side = json.loads((tmp_path / "p.json").read_text())
     assert "wind" not in side and any("scanned still" in w for w in side["warnings"])
     assert "scanned still" in err
+
+
+@pytest.mark.parametrize("amp_m, f_hz", [(A, F_HZ), (0.02, 0.3)])
+def test_two_sided_mirror_slices_pose_both_columns_at_their_time(amp_m, f_hz):
+    """A FARO-like scanner: each mirror turn scans a column and the one opposite (their
+    pulses at other times along the turn): still every point lies on the tube posed at
+    its own pulse time, within the slice's motion; in runs of lines of a column (a fast
+    sway) and in runs of whole mirror turns (a slow one)."""
+    v, f = _tube()
+    scene = Scene([MeshPart(v, f, label="wood", name="tube")])
+    spec = ts.ScannerSpec(
+        horizontal_resolution_deg=0.3,
+        vertical_resolution_deg=0.3,
+        vertical_fov_deg=(-60.0, 90.0),
+        pulse_rate_hz=20000.0,
+        mirror_cycle_deg=360.0,
+        two_sided_mirror=True,
+    )
+    stations = ts.ring_layout(2, distance_m=6.0, height_m=1.5, centre_xy=(0.0, 0.0))
+    wind = Wind(_table(), sinusoid_amplitude_m=amp_m, sinusoid_frequency_hz=f_hz)
+    result = ts.scan(scene, stations, spec, wind=wind)
+    assert spec.mechanics().two_sided and len(result.cloud) > 1000
+    p, fld = result.cloud.points, result.cloud.fields
+    t = fld["time_s"] + fld["station"] * (spec.mechanics().duration_s + STATION_GAP_S)
+    side = (p[:, 2] > 1e-6) & (p[:, 2] < H - 1e-6)
+    axis = amp_m * mode_shape(p[side, 2] / H) * np.sin(2.0 * np.pi * f_hz * t[side])
+    radial = np.hypot(p[side, 0] - axis, p[side, 1])
+    slice_s = max(s["slice_s"] for s in result.wind["stations"])
+    period = spec.mechanics().line_period_s
+    assert (slice_s < period) == (amp_m == A)  # both kinds of slices are exercised
+    motion = amp_m * 2.0 * np.pi * f_hz * slice_s / 2.0
+    lo, hi = R * math.cos(math.pi / FACETS) - motion - 1e-4, R + motion + 1e-4
+    assert radial.min() >= lo and radial.max() <= hi, (radial.min(), radial.max(), lo, hi)
