@@ -183,10 +183,12 @@ def scan_files(
     committed = False
     try:
         t1 = time.perf_counter()
-        # the cloud is written while it is cast: memory does not grow with the points
+        # the cloud is written while it is cast: memory does not grow with the points;
+        # a wind that sways the tree (a cylinder table given) adds wind_displacement_m
+        fields = scan_fields(scene, params.scanner if params.scanner.wind_cylinders else None)
         with open_cloud_writer(
             out,
-            fields=scan_fields(scene),
+            fields=fields,
             metadata=scan_metadata(placed),
             origin_hint_m=scene.bounds[0],
             threads=int(threads),
@@ -199,6 +201,7 @@ def scan_files(
                 window=window,
                 progress=scale_progress(say, 0.05, 0.95),
                 sink=writer.write,
+                sink_fields=list(fields),
                 estimate=(lambda e: estimate(e.for_suffix(out.suffix))) if estimate else None,
             )
             say(0.95, "writing the cloud")
