@@ -31,6 +31,7 @@ from ..errors import InvalidParameterError
 from ..params import CompareParams, ScanParams
 from ..scan import Station
 from ..scan.occupancy import TriangleBounds, reachable, triangle_bounds
+from ..scan.timing import station_duration_s, timing_summary
 from ..scene import MeshPart, Scene
 from .core import Plot
 
@@ -194,11 +195,15 @@ class PlotScanResult:
         return sum(s.points for s in self.station_stats)
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready figures (what ``plot_scan.json`` holds about the scan)."""
+        """JSON-ready figures (what ``plot_scan.json`` holds about the scan): as a
+        single-tree ``scan.json``, ``timing`` (the scanner's mechanics, each station's
+        duration and the ``time_s`` convention: :func:`treesim.scan.timing.timing_summary`)
+        and each station's ``scan_duration_s``, a station that records nothing included."""
         return {
             "points": self.n_points,
             "rays_cast": sum(s.rays_cast for s in self.station_stats),
             "scanner": self.spec.to_dict() if self.spec is not None else None,
+            "timing": timing_summary(self.spec) if self.spec is not None else None,
             "models_active": list(self.models),
             "stations": [
                 {**s.to_dict(), **ld}
@@ -875,6 +880,8 @@ def _metadata(stations: list[Station]) -> dict[str, Any]:
 
 
 def _empty_stats(k: int, st: Station, spec: Any) -> Any:
+    """A station that records nothing: no pulse cast, but the field scan still takes its
+    time (:func:`treesim.scan.timing.station_duration_s`)."""
     from ..scan.result import StationStats
 
     return StationStats(
@@ -888,6 +895,7 @@ def _empty_stats(k: int, st: Station, spec: Any) -> Any:
         azimuth_window_deg=None,
         elevation_window_deg=(0.0, 0.0),
         time_s=0.0,
+        scan_duration_s=station_duration_s(spec),
     )
 
 
