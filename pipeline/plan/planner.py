@@ -566,6 +566,9 @@ class _Verifier:
     samples: SampleSet
     obj: Objective
     p: PlanParams
+    #: where the verification scans' stations run (:func:`verify_plan`'s ``executor``,
+    #: ``workers``, ``scheduler``, ``cache_dir``); empty: inline
+    execution: dict[str, Any] = field(default_factory=dict)
 
     def __call__(self, positions: Any) -> dict[str, Any]:
         """Scan ``positions`` at full resolution and measure each tree."""
@@ -579,6 +582,7 @@ class _Verifier:
             tolerance_m=self.p.tolerance_m,
             seed=self.p.sample_seed,
             nthreads=self.p.threads,
+            **self.execution,
         )
 
 
@@ -636,6 +640,29 @@ def _verify(
     return verification, baseline_verification
 
 
+def _execution(
+    executor: str, workers: int | None, scheduler: str | None, cache_dir: str | None
+) -> dict[str, Any]:
+    """The verification scans' ``executor``, ``workers``, ``scheduler`` and
+    ``cache_dir``, checked before the planning (a wrong one would otherwise fail only
+    at the verification, the planning's time lost)."""
+    from ..executors import plan_executor
+
+    plan_executor(executor, workers=workers, scheduler=scheduler)
+    if scheduler and cache_dir is None:
+        raise InvalidParameterError(
+            "a running Dask scheduler's workers read the plot's trees from a folder they "
+            "share: give cache_dir (treesim plan --cache-dir), a folder every worker reads "
+            "and writes at the same path"
+        )
+    return {
+        "executor": executor,
+        "workers": workers,
+        "scheduler": scheduler,
+        "cache_dir": cache_dir,
+    }
+
+
 def plan_scans(
     plot: Any,
     *,
@@ -644,6 +671,10 @@ def plan_scans(
     params: PlanParams | None = None,
     progress: Any = None,
     single_tree: bool = False,
+    executor: str = "inline",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cache_dir: str | None = None,
 ) -> PlanResult:
     """Plan the stations that scan ``plot`` to the goal within the budget.
 
@@ -662,6 +693,18 @@ def plan_scans(
     progress : callable(fraction, message), optional
     single_tree : bool
         The plot is one tree: the baselines' ring stands at the station rule's distance.
+    executor : {"inline", "local", "dask"}
+        Where the verification scans' stations run (:func:`treesim.plan.verify.
+        verify_plan`, :func:`treesim.plot.scan.scan_plot`): ``inline`` (default) one
+        after another here; ``local`` or ``dask`` each station a task, the same cloud and
+        so the same verified figures, bit for bit. The planning itself runs here.
+    workers : int, optional
+        Worker processes of ``local`` and of a local dask cluster.
+    scheduler : str, optional
+        A running dask scheduler's address (``dask``; needs ``cache_dir``).
+    cache_dir : str, optional
+        The folder the station tasks' trees are built into and read from (default a
+        temporary one; with ``scheduler``, a folder every worker reads at the same path).
 
     Returns
     -------
@@ -677,8 +720,12 @@ def plan_scans(
     >>> spec = vz400.spec()
     >>> result = ts.plan_scans(plot, spec=spec, instrument=vz400, params=params)  # doctest: +SKIP
     >>> ts.write_plan(result, "plan/")  # doctest: +SKIP
+    >>> on_two = ts.plan_scans(  # doctest: +SKIP
+    ...     plot, spec=spec, instrument=vz400, executor="local", workers=2
+    ... )
     """
     p = params or PlanParams()
+    execution = _execution(executor, workers, scheduler, cache_dir)
     say = progress or (lambda f, m: None)
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
@@ -714,7 +761,15 @@ def plan_scans(
     verification = baseline_verification = None
     if p.verify and sel.chosen:
         verification, baseline_verification = _verify(
-            _Verifier(plot, spec, targets, samples, obj, p),
+            _Verifier(
+                plot,
+                spec,
+                targets,
+                samples,
+                obj,
+                p,
+                execution,
+            ),
             cands[sel.chosen],
             layouts,
             comparison,
