@@ -495,6 +495,29 @@ class _Scanned:
         return self.result.cloud
 
 
+def run_wind(spec: Any, table: Any) -> Any:
+    """The wind that sways a run's scanned model: with ``spec.wind_speed_m_s > 0`` and no
+    ``wind_cylinders`` given, the reconstruction's own cylinder table ``table`` (the QSM
+    the scanned mesh is made of) sways under ``spec``'s wind; otherwise None (the scan
+    follows ``spec`` alone: still at 0 m/s, the given table, or a still mesh and a
+    warning when the reconstruction has no cylinders).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> run_wind(ts.ScannerSpec(), None) is None
+    True
+    """
+    if spec.wind_speed_m_s <= 0 or spec.wind_cylinders is not None or table is None:
+        return None
+    from .scan.wind import Forcing, Wind
+
+    forcing = Forcing(
+        spec.wind_speed_m_s, spec.wind_direction_deg, spec.wind_turbulence_intensity, spec.wind_seed
+    )
+    return Wind(table, forcing, direction_deg=spec.wind_direction_deg)
+
+
 def _scan_stage(
     model: Any, written: dict[str, Path], params: RunParams, threads: int, out: Path, say: Progress
 ) -> _Scanned:
@@ -517,8 +540,9 @@ def _scan_stage(
         scanned_mesh = "scan_mesh.ply"
         write_mesh(out / scanned_mesh, scene.vertices, scene.faces)
     say(0.35, "scanning")
+    wind = run_wind(sp.scanner, model.cylinders)
     result = scan_scene(
-        scene, stations, sp, threads=threads, progress=scale_progress(say, 0.35, 0.5)
+        scene, stations, sp, threads=threads, progress=scale_progress(say, 0.35, 0.5), wind=wind
     )
     if facet_lod is not None:
         result.lod["facets"] = facet_lod
@@ -534,6 +558,8 @@ def _scan_stage(
         "station_rule": station_rule,
         **result.summary(),
     }
+    if wind is not None:  # the sway's tree: the reconstruction's own table
+        scan_summary["wind_cylinders"] = written.get("cylinders", Path("cylinders.csv")).name
     _write_json(out / "scan.json", scan_summary)
     scan_inputs = {
         "source": "scan.json",

@@ -643,6 +643,7 @@ def run_sweep(
                 f"tree {spec.id}: {spec.source}; field cloud {tree.field_points:,} points, "
                 f"spacing {tree.point_spacing_m * 1000:.3g} mm ({time.perf_counter() - t0:.1f} s)"
             )
+        windy = _windy_trees(cfg, trees, out, prep_threads, fresh, note)
         if cfg.tolerance_m is not None:
             tolerance = {"tolerance_m": cfg.tolerance_m, "rule": "given in the sweep file"}
         else:
@@ -650,7 +651,63 @@ def run_sweep(
             tolerance = derive_tolerance(trees, cfg.tolerance_factor)
         tau = float(tolerance["tolerance_m"])
         note(f"τ = {tau * 1000:.3g} mm for every coverage figure ({tolerance['rule']})")
-        return _run_points(cfg, trees, tolerance, out, plan, fresh, progress, t_start)
+        return _run_points(cfg, trees, tolerance, out, plan, fresh, progress, t_start, windy)
+
+
+WIND_SETTINGS = ("wind_speed_m_s", "wind_direction_deg", "wind_turbulence_intensity", "wind_seed")
+
+
+def design_wind(design: Design) -> tuple[float, ...] | None:
+    """A design's wind (speed, direction, turbulence intensity, seed), None when still."""
+    spec = design.params.scan.scanner
+    if spec.wind_speed_m_s <= 0:
+        return None
+    return tuple(float(getattr(spec, k)) for k in WIND_SETTINGS)
+
+
+def _windy_trees(
+    cfg: SweepConfig,
+    trees: list[PreparedTree],
+    out: Path,
+    threads: int,
+    fresh: bool,
+    note: Callable[[str], None],
+) -> dict[tuple[str, tuple[float, ...]], PreparedTree]:
+    """Each procedural tree's field cloud scanned in each wind a design blows: a design
+    with wind measures a tree scanned in that wind (the reference design, its wind
+    settings the design's, the tree swaying by its exact cylinder table), so its DBH,
+    volumes and truth comparisons carry the wind's share; the design's own scan of the
+    reconstruction sways too (:func:`treesim.run.run_wind`). Field cloud files are used
+    as they are. Kept in ``trees/wind-<speed>-<key>/<tree>/``."""
+    winds = sorted({w for d in cfg.designs if (w := design_wind(d)) is not None})
+    made: dict[tuple[str, tuple[float, ...]], PreparedTree] = {}
+    for w in winds:
+        speed, direction, intensity, seed = w
+        ref = replace(
+            cfg.reference,
+            scanner=cfg.reference.scanner.with_(
+                wind_speed_m_s=speed,
+                wind_direction_deg=direction,
+                wind_turbulence_intensity=intensity,
+                wind_seed=int(seed),
+                wind_cylinders=None,
+            ),
+        )
+        for tree in trees:
+            if tree.spec.kind != "procedural":
+                continue
+            t0 = time.perf_counter()
+            key = hashlib.sha256(json.dumps(list(w)).encode()).hexdigest()[:8]
+            root = out / "trees" / f"wind-{w[0]:g}-{key}"
+            made[(tree.spec.id, w)] = prepare_tree(
+                tree.spec, ref, root, threads=threads, fresh=fresh
+            )
+            note(
+                f"tree {tree.spec.id} in a {w[0]:g} m/s wind: field cloud "
+                f"{made[(tree.spec.id, w)].field_points:,} points "
+                f"({time.perf_counter() - t0:.1f} s)"
+            )
+    return made
 
 
 def _run_points(
@@ -662,14 +719,17 @@ def _run_points(
     fresh: bool,
     progress: Callable[[BatchProgress], None] | None,
     t_start: float,
+    windy: dict[tuple[str, tuple[float, ...]], PreparedTree] | None = None,
 ) -> SweepResult:
     tau = float(tolerance["tolerance_m"])
     raw: dict[str, dict[str, Any]] = {}
     tasks: list[_PointTask] = []
     order: list[tuple[str, PreparedTree, Design]] = []
-    for tree in trees:
+    for base in trees:
         for design in cfg.designs:
-            pid = point_id(tree.spec.id, design)
+            pid = point_id(base.spec.id, design)
+            # a windy design measures the tree scanned in its wind (procedural trees)
+            tree = (windy or {}).get((base.spec.id, design_wind(design)), base)  # type: ignore[arg-type]
             order.append((pid, tree, design))
             p = replace(design.params, compare=replace(design.params.compare, tolerance_m=tau))
             ph = params_hash(p)

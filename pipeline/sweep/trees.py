@@ -25,7 +25,7 @@ from typing import Any
 
 from ..jsonio import json_ready, write_json
 from ..params import ScanParams, walk
-from ..run import file_sha256
+from ..run import file_sha256, run_wind
 from .config import TreeSpec
 
 __all__ = ["PreparedTree", "derive_tolerance", "prepare_tree"]
@@ -173,7 +173,9 @@ def _procedural(
     write_mesh(out / "truth.ply", v, f, face_label=label)
     scene = Scene.from_labelled_mesh(v, f, label, name_prefix="truth:")
     stations, rule = stations_for(scene.bounds, reference)
-    res = scan_scene(scene, stations, reference, threads=threads)
+    # a wind in the reference design sways the tree by its exact cylinder table
+    wind = run_wind(reference.scanner, tree.cylinders)
+    res = scan_scene(scene, stations, reference, threads=threads, wind=wind)
     cloud = res.cloud
     write_cloud(out / "field.ply", cloud)
     truth = tree.truth(int(m.facets))
@@ -188,6 +190,7 @@ def _procedural(
             "station_rule": rule,
             "rays_cast": res.rays_cast,
             "models_active": res.models,
+            **({"wind": res.wind} if res.wind is not None else {}),
         },
     }
     return cloud, info
