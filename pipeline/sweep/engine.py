@@ -794,7 +794,7 @@ def _run_points(
             elapsed_s=time.perf_counter() - t_start,
             interrupted=interrupted,
         )
-        _write_outputs(result, trees)
+        _write_outputs(result, trees, list((windy or {}).values()))
     if interrupted:
         raise KeyboardInterrupt
     return result
@@ -818,7 +818,9 @@ def _csv_value(v: Any) -> Any:
     return v
 
 
-def sweep_document(result: SweepResult, trees: list[PreparedTree]) -> dict[str, Any]:
+def sweep_document(
+    result: SweepResult, trees: list[PreparedTree], windy: list[PreparedTree] | None = None
+) -> dict[str, Any]:
     """``sweep.json``'s content."""
     from .._version import __version__
     from ..run import software_versions
@@ -862,6 +864,25 @@ def sweep_document(result: SweepResult, trees: list[PreparedTree]) -> dict[str, 
             }
             for t in trees
         ],
+        # procedural trees scanned in a design's wind (:func:`_windy_trees`)
+        **(
+            {
+                "trees_in_wind": [
+                    {
+                        "id": t.spec.id,
+                        "wind_speed_m_s": t.info["reference_scan"]["settings"]["scanner"][
+                            "wind_speed_m_s"
+                        ],
+                        "field_points": t.field_points,
+                        "point_spacing_m": t.point_spacing_m,
+                        "reference_scan": t.info.get("reference_scan"),
+                    }
+                    for t in windy
+                ]
+            }
+            if windy
+            else {}
+        ),
         "designs": [
             {
                 "index": d.index,
@@ -882,7 +903,9 @@ def sweep_document(result: SweepResult, trees: list[PreparedTree]) -> dict[str, 
     }
 
 
-def _write_outputs(result: SweepResult, trees: list[PreparedTree]) -> None:
+def _write_outputs(
+    result: SweepResult, trees: list[PreparedTree], windy: list[PreparedTree] | None = None
+) -> None:
     from ..report.sweep_page import sweep_page
 
     out = result.outdir
@@ -893,7 +916,7 @@ def _write_outputs(result: SweepResult, trees: list[PreparedTree]) -> None:
         w.writeheader()
         for r in result.rows:
             w.writerow({k: _csv_value(r.get(k)) for k in cols})
-    doc = sweep_document(result, trees)
+    doc = sweep_document(result, trees, windy)
     json_path = write_json(out / "sweep.json", doc)
     html_path = out / "sweep.html"
     write_text(html_path, sweep_page(json_ready(doc)))

@@ -61,3 +61,5 @@ def test_wind_axis_sways_the_field_scan_and_the_design_scan(tmp_path):
         header = next(csv.reader(fh))
     assert "scan.scanner.wind_speed_m_s" in header
     assert "wind_speed_m_s" in (tmp_path / "out" / "sweep.html").read_text()
+    doc = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    assert [(t["id"], t["wind_speed_m_s"]) for t in doc["trees_in_wind"]] == [("sapling", 5.0)]
