@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InvalidParameterError
-from ..params import ReportParams, RunParams, preset_measurements, to_toml
+from ..params import ReportParams, RunParams, ScannerSpec, preset_measurements, to_toml
 from ._options import param_option
 from ._outputs import output_folder
 from ._settings import CONFIG_HELP, STATION_RULE, add_settings, params_from_args
@@ -76,11 +76,16 @@ def report_option(parser: argparse.ArgumentParser) -> None:
 
 
 def with_report_level(params: RunParams, args: argparse.Namespace) -> RunParams:
-    """``params`` with the ``--report`` level given (unchanged without one)."""
+    """``params`` with the ``--report`` level and ``--wind-speed-m-s`` given (unchanged
+    without them)."""
     level = getattr(args, "param:report.level", None)
-    if level is None:
-        return params
-    return replace(params, report=replace(params.report, level=level))
+    if level is not None:
+        params = replace(params, report=replace(params.report, level=level))
+    wind = getattr(args, "param:scan.scanner.wind_speed_m_s", None)
+    if wind is not None:  # sways the reconstruction by its own table (treesim.run.run_wind)
+        spec = params.scan.scanner.with_(wind_speed_m_s=wind)
+        params = replace(params, scan=replace(params.scan, scanner=spec))
+    return params
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -130,6 +135,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_settings(rp)
     param_option(rp, RunParams, "threads", metavar="N")
     report_option(rp)
+    param_option(rp, ScannerSpec, "wind_speed_m_s", path=("scan", "scanner"), metavar="U")
     rp.add_argument(
         "--print-params", action="store_true", help="print the settings as TOML and exit"
     )

@@ -55,3 +55,14 @@ def test_still_scan_files_are_unchanged_by_the_wind_settings(sapling, tmp_path):
     assert sorted(calm.fields) == sorted(plain.fields)
     assert "wind_displacement_m" not in calm.fields
     np.testing.assert_array_equal(calm.points, plain.points)
+
+
+def test_run_flag_sets_the_scanner_wind(capsys):
+    """`treesim run --wind-speed-m-s` sets the run's scanner wind (the run sways the
+    reconstruction by its own table: tests/sweep/test_wind_sweep.py runs it)."""
+    from treesim.cli import main
+
+    assert main(["run", "--preset", "draft", "--wind-speed-m-s", "4", "--print-params"]) == 0
+    assert "wind_speed_m_s = 4.0" in capsys.readouterr().out
+    assert main(["run", "--preset", "draft", "--print-params"]) == 0
+    assert "wind_speed_m_s = 0.0" in capsys.readouterr().out
