@@ -144,7 +144,8 @@ STEM_MEASURED_MIN = 0.25
 
 #: A palm's architecture (Corner's model, Hallé, Oldeman & Tomlinson 1978, *Tropical
 #: Trees and Forests*, Springer: one unbranched stem carrying a terminal crown of leaves)
-#: is recognised on a cylinder table by where its laterals leave the stem: 90 % of the
+#: is recognised on a cylinder table by where its laterals leave the stem (above breast
+#: height; lower ones are the foot's: a flare, ground, a sprout): 90 % of the
 #: order-1 branch volume (the 5th to 95th volume-weighted percentile of the heights where
 #: they leave it) within ``TERMINAL_CROWN_SPAN`` of the stem's height, none of it below
 #: ``TERMINAL_CROWN_BASE`` of that height, and no lateral thicker at its base than
@@ -294,6 +295,10 @@ def terminal_crown(table: CylinderTable, rows: np.ndarray) -> bool:
     if first.size == 0 or rows.size == 0:
         return False
     z0 = float(table.start[rows, 2].min())
+    # laterals leaving below breast height are the foot's (a flare, ground, a sprout)
+    first = first[table.start[first, 2] - z0 >= BREAST_HEIGHT_M]
+    if first.size == 0:
+        return False
     h = float(table.end[rows, 2].max()) - z0
     if h <= 0:
         return False
