@@ -123,6 +123,38 @@ def execution(args: argparse.Namespace) -> dict[str, Any]:
     return {k: getattr(args, k) for k in ("executor", "workers", "threads", "scheduler")}
 
 
+def station_task_options(group: Any, where: str, same: str) -> None:
+    """``--executor`` (inline: default, local, dask), ``--workers``, ``--scheduler`` and
+    ``--cache-dir`` of a command whose plot scans run each station as a task (``treesim
+    plot scan``, ``treesim plan``'s verification), in ``group``: ``where`` names the
+    stations that run, ``same`` what stays the same, bit for bit."""
+    group.add_argument(
+        "--executor",
+        choices=["inline", "local", "dask"],
+        default="inline",
+        help=f"where {where} run: inline (this process, one after another: default), "
+        "local (a process pool) or dask (a Dask cluster); each station then a task that "
+        f"builds only the trees it can record ({same}, bit for bit)",
+    )
+    group.add_argument(
+        "--workers",
+        type=whole_number(1),
+        metavar="N",
+        help="worker processes of local or a local dask cluster (default one per core)",
+    )
+    group.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a running Dask scheduler (default: a local cluster); with --executor dask",
+    )
+    group.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="the folder the station tasks' trees are built into and read from (default a "
+        "temporary one; with --scheduler, a folder every worker reads at the same path)",
+    )
+
+
 def floats_type(n: int, what: str) -> Callable[[str], tuple[float, ...]]:
     """The argparse ``type`` of ``n`` comma-separated finite numbers (``"-40,90"``) for
     the option ``what``, or a usage error (exit 2)."""

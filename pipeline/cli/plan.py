@@ -11,7 +11,13 @@ from ..errors import InvalidParameterError
 from ..params import INSTRUMENTS, SETTINGS, ScannerSpec, merge
 from ..params.models import ModelParams
 from ..plan.params import DEFAULT_INSTRUMENT
-from ._options import collect, number_type, param_option, param_options, whole_number
+from ._options import (
+    collect,
+    number_type,
+    param_option,
+    param_options,
+    station_task_options,
+)
 from ._outputs import output_folder
 from .progress import print_warnings, progress_printer
 
@@ -93,31 +99,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _verification_options(p: argparse.ArgumentParser) -> None:
     """Where the verification scans' stations run (as ``treesim plot scan``'s)."""
     x = p.add_argument_group("verification's execution")
-    x.add_argument(
-        "--executor",
-        choices=["inline", "local", "dask"],
-        default="inline",
-        help="where the verification scans' stations run: inline (this process, one after "
-        "another: default), local (a process pool) or dask (a Dask cluster); each station "
-        "then a task that builds only the trees it can record (the same verified figures, "
-        "bit for bit); the planning itself runs here",
-    )
-    x.add_argument(
-        "--workers",
-        type=whole_number(1),
-        metavar="N",
-        help="worker processes of local or a local dask cluster (default one per core)",
-    )
-    x.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="a running Dask scheduler (default: a local cluster); with --executor dask",
-    )
-    x.add_argument(
-        "--cache-dir",
-        metavar="DIR",
-        help="the folder the station tasks' trees are built into and read from (default a "
-        "temporary one; with --scheduler, a folder every worker reads at the same path)",
+    station_task_options(
+        x,
+        "the verification scans' stations",
+        "the same verified figures; the planning itself runs here",
     )
 
 

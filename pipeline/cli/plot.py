@@ -30,6 +30,7 @@ from ._options import (
     number_type,
     param_option,
     param_options,
+    station_task_options,
     whole_number,
 )
 from ._outputs import output_folder
@@ -415,28 +416,5 @@ def _register_scan(psub: argparse._SubParsersAction) -> None:
     )
     param_option(x, CompareParams, "tolerance_m")
     x.add_argument("--no-figures", action="store_true", help="scan only: no per-tree comparison")
-    x.add_argument(
-        "--executor",
-        choices=["inline", "local", "dask"],
-        default="inline",
-        help="where the stations run: inline (this process, one after another: default), "
-        "local (a process pool) or dask (a Dask cluster); each station then a task that "
-        "builds only the trees it can record (the same cloud, bit for bit)",
-    )
-    x.add_argument(
-        "--workers",
-        type=whole_number(1),
-        help="worker processes of local or a local dask cluster (default one per core)",
-    )
-    x.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="a running Dask scheduler (default: a local cluster); with --executor dask",
-    )
-    x.add_argument(
-        "--cache-dir",
-        metavar="DIR",
-        help="the folder the station tasks' trees are built into and read from (default a "
-        "temporary one; with --scheduler, a folder every worker reads at the same path)",
-    )
+    station_task_options(x, "the stations", "the same cloud")
     s.set_defaults(func=cmd_scan)
