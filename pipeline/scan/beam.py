@@ -243,6 +243,34 @@ class AdaptiveBeam:
         #: pulses given sub-rays, by the first reason that applied
         self.reasons = {"edge": 0, "surface": 0, "thin": 0, "range_limit": 0}
 
+    def _column_blocks(self, per_chunk: int):
+        """Yield (lines, cols, all_lines, all_cols) per block of columns of about
+        ``per_chunk`` rays: the block's pulses, then those with the ``k`` neighbouring
+        columns either side (its halo) appended."""
+        grid, off = self.grid, self.col_offsets
+        n_cols = len(grid.columns)
+        ca = 0
+        while ca < n_cols:
+            cb = int(np.searchsorted(off, off[ca] + per_chunk, side="right")) - 1
+            cb = max(ca + 1, min(cb, n_cols))
+            lines, cols = grid.indices(int(off[ca]), int(off[cb]))
+            core_cols = grid.columns[ca:cb]
+            near = (core_cols[:, None] + np.arange(-self.k, self.k + 1)[None, :]).reshape(-1)
+            if self.full_turn:
+                near = near % self.n_az
+            hl, hc = self._pulses_of_columns(np.setdiff1d(near, core_cols))
+            yield lines, cols, np.concatenate([lines, hl]), np.concatenate([cols, hc])
+            ca = cb
+
+    def _renumbered(self, rec: dict, lines: np.ndarray, cols: np.ndarray):
+        """(records, lines, cols, directions) of the pulses with returns, renumbered
+        0.. in order (records are ordered by pulse)."""
+        fresh = np.ones(len(rec["pulse"]), dtype=bool)
+        fresh[1:] = rec["pulse"][1:] != rec["pulse"][:-1]
+        used = rec["pulse"][fresh]
+        rec["pulse"] = np.cumsum(fresh) - 1
+        return rec, lines[used], cols[used], self._directions(lines[used], cols[used])
+
     def _pulses_of_columns(self, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(lines, columns) the grid casts in the given columns (any, present or not)."""
         gc = self.grid.columns
@@ -398,24 +426,10 @@ class AdaptiveBeam:
 
     def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
         """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
-        spec, grid, caster = self.spec, self.grid, self.caster
+        spec, caster = self.spec, self.caster
         s = spec.rays_per_pulse
-        off = self.col_offsets
-        n_cols = len(grid.columns)
-        ca = 0
-        while ca < n_cols:
-            cb = int(np.searchsorted(off, off[ca] + per_chunk, side="right")) - 1
-            cb = max(ca + 1, min(cb, n_cols))
-            lines, cols = grid.indices(int(off[ca]), int(off[cb]))
-            core_cols = grid.columns[ca:cb]
-            near = (core_cols[:, None] + np.arange(-self.k, self.k + 1)[None, :]).reshape(-1)
-            if self.full_turn:
-                near = near % self.n_az
-            halo = np.setdiff1d(near, core_cols)
-            hl, hc = self._pulses_of_columns(halo)
+        for lines, cols, all_l, all_c in self._column_blocks(per_chunk):
             n_core = len(lines)
-            all_l = np.concatenate([lines, hl])
-            all_c = np.concatenate([cols, hc])
             t, prim = self._central(all_l, all_c)
             n_rays = len(all_l)
             flag = self._flags(all_l, all_c, t, prim, n_core)
@@ -451,15 +465,8 @@ class AdaptiveBeam:
                 rec = beam_returns(spec, ts.reshape(-1, s), ps.reshape(-1, s), sd, weights)
                 rec["pulse"] = cp[rec["pulse"]]
                 parts.append(rec)
-            rec = _merge_records(parts)
-            # pulses with returns, renumbered (records are ordered by pulse)
-            fresh = np.ones(len(rec["pulse"]), dtype=bool)
-            fresh[1:] = rec["pulse"][1:] != rec["pulse"][:-1]
-            used = rec["pulse"][fresh]
-            rec["pulse"] = np.cumsum(fresh) - 1
-            d_used = self._directions(lines[used], cols[used])
-            yield rec, lines[used], cols[used], d_used, n_core, n_rays
-            ca = cb
+            rec, lu, cu, d_used = self._renumbered(_merge_records(parts), lines, cols)
+            yield rec, lu, cu, d_used, n_core, n_rays
 
 
 def _merge_records(parts: list[dict[str, Any]]) -> dict[str, Any]:
@@ -1037,27 +1044,10 @@ class EdgeBeam(AdaptiveBeam):
 
     def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
         """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
-        grid, off = self.grid, self.col_offsets
         step = max(1, per_chunk // self.spec.rays_per_pulse)
-        n_cols = len(grid.columns)
-        ca = 0
-        while ca < n_cols:
-            cb = int(np.searchsorted(off, off[ca] + per_chunk, side="right")) - 1
-            cb = max(ca + 1, min(cb, n_cols))
-            lines, cols = grid.indices(int(off[ca]), int(off[cb]))
-            core_cols = grid.columns[ca:cb]
-            near = (core_cols[:, None] + np.arange(-self.k, self.k + 1)[None, :]).reshape(-1)
-            if self.full_turn:
-                near = near % self.n_az
-            hl, hc = self._pulses_of_columns(np.setdiff1d(near, core_cols))
+        for lines, cols, all_l, all_c in self._column_blocks(per_chunk):
             n_core = len(lines)
-            all_l, all_c = np.concatenate([lines, hl]), np.concatenate([cols, hc])
             t, prim = self._central(all_l, all_c)
             rec, n_rays = self._records(all_l, all_c, t, prim, n_core, offsets, weights, step)
-            fresh = np.ones(len(rec["pulse"]), dtype=bool)
-            fresh[1:] = rec["pulse"][1:] != rec["pulse"][:-1]
-            used = rec["pulse"][fresh]
-            rec["pulse"] = np.cumsum(fresh) - 1
-            d_used = self._directions(lines[used], cols[used])
-            yield rec, lines[used], cols[used], d_used, n_core, n_rays + len(all_l)
-            ca = cb
+            rec, lu, cu, d_used = self._renumbered(rec, lines, cols)
+            yield rec, lu, cu, d_used, n_core, n_rays + len(all_l)
