@@ -114,6 +114,28 @@ def pulse_keys(fields: dict[str, np.ndarray]) -> np.ndarray:
     )
 
 
+def returns_per_pulse(
+    keys_a: np.ndarray, keys_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pulse with a return in either cloud (sorted keys, :func:`pulse_keys`) and
+    its number of returns in each.
+
+    Examples
+    --------
+    >>> keys, na, nb = returns_per_pulse(np.array([5, 5, 7]), np.array([7, 9]))
+    >>> keys.tolist(), na.tolist(), nb.tolist()
+    ([5, 7, 9], [2, 1, 0], [0, 1, 1])
+    """
+    ua, ca = np.unique(keys_a, return_counts=True)
+    ub, cb = np.unique(keys_b, return_counts=True)
+    keys = np.union1d(ua, ub)
+    na = np.zeros(len(keys), np.int64)
+    nb = np.zeros(len(keys), np.int64)
+    na[np.searchsorted(keys, ua)] = ca
+    nb[np.searchsorted(keys, ub)] = cb
+    return keys, na, nb
+
+
 def _by_pulse(keys: np.ndarray, rn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Order (pulse, return number), the pulses and each pulse's first index and count."""
     order = np.lexsort((rn, keys))
@@ -231,13 +253,7 @@ def footprint_errors(model: Any, reference: Any) -> dict[str, float]:
     ka, kb = pulse_keys(fa), pulse_keys(fb)
     ra, rb = fa["range_m"].astype(np.float64), fb["range_m"].astype(np.float64)
     ia, ib = match_returns(ka, ra, fa["return_number"], kb, rb, fb["return_number"])
-    ua, ca = np.unique(ka, return_counts=True)
-    ub, cb = np.unique(kb, return_counts=True)
-    keys = np.union1d(ua, ub)
-    na = np.zeros(len(keys), np.int64)
-    nb = np.zeros(len(keys), np.int64)
-    na[np.searchsorted(keys, ua)] = ca
-    nb[np.searchsorted(keys, ub)] = cb
+    keys, na, nb = returns_per_pulse(ka, kb)
     n_p = max(len(keys), 1)
     dr = np.abs(ra[ia] - rb[ib])
     dp = np.linalg.norm(model.points[ia] - reference.points[ib], axis=1)
@@ -274,5 +290,6 @@ __all__ = [
     "partial_pulses",
     "pulse_keys",
     "reference_spec",
+    "returns_per_pulse",
     "window_spec",
 ]

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from treesim.scan.footprint import pulse_keys, returns_per_pulse
+
 
 def pulse_key(cloud) -> np.ndarray:
-    f = cloud.fields
-    return (
-        f["station"].astype(np.int64) << 50
-        | f["scan_column"].astype(np.int64) << 25
-        | f["scan_line"].astype(np.int64)
-    )
+    return pulse_keys(cloud.fields)
 
 
 def agreement(a, b) -> dict[str, float]:
@@ -26,13 +23,7 @@ def agreement(a, b) -> dict[str, float]:
     ``returns_a``/``returns_b``: the returns in each.
     """
     ka, kb = pulse_key(a), pulse_key(b)
-    ua, ca = np.unique(ka, return_counts=True)
-    ub, cb = np.unique(kb, return_counts=True)
-    keys = np.union1d(ua, ub)
-    na = np.zeros(len(keys), np.int64)
-    nb = np.zeros(len(keys), np.int64)
-    na[np.searchsorted(keys, ua)] = ca
-    nb[np.searchsorted(keys, ub)] = cb
+    keys, na, nb = returns_per_pulse(ka, kb)
     same = keys[na == nb]
     ia, ib = np.isin(ka, same), np.isin(kb, same)
     oa = np.lexsort((a.fields["return_number"][ia], ka[ia]))
@@ -55,3 +46,28 @@ def agreement(a, b) -> dict[str, float]:
         "returns_a": float(len(ka)),
         "returns_b": float(len(kb)),
     }
+
+
+def coffee_window():
+    """(scene, station, window spec) of the beam agreement tests: the bundled coffee
+    tree's TreeQSM model meshed with 12 facets, one station 10 m from it at 1.5 m, and
+    a 10° x 25° window of a 0.04° scan with a 0.3 mrad, 19-sub-ray beam, all returns."""
+    from tests.conftest import bundled_path
+    from treesim.models import cylinders_to_mesh, read_cylinders
+    from treesim.scan import ScannerSpec, Station
+    from treesim.scan.footprint import window_spec
+    from treesim.scene import MeshPart, Scene
+
+    table = read_cylinders(bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv"))
+    v, f = cylinders_to_mesh(table, facets=12, joints="miter")
+    scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
+    lo, hi = scene.bounds
+    st = Station(position_m=(0.5 * (lo[0] + hi[0]) + 10.0, 0.5 * (lo[1] + hi[1]), lo[2] + 1.5))
+    spec = ScannerSpec(
+        horizontal_resolution_deg=0.04,
+        vertical_resolution_deg=0.04,
+        beam_divergence_mrad=0.3,
+        subrays=19,
+        return_mode="all",
+    )
+    return scene, st, window_spec(spec, (175.0, 185.0), (-10.0, 15.0))

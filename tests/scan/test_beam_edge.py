@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scan.beam_agreement import coffee_window
 from tests.scan.test_beam_footprint import (
     SPEC,
     covered,
@@ -19,7 +20,7 @@ from tests.scan.test_beam_footprint import (
 )
 from treesim.scan import ScannerSpec, Station, scan
 from treesim.scan.beam import edge_neighbours, footprint_share
-from treesim.scan.footprint import footprint_errors, reference_spec, window_spec
+from treesim.scan.footprint import footprint_errors, reference_spec
 
 EDGE = SPEC.with_(beam_sampling="edge")
 #: largest |energy - covered share| allowed (19 sub-rays: 0.12)
@@ -88,23 +89,7 @@ def test_without_a_beam_the_edge_choice_changes_nothing():
 
 
 def test_on_a_coffee_window_the_edge_model_is_nearer_the_footprint_than_the_brute_force():
-    from tests.conftest import bundled_path
-    from treesim.models import cylinders_to_mesh, read_cylinders
-    from treesim.scene import MeshPart, Scene
-
-    table = read_cylinders(bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv"))
-    v, f = cylinders_to_mesh(table, facets=12, joints="miter")
-    scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
-    lo, hi = scene.bounds
-    st = Station(position_m=(0.5 * (lo[0] + hi[0]) + 10.0, 0.5 * (lo[1] + hi[1]), lo[2] + 1.5))
-    spec = ScannerSpec(
-        horizontal_resolution_deg=0.04,
-        vertical_resolution_deg=0.04,
-        beam_divergence_mrad=0.3,
-        subrays=19,
-        return_mode="all",
-    )
-    w = window_spec(spec, (175.0, 185.0), (-10.0, 15.0))
+    scene, st, w = coffee_window()
     ref = scan(scene, [st], reference_spec(w)).cloud
     full = footprint_errors(scan(scene, [st], w.with_(beam_sampling="full")).cloud, ref)
     edge = footprint_errors(scan(scene, [st], w.with_(beam_sampling="edge")).cloud, ref)

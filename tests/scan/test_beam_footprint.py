@@ -22,8 +22,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import erf
 
-from tests.conftest import box_arrays, bundled_path
-from treesim.models import cylinders_to_mesh, read_cylinders
+from tests.conftest import box_arrays
+from tests.scan.beam_agreement import coffee_window
 from treesim.scan import ScannerSpec, Station, scan
 from treesim.scan.footprint import (
     ERROR_NAMES,
@@ -206,19 +206,7 @@ def test_a_window_keeps_the_pulse_directions():
 
 
 def test_adaptive_agrees_with_the_reference_as_well_as_the_brute_force():
-    table = read_cylinders(bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv"))
-    v, f = cylinders_to_mesh(table, facets=12, joints="miter")
-    scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
-    lo, hi = scene.bounds
-    st = Station(position_m=(0.5 * (lo[0] + hi[0]) + 10.0, 0.5 * (lo[1] + hi[1]), lo[2] + 1.5))
-    spec = ScannerSpec(
-        horizontal_resolution_deg=0.04,
-        vertical_resolution_deg=0.04,
-        beam_divergence_mrad=0.3,
-        subrays=19,
-        return_mode="all",
-    )
-    w = window_spec(spec, (175.0, 185.0), (-10.0, 15.0))
+    scene, st, w = coffee_window()
     ref = scan(scene, [st], reference_spec(w)).cloud
     full = footprint_errors(scan(scene, [st], w.with_(beam_sampling="full")).cloud, ref)
     fast = footprint_errors(scan(scene, [st], w).cloud, ref)
