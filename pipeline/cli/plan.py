@@ -73,6 +73,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b = p.add_argument_group("budget")
     param_options(b, PlanParams, ["max_stations", "max_field_time_min"], path=("plan",))
+    w = p.add_argument_group("wind (the stations are still chosen for a still tree)")
+    param_options(w, PlanParams, ["wind_speed_m_s"], path=("plan",))
     c = p.add_argument_group("candidates, samples, baselines")
     param_options(
         c,
@@ -207,7 +209,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
             )
         )
         print(f"verdict: {cmp_['verdict']}: {cmp_['statement']}")
-    warnings = []
+    wind = d.get("wind")
+    for line in wind["summary"] if wind else []:
+        print(f"wind: {line}")
+    warnings = [
+        f"wind: {line}"
+        for line in (wind["summary"] if wind else [])
+        if "at risk on" in line or "unknown" in line
+    ]
     if d["unreachable_trees"]:
         ids = d["unreachable_trees"]
         warnings.append(

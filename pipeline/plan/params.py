@@ -30,6 +30,9 @@ class PlanParams:
     time (set-up plus scan per station, :meth:`treesim.params.InstrumentPreset.
     station_time_s`); whichever is tighter.
 
+    Wind: ``wind_speed_m_s`` > 0 says which goals that wind's sway puts at risk on each
+    tree (:mod:`treesim.plan.wind`); the stations are still chosen for a still tree.
+
     Examples
     --------
     >>> import treesim as ts
@@ -121,7 +124,15 @@ class PlanParams:
     verify: bool = param(
         True, help="scan the plan (and the best baseline) at full resolution and measure it"
     )
-    sample_seed: int = param(0, help="seed of the surface samples", ge=0)
+    wind_speed_m_s: float = param(
+        0.0,
+        help="expected wind speed: say which goals its sway puts at risk on each tree with "
+        "a cylinder table (the stations are still chosen for a still tree; 0: no wind)",
+        unit="m/s",
+        ge=0,
+        le=60,
+    )
+    sample_seed: int = param(0, help="seed of the surface samples and of the wind", ge=0)
     threads: int = param(0, help="Open3D threads (0: all cores)", ge=0, execution_only=True)
 
     def __post_init__(self) -> None:

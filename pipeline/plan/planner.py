@@ -36,6 +36,7 @@ from .params import PlanParams
 from .samples import SampleSet, TreeTarget, sample_trees
 from .verify import verify_plan
 from .visibility import Visibility, VisibilityCaster, visibility
+from .wind import wind_risk
 
 __all__ = ["PlanResult", "plan_scans", "tree_targets"]
 
@@ -94,6 +95,7 @@ class PlanResult:
     objective: Objective
     visibility: Visibility
     timings_s: dict[str, float] = field(default_factory=dict)
+    wind: dict[str, Any] | None = None
 
     @property
     def stations(self) -> list[Station]:
@@ -217,6 +219,7 @@ class PlanResult:
             else {k: v for k, v in self.verification.items() if k != "trees"},
             "baseline_verification": self.baseline_verification,
             "timings_s": self.timings_s,
+            **({} if self.wind is None else {"wind": self.wind}),
         }
 
 
@@ -663,6 +666,24 @@ def _execution(
     }
 
 
+def _wind(
+    plot: Any,
+    p: PlanParams,
+    targets: list[TreeTarget],
+    figs: dict[str, np.ndarray],
+    say: Any,
+    timings: dict[str, float],
+) -> dict[str, Any] | None:
+    """The expected wind's risk to each tree's goals (:func:`treesim.plan.wind.wind_risk`)."""
+    if p.wind_speed_m_s <= 0:
+        return None
+    say(0.55, f"sway at {p.wind_speed_m_s:g} m/s")
+    t0 = time.perf_counter()
+    out = wind_risk(plot, p, [t.tree_id for t in targets], figs["coverage"][0])
+    timings["wind"] = time.perf_counter() - t0
+    return out
+
+
 def plan_scans(
     plot: Any,
     *,
@@ -750,6 +771,7 @@ def plan_scans(
     figs = obj.figures(*state(vis.intensity, vis.quality, sel.chosen))
     met = obj.met(figs)[0]
     curve = _curve(obj, vis, sel, reachable, station_s)
+    wind = _wind(plot, p, targets, figs, say, timings)
 
     say(0.6, "classic layouts")
     t0 = time.perf_counter()
@@ -812,4 +834,5 @@ def plan_scans(
         objective=obj,
         visibility=vis,
         timings_s=timings,
+        wind=wind,
     )
