@@ -144,16 +144,21 @@ def _distances_to_truth(scan_path: Path) -> tuple[float, float]:
     return float(d.mean()), float(np.percentile(d, 95))
 
 
+#: The fronts' cost axis as docs/commands/sweep.md names it: the loop without its reports.
+TIME = "time_science_s"
+
+
 def _front_ids(rows: list[dict], fig: dict) -> list[str]:
     """The figure's Pareto front by brute force: the rows no other row beats on time and
-    the figure (at least as good on both, better on one), cheapest first."""
+    the figure (at least as good on both, better on one), cheapest first. Time is the
+    axis the manual documents (:data:`TIME`)."""
     sign = -1.0 if fig["better"] == "higher" else 1.0
     pts = []
     for r in rows:
         v = r.get(fig["key"])
-        if v is None or not math.isfinite(v) or not math.isfinite(r["time_total_s"]):
+        if v is None or not math.isfinite(v) or not math.isfinite(r[TIME]):
             continue
-        pts.append((r["time_total_s"], sign * (abs(v) if fig["absolute"] else v), r["id"]))
+        pts.append((r[TIME], sign * (abs(v) if fig["absolute"] else v), r["id"]))
     beaten = {
         p[2]
         for p in pts
@@ -172,7 +177,7 @@ def test_the_fronts_are_the_pareto_fronts_of_the_rows(cli_sweep):
     for fig in FIGURES:
         assert doc["fronts"][fig["key"]]["sapling"] == _front_ids(rows, fig), fig["key"]
     # the fastest point is on every front it has a figure for... unless it ties in time
-    fastest = min(rows, key=lambda r: r["time_total_s"])
+    fastest = min(rows, key=lambda r: r[TIME])
     assert fastest["on_fronts"] == len(FIGURES)
 
 
