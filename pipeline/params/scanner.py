@@ -256,8 +256,8 @@ class ScannerSpec:
     wind_seed: int = param(0, help="seed of the wind's gusts", ge=0)
     wind_cylinders: str | None = param(
         None,
-        help="the swaying tree's cylinder table (treesim CSV: treesim model's "
-        "OUT.cylinders.csv, treesim reconstruct's cylinders.csv)",
+        help="the swaying tree's cylinder table (any table treesim reads: its own CSV "
+        "from treesim model or reconstruct, TreeQSM's CSV or text export, SimpleForest's)",
         none_means="found beside the mesh by treesim scan, else the scene stays still",
     )
 

@@ -80,7 +80,6 @@ wind's for stems and along-wind branches).
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,7 +88,7 @@ from typing import Any
 import numpy as np
 
 from ..cloud import LABEL_CODES
-from ..errors import InputFormatError, InvalidParameterError
+from ..errors import InvalidParameterError
 
 #: The per-point field of a windy scan: the hit part's displacement from rest (m).
 WIND_FIELD = "wind_displacement_m"
@@ -212,72 +211,6 @@ def cylinders_from(table: Any) -> Cylinders:
         parent=np.asarray(table.parent, dtype=np.int64),
         branch=np.asarray(table.branch, dtype=np.int64),
         position=np.arange(len(length)) if pos is None else np.asarray(pos, dtype=np.int64),
-    )
-
-
-_CSV_NEEDED = ("radius", "length", "start_x", "start_y", "start_z", "axis_x", "axis_y")
-_CSV_NEEDED += ("axis_z", "parent", "branch")
-
-
-def read_cylinder_csv(path: str | Path) -> Cylinders:
-    """The cylinders of a treesim CSV table (``treesim model``'s ``OUT.cylinders.csv``,
-    ``treesim reconstruct``'s ``cylinders.csv``): 1-based ``parent``, 0 for none.
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    Cylinders
-
-    Examples
-    --------
-    >>> read_cylinder_csv("tree.cylinders.csv").n  # doctest: +SKIP
-    1940
-    """
-    path = Path(path)
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise InputFormatError(f"cannot read the cylinder table {path}: {exc}") from exc
-    if not rows:
-        raise InputFormatError(f"{path}: the cylinder table is empty")
-    head = [h.strip() for h in rows[0]]
-    missing = [c for c in _CSV_NEEDED if c not in head]
-    if missing:
-        raise InputFormatError(
-            f"{path}: not a treesim cylinder table (treesim model / reconstruct CSV): no "
-            f"column {', '.join(missing)}"
-        )
-    try:
-        data = np.array([[float(r[head.index(c)]) for c in head if c != "tag"] for r in rows[1:]])
-    except (ValueError, IndexError) as exc:
-        raise InputFormatError(f"{path}: a row of the cylinder table is not numbers") from exc
-    cols = [c for c in head if c != "tag"]
-    if len(data) == 0:
-        raise InputFormatError(f"{path}: the cylinder table has no rows")
-
-    def col(name: str) -> np.ndarray:
-        return data[:, cols.index(name)]
-
-    radius = col("radius")
-    return cylinders_from(
-        Cylinders(
-            start=np.stack([col("start_x"), col("start_y"), col("start_z")], axis=1),
-            axis=np.stack([col("axis_x"), col("axis_y"), col("axis_z")], axis=1),
-            length_m=col("length"),
-            radius_m=radius,
-            end_radius_m=col("end_radius") if "end_radius" in cols else radius,
-            parent=col("parent").astype(np.int64) - 1,
-            branch=col("branch").astype(np.int64),
-            position=(
-                col("position_in_branch").astype(np.int64)
-                if "position_in_branch" in cols
-                else np.arange(len(radius))
-            ),
-        )
     )
 
 
@@ -826,7 +759,6 @@ __all__ = [
     "hit_displacement_m",
     "leaf_area_per_cylinder",
     "mode_shape",
-    "read_cylinder_csv",
 ]
 
 
@@ -919,7 +851,11 @@ class Wind:
         if self.cylinders is None:
             return None
         if isinstance(self.cylinders, str | Path):
-            return read_cylinder_csv(self.cylinders)
+            # the model library's reader: any table format it reads (treesim's own,
+            # TreeQSM, SimpleForest), validated, with its messages naming the bad row
+            from ..models import read_cylinders
+
+            return cylinders_from(read_cylinders(self.cylinders))
         return cylinders_from(self.cylinders)
 
     def model_for(self, structure: Structure) -> SwayModel:

@@ -7,7 +7,8 @@ is imported. The layers, bottom to top (docs/install.md, "The repository"):
 * the base: ``errors``, ``_version``, ``_system``, ``_process``, ``_lazy``, ``atomic``,
   ``jsonio``, ``frame``, ``cloud``, ``scene``, ``geometry``, ``io``, ``params``;
 * the stages, side by side: ``scan``, ``compare``, ``reconstruct``, ``models``; none imports
-  another, except ``reconstruct → models`` (cylinders to mesh);
+  another, except ``reconstruct → models`` (cylinders to mesh) and ``scan → models`` (the
+  cylinder table a swaying tree is read from);
 * ``report``, above ``compare``;
 * ``steps``, ``run``, ``plot``, ``batch``, ``sweep``, ``executors``, ``plan``, ``twin``: one
   stage on files, one tree, a plot of trees, many trees, a grid of settings on trees,
@@ -57,8 +58,8 @@ LAYER = {
     "twin": 3,
     "cli": 4,
 }
-#: The one allowed arrow between stages.
-STAGE_ARROWS = {("reconstruct", "models")}
+#: The allowed arrows between stages.
+STAGE_ARROWS = {("reconstruct", "models"), ("scan", "models")}
 #: Order inside the top library layer: a batch runs trees on executors; a sweep runs its
 #: points through the batch's engine; steps are the single stages on files, beside run; a
 #: plot scans its trees station by station through steps, and the batch runs plots;

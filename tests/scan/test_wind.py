@@ -284,3 +284,25 @@ def test_two_sided_mirror_slices_pose_both_columns_at_their_time(amp_m, f_hz):
     motion = amp_m * 2.0 * np.pi * f_hz * slice_s / 2.0
     lo, hi = R * math.cos(math.pi / FACETS) - motion - 1e-4, R + motion + 1e-4
     assert radial.min() >= lo and radial.max() <= hi, (radial.min(), radial.max(), lo, hi)
+
+
+def test_a_treeqsm_table_sways_and_a_bad_table_is_a_clear_error(tmp_path):
+    """A wind's table path is read by the model library's reader: TreeQSM's own CSV (the
+    bundled coffee tree's, 1-based parents) gives its rows with 0-based parents; a file
+    that is no cylinder table is an input error naming the file, not a traceback."""
+    import csv
+    from pathlib import Path
+
+    from treesim.errors import TreesimError
+
+    path = Path(ts.__file__).parent / "data" / "coffee_tree" / "QSM_treeqsm_v2.4.1_cylinders.csv"
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    table = Wind(path, Forcing(5.0)).cylinder_table()
+    assert table is not None and table.n == len(rows)
+    assert table.parent.tolist() == [int(float(r["parent"])) - 1 for r in rows]
+    assert np.array_equal(table.radius_m, [float(r["radius"]) for r in rows])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n", encoding="utf-8")
+    with pytest.raises(TreesimError, match="bad.csv"):
+        Wind(bad, Forcing(5.0)).cylinder_table()
