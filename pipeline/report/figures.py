@@ -7,6 +7,8 @@ interactive session and works without a display.
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +29,10 @@ _RC = {
     "axes.titlesize": 10.5,
     "axes.titleweight": "bold",
     "axes.titlelocation": "left",
+    # titles at the top of their axes (above them nothing is drawn): matplotlib's automatic
+    # title position measures every tick label of every axes at each draw, a sixth of a
+    # report's drawing time
+    "axes.titley": 1.0,
     "axes.labelsize": 9.5,
     "axes.labelcolor": "#333b45",
     "axes.edgecolor": "#9aa5b1",
@@ -125,8 +131,54 @@ def _grid(
     return fig.subplots(rows, cols, gridspec_kw=grid, **kw)
 
 
+#: zlib level of the report's PNGs: level 3 writes files about as small as Pillow's
+#: default (6, with its per-row filter search) in a fraction of the time.
+PNG_LEVEL = 3
+
+
+def png_bytes(pixels: np.ndarray, dpi: float) -> bytes:
+    """A PNG of ``pixels`` ((h, w, 3) RGB or (h, w, 4) RGBA, uint8, top row first) at
+    ``dpi``: one zlib stream of unfiltered rows (a figure's flat colours compress well
+    without PNG's row filters, whose search is most of Pillow's encoding time).
+
+    Examples
+    --------
+    >>> png_bytes(np.zeros((2, 3, 3), np.uint8), 100)[:8]
+    b'\\x89PNG\\r\\n\\x1a\\n'
+    """
+    h, w, c = pixels.shape
+    raw = np.zeros((h, 1 + w * c), dtype=np.uint8)  # each row: filter type 0, its bytes
+    raw[:, 1:] = pixels.reshape(h, w * c)
+    ppm = round(dpi / 0.0254)  # pixels per metre, as Pillow writes a dpi
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = zlib.crc32(kind + body) & 0xFFFFFFFF
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+    return b"".join(
+        (
+            b"\x89PNG\r\n\x1a\n",
+            chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 6, 0, 0, 0)),
+            chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)),
+            chunk(b"IDAT", zlib.compress(raw.tobytes(), PNG_LEVEL)),
+            chunk(b"IEND", b""),
+        )
+    )
+
+
+def render_rgb(fig: Any, dpi: float) -> np.ndarray:
+    """Draw ``fig`` on its Agg canvas at ``dpi``: its pixels, (h, w, 3) RGB where every
+    pixel is opaque (a report's white figures), else (h, w, 4) RGBA."""
+    fig.set_dpi(dpi)
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())
+    return rgba[..., :3] if bool((rgba[..., 3] == 255).all()) else rgba
+
+
 def _save(fig: Any, path: Path, dpi: int) -> Path:
-    fig.savefig(path, dpi=dpi, metadata={"Software": None})
+    """Write ``fig`` at ``dpi`` as a PNG (what ``savefig`` draws, encoded by
+    :func:`png_bytes`)."""
+    Path(path).write_bytes(png_bytes(render_rgb(fig, dpi), dpi))
     return path
 
 

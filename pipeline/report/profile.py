@@ -46,6 +46,56 @@ def auto_bin_m(height_m: float, target: int = TARGET_BINS) -> float:
     return float(10.0 ** (k + 1))  # pragma: no cover (10 × 10^k always qualifies)
 
 
+class _CellGrid:
+    """Cubic cells small enough that two points in one cell are closer than τ (side
+    τ/√3, less a margin far above float rounding), and the cell of each reference point.
+
+    A reference point that shares its cell with a station's point is within τ of that
+    station without a k-d tree query; only the others are queried (about half of a
+    tree's samples on the bundled tree), and the answer is the same.
+    """
+
+    def __init__(self, side: float, lo: np.ndarray, dims: tuple[int, int, int], keys: np.ndarray):
+        self.side, self.lo, self.dims, self.keys = side, lo, dims, keys
+
+    @classmethod
+    def of(cls, ref_c: np.ndarray, tau: float) -> _CellGrid | None:
+        """The grid over ``ref_c``'s box; None where τ is not positive or the cells would
+        not fit one int64 index (then every point is queried)."""
+        if not (math.isfinite(tau) and tau > 0) or len(ref_c) == 0:
+            return None
+        side = tau / math.sqrt(3.0) * (1.0 - 1e-6)
+        cell = np.floor(ref_c / side)
+        lo = cell.min(axis=0)
+        dims = tuple(int(n) for n in cell.max(axis=0) - lo + 1)
+        if not all(math.isfinite(n) for n in dims) or math.prod(dims) >= 2**62:
+            return None  # pragma: no cover (a reference light-years across at a τ of µm)
+        keys = np.ravel_multi_index((cell - lo).astype(np.int64).T, dims)
+        return cls(side, lo, dims, keys)
+
+    def shared(self, pts: np.ndarray) -> np.ndarray:
+        """Whether each reference point's cell holds one of ``pts`` (same frame)."""
+        cell = np.floor(pts / self.side) - self.lo
+        inside = np.all((cell >= 0) & (cell < np.asarray(self.dims)), axis=1)
+        held = np.ravel_multi_index(cell[inside].astype(np.int64).T, self.dims)
+        return np.isin(self.keys, held)
+
+
+def _within(
+    ref_c: np.ndarray, pts: np.ndarray, tau: float, grid: _CellGrid | None, workers: int
+) -> np.ndarray:
+    """Whether each of ``ref_c`` is within ``tau`` of one of ``pts``: a shared cell of
+    ``grid`` says yes at once, a k-d tree query on ``pts`` answers the others."""
+    near = np.zeros(len(ref_c), dtype=bool) if grid is None else grid.shared(pts)
+    rest = np.flatnonzero(~near)
+    if len(rest):
+        d, _ = kdtree(pts).query(
+            ref_c[rest], k=1, distance_upper_bound=tau * (1 + 1e-12), workers=workers
+        )
+        near[rest] = d <= tau
+    return near
+
+
 def occlusion_profile(
     data: ReportData, *, bin_m: float | None = None, workers: int = -1
 ) -> dict[str, Any]:
@@ -99,17 +149,12 @@ def occlusion_profile(
         st = np.asarray(data.cloud_station)
         centre = ref.mean(axis=0)
         ref_c = ref - centre  # queried once per station
+        grid = _CellGrid.of(ref_c, tau)
         for code in np.unique(st):
             name = f"S{int(code)}"
             stations.append(name)
             sel = st == code
-            d, _ = kdtree(cloud[sel] - centre).query(
-                ref_c,
-                k=1,
-                distance_upper_bound=tau * (1 + 1e-12),
-                workers=workers,
-            )
-            covered[name] = share(d <= tau)
+            covered[name] = share(_within(ref_c, cloud[sel] - centre, tau, grid, workers))
             counts[name] = np.bincount(cloud_bin[sel], minlength=n_bins)
     out: dict[str, Any] = {
         "bin_m": step,
