@@ -8,6 +8,7 @@ import io
 
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from treesim.report import figures as F
 from treesim.report.profile import _CellGrid, _within
@@ -69,3 +70,57 @@ def test_within_tau_is_the_brute_force_answer(tau):
 def test_no_grid_without_a_positive_tau():
     ref = np.zeros((4, 3))
     assert _CellGrid.of(ref, 0.0) is None and _CellGrid.of(ref, float("nan")) is None
+
+
+def _busy_figure() -> object:
+    """Axes of each kind a report draws: numbers with a grid, categories without one,
+    a shared y axis without labels, equal aspect, a colour bar (left to matplotlib)."""
+    from matplotlib.cm import ScalarMappable
+
+    fig = F._fixed_figure(7.0, 3.0)
+    a, b, c = F._grid(fig, 1, 3, margins_in=(0.7, 0.6, 0.5, 0.35), wgap_in=0.6, sharey=False)
+    a.bar(["all", "S0", "S1"], [90.0, 40.0, 55.5])
+    a.grid(axis="x", visible=False)
+    a.set_xlabel("station")
+    a.set_ylabel("within τ (%)")
+    b.plot([0.0, 3.0, 1.5], [0.0, 2.0, 7.0], marker="o")
+    b.sharey(c)
+    b.set_xlabel("points per m²")
+    c.imshow(np.arange(12.0).reshape(3, 4), extent=(0.0, 4.0, 0.0, 3.0))
+    c.set_aspect("equal", adjustable="datalim")
+    c.set_xlabel("x (m)")
+    fig.colorbar(ScalarMappable(), ax=c)
+    return fig
+
+
+def test_flat_axes_draw_the_pixels_of_matplotlibs_ticks():
+    import matplotlib
+
+    with matplotlib.rc_context(F._RC):
+        fig = _busy_figure()
+        fig.set_dpi(80)
+        fig.canvas.draw()  # matplotlib's own ticks
+        theirs = np.asarray(fig.canvas.buffer_rgba()).copy()
+        fig = _busy_figure()
+        F._flatten_axes(fig)
+        flat = [a for ax in fig.axes for a in ax.get_children() if type(a).__name__ == "FlatAxis"]
+        ours = F.render_rgb(fig, 80)
+    assert len(flat) == 6  # both axes of the three panels; the colour bar's are matplotlib's
+    assert ours.shape == theirs[..., :3].shape and np.array_equal(ours, theirs[..., :3])
+
+
+def test_cached_texts_draw_the_same_pixels_again():
+    import matplotlib
+
+    with matplotlib.rc_context(F._RC):
+        first = F.render_rgb(_busy_figure(), 80)
+        again = F.render_rgb(_busy_figure(), 80)  # every text from the cache now
+        fig = _busy_figure()
+        fig.set_dpi(80)
+        plain = FigureCanvasAgg(fig)  # matplotlib's own text rendering
+        plain.draw()
+        theirs = np.asarray(plain.buffer_rgba())[..., :3]
+    assert np.array_equal(first, again)
+    # the same texts, placed at whole pixels: only some edge pixels of the glyphs differ
+    differ = np.abs(first.astype(int) - theirs.astype(int)).max(axis=2) > 0
+    assert 0.0 < differ.mean() < 0.03
