@@ -187,10 +187,8 @@ def _flat_axis_class() -> type:
     about a third of a report's drawing time. Settings are read from the rc parameters
     when it is made, as matplotlib's ticks read them."""
     import matplotlib as mpl
-    from matplotlib import lines as mlines
     from matplotlib import transforms as mtransforms
     from matplotlib.artist import Artist
-    from matplotlib.text import Text
 
     class FlatAxis(Artist):
         def __init__(self, axis: Any) -> None:
@@ -218,74 +216,6 @@ def _flat_axis_class() -> type:
             self.grid_on, self.tick_on = bool(kw["gridOn"]), bool(kw.get("tick1On", True))
             self.label_on = bool(kw.get("label1On", True))
 
-        def _parts(self, locs: np.ndarray, labels: list[str]) -> list[Any]:
-            ax, fig = self.axis.axes, self.axis.axes.figure
-            n = len(locs)
-            parts: list[Any] = []
-            if self.grid_on and n:
-                across = np.tile([0.0, 1.0, np.nan], n)
-                at = np.repeat(locs, 3)
-                xy = (at, across) if self.is_x else (across, at)
-                grid = mlines.Line2D(
-                    *xy, transform=self._axis_trans("grid"), marker="", **self.grid
-                )
-                grid.set_clip_path(ax.patch)
-                parts.append(grid)
-            if self.tick_on and n:
-                out = self.direction == "out"
-                marker = (
-                    (mlines.TICKDOWN if out else mlines.TICKUP)
-                    if self.is_x
-                    else (mlines.TICKLEFT if out else mlines.TICKRIGHT)
-                )
-                zero = np.zeros(n)
-                xy = (locs, zero) if self.is_x else (zero, locs)
-                parts.append(
-                    mlines.Line2D(
-                        *xy,
-                        transform=self._axis_trans("tick1"),
-                        linestyle="none",
-                        marker=marker,
-                        color=self.colour,
-                        markeredgecolor=self.colour,
-                        markersize=self.size,
-                        markeredgewidth=self.width,
-                        clip_on=False,
-                    )
-                )
-            for part in parts:
-                part.set_figure(fig)
-            return parts
-
-        def _axis_trans(self, which: str) -> Any:
-            ax = self.axis.axes
-            return ax.get_xaxis_transform(which) if self.is_x else ax.get_yaxis_transform(which)
-
-        def _texts(self, locs: np.ndarray, labels: list[str]) -> list[Any]:
-            if not self.label_on:
-                return []
-            ax = self.axis.axes
-            pad = self.pad + (self.size if self.direction == "out" else 0.0)
-            text1 = ax.get_xaxis_text1_transform if self.is_x else ax.get_yaxis_text1_transform
-            trans, va, ha = text1(pad)
-            texts = []
-            for loc, label in zip(locs, labels, strict=True):
-                if not label:
-                    continue
-                xy = (loc, 0.0) if self.is_x else (0.0, loc)
-                t = Text(
-                    *xy,
-                    label,
-                    transform=trans,
-                    verticalalignment=va,
-                    horizontalalignment=ha,
-                    fontsize=self.label_size,
-                    color=self.label_colour,
-                )
-                t.set_figure(ax.figure)
-                texts.append(t)
-            return texts
-
         def draw(self, renderer: Any) -> None:
             axis = self.axis
             ax = axis.axes
@@ -297,9 +227,9 @@ def _flat_axis_class() -> type:
             shown = (locs >= lo - slack) & (locs <= hi + slack)
             locs = locs[shown]
             labels = [s for s, keep in zip(labels, shown, strict=True) if keep]
-            for part in self._parts(locs, labels):
+            for part in _flat_axis_lines(self, locs):
                 part.draw(renderer)
-            texts = self._texts(locs, labels)
+            texts = _flat_axis_texts(self, locs, labels)
             for t in texts:
                 t.draw(renderer)
             # the axis label clear of the tick labels, as matplotlib places it
@@ -318,6 +248,82 @@ def _flat_axis_class() -> type:
             self.stale = False
 
     return FlatAxis
+
+
+def _flat_axis_lines(flat: Any, locs: np.ndarray) -> list[Any]:
+    """A flat axis' grid lines and tick marks at ``locs`` (:func:`_flat_axis_class`)."""
+    from matplotlib import lines as mlines
+
+    ax, fig = flat.axis.axes, flat.axis.axes.figure
+    n = len(locs)
+    parts: list[Any] = []
+    if flat.grid_on and n:
+        across = np.tile([0.0, 1.0, np.nan], n)
+        at = np.repeat(locs, 3)
+        xy = (at, across) if flat.is_x else (across, at)
+        grid = mlines.Line2D(*xy, transform=_flat_axis_trans(flat, "grid"), marker="", **flat.grid)
+        grid.set_clip_path(ax.patch)
+        parts.append(grid)
+    if flat.tick_on and n:
+        out = flat.direction == "out"
+        marker = (
+            (mlines.TICKDOWN if out else mlines.TICKUP)
+            if flat.is_x
+            else (mlines.TICKLEFT if out else mlines.TICKRIGHT)
+        )
+        zero = np.zeros(n)
+        xy = (locs, zero) if flat.is_x else (zero, locs)
+        parts.append(
+            mlines.Line2D(
+                *xy,
+                transform=_flat_axis_trans(flat, "tick1"),
+                linestyle="none",
+                marker=marker,
+                color=flat.colour,
+                markeredgecolor=flat.colour,
+                markersize=flat.size,
+                markeredgewidth=flat.width,
+                clip_on=False,
+            )
+        )
+    for part in parts:
+        part.set_figure(fig)
+    return parts
+
+
+def _flat_axis_trans(flat: Any, which: str) -> Any:
+    """The axis' transform of its ``which`` (``grid``, ``tick1``): data along it, axes across."""
+    ax = flat.axis.axes
+    return ax.get_xaxis_transform(which) if flat.is_x else ax.get_yaxis_transform(which)
+
+
+def _flat_axis_texts(flat: Any, locs: np.ndarray, labels: list[str]) -> list[Any]:
+    """A flat axis' tick labels, where a matplotlib tick would put them."""
+    from matplotlib.text import Text
+
+    if not flat.label_on:
+        return []
+    ax = flat.axis.axes
+    pad = flat.pad + (flat.size if flat.direction == "out" else 0.0)
+    text1 = ax.get_xaxis_text1_transform if flat.is_x else ax.get_yaxis_text1_transform
+    trans, va, ha = text1(pad)
+    texts = []
+    for loc, label in zip(locs, labels, strict=True):
+        if not label:
+            continue
+        xy = (loc, 0.0) if flat.is_x else (0.0, loc)
+        t = Text(
+            *xy,
+            label,
+            transform=trans,
+            verticalalignment=va,
+            horizontalalignment=ha,
+            fontsize=flat.label_size,
+            color=flat.label_colour,
+        )
+        t.set_figure(ax.figure)
+        texts.append(t)
+    return texts
 
 
 def _flatten_axes(fig: Any) -> None:
