@@ -108,16 +108,31 @@ def _canvas_class() -> type:
     3.10), so its pixels may differ from matplotlib's own by a fraction of a pixel's
     shift; mathtext, and text with font features or a language, are drawn by matplotlib.
     """
+    import matplotlib as mpl
     from matplotlib import font_manager
     from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
 
     images: dict[tuple[Any, ...], tuple[np.ndarray, float, float, float]] = {}
     sizes: dict[tuple[Any, ...], tuple[float, float, float]] = {}
 
+    found: dict[tuple[Any, ...], tuple[str, ...]] = {}
+
+    def fonts_of(prop: Any) -> tuple[str, ...]:
+        """The font files of ``prop``, looked up once per properties and rc families."""
+        generic = tuple(
+            tuple(mpl.rcParams[f"font.{f}"])
+            for f in prop.get_family()
+            if f"font.{f}" in mpl.rcParams
+        )
+        k = (hash(prop), generic)
+        got = found.get(k)
+        if got is None:
+            got = found[k] = tuple(font_manager.fontManager._find_fonts_by_props(prop))
+        return got
+
     def key(renderer: Any, s: str, prop: Any, *extra: Any) -> tuple[Any, ...]:
-        fonts = tuple(font_manager.fontManager._find_fonts_by_props(prop))
         size = prop.get_size_in_points()
-        return (s, fonts, size, renderer.dpi, get_hinting_flag(), *extra)
+        return (s, fonts_of(prop), size, renderer.dpi, get_hinting_flag(), *extra)
 
     def remember(cache: dict[Any, Any], k: tuple[Any, ...], value: Any) -> Any:
         if len(cache) >= TEXT_CACHE_SIZE:
@@ -229,11 +244,8 @@ def _flat_axis_class() -> type:
             labels = [s for s, keep in zip(labels, shown, strict=True) if keep]
             for part in _flat_axis_lines(self, locs):
                 part.draw(renderer)
-            texts = _flat_axis_texts(self, locs, labels)
-            for t in texts:
-                t.draw(renderer)
+            boxes = _flat_axis_labels(self, locs, labels, renderer)
             # the axis label clear of the tick labels, as matplotlib places it
-            boxes = [t.get_window_extent(renderer) for t in texts]
             side = "bottom" if self.is_x else "left"
             box = mtransforms.Bbox.union([*boxes, ax.spines.get(side, ax).get_window_extent()])
             gap = axis.labelpad * ax.figure.dpi / 72
@@ -297,8 +309,9 @@ def _flat_axis_trans(flat: Any, which: str) -> Any:
     return ax.get_xaxis_transform(which) if flat.is_x else ax.get_yaxis_transform(which)
 
 
-def _flat_axis_texts(flat: Any, locs: np.ndarray, labels: list[str]) -> list[Any]:
-    """A flat axis' tick labels, where a matplotlib tick would put them."""
+def _flat_axis_labels(flat: Any, locs: np.ndarray, labels: list[str], renderer: Any) -> list[Any]:
+    """Draw a flat axis' tick labels where a matplotlib tick would put them (one text
+    moved from label to label); their boxes."""
     from matplotlib.text import Text
 
     if not flat.label_on:
@@ -307,23 +320,26 @@ def _flat_axis_texts(flat: Any, locs: np.ndarray, labels: list[str]) -> list[Any
     pad = flat.pad + (flat.size if flat.direction == "out" else 0.0)
     text1 = ax.get_xaxis_text1_transform if flat.is_x else ax.get_yaxis_text1_transform
     trans, va, ha = text1(pad)
-    texts = []
+    t = Text(
+        0.0,
+        0.0,
+        "",
+        transform=trans,
+        verticalalignment=va,
+        horizontalalignment=ha,
+        fontsize=flat.label_size,
+        color=flat.label_colour,
+    )
+    t.set_figure(ax.figure)
+    boxes = []
     for loc, label in zip(locs, labels, strict=True):
         if not label:
             continue
-        xy = (loc, 0.0) if flat.is_x else (0.0, loc)
-        t = Text(
-            *xy,
-            label,
-            transform=trans,
-            verticalalignment=va,
-            horizontalalignment=ha,
-            fontsize=flat.label_size,
-            color=flat.label_colour,
-        )
-        t.set_figure(ax.figure)
-        texts.append(t)
-    return texts
+        t.set_position((loc, 0.0) if flat.is_x else (0.0, loc))
+        t.set_text(label)
+        t.draw(renderer)
+        boxes.append(t.get_window_extent(renderer))
+    return boxes
 
 
 def _flatten_axes(fig: Any) -> None:
