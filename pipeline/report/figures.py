@@ -140,14 +140,26 @@ def _canvas_class() -> type:
         cache[k] = value
         return value
 
+    def render(renderer: Any, s: str, prop: Any, aa: bool) -> tuple[Any, Any]:
+        """Lay ``s`` out once: its size (width, height, descent) and its bitmap (with the
+        bitmap's offset and the descent), both kept."""
+        font = renderer._prepare_font(prop)
+        font.set_text(s, 0.0, flags=get_hinting_flag())
+        w, h = font.get_width_height()
+        d = font.get_descent() / 64.0
+        font.draw_glyphs_to_bitmap(antialiased=aa)
+        xo, yo = font.get_bitmap_offset()
+        image = np.array(font.get_image(), dtype=np.uint8)
+        size = remember(sizes, key(renderer, s, prop), (w / 64.0, h / 64.0, d))
+        return size, remember(images, key(renderer, s, prop, aa), (image, xo / 64, yo / 64, d))
+
     class Renderer(RendererAgg):
         def get_text_width_height_descent(self, s: str, prop: Any, ismath: Any) -> Any:
             if ismath:
                 return super().get_text_width_height_descent(s, prop, ismath)
-            k = key(self, s, prop)
-            got = sizes.get(k)
-            if got is None:
-                got = remember(sizes, k, super().get_text_width_height_descent(s, prop, False))
+            got = sizes.get(key(self, s, prop))
+            if got is None:  # rendered now too: matplotlib measures a text, then draws it
+                got = render(self, s, prop, bool(mpl.rcParams["text.antialiased"]))[0]
             return got
 
         def draw_text(self, gc: Any, x: float, y: float, s: str, prop: Any, angle: float,
@@ -160,12 +172,7 @@ def _canvas_class() -> type:
             k = key(self, s, prop, aa)
             got = images.get(k)
             if got is None:
-                font = self._prepare_font(prop)
-                font.set_text(s, 0, flags=get_hinting_flag())
-                font.draw_glyphs_to_bitmap(antialiased=aa)
-                xo, yo = font.get_bitmap_offset()
-                image = np.array(font.get_image(), dtype=np.uint8)
-                got = remember(images, k, (image, xo / 64.0, yo / 64.0, font.get_descent() / 64.0))
+                got = render(self, s, prop, aa)[1]
             image, xo, yo, descent = got
             # (x, y): the baseline's left end, y downwards; the bitmap's lower left corner
             xd = descent * math.sin(math.radians(angle))
@@ -425,7 +432,7 @@ def png_bytes(pixels: np.ndarray, dpi: float) -> bytes:
     """
     h, w, c = pixels.shape
     raw = np.zeros((h, 1 + w * c), dtype=np.uint8)  # each row: filter type 0, its bytes
-    raw[:, 1:] = pixels.reshape(h, w * c)
+    raw[:, 1:].reshape(h, w, c)[...] = pixels
     ppm = round(dpi / 0.0254)  # pixels per metre, as Pillow writes a dpi
 
     def chunk(kind: bytes, body: bytes) -> bytes:
