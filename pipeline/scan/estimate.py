@@ -258,6 +258,14 @@ def estimate_plan(plan: Plan, suffix: str, max_rays: int | None) -> ScanEstimate
             f"{s} sub-rays per pulse counted for every pulse"
             + (": adaptive sampling casts fewer" if plan.adaptive else "")
         )
+    if spec.wind_speed_m_s > 0 and spec.wind_cylinders:
+        # the slices are chosen from the sway model while casting; a still scan's rate
+        # is what a sample can measure here
+        notes.append(
+            f"wind {spec.wind_speed_m_s:g} m/s: the time is a still scan's; a swaying tree "
+            "is cast in time slices, each against its own scene, and takes several times "
+            "longer (benchmarks/bench_wind.py measures the factor)"
+        )
     return ScanEstimate(
         stations=per_station,
         pulses_full_fov=spec.n_azimuth * spec.n_elevation * len(stations),

@@ -251,6 +251,11 @@ def test_cli_sways_a_procedural_model_and_warns_on_a_plain_mesh(tmp_path, capsys
     side = json.loads((tmp_path / "p.json").read_text())
     assert "wind" not in side and any("scanned still" in w for w in side["warnings"])
     assert "scanned still" in err
+    # a dry run estimates a still scan's time and says so when the tree would sway
+    assert main(["scan", str(mesh), "-o", str(tmp_path / "d.laz"), *flags, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "wind 5 m/s: the time is a still scan's" in out
+    assert not (tmp_path / "d.laz").exists()
 
 
 @pytest.mark.parametrize("amp_m, f_hz", [(A, F_HZ), (0.02, 0.3)])
