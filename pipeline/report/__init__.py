@@ -23,14 +23,13 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from .._version import software_versions
 from ..atomic import write_text
 from ..compare import COMPARISON_FIGURES, Comparison
 from ..errors import InvalidParameterError
 from ..jsonio import write_json
 from ..params import ReportParams
 from . import figures
-from .data import ReportData
+from .data import ReportData, report_software
 from .html import build_html
 from .profile import occlusion_profile
 from .text import exactness_note, summary_paragraph, trivially_exact
@@ -102,7 +101,7 @@ def build_report(
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     s = data.summary
-    s["report_software"] = {"matplotlib": software_versions("matplotlib")["matplotlib"]}
+    s["report_software"] = {"matplotlib": report_software("matplotlib")["matplotlib"]}
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}
     profile = occlusion_profile(data, bin_m=params.profile_bin_m)

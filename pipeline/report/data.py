@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,25 @@ from .._version import software_versions
 from ..cloud import LABEL_NAMES
 from ..compare import DISTANCE_FIELD, Comparison
 from ..errors import InputFormatError
+
+
+@functools.cache
+def _versions(*extra: str) -> tuple[tuple[str, str], ...]:
+    """:func:`~treesim._version.software_versions`, looked up once per process (each
+    look-up reads the installed packages' metadata: tens of milliseconds a report)."""
+    return tuple(software_versions(*extra).items())
+
+
+def report_software(*extra: str) -> dict[str, str]:
+    """The versions a report records (a new dict each call; see :func:`_versions`).
+
+    Examples
+    --------
+    >>> report_software("matplotlib")["treesim"] == software_versions()["treesim"]
+    True
+    """
+    return dict(_versions(*extra))
+
 
 #: Keys ``comparison.json`` must have for a report to be drawn.
 REQUIRED_KEYS = ("accuracy", "completeness", "hausdorff_m", "chamfer_m", "tolerance_m", "coverage")
@@ -74,7 +94,7 @@ class ReportData:
                 "kind": "treesim.comparison",
                 **comparison.to_dict(),
                 "inputs": dict(inputs or {}),
-                "software": software_versions(),
+                "software": report_software(),
             }
         )
         station = comparison.cloud.fields.get("station")
