@@ -56,6 +56,9 @@ MAX_PIECE_CELLS = 512
 MAX_PIECES = 1 << 21
 #: Pieces bounded at once (bounds the temporaries of :func:`occupancy_grid`).
 _PIECE_CHUNK = 1 << 18
+#: Box corners buffered by the occupancy raster before they are counted (at least; a
+#: quarter of the raster's cells when more): bounds the buffer whatever the triangles.
+_FLUSH_CORNERS = 1 << 18
 #: Direction error of float32 unit vectors and their products (rad), with room to spare.
 _DIR_EPS_RAD = 1e-6
 
@@ -246,63 +249,90 @@ def occupancy_grid(
     ras = _raster_for(spec, window, a_ref_deg)
     n_rows, n_cols = ras.shape
     m_ray = pointing_margin_rad(spec)
-    n_diff = (n_rows + 1) * (n_cols + 1)
-    stride = n_cols + 1
-    k = ras.cell
-    # the boxes' corners in the difference raster, added (+) and subtracted (-): counted
-    # once at the end (two bincounts of the raster, not eight per level; integers, so the
-    # order of the boxes does not matter)
-    corners: dict[int, list[np.ndarray]] = {1: [], -1: []}
-
-    def add_boxes(r0: np.ndarray, r1: np.ndarray, c0: np.ndarray, c1: np.ndarray, w: np.ndarray):
-        # boxes: [r0..r1] × [c0..c1] (if c1 >= c0), plus [r0..r1] × [0..wc] where it wraps
-        wc = np.where(w >= 0, w // k, -1)
-        boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
-        for a0, a1, b0, b1, ok in boxes:
-            a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
-            for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
-                corners[sgn].append(rr * stride + cc)
-
+    diff = _DiffRaster(n_rows, n_cols, ras.cell)
     # the pieces: the triangles at first, gathered when bounded; then bisected halves
     piece, n_pieces = (lambda sel: vertices[faces[sel]]), len(faces)
     for halvings in range(41):
         # the pieces' boxes a chunk at a time (the bounds' temporaries are ~400 B a
-        # piece); a piece's figures do not depend on the others
-        kept, bigs = [], []
+        # piece); a piece's figures do not depend on the others. The pieces that are not
+        # big are finished whatever the level decides: added at once; the big ones'
+        # boxes wait for the level's verdict (bisected, or added as they are)
+        waiting, bigs = [], []
         for a in range(0, n_pieces, _PIECE_CHUNK):
             b = triangle_bounds(piece(slice(a, a + _PIECE_CHUNK)))
             margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
             r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
             area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
             big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
-            kept.append((r0[keep], r1[keep], c0[keep], c1[keep], w[keep], big[keep]))
+            small = keep & ~big
+            diff.add_boxes(r0[small], r1[small], c0[small], c1[small], w[small])
+            waiting.append((r0[big], r1[big], c0[big], c1[big], w[big]))
             bigs.append(big)
-            del b, margin, r0, r1, c0, c1, w, keep, area
+            del b, margin, r0, r1, c0, c1, w, keep, area, small
         big = np.concatenate(bigs) if bigs else np.zeros(0, dtype=bool)
         del bigs
         split = bool(big.any())
         if n_pieces + int(big.sum()) > MAX_PIECES or halvings == 40:
             split = False  # a piece's box is conservative however large: keep it
-        # the level's finished pieces, summed into the raster at once (one bincount
-        # of the raster per corner and level, not per chunk)
-        done = [
-            [x[~kb] if split else x for x in (r0, r1, c0, c1, w)] for r0, r1, c0, c1, w, kb in kept
-        ]
-        del kept
-        if done:
-            add_boxes(*(np.concatenate([d[i] for d in done]) for i in range(5)))
-        del done
         if not split:
+            if waiting:
+                diff.add_boxes(*(np.concatenate([x[i] for x in waiting]) for i in range(5)))
             break
+        del waiting
         pieces = _bisect_longest(piece(big))
         piece, n_pieces = pieces.__getitem__, len(pieces)
-    diff = np.zeros(n_diff, dtype=np.int64)
-    for sgn, idx in corners.items():
-        if idx:
-            diff += np.bincount(np.concatenate(idx), minlength=n_diff) * sgn
-    corners.clear()
-    occ = diff.reshape(n_rows + 1, n_cols + 1).cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
+    occ = diff.counts().cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
     return SparseGrid.from_raster(window, ras, occ)
+
+
+class _DiffRaster:
+    """The occupancy raster's difference array, filled box by box: a box of cells adds
+    +1 and -1 at its four corners, and the raster's cumulative sums (:meth:`counts`)
+    give each cell the boxes over it. Integers, so the order in which boxes come does not
+    matter: the corners are buffered and counted (``np.bincount``) whenever the buffer
+    holds a quarter of the raster's size, never kept per piece (issue 25: the planning held
+    ~150 B a triangle when every box waited for the end)."""
+
+    def __init__(self, n_rows: int, n_cols: int, cell: int) -> None:
+        self.shape = (n_rows + 1, n_cols + 1)
+        self.n = self.shape[0] * self.shape[1]
+        self.cell = cell
+        self.diff = np.zeros(self.n, dtype=np.int64)
+        self.pending: dict[int, list[np.ndarray]] = {1: [], -1: []}
+        self.n_pending = 0
+        self.flush_at = max(self.n // 4, _FLUSH_CORNERS)
+
+    def add_boxes(
+        self, r0: np.ndarray, r1: np.ndarray, c0: np.ndarray, c1: np.ndarray, w: np.ndarray
+    ) -> None:
+        """Boxes ``[r0..r1] × [c0..c1]`` of cells (where ``c1 >= c0``), plus
+        ``[r0..r1] × [0..w // cell]`` where ``w >= 0`` (an interval past 360°)."""
+        stride = self.shape[1]
+        wc = np.where(w >= 0, w // self.cell, -1)
+        boxes = [(r0, r1, c0, c1, c1 >= c0), (r0, r1, np.zeros_like(wc), wc, wc >= 0)]
+        for a0, a1, b0, b1, ok in boxes:
+            a0, a1, b0, b1 = a0[ok], a1[ok] + 1, b0[ok], b1[ok] + 1
+            for rr, cc, sgn in ((a0, b0, 1), (a0, b1, -1), (a1, b0, -1), (a1, b1, 1)):
+                self.pending[sgn].append(rr * stride + cc)
+                self.n_pending += len(rr)
+        if self.n_pending >= self.flush_at:
+            self._flush()
+
+    def _flush(self) -> None:
+        for sgn, idx in self.pending.items():
+            if idx:
+                count = np.bincount(np.concatenate(idx), minlength=self.n)
+                if sgn > 0:
+                    self.diff += count
+                else:
+                    self.diff -= count
+                idx.clear()
+        self.n_pending = 0
+
+    def counts(self) -> np.ndarray:
+        """The difference array, (rows + 1, columns + 1) int64, every box counted."""
+        self._flush()
+        return self.diff.reshape(self.shape)
 
 
 class SparseGrid:
