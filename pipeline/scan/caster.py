@@ -58,7 +58,14 @@ def float32_error_m(radius_m: float, o: np.ndarray) -> float:
 
 
 class Caster:
-    """The Open3D scene plus float64 triangle data for refinement."""
+    """The Open3D scene plus the scene's float64 triangles for refinement.
+
+    Memory (issue 25): the caster holds no per-triangle or per-vertex array of its own
+    beyond Open3D's: it reads the scene's float64 vertices, faces, labels and tree ids
+    (through an int32 index when only some triangles are loaded), and gathers what a
+    hit needs (the local corners, the normal, the smallest height) when it needs it,
+    with the figures a held array computed row by row would give.
+    """
 
     def __init__(
         self, scene: Scene, frame: LocalFrame, nthreads: int, keep: np.ndarray | None = None
@@ -68,60 +75,106 @@ class Caster:
         o3d = load_open3d()
         self.o3d = o3d
         self.nthreads = int(nthreads)
-        v = frame.to_local(scene.vertices)
-        f = scene.faces if keep is None else scene.faces[keep]
-        self.v, self.faces = v, f
-        self._thickness: np.ndarray | None = None
-        # each triangle's first corner, gathered when read (not held: 24 B a triangle)
-        self.v0 = _FirstCorners(v, f)
-        self.normal = np.empty((len(f), 3))
-        # each triangle's smallest height (twice its area over its longest edge: how far
-        # its interior reaches from an edge) and its shortest edge squared (the
-        # distortion check's), a chunk at a time (the same figures, row by row)
-        self.h_min32 = np.empty(len(f), dtype=np.float32)
-        short2 = np.empty(len(f))
-        for a, b in triangle_chunks(len(f)):
-            p0, v1, v2 = v[f[a:b, 0]], v[f[a:b, 1]], v[f[a:b, 2]]
-            n = np.cross(v1 - p0, v2 - p0)
-            twice_area = np.linalg.norm(n, axis=1)
-            self.normal[a:b] = n / twice_area[:, None]
-            sq_edge = np.stack([_sq_len(v1 - p0), _sq_len(v2 - v1), _sq_len(v2 - p0)])
-            self.h_min32[a:b] = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
-            short2[a:b] = sq_edge.min(axis=0)
-            del p0, v1, v2, n, twice_area, sq_edge
-        self.label = scene.face_label if keep is None else scene.face_label[keep]
+        # the scene's vertices (global), moved into the local frame when gathered
+        self._sv = np.asarray(scene.vertices, dtype=np.float64)
+        self._origin = frame.origin_array
+        index = None if keep is None else _small_index(np.flatnonzero(keep))
+        self.faces: Any = _rows(scene.faces, index)
+        self.label: Any = _rows(scene.face_label, index)
         ft = scene.face_tree
-        self.tree = None if ft is None else (ft if keep is None else ft[keep])
+        self.tree: Any = None if ft is None else _rows(ft, index)
+        self._thickness: np.ndarray | None = None
+        # each triangle's first corner, normal and smallest height, gathered when read
+        self.v0 = _Gathered(self, 0)
+        self.normal = _Gathered(self, 1)
+        self.h_min32 = _Gathered(self, 2)
         self.lo, self.hi = frame.to_local(scene.bounds)
         self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
         self._fan: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        v32 = v.astype(np.float32)
-        self.distorted, self.moved_m = _distorted(v, v32, f, short2)
-        del short2
+        v32, worst = self._float32_vertices()
+        self.distorted, self.moved_m = self._distorted(v32, worst)
         self.rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
-        # Open3D copies both into its own buffers: ours go before its BVH is built
-        v32_t = o3d.core.Tensor(v32)
-        del v32
-        f32_t = o3d.core.Tensor(f.astype(np.uint32))
-        self.rc.add_triangles(v32_t, f32_t)
-        del v32_t, f32_t
+        # Open3D copies both into its own buffers (from tensors sharing our arrays: no
+        # third copy); ours go before its BVH is built
+        f = np.asarray(self.faces)
+        f32 = f.view(np.uint32) if f.dtype == np.int32 else f.astype(np.uint32)
+        self.rc.add_triangles(_o3d_view(o3d, v32), _o3d_view(o3d, f32))
+        del v32, f, f32
         t0 = time.perf_counter()
         # Open3D builds its BVH lazily on the first query: build it now, timed apart.
         self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
         self.build_s = time.perf_counter() - t0
+
+    @property
+    def v(self) -> np.ndarray:
+        """(v, 3) float64 vertices in the local frame (a new array each time: the caster
+        keeps only the scene's)."""
+        return self._sv - self._origin
+
+    def corners(self, idx: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The local float64 corners (three (n, 3) arrays) of triangles ``idx``."""
+        f = self.faces[idx]
+        o = self._origin
+        return self._sv[f[..., 0]] - o, self._sv[f[..., 1]] - o, self._sv[f[..., 2]] - o
+
+    def geometry(self, idx: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First corner (n, 3), unit normal (n, 3) and smallest height (n,), float32 (twice
+        the area over the longest edge: how far the interior reaches from an edge), of
+        triangles ``idx``."""
+        p0, v1, v2 = self.corners(idx)
+        n = np.cross(v1 - p0, v2 - p0)
+        twice_area = np.linalg.norm(n, axis=-1)
+        sq_edge = np.stack([_sq_len(v1 - p0), _sq_len(v2 - v1), _sq_len(v2 - p0)])
+        h32 = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
+        return p0, n / twice_area[..., None], h32
+
+    def _float32_vertices(self) -> tuple[np.ndarray, float]:
+        """The local vertices in float32 (what Open3D holds), a chunk at a time, and the
+        largest move of a vertex by that rounding (m; 0 without triangles)."""
+        v32 = np.empty(self._sv.shape, dtype=np.float32)
+        worst = 0.0
+        for a, b in triangle_chunks(len(self._sv)):
+            local = self._sv[a:b] - self._origin
+            v32[a:b] = local
+            moved = np.sqrt(_sq_len(v32[a:b].astype(np.float64) - local))
+            worst = max(worst, float(moved.max()))
+        return v32, (worst if len(self.faces) else 0.0)
+
+    def _distorted(self, v32: np.ndarray, worst: float) -> tuple[int, float]:
+        """How many triangles float32 (what Open3D holds) distorts, moving a vertex by
+        more than :data:`DISTORTED_SHARE` of the triangle's shortest edge, and the
+        largest move of a vertex of those triangles (m); ``worst``: the largest move of
+        any vertex. A chunk of triangles at a time."""
+        if worst == 0.0:
+            return 0, 0.0
+        count, most = 0, 0.0
+        for a, b in triangle_chunks(len(self.faces)):
+            p0, v1, v2 = self.corners(slice(a, b))
+            short2 = np.stack([_sq_len(v1 - p0), _sq_len(v2 - v1), _sq_len(v2 - p0)]).min(axis=0)
+            del p0, v1, v2
+            maybe = np.flatnonzero(short2 < (worst / DISTORTED_SHARE) ** 2)  # others cannot be
+            f = self.faces[a:b][maybe].reshape(-1)
+            moved = np.sqrt(_sq_len(v32[f].astype(np.float64) - (self._sv[f] - self._origin)))
+            move = moved.reshape(-1, 3).max(axis=1)
+            far = move**2 > DISTORTED_SHARE**2 * short2[maybe]
+            count += int(far.sum())
+            most = max(most, float(move[far].max()) if far.any() else 0.0)
+        return count, most
 
     def thickness_m(self) -> np.ndarray:
         """Local thickness of the geometry behind each triangle (m): the distance from
         its centroid, inwards along its normal, to the next surface (a branch's
         diameter on a tube); inf where nothing is behind it (a leaf, an open sheet)."""
         if self._thickness is None:
-            f = self.faces
-            centroid = (self.v[f[:, 0]] + self.v[f[:, 1]] + self.v[f[:, 2]]) / 3.0
+            p0, v1, v2 = self.corners(slice(None))
+            centroid = (p0 + v1 + v2) / 3.0
+            del p0, v1, v2
+            normal = self.normal[:]
             inset = 1e-5 + 1e-7 * np.linalg.norm(centroid, axis=1)
-            rays = np.empty((len(f), 6), dtype=np.float32)
-            rays[:, :3] = centroid - (inset[:, None] * self.normal)
-            rays[:, 3:] = -self.normal
+            rays = np.empty((len(centroid), 6), dtype=np.float32)
+            rays[:, :3] = centroid - (inset[:, None] * normal)
+            rays[:, 3:] = -normal
             t, _, _ = self.cast_f32(rays)
             self._thickness = np.where(np.isfinite(t), t.astype(np.float64) + inset, np.inf)
         return self._thickness
@@ -195,7 +248,7 @@ class Caster:
             # held while the caster lives: int32 indices where they fit (the same values)
             small = max(n_welded, len(self.faces)) < 2**31 - 1
             index = np.int32 if small else np.int64
-            corners = weld.reshape(-1).astype(index)[self.faces]
+            corners = weld.reshape(-1).astype(index)[np.asarray(self.faces)]
             del weld
             ptr, inc = vertex_triangles(corners, n_welded)
             self._fan = (corners, ptr, inc.astype(index, copy=False))
@@ -204,8 +257,7 @@ class Caster:
     def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
         """How far (m) each point ``p`` (on triangle ``tri``'s plane) lies outside that
         triangle: the largest signed distance beyond its three edge lines (<= 0 inside)."""
-        f = self.faces[tri]
-        a, b, c = self.v[f[:, 0]], self.v[f[:, 1]], self.v[f[:, 2]]
+        a, b, c = self.corners(tri)
         nrm = self.normal[tri]
         out = np.full(len(tri), -np.inf)
         for p0, p1 in ((a, b), (b, c), (c, a)):
@@ -284,10 +336,11 @@ class Caster:
         primitive : (n,) int64
             The triangle hit; -1 where it missed.
         """
-        nrm = self.normal[pid]
+        p0, nrm, h_min32 = self.geometry(pid)
         cos = np.einsum("ij,ij->i", d, nrm)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.einsum("ij,ij->i", self.v0[pid] - o, nrm) / cos
+            t = np.einsum("ij,ij->i", p0 - o, nrm) / cos
+        del p0, nrm
         np.abs(cos, out=cos)
         moved = bool(np.any(np.asarray(t_from) > 0))
         travelled = t_coarse - t_from
@@ -296,7 +349,7 @@ class Caster:
         # as seen from the edges. Tested in float32 (it only sorts out the sure ones).
         u, v = uv[:, 0], uv[:, 1]
         w = np.minimum(np.minimum(u, v), 1.0 - u - v)
-        w *= self.h_min32[pid]
+        w *= h_min32
         w *= cos.astype(np.float32)
         far = float(travelled.max()) if len(travelled) else 0.0
         eps = float(self.ray_error_m(o, moved, far)) * 1.001 + 1e-30
@@ -358,39 +411,59 @@ class Caster:
         return t_out, prim
 
 
-class _FirstCorners:
-    """Each triangle's first corner, ``v[faces[i, 0]]``, gathered when indexed (the
-    values a held ``(f, 3)`` array would give, without holding it)."""
+class _Gathered:
+    """Per-triangle figures of a caster gathered when indexed (the values a held array
+    computed row by row would give, without holding it): ``what`` 0, each triangle's
+    first corner; 1, its unit normal; 2, its smallest height (float32)."""
 
-    def __init__(self, v: np.ndarray, faces: np.ndarray) -> None:
-        self.v, self.faces = v, faces
+    def __init__(self, caster: Caster, what: int) -> None:
+        self.caster, self.what = caster, what
 
     def __getitem__(self, idx: Any) -> np.ndarray:
-        return self.v[self.faces[idx, 0]]
+        if self.what == 0:
+            return self.caster.corners(idx)[0]
+        return self.caster.geometry(idx)[self.what]
 
     def __len__(self) -> int:
-        return len(self.faces)
+        return len(self.caster.faces)
+
+
+class _Subset:
+    """Rows ``index`` of an array, gathered when indexed: a caster's faces, labels and
+    tree ids when only some triangles are loaded (an int32 index, not copies)."""
+
+    def __init__(self, a: np.ndarray, index: np.ndarray) -> None:
+        self.a, self.index = a, index
+
+    def __getitem__(self, idx: Any) -> np.ndarray:
+        return self.a[self.index[idx]]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        rows = self.a[self.index]
+        return rows if dtype is None else rows.astype(dtype, copy=False)
+
+
+def _rows(a: np.ndarray, index: np.ndarray | None) -> Any:
+    """``a`` itself (index None), or its rows ``index`` gathered when read."""
+    return a if index is None else _Subset(a, index)
+
+
+def _small_index(index: np.ndarray) -> np.ndarray:
+    """Indices as int32 where they fit (the same values, half the bytes)."""
+    return index.astype(np.int32) if len(index) and index[-1] < 2**31 - 1 else index
+
+
+def _o3d_view(o3d: Any, a: np.ndarray) -> Any:
+    """An Open3D tensor sharing ``a``'s memory (``add_triangles`` copies it)."""
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(a))
 
 
 def _sq_len(e: np.ndarray) -> np.ndarray:
     """Squared lengths (n,) of vectors ``e`` (n, 3)."""
-    return np.square(e).sum(axis=1)
-
-
-def _distorted(
-    v: np.ndarray, v32: np.ndarray, f: np.ndarray, short2: np.ndarray
-) -> tuple[int, float]:
-    """How many triangles float32 (what Open3D holds) distorts, moving a vertex by more
-    than :data:`DISTORTED_SHARE` of the triangle's shortest edge (``short2``: its squared
-    length), and the largest move of a vertex of those triangles (m)."""
-    moved = np.sqrt(_sq_len(v32.astype(np.float64) - v))
-    worst = float(moved.max()) if len(f) else 0.0
-    if worst == 0.0:
-        return 0, 0.0
-    maybe = np.flatnonzero(short2 < (worst / DISTORTED_SHARE) ** 2)  # the others cannot be
-    move = moved[f[maybe]].max(axis=1)
-    far = move**2 > DISTORTED_SHARE**2 * short2[maybe]
-    return int(far.sum()), float(move[far].max()) if far.any() else 0.0
+    return np.square(e).sum(axis=-1)
 
 
 class RayTables:
