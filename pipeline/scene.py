@@ -83,7 +83,8 @@ class Scene:
     Attributes
     ----------
     vertices : (v, 3) float64
-    faces : (f, 3) int64
+    faces : (f, 3) int32, or int64 when the scene has 2**31 vertices or more
+        Half the bytes of int64 where the indices fit (the same values).
     face_label : (f,) uint8
         Label code (see ``treesim.cloud.LABEL_CODES``) of every triangle.
     face_tree : (f,) uint32 or None
@@ -125,6 +126,10 @@ class Scene:
         verts, faces, labels, trees = [], [], [], []
         offset = 0
         dropped = 0
+        # the merged faces in int32 where every index fits (the same values, half the
+        # bytes of int64: issue 25), each part's shifted faces converted as they come
+        n_vertices = sum(len(np.asarray(p.vertices)) for p in self.parts)
+        index = np.int32 if n_vertices < 2**31 else np.int64
         for part in self.parts:
             v = np.asarray(part.vertices, dtype=np.float64)
             f = np.asarray(part.faces)
@@ -156,7 +161,7 @@ class Scene:
                 f = f[keep]
             del keep
             verts.append(v)
-            faces.append(f + offset)
+            faces.append((f + offset).astype(index, copy=False))
             labels.append(np.full(len(f), LABEL_CODES[part.label], dtype=np.uint8))
             trees.append(np.full(len(f), int(part.tree_id), dtype=np.uint32))
             offset += len(v)
@@ -175,8 +180,9 @@ class Scene:
         # the arithmetic done on all vertices at once)
         spare = ~mask & ~np.isfinite(self.vertices).all(axis=1)
         self.vertices[spare] = 0.0
-        self._used = np.flatnonzero(mask)
-        used = self.vertices[self._used]
+        # which vertices are used, as a mask (1 byte a vertex, not an 8-byte index)
+        self._used = mask
+        used = self.vertices[mask]
         self._bounds = np.stack([used.min(axis=0), used.max(axis=0)])
 
     @classmethod
