@@ -7,9 +7,11 @@
 Each run is a fresh ``treesim`` process on the bundled coffee tree (as ``treesim demo``:
 the standard preset, the tree's TreeQSM model beside it), so that importing the drawing
 libraries counts where a user pays for it. Printed per run: the stage times of its
-``run.json`` (wall clock), the reports' share of the whole run, the process's CPU seconds
-(its drawing processes included) and the machine's load when it started; then, drawn again
-in this process from the demo's output, the CPU seconds of each figure. A baseline
+``run.json`` (wall clock), the reports' share of the whole run, the CPU seconds of the
+report stage's drawing on the run's own thread (``report CPU s``: what the load moves
+least), the process's CPU seconds (its drawing processes included) and the machine's load
+when it started; then, drawn again in this process from the demo's output, the CPU seconds
+of each figure. A baseline
 revision (``--baseline``) is unpacked with ``git archive`` and run the same way,
 alternating with this code's runs. On a shared machine the load moves every time; compare
 runs made together.
@@ -42,17 +44,43 @@ def _child_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _treesim(args: list[str], pythonpath: Path | None = None) -> tuple[dict, float, float]:
-    """Run ``python -m treesim.cli ARGS`` in a fresh process: its run.json, its CPU
-    seconds (children included) and the one-minute load when it started."""
+#: Runs the CLI with the report stage's drawing (``treesim.run._draw_reports``) timed on
+#: the CPU clock of the run's own thread: on a shared machine its wall time moves with the
+#: load, its CPU time much less (drawing processes, where forked, are not counted).
+_CLI = """
+import json, os, sys, time
+import treesim.run as run
+from treesim.cli import main
+draw = getattr(run, "_draw_reports", None)
+if draw is not None:
+    def timed(*a, **k):
+        t0 = time.thread_time()
+        try:
+            return draw(*a, **k)
+        finally:
+            with open(os.environ["BENCH_REPORT_CPU"], "w") as fh:
+                json.dump(time.thread_time() - t0, fh)
+    run._draw_reports = timed
+sys.argv = ["treesim", *sys.argv[1:]]
+sys.exit(main())
+"""
+
+
+def _treesim(args: list[str], pythonpath: Path | None = None) -> tuple[dict, float, float, float]:
+    """Run the ``treesim`` CLI with ``ARGS`` in a fresh process: its run.json, its CPU
+    seconds (children included), the one-minute load when it started and the CPU seconds
+    of its report stage's drawing (NaN where not measured)."""
     env = dict(os.environ)
     if pythonpath is not None:  # a baseline revision's package ahead of the installed one
         env["PYTHONPATH"] = f"{pythonpath}{os.pathsep}{env.get('PYTHONPATH', '')}"
     out = Path(args[args.index("-o") + 1])
+    stage_cpu = out.parent / f"{out.name}.report_cpu.json"
+    stage_cpu.unlink(missing_ok=True)
+    env["BENCH_REPORT_CPU"] = str(stage_cpu)
     load = os.getloadavg()[0]
     cpu0 = _child_cpu_s()
     done = subprocess.run(
-        [sys.executable, "-m", "treesim.cli", *args],
+        [sys.executable, "-c", _CLI, *args],
         env=env,
         capture_output=True,
         text=True,
@@ -60,7 +88,9 @@ def _treesim(args: list[str], pythonpath: Path | None = None) -> tuple[dict, flo
     )
     if done.returncode:
         raise SystemExit(f"treesim {' '.join(args)} failed:\n{done.stderr}")
-    return json.loads((out / "run.json").read_text()), _child_cpu_s() - cpu0, load
+    report_cpu = json.loads(stage_cpu.read_text()) if stage_cpu.is_file() else float("nan")
+    run_json = json.loads((out / "run.json").read_text())
+    return run_json, _child_cpu_s() - cpu0, load, report_cpu
 
 
 def _baseline(rev: str, into: Path) -> Path:
@@ -75,7 +105,7 @@ def _baseline(rev: str, into: Path) -> Path:
     return into
 
 
-def _row(name: str, run: dict, cpu_s: float, load: float) -> list[str]:
+def _row(name: str, run: dict, cpu_s: float, load: float, report_cpu: float) -> list[str]:
     t = run["timings_s"]
     share = 100.0 * t["report"] / t["total"]
     forked = (run.get("report_drawing") or {}).get("forked")
@@ -85,6 +115,7 @@ def _row(name: str, run: dict, cpu_s: float, load: float) -> list[str]:
         f"{t['total']:.1f}",
         *(f"{t.get(s, 0.0):.2f}" for s in STAGES),
         f"{share:.0f} %",
+        f"{report_cpu:.2f}",
         f"{cpu_s:.1f}",
         f"{load:.1f}",
     ]
@@ -106,6 +137,8 @@ def _figures_cpu(folder: Path) -> list[tuple[str, float]]:
         t0 = time.process_time()
         fn()
         rows.append((name, time.process_time() - t0))
+
+    import scipy.spatial  # noqa: F401 - imported by the comparisons before a run's reports
 
     warm = ReportData.from_file(folder / "vs_field")
     figures.coverage_bars(warm, out / "warm.png", dpi=p.dpi)  # first use: fonts, imports
@@ -190,7 +223,7 @@ def main() -> int:
         rows = [_row(name, *_treesim(a, pp)) for name, a, pp in variants]
         figs = _figures_cpu(tmp / "demo0")
     head = ["run", "total s", *(f"{s.replace('_', ' ')} s" for s in STAGES)]
-    head += ["reports' share", "CPU s", "load"]
+    head += ["reports' share", "report CPU s", "CPU s", "load"]
     with docs_part.recording("bench-reports" if args.docs else None, "bench_reports.py"):
         print("| " + " | ".join(head) + " |")
         print("|" + "---|" * len(head))
