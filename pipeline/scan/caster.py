@@ -41,6 +41,10 @@ BOUNDS_CHUNK = 1 << 18
 #: A triangle is distorted in float32 when rounding its vertices to float32 moves one by
 #: more than this share of its shortest edge.
 DISTORTED_SHARE = 0.1
+#: A caster whose normals and smallest heights (28 B a triangle) fit in this many bytes
+#: holds them (each hit reads them: a scan is faster); larger scenes gather them from the
+#: corners when read (the same figures: memory per triangle, issue 25).
+HELD_GEOMETRY_BYTES = 16 << 20
 
 
 def triangle_chunks(n: int) -> Iterator[tuple[int, int]]:
@@ -64,7 +68,8 @@ class Caster:
     beyond Open3D's: it reads the scene's float64 vertices, faces, labels and tree ids
     (through an int32 index when only some triangles are loaded), and gathers what a
     hit needs (the local corners, the normal, the smallest height) when it needs it,
-    with the figures a held array computed row by row would give.
+    with the figures a held array computed row by row would give. A scene whose normals
+    and heights fit in :data:`HELD_GEOMETRY_BYTES` holds those two (faster hits).
     """
 
     def __init__(
@@ -85,9 +90,12 @@ class Caster:
         self.tree: Any = None if ft is None else _rows(ft, index)
         self._thickness: np.ndarray | None = None
         # each triangle's first corner, normal and smallest height, gathered when read
+        # (the normals and heights held instead when they are small)
         self.v0 = _Gathered(self, 0)
-        self.normal = _Gathered(self, 1)
-        self.h_min32 = _Gathered(self, 2)
+        self.normal: Any = _Gathered(self, 1)
+        self.h_min32: Any = _Gathered(self, 2)
+        if 28 * len(self.faces) <= HELD_GEOMETRY_BYTES:
+            self.normal, self.h_min32 = self._held_geometry()
         self.lo, self.hi = frame.to_local(scene.bounds)
         self.pad = 1e-3 + 1e-5 * float(np.linalg.norm(self.hi - self.lo))
         self.radius = float(np.linalg.norm(np.maximum(np.abs(self.lo), np.abs(self.hi))))
@@ -115,6 +123,14 @@ class Caster:
     def corners(self, idx: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The local float64 corners (three (n, 3) arrays) of triangles ``idx``."""
         f = self.faces[idx]
+        if isinstance(idx, np.ndarray) and f.ndim == 2:
+            # np.take gathers rows about twice as fast as indexing (the same values)
+            out = []
+            for k in range(3):
+                c = np.take(self._sv, f[:, k], axis=0)
+                c -= self._origin
+                out.append(c)
+            return out[0], out[1], out[2]
         o = self._origin
         return self._sv[f[..., 0]] - o, self._sv[f[..., 1]] - o, self._sv[f[..., 2]] - o
 
@@ -123,11 +139,31 @@ class Caster:
         the area over the longest edge: how far the interior reaches from an edge), of
         triangles ``idx``."""
         p0, v1, v2 = self.corners(idx)
-        n = np.cross(v1 - p0, v2 - p0)
-        twice_area = np.linalg.norm(n, axis=-1)
-        sq_edge = np.stack([_sq_len(v1 - p0), _sq_len(v2 - v1), _sq_len(v2 - p0)])
-        h32 = (twice_area / np.sqrt(sq_edge.max(axis=0))).astype(np.float32)
-        return p0, n / twice_area[..., None], h32
+        e1, e2 = v1 - p0, v2 - p0
+        n = _cross(e1, e2)
+        twice_area = np.sqrt(_sq_len(n))
+        longest = np.maximum(np.maximum(_sq_len(e1), _sq_len(v2 - v1)), _sq_len(e2))
+        h32 = (twice_area / np.sqrt(longest)).astype(np.float32)
+        n /= twice_area[..., None]
+        return p0, n, h32
+
+    def normals(self, idx: Any) -> np.ndarray:
+        """Unit normals (n, 3) float64 of triangles ``idx`` (:meth:`geometry`'s)."""
+        p0, v1, v2 = self.corners(idx)
+        v1 -= p0
+        v2 -= p0
+        n = _cross(v1, v2)
+        n /= np.sqrt(_sq_len(n))[..., None]
+        return n
+
+    def _held_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every triangle's normal and smallest height (:meth:`geometry`'s), a chunk of
+        triangles at a time."""
+        normal = np.empty((len(self.faces), 3))
+        h_min32 = np.empty(len(self.faces), dtype=np.float32)
+        for a, b in triangle_chunks(len(self.faces)):
+            _, normal[a:b], h_min32[a:b] = self.geometry(slice(a, b))
+        return normal, h_min32
 
     def _float32_vertices(self) -> tuple[np.ndarray, float]:
         """The local vertices in float32 (what Open3D holds), a chunk at a time, and the
@@ -336,7 +372,10 @@ class Caster:
         primitive : (n,) int64
             The triangle hit; -1 where it missed.
         """
-        p0, nrm, h_min32 = self.geometry(pid)
+        if isinstance(self.normal, np.ndarray):  # held
+            p0, nrm, h_min32 = self.v0[pid], self.normal[pid], self.h_min32[pid]
+        else:
+            p0, nrm, h_min32 = self.geometry(pid)
         cos = np.einsum("ij,ij->i", d, nrm)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.einsum("ij,ij->i", p0 - o, nrm) / cos
@@ -422,7 +461,9 @@ class _Gathered:
     def __getitem__(self, idx: Any) -> np.ndarray:
         if self.what == 0:
             return self.caster.corners(idx)[0]
-        return self.caster.geometry(idx)[self.what]
+        if self.what == 1:
+            return self.caster.normals(idx)
+        return self.caster.geometry(idx)[2]
 
     def __len__(self) -> int:
         return len(self.caster.faces)
@@ -462,8 +503,20 @@ def _o3d_view(o3d: Any, a: np.ndarray) -> Any:
 
 
 def _sq_len(e: np.ndarray) -> np.ndarray:
-    """Squared lengths (n,) of vectors ``e`` (n, 3)."""
-    return np.square(e).sum(axis=-1)
+    """Squared lengths (n,) of vectors ``e`` (n, 3): the sum of the squares in order, the
+    figure ``np.square(e).sum(axis=1)`` and ``np.linalg.norm(e, axis=1) ** 2`` give."""
+    sq = np.square(e)
+    return sq[..., 0] + sq[..., 1] + sq[..., 2]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of (n, 3) vectors, the same operations (each product rounded,
+    then the difference), without its generic set-up."""
+    n = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    n[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    n[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    n[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return n
 
 
 class RayTables:
