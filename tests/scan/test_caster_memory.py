@@ -47,8 +47,15 @@ def test_the_scene_holds_int32_faces_and_a_used_mask():
     assert scene._used.dtype == bool and scene._used.nbytes == len(v)
 
 
+@pytest.mark.parametrize("held", [False, True])
 @pytest.mark.parametrize("partial", [False, True])
-def test_the_caster_keeps_no_per_triangle_array_and_gathers_the_same_figures(partial):
+def test_the_caster_keeps_no_per_triangle_array_and_gathers_the_same_figures(
+    monkeypatch, partial, held
+):
+    """Gathered (a large scene's; here forced) or held (a small one's normals and
+    heights): the figures whole-array numpy gives, and nothing else per triangle."""
+    if not held:
+        monkeypatch.setattr(caster_module, "HELD_GEOMETRY_BYTES", 0)
     scene = _scene()
     nf = scene.n_triangles
     keep = None
@@ -60,14 +67,18 @@ def test_the_caster_keeps_no_per_triangle_array_and_gathers_the_same_figures(par
     shared = {id(a) for a in (scene.vertices, scene.faces, scene.face_label, scene.face_tree)}
 
     # every distinct array the caster (and its gathering views) holds, less the scene's
-    held = {
+    held_bytes = {
         id(a): a.nbytes
         for obj in (caster, caster.faces, caster.label, caster.tree)
         for a in getattr(obj, "__dict__", {}).values()
         if isinstance(a, np.ndarray) and id(a) not in shared
     }
-    # the loaded triangles' int32 index, when only some are loaded; else nothing
-    assert sum(held.values()) <= (4 * int(keep.sum()) if partial else 0) + 1024
+    # the loaded triangles' int32 index, when only some are loaded; the held normals
+    # and heights of a small scene; else nothing
+    n_loaded = int(keep.sum()) if partial else nf
+    bound = (4 * n_loaded if partial else 0) + (28 * n_loaded if held else 0) + 1024
+    assert sum(held_bytes.values()) <= bound
+    assert isinstance(caster.normal, np.ndarray) == held
     # the oracle: whole arrays, as a held copy computed them
     f = scene.faces if keep is None else scene.faces[keep]
     v = scene.vertices - frame.origin_array
@@ -139,3 +150,31 @@ def test_the_occupancy_cull_holds_no_box_per_triangle(monkeypatch):
     small, large = peak(20_000), peak(80_000)
     # 60 000 more triangles: the bool per piece of the level's big-piece mask, and room
     assert large - small <= 4 * 60_000
+
+
+def test_a_scan_with_gathered_normals_is_the_held_ones_bit_for_bit(monkeypatch):
+    """The same points and fields, beam on and off, whether the caster holds its normals
+    and heights or gathers them."""
+    from treesim.scan import ScannerSpec, Station, scan
+
+    scene = _scene()
+    lo, hi = scene.bounds
+    st = [Station(position_m=(0.5 * (lo[0] + hi[0]) + 5.0, 0.5 * (lo[1] + hi[1]), lo[2] + 1.5))]
+    specs = [
+        ScannerSpec(horizontal_resolution_deg=0.25, vertical_resolution_deg=0.25),
+        ScannerSpec(
+            horizontal_resolution_deg=0.5,
+            vertical_resolution_deg=0.5,
+            beam_divergence_mrad=2.0,
+            subrays=7,
+            return_mode="all",
+        ),
+    ]
+    held = [scan(scene, st, spec, nthreads=1).cloud for spec in specs]
+    monkeypatch.setattr(caster_module, "HELD_GEOMETRY_BYTES", 0)
+    gathered = [scan(scene, st, spec, nthreads=1).cloud for spec in specs]
+    for a, b in zip(held, gathered, strict=True):
+        assert len(a) > 1000
+        np.testing.assert_array_equal(a.points, b.points)
+        for name in a.fields:
+            np.testing.assert_array_equal(a.fields[name], b.fields[name], err_msg=name)
