@@ -21,9 +21,12 @@ whatever its trees), the difference over the trees' triangles. The task runs' ow
 over their start per loaded triangle is printed too (it holds that fixed part).
 
 Usage: ``python benchmarks/bench_hectare.py --trees 40 --stations 4 --step-deg 0.2
---executor dask --workers 2 [--facets 32] [--docs]`` (``--docs``: the printout becomes
-``docs/validation.md``'s ``bench-hectare`` part). Prints measured figures, and an
-extrapolation to the issue's full size labelled as such.
+--executor dask --workers 2 [--facets 32] [--memory-repeats 3] [--memory-only] [--docs]``
+(``--docs``: the printout becomes ``docs/validation.md``'s ``bench-hectare`` part;
+``--memory-repeats``: the bytes-per-triangle measurement that many times, each pair of
+fresh processes, the median used and the spread printed; ``--memory-only``: that
+measurement alone). Prints measured figures, and an extrapolation to the issue's full
+size labelled as such.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import argparse
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -154,6 +158,36 @@ def run_memory(plot_dir: Path, position: tuple, step: float, trees: bool) -> dic
     return json.loads(line[len("RESULT ") :])
 
 
+def measure_memory(
+    plot_dir: Path, position: tuple, step: float, repeats: int
+) -> tuple[float, float]:
+    """Bytes per tree triangle while casting: one station (the first) in a fresh process,
+    with the trees and with the ground only, the difference over the trees' triangles;
+    ``repeats`` times (the peaks move by a few MiB from run to run: the allocator's
+    leftovers). Prints each and returns the median and the ground-only part's."""
+    runs = []
+    for _ in range(max(1, repeats)):
+        with_trees = run_memory(plot_dir, position, step, trees=True)
+        ground = run_memory(plot_dir, position, step, trees=False)
+        cost = [m["peak"] - m["before"] for m in (with_trees, ground)]
+        tree_tri = with_trees["triangles"] - ground["triangles"]
+        runs.append(((cost[0] - cost[1]) / tree_tri, float(cost[1])))
+        print(
+            f"one station, fresh process, no tree kept: {cost[0] / 2**30:.2f} GiB over its "
+            f"start with the trees ({with_trees['triangles'] / 1e6:.2f} M triangles), "
+            f"{cost[1] / 2**30:.2f} GiB with the ground only ({ground['triangles'] / 1e3:.0f} k "
+            f"triangles): {runs[-1][0]:.0f} B per tree triangle while casting"
+        )
+    per = sorted(r[0] for r in runs)
+    mid = statistics.median(per)
+    if len(runs) > 1:
+        print(
+            f"B per tree triangle while casting over {len(runs)} measurements: median "
+            f"{mid:.0f}, range {per[0]:.0f}-{per[-1]:.0f}"
+        )
+    return mid, statistics.median(r[1] for r in runs)
+
+
 def run_case(
     plot_dir: Path, positions: list, step: float, executor: str, workers: int | None, threads: int
 ) -> dict:
@@ -254,6 +288,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, help="threads per station task")
     ap.add_argument("--facets", type=int, default=32)
     ap.add_argument("--radius-m", type=float, default=HECTARE_RADIUS_M)
+    ap.add_argument("--memory-repeats", type=int, default=1)
+    ap.add_argument("--memory-only", action="store_true")
     ap.add_argument("--docs", action="store_true")
     a = ap.parse_args()
     with docs_part.recording(DOCS_PART if a.docs else None, "bench_hectare.py"):
@@ -282,6 +318,9 @@ def _run(a: argparse.Namespace) -> None:
             f"flat ground; {len(positions)} stations on a grid at 1.5 m; {a.step_deg} deg; "
             f"{os.cpu_count()} cores; {a.threads} thread(s) per station task"
         )
+        if a.memory_only:
+            measure_memory(Path(tmp), positions[0], a.step_deg, a.memory_repeats)
+            return
         cases = [(a.executor, a.workers if a.executor != "inline" else None)]
         if a.executor != "inline":
             cases.append(("inline", None))
@@ -298,19 +337,7 @@ def _run(a: argparse.Namespace) -> None:
                 f"{'yes' if same else 'NO'} (SHA-256 of coordinates and every field, "
                 f"station order; {out['inline']['points']:,} points)"
             )
-        # bytes per triangle: one station (the first) in a fresh process, with the trees
-        # and with the ground only; the difference over the trees' triangles
-        with_trees = run_memory(Path(tmp), positions[0], a.step_deg, trees=True)
-        ground = run_memory(Path(tmp), positions[0], a.step_deg, trees=False)
-        cost = [m["peak"] - m["before"] for m in (with_trees, ground)]
-        tree_tri = with_trees["triangles"] - ground["triangles"]
-        per_tri = ((cost[0] - cost[1]) / tree_tri, float(cost[1]))
-        print(
-            f"one station, fresh process, no tree kept: {cost[0] / 2**30:.2f} GiB over its "
-            f"start with the trees ({with_trees['triangles'] / 1e6:.2f} M triangles), "
-            f"{cost[1] / 2**30:.2f} GiB with the ground only ({ground['triangles'] / 1e3:.0f} k "
-            f"triangles): {per_tri[0]:.0f} B per tree triangle while casting"
-        )
+        per_tri = measure_memory(Path(tmp), positions[0], a.step_deg, a.memory_repeats)
         print(f"(the stand and every case: {time.perf_counter() - t0:.1f} s of wall time)")
         full = {"trees": 300, "triangles_per_tree": 500_000, "stations": 9, "step_deg": 0.04}
         tri = out[a.executor]["loading"][0]["triangles_total"]
