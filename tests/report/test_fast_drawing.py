@@ -124,3 +124,44 @@ def test_cached_texts_draw_the_same_pixels_again():
     # the same texts, placed at whole pixels: only some edge pixels of the glyphs differ
     differ = np.abs(first.astype(int) - theirs.astype(int)).max(axis=2) > 0
     assert 0.0 < differ.mean() < 0.03
+
+
+@pytest.mark.parametrize("odd", [False, True])
+def test_tick_free_axes_draw_the_pixels_of_matplotlibs_axes(tmp_path, odd):
+    """The report's axes make no tick until one is used; drawn (flat axes, and axes that
+    matplotlib draws itself: a log scale, ticks on the right, all four spines, shared y)
+    they give matplotlib's own Axes' pixels."""
+    import matplotlib
+    from matplotlib.axes import Axes
+
+    def draw(axes_class: type) -> np.ndarray:
+        fig = F._fixed_figure(5.0, 2.5)
+        axes = F._grid(
+            fig,
+            1,
+            2,
+            margins_in=(0.7, 0.5, 0.5, 0.35),
+            wgap_in=0.3,
+            sharey=True,
+            subplot_kw={"axes_class": axes_class},
+        )
+        for ax in axes:
+            ax.plot([1.0, 2.0, 30.0], [0.5, 3.0, 1.0])
+            for spine in ax.spines.values():
+                spine.set_visible(True)
+            ax.set_xlabel("x (m)")
+        if odd:
+            axes[0].set_xscale("log")
+            axes[1].yaxis.tick_right()
+            axes[1].tick_params(axis="x", colors="red", length=6)
+            axes[1].grid(False)
+        return F.render_rgb(fig, 80)
+
+    with matplotlib.rc_context(F._RC):
+        ours = draw(F._tick_free_axes_class())
+        theirs = draw(Axes)
+    assert ours.shape == theirs.shape and np.array_equal(ours, theirs)
+    with matplotlib.rc_context(F._RC):
+        fig = F._fixed_figure(3.0, 2.0)
+        ax = F._grid(fig, 1, 1, margins_in=(0.5, 0.2, 0.4, 0.2))
+        assert "majorTicks" not in vars(ax.xaxis) and "majorTicks" not in vars(ax.yaxis)
