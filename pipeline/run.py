@@ -635,10 +635,11 @@ def _draw_reports(
     level: str = "full",
     drawer: BackgroundDrawer | None = None,
 ) -> tuple[dict[str, Any], Any]:
-    """Each comparison's report (drawn from the written files, so that drawing them
-    again gives the same report), the clouds side by side, and the run page's viewer
-    payload, as ``level`` says (``full``, ``summary``: no PNG plot, ``none``: no report,
-    no viewer). Returns the clouds' record and the payload (None under ``none``)."""
+    """Each comparison's report (drawn from what the written files hold, taken from
+    memory, so that drawing them again gives the same report), the clouds side by side,
+    and the run page's viewer payload, as ``level`` says (``full``, ``summary``: no PNG
+    plot, ``none``: no report, no viewer). Returns the clouds' record and the payload
+    (None under ``none``)."""
     from .report import build_report, remove_report
 
     mesh_data = ReportData.from_comparison(vs_mesh)
@@ -650,16 +651,20 @@ def _draw_reports(
         ), None
     if level == "summary" or drawer is None:
         rp = replace(params.report, plots=level == "full")
-        build_report(out / "vs_mesh", params=rp)
-        say(0.86, "drawing the reports")
-        build_report(out / "vs_field", params=rp)
+        for key, comparison in (("vs_mesh", vs_mesh), ("vs_field", vs_field)):
+            if key == "vs_field":
+                say(0.86, "drawing the reports")
+            # what the folder holds, from memory: the clouds are not read back
+            build_report(ReportData.from_written(comparison, out / key), out / key, params=rp)
         clouds = _clouds_side_by_side(
             field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=level == "full"
         )
     else:  # full: what the drawer has not drawn yet, then every piece waited for
         if not drawer.forked:  # inline: drawn here, in the report stage's time
             _early_drawing(drawer, field_cloud, scanned, params, out, inline=True)(vs_mesh)
-        drawer.submit("vs_field", draw_report, out / "vs_field", params.report)
+        drawer.submit(
+            "vs_field", draw_report, *_report_job(drawer, vs_field, out / "vs_field", params)
+        )
         clouds = _clouds_side_by_side(
             field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=None
         )
@@ -692,7 +697,9 @@ def _early_drawing(
 
     def submit(vs_mesh: Any) -> None:
         rp = params.report
-        drawer.submit("vs_mesh", draw_report, out / "vs_mesh", rp)
+        drawer.submit(
+            "vs_mesh", draw_report, *_report_job(drawer, vs_mesh, out / "vs_mesh", params)
+        )
         drawer.submit(
             "clouds",
             draw_clouds,
@@ -704,6 +711,18 @@ def _early_drawing(
         )
 
     return submit
+
+
+def _report_job(
+    drawer: BackgroundDrawer, comparison: Any, folder: Path, params: RunParams
+) -> tuple[Any, ...]:
+    """:func:`~treesim.report.draw_report`'s arguments for a comparison just written to
+    ``folder``: drawn here, what the folder holds is taken from memory
+    (:meth:`ReportData.from_written`); a drawing process reads the folder itself, beside
+    the run, rather than be sent the arrays."""
+    if drawer.forked:
+        return folder, params.report
+    return folder, params.report, ReportData.from_written(comparison, folder)
 
 
 def _run_summary(

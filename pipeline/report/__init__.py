@@ -213,13 +213,17 @@ def _draw(
     figures.occlusion_profile(profile, pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)
 
 
-def draw_report(folder: Path, params: ReportParams) -> dict[str, Path]:
+def draw_report(
+    folder: Path, params: ReportParams, data: ReportData | None = None
+) -> dict[str, Path]:
     """:func:`build_report` of a comparison folder, as one job a drawing process takes
-    (:class:`treesim.report.background.BackgroundDrawer`: module-level and picklable).
+    (:class:`treesim.report.background.BackgroundDrawer`: module-level and picklable);
+    ``data``, where given, is what the folder holds (:meth:`ReportData.from_written`:
+    a run that has the comparison in memory need not read its clouds again).
 
     Examples
     --------
     >>> draw_report(Path("out/vs_field"), ReportParams())  # doctest: +SKIP
     {'html': PosixPath('out/vs_field/report.html'), ...}
     """
-    return build_report(folder, params=params)
+    return build_report(folder if data is None else data, folder, params=params)

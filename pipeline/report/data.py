@@ -112,6 +112,58 @@ class ReportData:
         )
 
     @classmethod
+    def from_written(cls, comparison: Comparison, folder: str | Path) -> ReportData:
+        """What :meth:`from_file` reads from ``folder``, which :func:`~treesim.compare.\
+write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds), built
+        from the arrays in memory instead of decompressing the clouds: coordinates rounded
+        to the files' scale and offsets (read from their headers) exactly as a reader gives
+        them back, fields and label names as stored. The same values bit for bit; any
+        other folder (PLY clouds, a count that does not match) is read from its files.
+
+        Examples
+        --------
+        >>> import treesim as ts
+        >>> c = ts.compare(ts.read_cloud("scan.laz"), "tree.ply")  # doctest: +SKIP
+        >>> _ = ts.write_comparison(c, "out/vs_mesh", formats=(".laz",))  # doctest: +SKIP
+        >>> ReportData.from_written(c, "out/vs_mesh").cloud_points.shape  # doctest: +SKIP
+        (135634, 3)
+        """
+        p = Path(folder)
+        summary = _read_summary(p / "comparison.json")
+        outputs = summary.get("outputs", {})
+        clouds = (comparison.distance_cloud(), comparison.reference_cloud())
+        points = []
+        for kind, cloud in zip(("cloud_distances", "reference_distances"), clouds, strict=True):
+            name = outputs.get(f"{kind}_laz") or outputs.get(f"{kind}_las")
+            if f"{kind}_ply" in outputs or name is None:
+                return cls.from_file(p)  # read as from_file would: its first choice, PLY
+            rounded = _as_las_gives_back(cloud.points, p / name)
+            if rounded is None:
+                return cls.from_file(p)
+            points.append(rounded)
+        names = dict(LABEL_NAMES)
+        for c in clouds[::-1]:  # the reference's names first, as from_file reads them
+            _update_label_names(names, c.metadata.get("label_names"))
+        cloud, ref = clouds
+
+        def opt(c: Any, name: str) -> np.ndarray | None:
+            v = c.fields.get(name)
+            return None if v is None else np.asarray(v).astype(np.int64)
+
+        return cls(
+            summary=summary,
+            cloud_points=points[0],
+            cloud_distance_m=np.asarray(cloud.fields[DISTANCE_FIELD], dtype=np.float64),
+            cloud_station=opt(cloud, "station"),
+            cloud_label=opt(cloud, "label"),
+            reference_points=points[1],
+            reference_distance_m=np.asarray(ref.fields[DISTANCE_FIELD], dtype=np.float64),
+            reference_label=opt(ref, "label"),
+            label_names=names,
+            source_dir=p,
+        )
+
+    @classmethod
     def from_file(cls, path: str | Path) -> ReportData:
         """Read ``comparison.json`` (or the folder holding it) and its distance clouds."""
         from ..io import read_cloud
@@ -177,3 +229,49 @@ class ReportData:
             label_names=names,
             source_dir=p.parent,
         )
+
+
+def _read_summary(p: Path) -> dict[str, Any]:
+    """``comparison.json``, checked to be a comparison a report can draw."""
+    if not p.is_file():
+        raise InputFormatError(
+            f"{p} not found; run 'treesim compare CLOUD REFERENCE -o OUTDIR' first, "
+            "then 'treesim report OUTDIR'"
+        )
+    try:
+        summary = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputFormatError(f"{p} could not be read as JSON: {exc}") from exc
+    missing = [k for k in REQUIRED_KEYS if k not in summary] if isinstance(summary, dict) else []
+    if not isinstance(summary, dict) or missing:
+        raise InputFormatError(f"{p} is not a treesim comparison (missing {', '.join(missing)})")
+    return summary
+
+
+def _update_label_names(names: dict[int, str], given: Any) -> None:
+    """``names`` updated with a cloud's ``label_names`` metadata, as a reader takes them."""
+    if isinstance(given, dict):
+        try:
+            names.update({int(k): str(v) for k, v in given.items()})
+        except (TypeError, ValueError):
+            pass
+
+
+def _as_las_gives_back(points: np.ndarray, path: Path) -> np.ndarray | None:
+    """``points`` as the LAS/LAZ file ``path`` (written from them) gives them back: the
+    writer's integers (rounded at the header's scale from its offsets) scaled and offset
+    as :func:`treesim.io.las.read_las` does; None where the header cannot be read or
+    holds another number of points."""
+    import laspy
+
+    try:
+        with open(path, "rb") as fh:
+            header = laspy.LasHeader.read_from(fh)
+    except (OSError, ValueError, laspy.errors.LaspyException):
+        return None
+    if int(header.point_count) != len(points):
+        return None
+    scales = np.asarray(header.scales, dtype=np.float64)
+    offsets = np.asarray(header.offsets, dtype=np.float64)
+    counts = np.rint((np.asarray(points, dtype=np.float64) - offsets) / scales)
+    return counts.astype(np.int32).astype(np.float64) * scales + offsets
