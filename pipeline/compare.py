@@ -299,6 +299,12 @@ class Comparison:
     frame : LocalFrame
         The frame the distances were computed in.
     timings_s : dict of str -> float
+    station_distance_m : dict of int -> (m,) float64
+        Per station: each reference sample's distance to that station's nearest point,
+        where at most τ + :data:`STATION_DISTANCE_BAND_M` (infinite beyond); in memory
+        only, for a report drawn in the same process (its occlusion profile asks the
+        same question of the saved, rounded coordinates and queries only the samples
+        this cannot answer).
     """
 
     accuracy: DistanceStats
@@ -325,6 +331,7 @@ class Comparison:
     #: How τ was chosen, in words, when a caller fixed it (a run: from the field cloud);
     #: default ``"given"`` or ``"3 × point_spacing_m"``.
     tolerance_rule: str | None = None
+    station_distance_m: dict[int, np.ndarray] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The figures as JSON-ready values (no per-point arrays)."""
@@ -559,7 +566,7 @@ def compare(
     if ref.kind == "cloud":
         names = {**ref.label_names, **names}
     by_label = _split_by_label(cloud, acc, ref_label, comp, tau, names)
-    by_station = _split_by_station(cloud, cloud_local, acc, ref_local, tau, workers)
+    by_station, station_d = _split_by_station(cloud, cloud_local, acc, ref_local, tau, workers)
     timings["splits"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
 
@@ -585,6 +592,7 @@ def compare(
         params=params,
         frame=frame,
         timings_s=timings,
+        station_distance_m=station_d,
     )
 
 
@@ -656,6 +664,12 @@ def _split_by_label(
     return out
 
 
+#: How far beyond τ :attr:`Comparison.station_distance_m` keeps distances (m): more than
+#: the 0.1 mm LAS rounding can move a distance (√3 × the scale), so that a report drawn
+#: from the rounded coordinates knows which samples are surely in or out of τ.
+STATION_DISTANCE_BAND_M = 5e-4
+
+
 def _split_by_station(
     cloud: Cloud,
     cloud_local: np.ndarray,
@@ -663,13 +677,18 @@ def _split_by_station(
     ref_local: np.ndarray,
     tau: float,
     workers: int,
-) -> dict[int, dict[str, Any]]:
-
+) -> tuple[dict[int, dict[str, Any]], dict[int, np.ndarray]]:
+    """Per station: its points' accuracy and the reference's coverage by its points
+    alone; and each reference sample's distance to the station (up to τ plus
+    :data:`STATION_DISTANCE_BAND_M`, infinite beyond: the same nearest points within τ,
+    so the same coverage)."""
     station = cloud.fields.get("station")
     if station is None:
-        return {}
+        return {}, {}
     station = np.asarray(station).astype(np.int64)
     out: dict[int, dict[str, Any]] = {}
+    dists: dict[int, np.ndarray] = {}
+    bound = tau * (1 + 1e-12) + STATION_DISTANCE_BAND_M
     for s in np.unique(station):
         sel = station == s
         entry: dict[str, Any] = {
@@ -677,10 +696,11 @@ def _split_by_station(
             "accuracy": DistanceStats.of(acc[sel]).to_dict(),
         }
         tree = kdtree(cloud_local[sel])
-        d, _ = tree.query(ref_local, k=1, distance_upper_bound=tau * (1 + 1e-12), workers=workers)
+        d, _ = tree.query(ref_local, k=1, distance_upper_bound=bound, workers=workers)
         entry["coverage"] = float((d <= tau).mean())
         out[int(s)] = entry
-    return out
+        dists[int(s)] = np.asarray(d, dtype=np.float64)
+    return out, dists
 
 
 # -- output ---------------------------------------------------------------------------

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,11 @@ class ReportData:
     label_names : dict of int -> str
     source_dir : Path or None
         Where ``comparison.json`` was read from.
+    station_within : dict of int -> ((m,) bool, (m,) bool), optional
+        Per station, what is already known of whether each reference point is within τ
+        of that station's points: ``(known, within)`` (:meth:`from_written`, from the
+        comparison's own per-station distances); the occlusion profile queries only the
+        points not known.
     """
 
     summary: dict[str, Any]
@@ -71,6 +77,7 @@ class ReportData:
     reference_label: np.ndarray | None
     label_names: dict[int, str]
     source_dir: Path | None = None
+    station_within: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
 
     @property
     def origin(self) -> np.ndarray:
@@ -132,15 +139,16 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
         summary = _read_summary(p / "comparison.json")
         outputs = summary.get("outputs", {})
         clouds = (comparison.distance_cloud(), comparison.reference_cloud())
-        points = []
+        points, scales = [], []
         for kind, cloud in zip(("cloud_distances", "reference_distances"), clouds, strict=True):
             name = outputs.get(f"{kind}_laz") or outputs.get(f"{kind}_las")
             if f"{kind}_ply" in outputs or name is None:
                 return cls.from_file(p)  # read as from_file would: its first choice, PLY
-            rounded = _as_las_gives_back(cloud.points, p / name)
-            if rounded is None:
+            got = _as_las_gives_back(cloud.points, p / name)
+            if got is None:
                 return cls.from_file(p)
-            points.append(rounded)
+            points.append(got[0])
+            scales.append(got[1])
         names = dict(LABEL_NAMES)
         for c in clouds[::-1]:  # the reference's names first, as from_file reads them
             _update_label_names(names, c.metadata.get("label_names"))
@@ -161,6 +169,7 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
             reference_label=opt(ref, "label"),
             label_names=names,
             source_dir=p,
+            station_within=_station_within(comparison, summary, max(scales), clouds),
         )
 
     @classmethod
@@ -257,11 +266,39 @@ def _update_label_names(names: dict[int, str], given: Any) -> None:
             pass
 
 
-def _as_las_gives_back(points: np.ndarray, path: Path) -> np.ndarray | None:
+def _station_within(
+    comparison: Comparison, summary: dict[str, Any], scale: float, clouds: tuple[Any, Any]
+) -> dict[int, tuple[np.ndarray, np.ndarray]] | None:
+    """What the comparison's per-station distances (its own coordinates) say of the
+    saved, rounded ones: rounding moves each point by at most √3/2 × ``scale``, so a
+    distance by at most √3 × ``scale`` (float rounding of the coordinates' size added):
+    a sample within τ less that margin is within τ after rounding, one beyond τ plus it
+    is not; those between are not known. None where the comparison kept no distances
+    far enough beyond τ."""
+    from ..compare import STATION_DISTANCE_BAND_M
+
+    given = comparison.station_distance_m
+    if not given:
+        return None
+    tau = float(summary["tolerance_m"])
+    if not (math.isfinite(tau) and tau > 0 and math.isfinite(scale)):
+        return None
+    size = max(float(np.abs(c.points).max(initial=0.0)) for c in clouds)
+    margin = math.sqrt(3.0) * scale * (1 + 1e-9) + 1e-12 * size + 1e-12
+    if margin >= STATION_DISTANCE_BAND_M:  # an infinite distance would say nothing
+        return None
+    out = {}
+    for code, d in given.items():
+        within = d <= tau - margin
+        out[int(code)] = (within | (d > tau + margin), within)
+    return out
+
+
+def _as_las_gives_back(points: np.ndarray, path: Path) -> tuple[np.ndarray, float] | None:
     """``points`` as the LAS/LAZ file ``path`` (written from them) gives them back: the
     writer's integers (rounded at the header's scale from its offsets) scaled and offset
-    as :func:`treesim.io.las.read_las` does; None where the header cannot be read or
-    holds another number of points."""
+    as :func:`treesim.io.las.read_las` does, and the largest scale; None where the header
+    cannot be read or holds another number of points."""
     import laspy
 
     try:
@@ -274,4 +311,4 @@ def _as_las_gives_back(points: np.ndarray, path: Path) -> np.ndarray | None:
     scales = np.asarray(header.scales, dtype=np.float64)
     offsets = np.asarray(header.offsets, dtype=np.float64)
     counts = np.rint((np.asarray(points, dtype=np.float64) - offsets) / scales)
-    return counts.astype(np.int32).astype(np.float64) * scales + offsets
+    return counts.astype(np.int32).astype(np.float64) * scales + offsets, float(scales.max())

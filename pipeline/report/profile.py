@@ -82,12 +82,22 @@ class _CellGrid:
 
 
 def _within(
-    ref_c: np.ndarray, pts: np.ndarray, tau: float, grid: _CellGrid | None, workers: int
+    ref_c: np.ndarray,
+    pts: np.ndarray,
+    tau: float,
+    grid: _CellGrid | None,
+    workers: int,
+    known: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Whether each of ``ref_c`` is within ``tau`` of one of ``pts``: a shared cell of
-    ``grid`` says yes at once, a k-d tree query on ``pts`` answers the others."""
-    near = np.zeros(len(ref_c), dtype=bool) if grid is None else grid.shared(pts)
-    rest = np.flatnonzero(~near)
+    """Whether each of ``ref_c`` is within ``tau`` of one of ``pts``: what ``known``
+    (``(known, within)`` masks) says, else a shared cell of ``grid`` says yes at once; a
+    k-d tree query on ``pts`` answers the others."""
+    if known is not None:
+        near = known[1].copy()
+        rest = np.flatnonzero(~known[0])
+    else:
+        near = np.zeros(len(ref_c), dtype=bool) if grid is None else grid.shared(pts)
+        rest = np.flatnonzero(~near)
     if len(rest):
         d, _ = kdtree(pts).query(
             ref_c[rest], k=1, distance_upper_bound=tau * (1 + 1e-12), workers=workers
@@ -149,12 +159,17 @@ def occlusion_profile(
         st = np.asarray(data.cloud_station)
         centre = ref.mean(axis=0)
         ref_c = ref - centre  # queried once per station
-        grid = _CellGrid.of(ref_c, tau)
+        known = data.station_within or {}
+        grid = None if known else _CellGrid.of(ref_c, tau)
         for code in np.unique(st):
             name = f"S{int(code)}"
             stations.append(name)
             sel = st == code
-            covered[name] = share(_within(ref_c, cloud[sel] - centre, tau, grid, workers))
+            hint = known.get(int(code))
+            if hint is None and grid is None and known:  # a station the hints lack
+                grid = _CellGrid.of(ref_c, tau)
+            near = _within(ref_c, cloud[sel] - centre, tau, grid, workers, hint)
+            covered[name] = share(near)
             counts[name] = np.bincount(cloud_bin[sel], minlength=n_bins)
     out: dict[str, Any] = {
         "bin_m": step,
