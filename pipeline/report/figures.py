@@ -153,7 +153,33 @@ def _canvas_class() -> type:
         size = remember(sizes, key(renderer, s, prop), (w / 64.0, h / 64.0, d))
         return size, remember(images, key(renderer, s, prop, aa), (image, xo / 64, yo / 64, d))
 
+    heights: dict[tuple[Any, ...], tuple[Any, Any, Any]] = {}
+
+    def height_metrics(prop: Any, dpi: float) -> tuple[Any, Any, Any]:
+        """Ascent, descent and line gap of ``prop``'s font at ``dpi``, as matplotlib's
+        text layout computes them from the font's tables (each text, at every draw)."""
+        size = prop.get_size_in_points()
+        for table_name, gap_key, ascent_key, descent_key in (
+            ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+            ("hhea", "lineGap", "ascent", "descent"),
+        ):
+            font = font_manager.get_font(fonts_of(prop))
+            table = font.get_sfnt_table(table_name)
+            if table is None:
+                continue
+            scale = 1 / font.get_sfnt_table("head")["unitsPerEm"] * size * dpi / 72
+            return table[ascent_key] * scale, -table[descent_key] * scale, table[gap_key] * scale
+        return None, None, None
+
     class Renderer(RendererAgg):
+        def _get_font_height_metrics(self, prop: Any) -> tuple[Any, Any, Any]:
+            # matplotlib's own numbers (Text._get_layout), kept per font, size and dpi
+            k = (fonts_of(prop), prop.get_size_in_points(), self.dpi)
+            got = heights.get(k)
+            if got is None:
+                got = remember(heights, k, height_metrics(prop, self.dpi))
+            return got
+
         def get_text_width_height_descent(self, s: str, prop: Any, ismath: Any) -> Any:
             if ismath:
                 return super().get_text_width_height_descent(s, prop, ismath)

@@ -165,3 +165,28 @@ def test_tick_free_axes_draw_the_pixels_of_matplotlibs_axes(tmp_path, odd):
         fig = F._fixed_figure(3.0, 2.0)
         ax = F._grid(fig, 1, 1, margins_in=(0.5, 0.2, 0.4, 0.2))
         assert "majorTicks" not in vars(ax.xaxis) and "majorTicks" not in vars(ax.yaxis)
+
+
+@pytest.mark.parametrize("size", [7.0, 9.5, 14.0])
+@pytest.mark.parametrize("weight", ["normal", "bold"])
+def test_the_report_renderer_lays_text_out_as_matplotlib(size, weight):
+    """The report canvas' renderer keeps each font's height metrics (matplotlib reads
+    them from the font's tables for every text at every draw): a text's layout, lines,
+    gaps and box, is matplotlib's own renderer's."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.text import Text
+
+    fig = F._fixed_figure(3.0, 2.0)
+    ours = fig.canvas.get_renderer()
+    theirs = RendererAgg(*fig.canvas.get_width_height(physical=True), fig.dpi)
+    assert hasattr(ours, "_get_font_height_metrics")
+    for s in ("x (m)", "two\nlines τ", "Ågp"):
+        t = Text(0.5, 0.5, s, fontsize=size, fontweight=weight, linespacing=1.3)
+        t.set_figure(fig)
+        for _ in range(2):  # the second time from what the renderer kept
+            (box, lines, descent), (want_box, want_lines, want_descent) = (
+                t._get_layout(ours),
+                t._get_layout(theirs),
+            )
+            assert box.bounds == want_box.bounds
+            assert (lines, descent) == (want_lines, want_descent)
