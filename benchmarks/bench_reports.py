@@ -230,7 +230,11 @@ def main() -> int:
         for r in rows:
             print("| " + " | ".join(r) + " |")
         print()
-        print("CPU seconds of each figure of the demo's reports, drawn again in one warm process:")
+        print(
+            "CPU seconds of each figure of the demo's reports, drawn again in one warm process "
+            "from the saved files (as `treesim report`: a run takes the distance clouds and "
+            "the stations' distances from memory):"
+        )
         print()
         print("| figure | CPU s |")
         print("|---|---|")
