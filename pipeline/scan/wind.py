@@ -62,8 +62,8 @@ through drag, full coherence over the crown, the time of station ``k`` offset by
 against one measurement in kind and order of magnitude, not calibrated: Vaaja et al.
 (2016, ISPRS Annals III-8: 117-123), a pine's stem slabs at 3 and 9 m/s
 (``benchmarks/bench_wind_stem.py``, docs/commands/sweep.md): the same signs of diameter
-error and growth with height, but here an exposed tree's stem is disturbed lower down
-(from ~17 % of its height at 9 m/s, against their ~28 % in a stand).
+error and their growth with height; at 9 m/s an exposed tree's stem diameters leave
+the still scan's from 17-41 % of its height (three gust seeds), around their ~28 %.
 
 Casting a moving tree (:func:`treesim.scan.scan`)
 -------------------------------------------------
