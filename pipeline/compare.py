@@ -299,12 +299,13 @@ class Comparison:
     frame : LocalFrame
         The frame the distances were computed in.
     timings_s : dict of str -> float
-    station_distance_m : dict of int -> (m,) float64
-        Per station: each reference sample's distance to that station's nearest point,
-        where at most τ + :data:`STATION_DISTANCE_BAND_M` (infinite beyond); in memory
-        only, for a report drawn in the same process (its occlusion profile asks the
-        same question of the saved, rounded coordinates and queries only the samples
-        this cannot answer).
+    station_distance_m : dict of int -> tuple
+        Per station, what a report drawn in the same process needs of each reference
+        sample's distance to that station's points (its occlusion profile asks the same
+        question of the saved, rounded coordinates and queries only the samples this
+        cannot answer), compactly: ``(within, index, distance_m)``, the bits (packed,
+        :func:`numpy.packbits`) of the samples within τ, and the samples within
+        :data:`STATION_DISTANCE_BAND_M` of τ with their distances; in memory only.
     """
 
     accuracy: DistanceStats
@@ -331,7 +332,9 @@ class Comparison:
     #: How τ was chosen, in words, when a caller fixed it (a run: from the field cloud);
     #: default ``"given"`` or ``"3 × point_spacing_m"``.
     tolerance_rule: str | None = None
-    station_distance_m: dict[int, np.ndarray] = field(default_factory=dict)
+    station_distance_m: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=dict
+    )
 
     def to_dict(self) -> dict[str, Any]:
         """The figures as JSON-ready values (no per-point arrays)."""
@@ -664,7 +667,7 @@ def _split_by_label(
     return out
 
 
-#: How far beyond τ :attr:`Comparison.station_distance_m` keeps distances (m): more than
+#: How far from τ :attr:`Comparison.station_distance_m` keeps distances (m): more than
 #: the 0.1 mm LAS rounding can move a distance (√3 × the scale), so that a report drawn
 #: from the rounded coordinates knows which samples are surely in or out of τ.
 STATION_DISTANCE_BAND_M = 5e-4
@@ -677,17 +680,17 @@ def _split_by_station(
     ref_local: np.ndarray,
     tau: float,
     workers: int,
-) -> tuple[dict[int, dict[str, Any]], dict[int, np.ndarray]]:
+) -> tuple[dict[int, dict[str, Any]], dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Per station: its points' accuracy and the reference's coverage by its points
-    alone; and each reference sample's distance to the station (up to τ plus
-    :data:`STATION_DISTANCE_BAND_M`, infinite beyond: the same nearest points within τ,
-    so the same coverage)."""
+    alone; and :attr:`Comparison.station_distance_m` (the queries reach τ plus
+    :data:`STATION_DISTANCE_BAND_M`: the same nearest points within τ, the same
+    coverage)."""
     station = cloud.fields.get("station")
     if station is None:
         return {}, {}
     station = np.asarray(station).astype(np.int64)
     out: dict[int, dict[str, Any]] = {}
-    dists: dict[int, np.ndarray] = {}
+    dists: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     bound = tau * (1 + 1e-12) + STATION_DISTANCE_BAND_M
     for s in np.unique(station):
         sel = station == s
@@ -697,9 +700,11 @@ def _split_by_station(
         }
         tree = kdtree(cloud_local[sel])
         d, _ = tree.query(ref_local, k=1, distance_upper_bound=bound, workers=workers)
-        entry["coverage"] = float((d <= tau).mean())
+        within = d <= tau
+        entry["coverage"] = float(within.mean())
         out[int(s)] = entry
-        dists[int(s)] = np.asarray(d, dtype=np.float64)
+        band = np.flatnonzero(np.abs(d - tau) < STATION_DISTANCE_BAND_M)
+        dists[int(s)] = (np.packbits(within), band, np.asarray(d[band], dtype=np.float64))
     return out, dists
 
 

@@ -287,10 +287,15 @@ def _station_within(
     margin = math.sqrt(3.0) * scale * (1 + 1e-9) + 1e-12 * size + 1e-12
     if margin >= STATION_DISTANCE_BAND_M:  # an infinite distance would say nothing
         return None
+    n = len(comparison.reference_points)
     out = {}
-    for code, d in given.items():
-        within = d <= tau - margin
-        out[int(code)] = (within | (d > tau + margin), within)
+    for code, (packed, band, d) in given.items():
+        # outside the band a distance is τ − band or nearer, or τ + band or farther
+        within = np.unpackbits(packed, count=n).astype(bool)
+        known = np.ones(n, dtype=bool)
+        known[band] = (d <= tau - margin) | (d > tau + margin)
+        within[band] = d <= tau - margin
+        out[int(code)] = (known, within)
     return out
 
 

@@ -73,6 +73,7 @@ def test_profile_from_the_comparisons_station_distances_is_the_files_profile(tmp
     known = np.concatenate([k for k, _ in got.station_within.values()])
     assert 0.2 < known.mean() < 0.99  # some answered from memory, some queried
     assert occlusion_profile(got) == occlusion_profile(ReportData.from_file(tmp_path))
-    # and the comparison's own per-station coverage is what its distances say
+    # and the comparison's own per-station coverage is what its bits say
     for code, entry in res.by_station.items():
-        assert entry["coverage"] == float((res.station_distance_m[code] <= tau).mean())
+        within = np.unpackbits(res.station_distance_m[code][0], count=len(ref))
+        assert entry["coverage"] == float(within.mean())
