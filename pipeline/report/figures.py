@@ -99,6 +99,25 @@ def _new_figure(w: float, h: float) -> Any:
 TEXT_CACHE_SIZE = 4096
 
 
+def _height_metrics(fonts: tuple[str, ...], size: float, dpi: float) -> tuple[Any, Any, Any]:
+    """Ascent, descent and line gap of the font of files ``fonts`` at ``size`` points and
+    ``dpi``, as matplotlib's text layout computes them from the font's tables (for each
+    text, at every draw); Nones where the font has neither table."""
+    from matplotlib import font_manager
+
+    for table_name, gap_key, ascent_key, descent_key in (
+        ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+        ("hhea", "lineGap", "ascent", "descent"),
+    ):
+        font = font_manager.get_font(fonts)
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        scale = 1 / font.get_sfnt_table("head")["unitsPerEm"] * size * dpi / 72
+        return table[ascent_key] * scale, -table[descent_key] * scale, table[gap_key] * scale
+    return None, None, None
+
+
 @functools.cache
 def _canvas_class() -> type:
     """An Agg canvas whose renderer keeps each text it rendered, as one bitmap, and each
@@ -155,29 +174,13 @@ def _canvas_class() -> type:
 
     heights: dict[tuple[Any, ...], tuple[Any, Any, Any]] = {}
 
-    def height_metrics(prop: Any, dpi: float) -> tuple[Any, Any, Any]:
-        """Ascent, descent and line gap of ``prop``'s font at ``dpi``, as matplotlib's
-        text layout computes them from the font's tables (each text, at every draw)."""
-        size = prop.get_size_in_points()
-        for table_name, gap_key, ascent_key, descent_key in (
-            ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
-            ("hhea", "lineGap", "ascent", "descent"),
-        ):
-            font = font_manager.get_font(fonts_of(prop))
-            table = font.get_sfnt_table(table_name)
-            if table is None:
-                continue
-            scale = 1 / font.get_sfnt_table("head")["unitsPerEm"] * size * dpi / 72
-            return table[ascent_key] * scale, -table[descent_key] * scale, table[gap_key] * scale
-        return None, None, None
-
     class Renderer(RendererAgg):
         def _get_font_height_metrics(self, prop: Any) -> tuple[Any, Any, Any]:
             # matplotlib's own numbers (Text._get_layout), kept per font, size and dpi
             k = (fonts_of(prop), prop.get_size_in_points(), self.dpi)
             got = heights.get(k)
             if got is None:
-                got = remember(heights, k, height_metrics(prop, self.dpi))
+                got = remember(heights, k, _height_metrics(k[0], k[1], self.dpi))
             return got
 
         def get_text_width_height_descent(self, s: str, prop: Any, ismath: Any) -> Any:
