@@ -180,20 +180,7 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
         p = Path(path)
         if p.is_dir():
             p = p / "comparison.json"
-        if not p.is_file():
-            raise InputFormatError(
-                f"{p} not found; run 'treesim compare CLOUD REFERENCE -o OUTDIR' first, "
-                "then 'treesim report OUTDIR'"
-            )
-        try:
-            summary = json.loads(p.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputFormatError(f"{p} could not be read as JSON: {exc}") from exc
-        missing = [k for k in REQUIRED_KEYS if k not in summary]
-        if not isinstance(summary, dict) or missing:
-            raise InputFormatError(
-                f"{p} is not a treesim comparison (missing {', '.join(missing)})"
-            )
+        summary = _read_summary(p)
         outputs = summary.get("outputs", {})
 
         def find(kind: str) -> Path:
