@@ -122,7 +122,14 @@ def _row(name: str, run: dict, cpu_s: float, load: float, report_cpu: float) -> 
 
 
 def _figures_cpu(folder: Path) -> list[tuple[str, float]]:
-    """CPU seconds of each figure of the demo's reports, drawn again here (warm)."""
+    """CPU seconds of each figure of the demo's reports, drawn again here (warm), into a
+    temporary folder removed afterwards."""
+    with tempfile.TemporaryDirectory(prefix="bench_reports_") as tmp:
+        return _figures_cpu_in(folder, Path(tmp))
+
+
+def _figures_cpu_in(folder: Path, out: Path) -> list[tuple[str, float]]:
+    """:func:`_figures_cpu`, its PNGs drawn into ``out``."""
     import numpy as np
 
     from treesim.report import ReportParams, figures
@@ -130,7 +137,6 @@ def _figures_cpu(folder: Path) -> list[tuple[str, float]]:
     from treesim.report.profile import occlusion_profile
 
     p = ReportParams()
-    out = Path(tempfile.mkdtemp(prefix="bench_reports_"))
     rows: list[tuple[str, float]] = []
 
     def clock(name: str, fn) -> None:  # noqa: ANN001
