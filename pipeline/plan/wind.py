@@ -85,16 +85,11 @@ def _stem(st: Structure) -> int:
 
 def _displacements(model: SwayModel, branch: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """(times, points) displacement magnitude (m) of axis points over the window."""
-    st = model.structure
     times = np.arange(int(round(WINDOW_S / STEP_S))) * STEP_S
     out = np.empty((len(times), len(branch)))
-    levels = st.levels()[1:]
     for k in range(0, len(times), 50):
         tips = model.tips_many(times[k : k + 50])
-        base = np.zeros_like(tips)
-        for idx in levels:
-            p = st.parent_b[idx]
-            base[:, idx] = base[:, p] + mode_shape(st.xi_attach[idx])[None, :, None] * tips[:, p]
+        base = model.bases(tips)
         d = base[:, branch] + phi[None, :, None] * tips[:, branch]
         out[k : k + 50] = np.linalg.norm(d, axis=2)
     return out

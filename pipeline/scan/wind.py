@@ -495,12 +495,15 @@ class SwayModel:
         return q_in[..., None] * self.e_in[None] + q_cr[..., None] * self.e_cross[None]
 
     def bases(self, tips: np.ndarray) -> np.ndarray:
-        """(branches, 3): where each branch's base has moved, from the ``tips``."""
+        """(..., branches, 3): where each branch's base has moved, from the ``tips``
+        (:meth:`tips`, or :meth:`tips_many`'s leading time axis)."""
         st = self.structure
         base = np.zeros_like(tips)
         for idx in st.levels()[1:]:
             p = st.parent_b[idx]
-            base[idx] = base[p] + mode_shape(st.xi_attach[idx])[:, None] * tips[p]
+            base[..., idx, :] = (
+                base[..., p, :] + mode_shape(st.xi_attach[idx])[:, None] * tips[..., p, :]
+            )
         return base
 
     def displacement(
