@@ -44,6 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import docs_part  # noqa: E402
+from tests.reconstruct import slab_reference as sr  # noqa: E402
 
 DOCS_PART = "bench-wind-stem"
 PAGE = ROOT / "docs" / "commands" / "sweep.md"
@@ -53,21 +54,13 @@ MIN_POINTS = 20
 MIN_ARC_DEG = 120.0
 
 
-def kasa(xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Kåsa's algebraic circle fit: centre (2,) and radius of the least-squares solution
-    of ``x² + y² = a x + b y + c``."""
-    a = np.column_stack([xy, np.ones(len(xy))])
-    sol, *_ = np.linalg.lstsq(a, (xy**2).sum(axis=1), rcond=None)
-    centre = sol[:2] / 2.0
-    return centre, float(math.sqrt(max(sol[2] + centre @ centre, 0.0)))
-
-
 def slab_circle(xy: np.ndarray) -> tuple[np.ndarray, float, float] | None:
     """The Kåsa fit of a slab's points (centre, radius, rms residual), or None when too
     few points or too little arc."""
     if len(xy) < MIN_POINTS:
         return None
-    centre, r = kasa(xy)
+    cx, cy, r = sr.kasa_circle(xy)
+    centre = np.array([cx, cy])
     ang = np.sort(np.arctan2(xy[:, 1] - centre[1], xy[:, 0] - centre[0]))
     gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * math.pi]))
     if math.degrees(2 * math.pi - gaps.max()) < MIN_ARC_DEG:
