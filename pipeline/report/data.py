@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,26 +150,11 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
                 return cls.from_file(p)
             points.append(got[0])
             scales.append(got[1])
-        names = dict(LABEL_NAMES)
-        for c in clouds[::-1]:  # the reference's names first, as from_file reads them
-            _update_label_names(names, c.metadata.get("label_names"))
-        cloud, ref = clouds
-
-        def opt(c: Any, name: str) -> np.ndarray | None:
-            v = c.fields.get(name)
-            return None if v is None else np.asarray(v).astype(np.int64)
-
-        return cls(
-            summary=summary,
-            cloud_points=points[0],
-            cloud_distance_m=np.asarray(cloud.fields[DISTANCE_FIELD], dtype=np.float64),
-            cloud_station=opt(cloud, "station"),
-            cloud_label=opt(cloud, "label"),
-            reference_points=points[1],
-            reference_distance_m=np.asarray(ref.fields[DISTANCE_FIELD], dtype=np.float64),
-            reference_label=opt(ref, "label"),
-            label_names=names,
-            source_dir=p,
+        return cls._of_clouds(
+            summary,
+            clouds,
+            points,
+            p,
             station_within=_station_within(comparison, summary, max(scales), clouds),
         )
 
@@ -200,14 +186,24 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
         for c, name in ((cloud, "cloud_distances"), (ref, "reference_distances")):
             if DISTANCE_FIELD not in c.fields:
                 raise InputFormatError(f"{name} in {p.parent} has no {DISTANCE_FIELD} field")
+        return cls._of_clouds(summary, (cloud, ref), (cloud.points, ref.points), p.parent)
+
+    @classmethod
+    def _of_clouds(
+        cls,
+        summary: dict[str, Any],
+        clouds: tuple[Any, Any],
+        points: Sequence[np.ndarray],
+        source_dir: Path,
+        station_within: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> ReportData:
+        """The report's data from the two distance clouds (accuracy, completeness) as a
+        reader gives them, their ``points`` as read: fields as int64 and float64, label
+        names from the reference's metadata, then the cloud's."""
+        cloud, ref = clouds
         names = dict(LABEL_NAMES)
-        for meta in (ref.metadata, cloud.metadata):
-            ln = meta.get("label_names")
-            if isinstance(ln, dict):
-                try:
-                    names.update({int(k): str(v) for k, v in ln.items()})
-                except (TypeError, ValueError):
-                    pass
+        for c in (ref, cloud):
+            _update_label_names(names, c.metadata.get("label_names"))
 
         def opt(c: Any, name: str) -> np.ndarray | None:
             v = c.fields.get(name)
@@ -215,15 +211,16 @@ write_comparison` has just written from ``comparison`` (LAS/LAZ distance clouds)
 
         return cls(
             summary=summary,
-            cloud_points=cloud.points,
+            cloud_points=points[0],
             cloud_distance_m=np.asarray(cloud.fields[DISTANCE_FIELD], dtype=np.float64),
             cloud_station=opt(cloud, "station"),
             cloud_label=opt(cloud, "label"),
-            reference_points=ref.points,
+            reference_points=points[1],
             reference_distance_m=np.asarray(ref.fields[DISTANCE_FIELD], dtype=np.float64),
             reference_label=opt(ref, "label"),
             label_names=names,
-            source_dir=p.parent,
+            source_dir=source_dir,
+            station_within=station_within,
         )
 
 
