@@ -693,12 +693,12 @@ def _windy_trees(
                 wind_cylinders=None,
             ),
         )
+        key = hashlib.sha256(json.dumps(list(w)).encode()).hexdigest()[:8]
+        root = out / "trees" / f"wind-{w[0]:g}-{key}"
         for tree in trees:
             if tree.spec.kind != "procedural":
                 continue
             t0 = time.perf_counter()
-            key = hashlib.sha256(json.dumps(list(w)).encode()).hexdigest()[:8]
-            root = out / "trees" / f"wind-{w[0]:g}-{key}"
             made[(tree.spec.id, w)] = prepare_tree(
                 tree.spec, ref, root, threads=threads, fresh=fresh
             )
