@@ -649,15 +649,12 @@ def _execution(
     """The verification scans' ``executor``, ``workers``, ``scheduler`` and
     ``cache_dir``, checked before the planning (a wrong one would otherwise fail only
     at the verification, the planning's time lost)."""
-    from ..executors import plan_executor
+    from ..plot.scan import station_executor
 
-    plan_executor(executor, workers=workers, scheduler=scheduler)
-    if scheduler and cache_dir is None:
-        raise InvalidParameterError(
-            "a running Dask scheduler's workers read the plot's trees from a folder they "
-            "share: give cache_dir (treesim plan --cache-dir), a folder every worker reads "
-            "and writes at the same path"
-        )
+    station_executor(
+        executor, workers=workers, scheduler=scheduler, cache_dir=cache_dir,
+        command="treesim plan",
+    )  # fmt: skip
     return {
         "executor": executor,
         "workers": workers,

@@ -366,6 +366,39 @@ def _plot_cloud(out: _Gathered, placed: list[Station]) -> Cloud:
     )
 
 
+def station_executor(
+    executor: str,
+    *,
+    workers: int | None,
+    scheduler: str | None,
+    cache_dir: str | None,
+    threads: int | None = None,
+    n_tasks: int | None = None,
+    command: str = "treesim plot scan",
+) -> Any:
+    """Where a plot scan's stations run (:func:`treesim.executors.plan_executor`),
+    checked: a running Dask scheduler's workers need ``cache_dir``, a folder they share
+    (``command``'s ``--cache-dir`` in the message).
+
+    Examples
+    --------
+    >>> station_executor("inline", workers=None, scheduler=None, cache_dir=None).kind.value
+    'inline'
+    """
+    from ..executors import plan_executor
+
+    plan = plan_executor(
+        executor, workers=workers, threads=threads, scheduler=scheduler, n_tasks=n_tasks
+    )
+    if plan.scheduler and cache_dir is None:
+        raise InvalidParameterError(
+            "a running Dask scheduler's workers read the plot's trees from a folder they "
+            f"share: give cache_dir ({command} --cache-dir), a folder every worker "
+            "reads and writes at the same path"
+        )
+    return plan
+
+
 def scan_plot(
     plot: Plot,
     stations: Sequence[Any],
@@ -442,7 +475,6 @@ def scan_plot(
     >>> ts.write_cloud("plot_scan.laz", result.cloud)  # doctest: +SKIP
     >>> on_two = ts.scan_plot(plot, stations, executor="dask", workers=2)  # doctest: +SKIP
     """
-    from ..executors import plan_executor
 
     params = params or ScanParams()
     placed = [_as_station(s) for s in stations]
@@ -450,19 +482,14 @@ def scan_plot(
         raise InvalidParameterError("give at least one station")
     if isinstance(cache_triangles, bool) or int(cache_triangles) < 0:
         raise InvalidParameterError(f"cache_triangles must be >= 0, got {cache_triangles!r}")
-    plan = plan_executor(
+    plan = station_executor(
         executor,
         workers=workers,
-        threads=int(threads) or None,
         scheduler=scheduler,
+        cache_dir=cache_dir,
+        threads=int(threads) or None,
         n_tasks=len(placed),
     )
-    if plan.scheduler and cache_dir is None:
-        raise InvalidParameterError(
-            "a running Dask scheduler's workers read the plot's trees from a folder they "
-            "share: give cache_dir (treesim plot scan --cache-dir), a folder every worker "
-            "reads and writes at the same path"
-        )
     t_all = time.perf_counter()
     say = progress or (lambda f, m: None)
     job = _PlotJob(plot, placed, params, window, terrain, margin_m, check_inside)
