@@ -112,7 +112,8 @@ def build_report(
     for key in not_drawn if params.plots else list(pngs):
         pngs.pop(key).unlink(missing_ok=True)  # and no plot of an earlier report stays
     if pngs:
-        _draw(data, pngs, params, profile)
+        with figures.writing_behind():  # each PNG encoded while the next figure is drawn
+            _draw(data, pngs, params, profile)
 
     paragraph = summary_paragraph(s)
     generated = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")

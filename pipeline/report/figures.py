@@ -7,10 +7,13 @@ interactive session and works without a display.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import struct
+import threading
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -534,12 +537,13 @@ def png_bytes(pixels: np.ndarray, dpi: float) -> bytes:
     b'\\x89PNG\\r\\n\\x1a\\n'
     """
     h, w, c = pixels.shape
-    raw = np.zeros((h, 1 + w * c), dtype=np.uint8)  # each row: filter type 0, its bytes
+    raw = np.empty((h, 1 + w * c), dtype=np.uint8)  # each row: filter type 0, its bytes
+    raw[:, 0] = 0
     raw[:, 1:].reshape(h, w, c)[...] = pixels
     ppm = round(dpi / 0.0254)  # pixels per metre, as Pillow writes a dpi
 
     def chunk(kind: bytes, body: bytes) -> bytes:
-        crc = zlib.crc32(kind + body) & 0xFFFFFFFF
+        crc = zlib.crc32(body, zlib.crc32(kind)) & 0xFFFFFFFF
         return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
 
     return b"".join(
@@ -547,7 +551,7 @@ def png_bytes(pixels: np.ndarray, dpi: float) -> bytes:
             b"\x89PNG\r\n\x1a\n",
             chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 6, 0, 0, 0)),
             chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)),
-            chunk(b"IDAT", zlib.compress(raw.tobytes(), PNG_LEVEL)),
+            chunk(b"IDAT", zlib.compress(raw, PNG_LEVEL)),
             chunk(b"IEND", b""),
         )
     )
@@ -563,10 +567,49 @@ def render_rgb(fig: Any, dpi: float) -> np.ndarray:
     return rgba[..., :3] if bool((rgba[..., 3] == 255).all()) else rgba
 
 
+def _write_png(path: Path, pixels: np.ndarray, dpi: float) -> None:
+    Path(path).write_bytes(png_bytes(pixels, dpi))
+
+
+#: Per thread: the PNG writers that :func:`writing_behind` opened, innermost last.
+_WRITERS = threading.local()
+
+
+@contextlib.contextmanager
+def writing_behind() -> Iterator[None]:
+    """Within it, each figure's PNG is encoded and written by a thread while the next
+    figure is drawn (zlib and the file's write release the GIL); every file is written
+    when it ends, where a failed write raises its error. The files are the same.
+
+    Examples
+    --------
+    >>> with writing_behind():
+    ...     pass
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    stack = _WRITERS.__dict__.setdefault("stack", [])
+    with ThreadPoolExecutor(1, thread_name_prefix="treesim-png") as pool:
+        pending: list[Any] = []
+        stack.append((pool, pending))
+        try:
+            yield
+        finally:
+            stack.pop()
+        for job in pending:
+            job.result()
+
+
 def _save(fig: Any, path: Path, dpi: int) -> Path:
     """Write ``fig`` at ``dpi`` as a PNG (what ``savefig`` draws, encoded by
-    :func:`png_bytes`)."""
-    Path(path).write_bytes(png_bytes(render_rgb(fig, dpi), dpi))
+    :func:`png_bytes`): now, or by :func:`writing_behind`'s thread within it."""
+    pixels = render_rgb(fig, dpi)  # the figure's own buffer, which nothing draws on again
+    stack = getattr(_WRITERS, "stack", None)
+    if stack:
+        pool, pending = stack[-1]
+        pending.append(pool.submit(_write_png, path, pixels, dpi))
+    else:
+        _write_png(path, pixels, dpi)
     return path
 
 
@@ -683,7 +726,9 @@ def cumulative(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
             (f"accuracy (cloud → {ref})", data.cloud_distance_m, ACCURACY_COLOUR),
             (f"completeness ({ref} → cloud)", data.reference_distance_m, COMPLETENESS_COLOUR),
         ):
-            q = np.quantile(np.asarray(d, dtype=np.float64), probs)
+            # the same quantiles of the values sorted first: numpy selects 1001 of them
+            # from unsorted ones by repeated partitioning, slowly where many are equal
+            q = np.quantile(np.sort(np.asarray(d, dtype=np.float64)), probs)
             xs = np.concatenate([[0.0], q, [max(q[-1], xmax)]]) * k
             ys = np.concatenate([[0.0], probs, [1.0]]) * 100
             lines = ax.step(xs, ys, where="post", color=colour, lw=2.0)
@@ -714,35 +759,8 @@ def _dot_px(n: int, area_pt2: float, clip: tuple[float, float], dpi: int) -> flo
     return max(1.0, float(np.sqrt(size_pt2)) * dpi / 72.0)
 
 
-#: A raster panel: x0, x1, y0, y1 (data units, display frame) and its cells nx, ny.
+#: A raster panel: x0, x1, y0, y1 (its frame) and its cells nx, ny.
 RasterBox = tuple[float, float, float, float, int, int]
-
-
-def _panel_box(
-    lo: np.ndarray, hi: np.ndarray, i: int, j: int, w_px: float, h_px: float, dot_px: float
-) -> RasterBox:
-    """The cells of one view (axes ``i``, ``j`` of the points' box ``lo``-``hi``) drawn
-    about ``w_px`` × ``h_px`` pixels large: square cells of ``dot_px`` pixels, centred
-    on the data."""
-    ext_i, ext_j = float(hi[i] - lo[i]), float(hi[j] - lo[j])
-    cell = max(ext_i / max(w_px, 1.0), ext_j / max(h_px, 1.0), 1e-12) * dot_px
-    nx, ny = max(1, int(np.ceil(ext_i / cell))), max(1, int(np.ceil(ext_j / cell)))
-    cx, cy = 0.5 * float(hi[i] + lo[i]), 0.5 * float(hi[j] + lo[j])
-    return (
-        cx - 0.5 * nx * cell,
-        cx + 0.5 * nx * cell,
-        cy - 0.5 * ny * cell,
-        cy + 0.5 * ny * cell,
-        nx,
-        ny,
-    )
-
-
-def _axes_px(ax: Any, dpi: int) -> tuple[float, float]:
-    """Width and height (pixels at ``dpi``) of the box laid out for ``ax``."""
-    pos = ax.get_position()
-    w_in, h_in = ax.figure.get_size_inches()
-    return pos.width * w_in * dpi, pos.height * h_in * dpi
 
 
 def _cells(u: np.ndarray, v: np.ndarray, box: RasterBox) -> np.ndarray:
@@ -757,7 +775,8 @@ def _max_raster(u: np.ndarray, v: np.ndarray, values: np.ndarray, box: RasterBox
     """The largest of ``values`` per cell of ``box`` ((ny, nx), ``-inf`` where no point
     falls): what a scatter drawing the largest values last shows on top."""
     out = np.full(box[4] * box[5], -np.inf)
-    np.maximum.at(out, _cells(u, v, box), values)
+    with np.errstate(invalid="ignore"):  # a NaN distance makes its cell NaN: not drawn
+        np.maximum.at(out, _cells(u, v, box), values)
     return out.reshape(box[5], box[4])
 
 
@@ -766,10 +785,114 @@ def _count_raster(u: np.ndarray, v: np.ndarray, box: RasterBox) -> np.ndarray:
     return np.bincount(_cells(u, v, box), minlength=box[4] * box[5]).reshape(box[5], box[4])
 
 
-def _show_raster(ax: Any, rgba: np.ndarray, box: RasterBox) -> None:
-    """Draw an aggregated view (RGBA cells, transparent where empty) over ``box``."""
-    x0, x1, y0, y1, _, _ = box
-    ax.imshow(rgba, extent=(x0, x1, y0, y1), origin="lower", interpolation="antialiased", zorder=1)
+#: What paints a raster: the points' display positions (pixels), their values (or None)
+#: and the box of cells -> the cells' (ny, nx, 4) uint8 RGBA, alpha 0 where empty.
+Painter = Any
+
+
+@functools.cache
+def _raster_class() -> type:
+    """An artist that draws points aggregated into square cells of whole pixels, laid on
+    the figure's own pixel grid when it is drawn: each point lights the cell of the pixel
+    its display position falls in (the axes' data transform at that draw), the cells
+    coloured by a painter (:func:`_paint_largest`, :func:`_paint_density`). One uint8
+    image drawn at whole pixels, without matplotlib's image resampling (most of what a
+    view of a cloud cost to draw)."""
+    from matplotlib.artist import Artist
+
+    class PointRaster(Artist):
+        def __init__(
+            self, u: np.ndarray, v: np.ndarray, values: Any, cell_px: int, paint: Painter
+        ) -> None:
+            super().__init__()
+            self.uv = np.column_stack([u, v])
+            self.values = values
+            self.cell_px = max(1, int(cell_px))
+            self.paint = paint
+            self.set_zorder(1)
+
+        def draw(self, renderer: Any) -> None:
+            if not self.get_visible():
+                return
+            ax = self.axes
+            xy = ax.transData.transform(self.uv)
+            bb = ax.bbox
+            c0, r0 = math.floor(bb.x0), math.floor(bb.y0)
+            w, h = math.ceil(bb.x1) - c0, math.ceil(bb.y1) - r0
+            k = self.cell_px
+            nx, ny = -(-w // k), -(-h // k)
+            x, y = xy[:, 0], xy[:, 1]
+            inside = (x >= c0) & (x < c0 + w) & (y >= r0) & (y < r0 + h)
+            values = self.values
+            if not inside.all():
+                x, y = x[inside], y[inside]
+                values = None if values is None else values[inside]
+            box = (c0, c0 + nx * k, r0, r0 + ny * k, nx, ny)
+            rgba = self.paint(x, y, values, box)
+            if k > 1:
+                rgba = np.repeat(np.repeat(rgba, k, axis=0), k, axis=1)[:h, :w]
+            gc = renderer.new_gc()
+            gc.set_clip_rectangle(ax.bbox)
+            # row 0 of the image is its bottom row, at display row r0
+            renderer.draw_image(gc, c0, r0, np.ascontiguousarray(rgba))
+            gc.restore()
+            self.stale = False
+
+    return PointRaster
+
+
+def _add_raster(
+    ax: Any,
+    u: np.ndarray,
+    v: np.ndarray,
+    values: np.ndarray | None,
+    cell_px: float,
+    paint: Painter,
+    lims: tuple[float, float, float, float],
+) -> Any:
+    """Put the points ``(u, v)`` into ``ax`` as a :func:`_raster_class` artist of cells
+    ``cell_px`` pixels wide (rounded), and the box ``lims`` (x0, x1, y0, y1) into its
+    data limits, which its view does not pad (as an image's extent). Returns the artist."""
+    raster = _raster_class()(u, v, values, round(cell_px), paint)
+    ax.add_artist(raster)
+    x0, x1, y0, y1 = lims
+    raster.sticky_edges.x[:] = [x0, x1]
+    raster.sticky_edges.y[:] = [y0, y1]
+    ax.update_datalim([(x0, y0), (x1, y1)])
+    ax.autoscale_view()
+    return raster
+
+
+def _paint_largest(colours: Any, norm: Any) -> Painter:
+    """A painter: each cell the colour (``colours`` after ``norm``) of its largest value,
+    as a scatter drawing the largest values last shows on top."""
+
+    def paint(x: np.ndarray, y: np.ndarray, values: np.ndarray, box: RasterBox) -> np.ndarray:
+        top = _max_raster(x, y, values, box)
+        rgba = np.zeros((*top.shape, 4), dtype=np.uint8)
+        hit = np.isfinite(top)  # empty cells (and NaN distances) stay clear
+        rgba[hit] = colours(norm(top[hit]), bytes=True)
+        return rgba
+
+    return paint
+
+
+def _paint_density(colour: str) -> Painter:
+    """A painter: each cell ``colour``, one point light and three or more opaque (depth
+    read as density)."""
+    from matplotlib.colors import to_rgba
+
+    rgb = np.round(np.array(to_rgba(colour)[:3]) * 255).astype(np.uint8)
+
+    def paint(x: np.ndarray, y: np.ndarray, values: Any, box: RasterBox) -> np.ndarray:
+        count = _count_raster(x, y, box)
+        rgba = np.empty((*count.shape, 4), dtype=np.uint8)
+        rgba[..., :3] = rgb
+        alpha = np.clip(0.45 + 0.275 * (count - 1), 0.0, 1.0) * (count > 0)
+        rgba[..., 3] = np.round(alpha * 255)
+        return rgba
+
+    return paint
 
 
 def _view_layout(
@@ -846,12 +969,10 @@ def views(
             (1, 2, "side view (looking along −x)", "y", "z"),
             (0, 1, "top view", "x", "y"),
         )
+        paint = _paint_largest(colours, norm)
         for ax, (i, j, name, xl, yl) in zip(axes, specs, strict=True):
-            box = _panel_box(lo, hi, i, j, *_axes_px(ax, dpi), dot_px)
-            top = _max_raster(p[:, i], p[:, j], d * k, box)
-            rgba = colours(norm(np.nan_to_num(top, neginf=0.0)))
-            rgba[..., 3] = np.isfinite(top)  # empty cells stay white
-            _show_raster(ax, rgba, box)
+            lims = (lo[i], hi[i], lo[j], hi[j])
+            _add_raster(ax, p[:, i], p[:, j], d * k, dot_px, paint, lims)
             ax.set_aspect("equal", adjustable="datalim")
             ax.set_xlabel(f"{xl}{offs} (m)")
             ax.set_ylabel(f"{yl}{offs} (m)")
@@ -904,7 +1025,8 @@ def _draw_stations(
         q = np.asarray(pos, dtype=np.float64)[:2] - origin[:2]
         rel = q - centre
         dist = float(np.hypot(*rel))
-        if np.all(q >= blo) and np.all(q <= bhi):
+        inside = bool(np.all(q >= blo) and np.all(q <= bhi))
+        if inside:
             end, label = q, f"S{s_idx}"
         else:
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -921,16 +1043,34 @@ def _draw_stations(
                 zorder=0,
             )
         ax.plot(end[0], end[1], marker="^", color="#1f2933", ms=7, ls="none", zorder=6)
+        offset, ha, va = _station_label_place(rel, sight_line=not inside)
         ax.annotate(
             label,
             (end[0], end[1]),
-            xytext=(0, 7),
+            xytext=offset,
             textcoords="offset points",
-            ha="center",
+            ha=ha,
+            va=va,
             fontsize=8,
             color="#1f2933",
             zorder=6,
         )
+
+
+def _station_label_place(
+    rel: np.ndarray, *, sight_line: bool
+) -> tuple[tuple[float, float], str, str]:
+    """Where a station's label goes (offset in points, horizontal and vertical
+    alignment), clear of its sight line, which runs from the station towards ``-rel``:
+    above the station, unless the line rises from it; then below it when the line is
+    more level than steep, beside it (the side the line leaves) when steeper."""
+    above = ((0.0, 7.0), "center", "baseline")
+    dx, dy = float(rel[0]), float(rel[1])
+    if not sight_line or dy >= 0.0:  # no line, or it runs level or down from the station
+        return above
+    if abs(dx) > abs(dy):
+        return (0.0, -9.0), "center", "top"
+    return ((-8.0, 0.0), "right", "center") if dx < 0 else ((8.0, 0.0), "left", "center")
 
 
 def coverage_bars(data: ReportData, path: Path, *, dpi: int = 130) -> Path:
@@ -1026,8 +1166,8 @@ def occlusion_profile(
             )
         ax_c.set_xlim(-2, 102)
         ax_c.set_xlabel(f"{ref_word} within τ = {tau * k:.3g} {unit} (%)")
-        ax_c.set_ylabel("height above the lowest reference point (m)")
-        ax_c.set_title("Coverage by height")
+        ax_c.set_ylabel("height (m)")
+        ax_c.set_title(f"Coverage by height above the lowest {ref_word} point")
         ax_c.set_ylim(edges[0], edges[-1])
         ax_d.set_xlabel(
             f"cloud points per m² of {ref_word} surface"
@@ -1064,7 +1204,6 @@ def clouds_side_by_side(
         Subtracted for display.
     """
     import matplotlib
-    from matplotlib.colors import to_rgba
 
     shown = []
     for i, (name, pts, colour) in enumerate(clouds):
@@ -1094,15 +1233,10 @@ def clouds_side_by_side(
         )
         for row, (name, p, colour, n) in zip(axes, shown, strict=True):
             dot_px = _dot_px(len(p), 12_000, (0.1, 4.0), dpi)
-            rgb = to_rgba(colour)
+            paint = _paint_density(colour)
             for ax, (i, j, view) in zip(row, specs, strict=True):
-                box = _panel_box(lo, hi, i, j, *_axes_px(ax, dpi), dot_px)
-                count = _count_raster(p[:, i], p[:, j], box)
-                rgba = np.empty((*count.shape, 4))
-                rgba[...] = rgb
-                # one point: a light dot; three or more: the full colour (depth read as density)
-                rgba[..., 3] = np.clip(0.45 + 0.275 * (count - 1), 0.0, 1.0) * (count > 0)
-                _show_raster(ax, rgba, box)
+                lims = (lo[i], hi[i], lo[j], hi[j])
+                _add_raster(ax, p[:, i], p[:, j], None, dot_px, paint, lims)
                 ax.set_xlim(lo[i], hi[i])
                 ax.set_ylim(lo[j], hi[j])
                 ax.set_aspect("equal", adjustable="box")

@@ -34,15 +34,78 @@ def test_the_largest_distance_per_cell_is_what_a_view_shows():
     assert count.sum() == 5000
 
 
-def test_cells_are_about_a_marker_and_square():
+def test_cells_are_about_a_marker():
     # 120k points: the old markers were under a pixel, so one pixel; 1,000: ~2.4 pixels
     assert F._dot_px(120_000, 25_000, (0.15, 6.0), 130) == 1.0
     assert F._dot_px(1_000, 25_000, (0.15, 6.0), 130) == pytest.approx(6**0.5 * 130 / 72)
-    lo, hi = np.zeros(3), np.array([1.0, 2.0, 4.0])
-    x0, x1, y0, y1, nx, ny = F._panel_box(lo, hi, 0, 2, 100.0, 400.0, 2.0)
-    assert (x1 - x0) / nx == pytest.approx((y1 - y0) / ny)  # square cells
-    assert (y1 - y0) / ny == pytest.approx(4.0 / 400.0 * 2.0)  # 2 px each, height-bound
-    assert x0 <= 0.0 and x1 >= 1.0 and y0 <= 0.0 and y1 >= 4.0
+
+
+def _raster_figure(u, v, values, cell_px, paint, aspect="datalim"):
+    """A report axes with the points as a raster, drawn: its pixels (RGB, top row first)
+    and each point's pixel (row, column), from matplotlib's data transform."""
+    import matplotlib
+
+    with matplotlib.rc_context({**F._RC, "axes.grid": False}):
+        fig = F._fixed_figure(4.0, 3.0)
+        ax = F._grid(fig, 1, 1, margins_in=(0.6, 0.3, 0.5, 0.3))
+        lims = (u.min() - 0.1, u.max() + 0.1, v.min() - 0.1, v.max() + 0.1)
+        F._add_raster(ax, u, v, values, cell_px, paint, lims)
+        ax.set_aspect("equal", adjustable=aspect)
+        px = F.render_rgb(fig, 90)
+    xy = ax.transData.transform(np.column_stack([u, v]))  # as the draw left it
+    assert ax.bbox.contains(*xy.min(axis=0)) and ax.bbox.contains(*xy.max(axis=0))
+    rows = px.shape[0] - 1 - np.floor(xy[:, 1]).astype(int)  # display y is upwards
+    return px, rows, np.floor(xy[:, 0]).astype(int)
+
+
+def test_a_view_shows_each_pixels_largest_distance_in_its_colour():
+    """Oracle: matplotlib's transform puts each point in a pixel; a loop over the points
+    finds each pixel's largest distance; the colour map gives its colour."""
+    from matplotlib.colors import Normalize
+
+    rng = np.random.default_rng(3)
+    u, v = rng.normal(0, 1, 4000), rng.normal(0, 2, 4000)
+    d = rng.exponential(1.0, 4000)
+    d[:50] = np.nan  # a NaN distance draws nothing (as the scatter drew nothing)
+    colours, norm = F.cmap(), Normalize(0.0, 2.0)
+    px, rows, cols = _raster_figure(u, v, d, 1.0, F._paint_largest(colours, norm))
+    top: dict[tuple[int, int], float] = {}
+    for r, c, x in zip(rows, cols, d, strict=True):
+        top[r, c] = x if (r, c) not in top else max(top[r, c], x)  # NaN wins, as in max
+    lit = 0
+    for (r, c), x in top.items():
+        if np.isnan(x):
+            continue
+        lit += 1
+        assert np.array_equal(px[r, c], colours(norm(x), bytes=True)[:3]), (r, c)
+    # nothing else is coloured: pixels off white outside the frame's lines are the points'
+    box = px[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+    assert int((box != 255).any(axis=2).sum()) == lit
+
+
+def test_a_cloud_view_shades_each_cell_by_its_points():
+    """Oracle: points set apart, 1, 2 and 5 in one pixel; each lights one cell of 3 x 3
+    pixels, shaded over white as its count says (one point light, three or more full)."""
+    from matplotlib.colors import to_rgb
+
+    centres = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    counts = [1, 2, 5, 1]
+    pts = np.repeat(centres, counts, axis=0) + 1e-9 * np.arange(sum(counts))[:, None]
+    colour = "#2c6e9b"
+    px, rows, cols = _raster_figure(
+        pts[:, 0], pts[:, 1], None, 3.0, F._paint_density(colour), aspect="box"
+    )
+    rgb = np.round(np.array(to_rgb(colour)) * 255)
+    first = np.cumsum([0, *counts[:-1]])
+    for i, n in zip(first, counts, strict=True):
+        alpha = min(0.45 + 0.275 * (n - 1), 1.0)
+        want = rgb * alpha + 255 * (1 - alpha)  # over the white axes
+        assert np.abs(px[rows[i], cols[i]] - want).max() <= 2, n
+    assert int((px != 255).any(axis=2).sum()) >= 4 * 9  # frame lines aside
+    lit = (px != 255).any(axis=2)
+    for i in first:  # one 3 x 3 cell around each group's pixel, nothing beyond it
+        r, c = rows[i], cols[i]
+        assert 9 == int(lit[r - 2 : r + 3, c - 2 : c + 3].sum())
 
 
 @pytest.fixture(scope="module")
