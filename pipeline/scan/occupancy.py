@@ -38,6 +38,7 @@ are generated from it a chunk at a time (:class:`SparseGrid`), never all at once
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,43 +88,101 @@ class TriangleBounds:
     d_min: np.ndarray
 
 
-def _min_dist_to_origin_2d(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Exact distance from (0, 0) to each 2-D triangle (rows of ``x``, ``y``: (n, 3));
-    0 where a triangle contains the origin."""
-    best = np.full(len(x), np.inf)
+def _min_dist_to_origin_2d(x: Sequence[np.ndarray], y: Sequence[np.ndarray]) -> np.ndarray:
+    """Exact distance from (0, 0) to each 2-D triangle (``x``, ``y``: its three corners'
+    coordinates, (n,) each); 0 where a triangle contains the origin."""
+    best = None
     for i in range(3):
         j = (i + 1) % 3
-        ax, ay = x[:, i], y[:, i]
-        ex, ey = x[:, j] - ax, y[:, j] - ay
+        ax, ay = x[i], y[i]
+        ex, ey = x[j] - ax, y[j] - ay
         ee = ex * ex + ey * ey
         with np.errstate(invalid="ignore", divide="ignore"):
             t = np.where(ee > 0, -(ax * ex + ay * ey) / ee, 0.0)
-        t = np.clip(t, 0.0, 1.0)
-        best = np.minimum(best, np.hypot(ax + t * ex, ay + t * ey))
+        np.clip(t, 0.0, 1.0, out=t)
+        d = np.hypot(ax + t * ex, ay + t * ey)
+        best = d if best is None else np.minimum(best, d, out=best)
     # inside (or on the boundary): the three edge cross products do not change sign
-    c = [x[:, i] * y[:, (i + 1) % 3] - y[:, i] * x[:, (i + 1) % 3] for i in range(3)]
+    c = [x[i] * y[(i + 1) % 3] - y[i] * x[(i + 1) % 3] for i in range(3)]
     inside = ((c[0] >= 0) & (c[1] >= 0) & (c[2] >= 0)) | ((c[0] <= 0) & (c[1] <= 0) & (c[2] <= 0))
     best[inside] = 0.0
     return best
 
 
+def _max3(a: Sequence[np.ndarray]) -> np.ndarray:
+    return np.maximum(np.maximum(a[0], a[1]), a[2])
+
+
+def _min3(a: Sequence[np.ndarray]) -> np.ndarray:
+    return np.minimum(np.minimum(a[0], a[1]), a[2])
+
+
 def triangle_bounds(tri: np.ndarray) -> TriangleBounds:
     """Conservative azimuth/elevation bounds of triangles ``tri`` (n, 3, 3) float64 in
-    the scanner frame (station at the origin). See the module notes."""
-    x, y, z = tri[:, :, 0], tri[:, :, 1], tri[:, :, 2]
-    r = np.hypot(x, y)
-    r_max = r.max(axis=1)
+    the scanner frame (station at the origin). See the module notes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> b = triangle_bounds(np.array([[[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 1.0]]]))
+    >>> float(np.degrees(b.az_hi[0])), float(np.degrees(b.el_hi[0])), float(b.d_min[0])
+    (45.0, 45.0, 1.0)
+    """
+    # corner by corner, coordinate by coordinate: (3, 3, n) contiguous rows
+    t = np.ascontiguousarray(np.asarray(tri, dtype=np.float64).transpose(1, 2, 0))
+    return _corner_bounds(t[:, 0], t[:, 1], t[:, 2])
+
+
+def face_bounds(vertices: np.ndarray, faces: np.ndarray) -> TriangleBounds:
+    """:func:`triangle_bounds` of the triangles ``faces`` (n, 3) of ``vertices`` (v, 3)
+    float64 in the scanner frame, gathered coordinate by coordinate (no (n, 3, 3)
+    array: the same figures, issue 25).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 1.0]])
+    >>> float(np.degrees(face_bounds(v, np.array([[0, 1, 2]])).az_hi[0]))
+    45.0
+    """
+    # each corner's rows gathered, then as coordinate rows (3, n): contiguous figures
+    c = [np.ascontiguousarray(np.take(vertices, faces[:, k], axis=0).T) for k in range(3)]
+    return _corner_bounds(*([c[0][i], c[1][i], c[2][i]] for i in range(3)))
+
+
+def face_corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The triangles ``faces`` (n, 3) of ``vertices`` (v, 3): (n, 3, 3), what
+    ``vertices[faces]`` gives (a row at a time: about twice as fast).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.arange(12.0).reshape(4, 3)
+    >>> bool((face_corners(v, np.array([[0, 2, 3]])) == v[[[0, 2, 3]]]).all())
+    True
+    """
+    return np.stack([np.take(vertices, faces[:, k], axis=0) for k in range(3)], axis=1)
+
+
+def _corner_bounds(
+    x: Sequence[np.ndarray], y: Sequence[np.ndarray], z: Sequence[np.ndarray]
+) -> TriangleBounds:
+    """:func:`triangle_bounds` from the corners' coordinates (three (n,) each): every figure
+    corner by corner (never an (n, 3) reduction; the same figures, issue 25)."""
+    r_max = _max3([np.hypot(x[k], y[k]) for k in range(3)])
     r_min = _min_dist_to_origin_2d(x, y)
-    z_min, z_max = z.min(axis=1), z.max(axis=1)
+    z_min, z_max = _min3(z), _max3(z)
     el_hi = np.arctan2(z_max, np.where(z_max >= 0, r_min, r_max))
     el_lo = np.arctan2(z_min, np.where(z_min >= 0, r_max, r_min))
     # a triangle whose projection passes the vertical axis within rounding may contain
     # it: every azimuth (also ends the bisection of pieces around the axis)
     full = r_min <= 1e-12 * r_max
-    az = np.arctan2(y, x)
-    rel = (az - az[:, :1] + np.pi) % (2 * np.pi) - np.pi
-    az_lo = az[:, 0] + rel.min(axis=1)
-    az_hi = az[:, 0] + rel.max(axis=1)
+    az0 = np.arctan2(y[0], x[0])
+    # each corner's azimuth from the first's, in [-π, π) (the first's own is 0: its
+    # (a - a + π) % 2π - π is exactly 0, and a NaN first azimuth makes both ends NaN)
+    rel = [(np.arctan2(y[k], x[k]) - az0 + np.pi) % (2 * np.pi) - np.pi for k in (1, 2)]
+    az_lo = az0 + np.minimum(np.minimum(0.0, rel[0]), rel[1])
+    az_hi = az0 + np.maximum(np.maximum(0.0, rel[0]), rel[1])
     dz = np.where((z_min <= 0) & (z_max >= 0), 0.0, np.minimum(np.abs(z_min), np.abs(z_max)))
     return TriangleBounds(az_lo, az_hi, full, el_lo, el_hi, np.hypot(r_min, dz))
 
@@ -246,43 +305,95 @@ def occupancy_grid(
     """
     if window.n_pulses == 0 or len(faces) == 0:
         return SparseGrid.empty()
-    ras = _raster_for(spec, window, a_ref_deg)
-    n_rows, n_cols = ras.shape
-    m_ray = pointing_margin_rad(spec)
-    diff = _DiffRaster(n_rows, n_cols, ras.cell)
-    # the pieces: the triangles at first, gathered when bounded; then bisected halves
-    piece, n_pieces = (lambda sel: vertices[faces[sel]]), len(faces)
-    for halvings in range(41):
-        # the pieces' boxes a chunk at a time (the bounds' temporaries are ~400 B a
-        # piece); a piece's figures do not depend on the others. The pieces that are not
-        # big are finished whatever the level decides: added at once; the big ones'
-        # boxes wait for the level's verdict (bisected, or added as they are)
-        waiting, bigs = [], []
-        for a in range(0, n_pieces, _PIECE_CHUNK):
-            b = triangle_bounds(piece(slice(a, a + _PIECE_CHUNK)))
-            margin = m_ray + abs_error_m / np.maximum(b.d_min, 1e-300)
-            r0, r1, c0, c1, w, keep = _cell_boxes(b, margin, ras, a_ref_deg)
-            area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
-            big = keep & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
-            small = keep & ~big
-            diff.add_boxes(r0[small], r1[small], c0[small], c1[small], w[small])
-            waiting.append((r0[big], r1[big], c0[big], c1[big], w[big]))
-            bigs.append(big)
-            del b, margin, r0, r1, c0, c1, w, keep, area, small
-        big = np.concatenate(bigs) if bigs else np.zeros(0, dtype=bool)
-        del bigs
-        split = bool(big.any())
-        if n_pieces + int(big.sum()) > MAX_PIECES or halvings == 40:
-            split = False  # a piece's box is conservative however large: keep it
-        if not split:
-            if waiting:
-                diff.add_boxes(*(np.concatenate([x[i] for x in waiting]) for i in range(5)))
-            break
-        del waiting
-        pieces = _bisect_longest(piece(big))
-        piece, n_pieces = pieces.__getitem__, len(pieces)
-    occ = diff.counts().cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
-    return SparseGrid.from_raster(window, ras, occ)
+    occ = Occupancy(spec, window, a_ref_deg, abs_error_m=abs_error_m)
+    # the triangles a chunk at a time (the bounds' temporaries are ~200 B a triangle)
+    for a in range(0, len(faces), _PIECE_CHUNK):
+        f = np.asarray(faces[a : a + _PIECE_CHUNK])
+        occ.add(face_bounds(vertices, f), lambda sel, f=f: face_corners(vertices, f[sel]))
+    return occ.grid()
+
+
+class Occupancy:
+    """:func:`occupancy_grid` fed from outside: the triangles' bounds a chunk at a time
+    (:meth:`add`, e.g. those the planning bounds anyway to choose the triangles to
+    load), then :meth:`grid`, which bisects the big pieces and returns the pulses.
+
+    A piece's figures do not depend on the others and the raster counts integers, so
+    the chunks' sizes and order change nothing: the same pulses as
+    :func:`occupancy_grid` over the same triangles.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from treesim.scan import ScannerSpec
+    >>> from treesim.scan.rays import box_window, windowed_grid
+    >>> spec = ScannerSpec(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0)
+    >>> tri = np.array([[[5.0, -1.0, 0.0], [5.0, 1.0, 0.0], [5.0, 0.0, 1.0]]])
+    >>> win = windowed_grid(spec, box_window(tri[0].min(axis=0), tri[0].max(axis=0)))
+    >>> occ = Occupancy(spec, win, 0.0, abs_error_m=1e-6)
+    >>> occ.add(triangle_bounds(tri), lambda sel: tri[sel])
+    >>> 0 < occ.grid().n_pulses <= win.n_pulses
+    True
+    """
+
+    def __init__(
+        self, spec: ScannerSpec, window: PulseGrid, a_ref_deg: float, *, abs_error_m: float
+    ) -> None:
+        self.window, self.a_ref_deg, self.abs_error_m = window, a_ref_deg, abs_error_m
+        self.ras = _raster_for(spec, window, a_ref_deg)
+        self.m_ray = pointing_margin_rad(spec)
+        self.diff = _DiffRaster(*self.ras.shape, self.ras.cell)
+        # this level's pieces, and the boxes and corners of its big ones (which wait
+        # for the level's verdict: bisected, or added as they are)
+        self.n_pieces = 0
+        self.waiting: list[tuple[np.ndarray, ...]] = []
+        self.bigs: list[np.ndarray] = []
+
+    def add(
+        self,
+        b: TriangleBounds,
+        corners: Callable[[np.ndarray], np.ndarray],
+        keep: np.ndarray | None = None,
+    ) -> None:
+        """Pieces with bounds ``b`` (those where ``keep``, default all): the boxes of
+        those that are not big are added at once; ``corners(mask)`` gives the (k, 3, 3)
+        corners of the big ones (kept until :meth:`grid`)."""
+        n_cols = self.ras.shape[1]
+        self.n_pieces += len(b.d_min) if keep is None else int(np.count_nonzero(keep))
+        margin = self.m_ray + self.abs_error_m / np.maximum(b.d_min, 1e-300)
+        r0, r1, c0, c1, w, boxed = _cell_boxes(b, margin, self.ras, self.a_ref_deg)
+        if keep is not None:
+            boxed &= keep
+        area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
+        big = boxed & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
+        small = boxed & ~big
+        self.diff.add_boxes(r0[small], r1[small], c0[small], c1[small], w[small])
+        if big.any():
+            self.waiting.append((r0[big], r1[big], c0[big], c1[big], w[big]))
+            self.bigs.append(corners(big))
+
+    def grid(self) -> SparseGrid:
+        """The window's pulses that some piece can reach (the big pieces bisected at
+        their longest edge, level by level, until none is big)."""
+        for halvings in range(41):
+            n_big = sum(len(t) for t in self.bigs)
+            if n_big == 0 or self.n_pieces + n_big > MAX_PIECES or halvings == 40:
+                # a piece's box is conservative however large: keep it
+                if self.waiting:
+                    boxes = (np.concatenate([x[i] for x in self.waiting]) for i in range(5))
+                    self.diff.add_boxes(*boxes)
+                break
+            bigs, self.bigs, self.waiting, self.n_pieces = self.bigs, [], [], 0
+            bigs.reverse()
+            while bigs:  # each chunk's big pieces halved, then dropped
+                pieces = _bisect_longest(bigs.pop())
+                for a in range(0, len(pieces), _PIECE_CHUNK):
+                    chunk = pieces[a : a + _PIECE_CHUNK]
+                    self.add(triangle_bounds(chunk), chunk.__getitem__)
+                del pieces
+        n_rows, n_cols = self.ras.shape
+        occ = self.diff.counts().cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
+        return SparseGrid.from_raster(self.window, self.ras, occ)
 
 
 class _DiffRaster:

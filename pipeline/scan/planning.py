@@ -25,7 +25,14 @@ from ..params import LODS, ScannerSpec
 from ..scene import Scene
 from . import checks
 from .caster import Caster, float32_error_m, triangle_chunks
-from .occupancy import occupancy_grid, reachable, thin_mask, triangle_bounds
+from .occupancy import (
+    Occupancy,
+    face_bounds,
+    face_corners,
+    occupancy_grid,
+    reachable,
+    thin_mask,
+)
 from .rays import PulseGrid, box_window, full_grid, windowed_grid
 from .stations import Station
 
@@ -109,7 +116,12 @@ def plan_scan(
     upper = sum(grid.n_pulses for grid, _ in windows) * s
     checks.check_ray_limit(upper, len(stations), spec, max_rays, nthreads)
     radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
-    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius)
+    # one station: the occupancy grid takes the bounds that choose the triangles to load
+    # (the same triangles, bounded once: issue 25)
+    shared = _Shared.of(stations, windows[0][0], spec, window and cull, lod, radius, frame)
+    keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius, shared)
+    if shared is not None and shared.occupancy is not None and geometry["loaded"]:
+        shared.cast = shared.occupancy.grid()  # its raster goes before the caster comes
     caster = Caster(scene, frame, nthreads, keep) if geometry["loaded"] else None
     plans = []
     for o, st, (window_grid, win) in zip(origins, stations, windows, strict=True):
@@ -117,10 +129,12 @@ def plan_scan(
             grid, thin = PulseGrid(np.empty(0, np.int64), np.empty(0, np.int64)), None
         else:
             grid, thin = _grid_plan(
-                caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius
-            )
+                caster, window_grid, o, st.rotation, spec, window and cull, adaptive, radius,
+                shared,
+            )  # fmt: skip
         t0 = caster.entry_distance(o) if caster is not None else 0.0
         plans.append(StationPlan(st, o, grid, win, window_grid.n_pulses, thin, t0))
+    del shared
     warnings = checks.precision_warnings(scene, caster, radius)
     if caster is not None:
         for k, sp in enumerate(plans, start=station_offset):
@@ -142,6 +156,49 @@ def _grid_for(
     return grid, win
 
 
+@dataclass
+class _Shared:
+    """A one-station plan's occupancy grid, fed with the bounds of the triangles it
+    loads while they are chosen (``occupancy``; None where the grid is not culled), and
+    the pulses it gives (``cast``)."""
+
+    occupancy: Occupancy | None
+    cast: Any = None
+
+    @classmethod
+    def of(
+        cls,
+        stations: Sequence[Station],
+        grid: PulseGrid,
+        spec: ScannerSpec,
+        culled: bool,
+        lod: str,
+        radius_m: float,
+        frame: LocalFrame,
+    ) -> _Shared | None:
+        """None unless one station plans with ``lod="auto"`` (else the occupancy grid
+        bounds the loaded triangles itself)."""
+        if len(stations) != 1 or lod != "auto":
+            return None
+        st = stations[0]
+        o = frame.to_local(st.position)
+        occ = None
+        if culled and grid.n_pulses:
+            err = float32_error_m(radius_m, o)
+            occ = Occupancy(spec, grid, _azimuth_ref(spec, grid), abs_error_m=err)
+        return cls(occ)
+
+
+def _azimuth_ref(spec: ScannerSpec, grid: PulseGrid) -> float:
+    """An azimuth (deg) in the widest gap between the window's columns: the occupancy
+    grid measures column angles from it without wrapping."""
+    h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
+    ang = np.sort((h0 + grid.columns * hres) % 360.0)
+    gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
+    g = int(np.argmax(gaps))
+    return float(ang[g] + 0.5 * gaps[g])
+
+
 def _reachable_triangles(
     scene: Scene,
     frame: LocalFrame,
@@ -149,8 +206,10 @@ def _reachable_triangles(
     spec: ScannerSpec,
     lod: str,
     radius_m: float,
+    shared: _Shared | None = None,
 ) -> tuple[np.ndarray | None, dict[str, Any]]:
-    """The triangles to load (None: all) and what was left out, and why."""
+    """The triangles to load (None: all) and what was left out, and why. With
+    ``shared`` (one station), its occupancy grid is fed each loaded triangle's bounds."""
     n = scene.n_triangles
     info: dict[str, Any] = {"triangles": n, "loaded": n, "beyond_range": 0, "outside_fov": 0}
     if lod != "auto" or n == 0:
@@ -163,12 +222,17 @@ def _reachable_triangles(
         o = frame.to_local(st.position)
         rel = (v - o) @ st.rotation
         err = float32_error_m(radius_m, o)
-        # a chunk of triangles at a time: the bounds' temporaries are ~400 B a triangle
+        # a chunk of triangles at a time: the bounds' temporaries are ~200 B a triangle
         for a, b in triangle_chunks(n):
-            bounds = triangle_bounds(rel[f[a:b]])
-            keep[a:b] |= reachable(bounds, spec, abs_error_m=err)
+            fa = f[a:b]
+            bounds = face_bounds(rel, fa)
+            reach = reachable(bounds, spec, abs_error_m=err)
+            keep[a:b] |= reach
             near[a:b] |= bounds.d_min <= spec.max_range_m
-            del bounds
+            if shared is not None and shared.occupancy is not None:
+                corners = lambda sel, fa=fa, rel=rel: face_corners(rel, fa[sel])  # noqa: E731
+                shared.occupancy.add(bounds, corners, keep=reach)
+            del bounds, reach
         del rel
     info.update(
         loaded=int(keep.sum()),
@@ -187,27 +251,26 @@ def _grid_plan(
     culled: bool,
     adaptive: bool,
     radius_m: float,
+    shared: _Shared | None = None,
 ) -> tuple[Any, np.ndarray | None]:
     """The pulses one station casts from its ``grid`` (the whole field of view or the
     scene's window): with ``culled``, the window's cells some triangle can reach. Returns
     them and, with ``adaptive`` beam sampling, the thin-geometry mask (else None)."""
     if grid.n_pulses == 0 or not (culled or adaptive):
         return grid, None
-    rel = (caster.v - o) @ rot  # the vertices in the scanner frame
     abs_err = float32_error_m(radius_m, o)
     cast = grid
-    if culled:
-        h0, hres = spec.horizontal_fov_deg[0], spec.horizontal_resolution_deg
-        ang = np.sort((h0 + grid.columns * hres) % 360.0)
-        gaps = np.diff(np.concatenate([ang, [ang[0] + 360.0]]))
-        g = int(np.argmax(gaps))
-        cast = occupancy_grid(
-            rel, caster.faces, spec, grid, ang[g] + 0.5 * gaps[g], abs_error_m=abs_err
-        )
+    if culled and shared is not None and shared.cast is not None:
+        cast = shared.cast  # fed while the triangles to load were chosen
+    elif culled:
+        rel = (caster.v - o) @ rot  # the vertices in the scanner frame
+        a_ref = _azimuth_ref(spec, grid)
+        cast = occupancy_grid(rel, caster.faces, spec, grid, a_ref, abs_error_m=abs_err)
     thin = None
     if adaptive:
         # the thin-geometry mask takes the triangles all at once (72 bytes each), made
         # after the occupancy grid, which gathers them a chunk at a time
+        rel = (caster.v - o) @ rot
         thin = thin_mask(
             rel[caster.faces],
             spec,
