@@ -139,15 +139,37 @@ def source_table(
 
 
 def local_tree(
-    tree: PlotTree, facets: int, base_dir: Path | None, reconstruct: Any = None
+    tree: PlotTree,
+    facets: int,
+    base_dir: Path | None,
+    reconstruct: Any = None,
+    table: CylinderTable | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CylinderTable | None]:
     """The tree as made: vertices, faces, label codes, its stem base (3,) in the
     source's coordinates (subtract it to stand the tree at the origin) and its cylinder
-    table (None for a mesh tree)."""
+    table (None for a mesh tree).
+
+    ``table``: the tree's table as an earlier build made it (a plot rebuilding a tree it
+    dropped): a leafless procedural tree is then meshed from it, neither fitted nor
+    generated again (the same mesh: its wood is its table's tubes).
+
+    Examples
+    --------
+    >>> import treesim as ts
+    >>> from treesim.plot._sources import local_tree
+    >>> tree = ts.PlotTree(tree_id=1, x_m=0.0, y_m=0.0, species="sapling", leaves=False)
+    >>> v, f, lab, base, table = local_tree(tree, 8, None)
+    >>> again = local_tree(tree, 8, None, table=table)
+    >>> bool((again[0] == v).all() and (again[1] == f).all()), again[4] is table
+    (True, True)
+    """
     from ..models import generate_tree, qsm_mesh
     from ..params.models import ModelParams
 
     if tree.source == "species":
+        if table is not None and not _leafy(tree):
+            v, f, lab = _leafless(tree, table).mesh(facets)
+            return v, f, lab, np.zeros(3), table
         params = fit_species(str(tree.species), tree.seed, tree.dbh_m, tree.height_m)
         made = generate_tree(params, seed=int(tree.seed), leaves=tree.leaves)
         v, f, lab = made.mesh(facets)
@@ -177,6 +199,29 @@ def local_tree(
     v, f, _ = qsm_mesh(table, facets=facets, joints=ModelParams().joints)
     lab = np.full(len(f), LABEL_CODES["wood"], dtype=np.uint8)
     return v, f, lab, stem_base(v), table
+
+
+def _leafy(tree: PlotTree) -> bool:
+    """Whether a procedural tree has leaves (its ``leaves``, else its species' own: the
+    fit changes the trunk's length and the radius ratio, never the leaves)."""
+    from ..models import species_preset
+
+    return bool(species_preset(str(tree.species)).leaves_on if tree.leaves is None else tree.leaves)
+
+
+def _leafless(tree: PlotTree, table: CylinderTable) -> Any:
+    """The procedural tree of ``table`` with no leaves (what ``generate_tree`` made with
+    ``leaves=False``: its mesh is the table's tubes)."""
+    from ..models import ProceduralTree, species_preset
+
+    return ProceduralTree(
+        params=species_preset(str(tree.species)),
+        seed=int(tree.seed),
+        cylinders=table,
+        leaf_vertices=np.zeros((0, 3)),
+        leaf_faces=np.zeros((0, 3), dtype=np.int64),
+        n_leaves=0,
+    )
 
 
 def placed_table(

@@ -358,7 +358,12 @@ class Plot:
         Built once and kept (until :meth:`release`)."""
         if tree_id not in self._parts:
             t = self.tree(tree_id)
-            v, f, lab, base, table = local_tree(t, int(self.facets), self._base, self.reconstruct)
+            # a tree built before (dropped, or built by a task) is meshed from its table
+            # where that gives the same mesh (no second generation of a procedural tree)
+            known = self._tables.get(tree_id)
+            v, f, lab, base, table = local_tree(
+                t, int(self.facets), self._base, self.reconstruct, known
+            )
             self._tables[tree_id] = table
             placed = self._place(t, np.asarray(v, dtype=np.float64) - base)
             parts = labelled_parts(placed, f, lab, name_prefix=f"{t.name}:", tree_id=t.tree_id)
