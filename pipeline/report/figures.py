@@ -245,9 +245,11 @@ def _flat_axis_class() -> type:
     from matplotlib.artist import Artist
 
     class FlatAxis(Artist):
-        def __init__(self, axis: Any) -> None:
+        def __init__(self, axis: Any, side: str) -> None:
             super().__init__()
             self.axis = axis
+            self.side = side  # bottom, left or right: where its ticks and labels are
+            self.which = "2" if side == "right" else "1"  # matplotlib's tick1 or tick2
             self.set_zorder(axis.get_zorder())
             name = axis.axis_name
             rc = mpl.rcParams
@@ -267,8 +269,10 @@ def _flat_axis_class() -> type:
                 "linewidth": rc["grid.linewidth"],
                 "alpha": rc["grid.alpha"],
             }
-            self.grid_on, self.tick_on = bool(kw["gridOn"]), bool(kw.get("tick1On", True))
-            self.label_on = bool(kw.get("label1On", True))
+            first = self.which == "1"
+            self.grid_on = bool(kw["gridOn"])
+            self.tick_on = bool(kw.get(f"tick{self.which}On", first))
+            self.label_on = bool(kw.get(f"label{self.which}On", first))
 
         def draw(self, renderer: Any) -> None:
             axis = self.axis
@@ -285,16 +289,16 @@ def _flat_axis_class() -> type:
                 part.draw(renderer)
             boxes = _flat_axis_labels(self, locs, labels, renderer)
             # the axis label clear of the tick labels, as matplotlib places it
-            side = "bottom" if self.is_x else "left"
-            box = mtransforms.Bbox.union([*boxes, ax.spines.get(side, ax).get_window_extent()])
+            box = mtransforms.Bbox.union([*boxes, ax.spines.get(self.side, ax).get_window_extent()])
             gap = axis.labelpad * ax.figure.dpi / 72
             x, y = axis.label.get_position()
-            axis.label.set_position((x, box.y0 - gap) if self.is_x else (box.x0 - gap, y))
-            axis.label.draw(renderer)
+            at = {"bottom": (x, box.y0 - gap), "left": (box.x0 - gap, y)}
+            axis.label.set_position(at.get(self.side, (box.x1 + gap, y)))
+            _draw_text(axis.label, renderer)
             offset = formatter.get_offset()
             if offset:
                 axis.offsetText.set_text(offset)
-                axis._update_offset_text_position(boxes, [])
+                axis._update_offset_text_position(boxes, boxes)
                 axis.offsetText.draw(renderer)
             self.stale = False
 
@@ -317,17 +321,17 @@ def _flat_axis_lines(flat: Any, locs: np.ndarray) -> list[Any]:
         parts.append(grid)
     if flat.tick_on and n:
         out = flat.direction == "out"
-        marker = (
-            (mlines.TICKDOWN if out else mlines.TICKUP)
-            if flat.is_x
-            else (mlines.TICKLEFT if out else mlines.TICKRIGHT)
-        )
-        zero = np.zeros(n)
-        xy = (locs, zero) if flat.is_x else (zero, locs)
+        marker = {
+            "bottom": mlines.TICKDOWN if out else mlines.TICKUP,
+            "left": mlines.TICKLEFT if out else mlines.TICKRIGHT,
+            "right": mlines.TICKRIGHT if out else mlines.TICKLEFT,
+        }[flat.side]
+        across = np.full(n, 1.0 if flat.which == "2" else 0.0)
+        xy = (locs, across) if flat.is_x else (across, locs)
         parts.append(
             mlines.Line2D(
                 *xy,
-                transform=_flat_axis_trans(flat, "tick1"),
+                transform=_flat_axis_trans(flat, f"tick{flat.which}"),
                 linestyle="none",
                 marker=marker,
                 color=flat.colour,
@@ -343,7 +347,8 @@ def _flat_axis_lines(flat: Any, locs: np.ndarray) -> list[Any]:
 
 
 def _flat_axis_trans(flat: Any, which: str) -> Any:
-    """The axis' transform of its ``which`` (``grid``, ``tick1``): data along it, axes across."""
+    """The axis' transform of its ``which`` (``grid``, ``tick1``, ``tick2``): data along
+    it, axes across."""
     ax = flat.axis.axes
     return ax.get_xaxis_transform(which) if flat.is_x else ax.get_yaxis_transform(which)
 
@@ -357,8 +362,8 @@ def _flat_axis_labels(flat: Any, locs: np.ndarray, labels: list[str], renderer: 
         return []
     ax = flat.axis.axes
     pad = flat.pad + (flat.size if flat.direction == "out" else 0.0)
-    text1 = ax.get_xaxis_text1_transform if flat.is_x else ax.get_yaxis_text1_transform
-    trans, va, ha = text1(pad)
+    text = getattr(ax, f"get_{'x' if flat.is_x else 'y'}axis_text{flat.which}_transform")
+    trans, va, ha = text(pad)
     t = Text(
         0.0,
         0.0,
@@ -371,33 +376,123 @@ def _flat_axis_labels(flat: Any, locs: np.ndarray, labels: list[str], renderer: 
     )
     t.set_figure(ax.figure)
     boxes = []
+    across = 1.0 if flat.which == "2" else 0.0  # the axes' far side (tick2) or near one
     for loc, label in zip(locs, labels, strict=True):
         if not label:
             continue
-        t.set_position((loc, 0.0) if flat.is_x else (0.0, loc))
+        t.set_position((loc, across) if flat.is_x else (across, loc))
         t.set_text(label)
-        t.draw(renderer)
-        boxes.append(t.get_window_extent(renderer))
+        box = _draw_text(t, renderer)
+        if box is not None:
+            boxes.append(box)
     return boxes
 
 
+#: Layouts of texts (matplotlib's ``Text._get_layout``: box, lines, descent) by all they
+#: depend on: a report lays the same tick labels out again and again.
+_LAYOUTS: dict[tuple[Any, ...], tuple[Any, Any, Any]] = {}
+
+
+def _text_layout(t: Any, renderer: Any) -> tuple[Any, Any, Any]:
+    """``t._get_layout(renderer)``, kept (:data:`_LAYOUTS`)."""
+    import matplotlib as mpl
+
+    prop = t.get_fontproperties()
+    rc = mpl.rcParams
+    key = (
+        t.get_text(),
+        tuple(prop.get_family()),
+        tuple(tuple(rc[f"font.{f}"]) for f in prop.get_family() if f"font.{f}" in rc),
+        prop.get_style(),
+        prop.get_variant(),
+        prop.get_weight(),
+        prop.get_stretch(),
+        prop.get_size_in_points(),
+        prop.get_file(),
+        prop.get_math_fontfamily(),
+        t._linespacing,
+        t._get_multialignment(),
+        t.get_rotation(),
+        t.get_horizontalalignment(),
+        t.get_verticalalignment(),
+        t.get_rotation_mode(),
+        t.get_usetex(),
+        t.get_parse_math(),
+        t.get_figure(root=True).dpi,
+        type(renderer),
+        rc["text.hinting"],
+        rc["text.hinting_factor"],
+        rc["text.kerning_factor"],
+    )
+    got = _LAYOUTS.get(key)
+    if got is None:
+        if len(_LAYOUTS) >= TEXT_CACHE_SIZE:
+            _LAYOUTS.clear()
+        got = _LAYOUTS[key] = t._get_layout(renderer)
+    return got
+
+
+def _draw_text(t: Any, renderer: Any) -> Any:
+    """Draw the text ``t`` as its ``draw`` does, laid out once (:func:`_text_layout`);
+    its box in display pixels (``get_window_extent``), None where it draws nothing.
+    Text that is wrapped, boxed, with path effects or TeX: drawn by matplotlib."""
+    from matplotlib import colors as mcolors
+
+    if not t.get_visible() or t.get_text() == "":
+        return None
+    if t.get_wrap() or t.get_bbox_patch() or t.get_path_effects() or t.get_usetex():
+        t.draw(renderer)
+        return t.get_window_extent(renderer)
+    t._renderer = renderer
+    box, info, _ = _text_layout(t, renderer)
+    posx, posy = t.get_transform().transform(t.get_unitless_position())
+    if not (np.isfinite(posx) and np.isfinite(posy)):
+        return None
+    canvash = renderer.get_canvas_width_height()[1]
+    gc = renderer.new_gc()
+    gc.set_foreground(mcolors.to_rgba(t.get_color()), isRGBA=True)
+    gc.set_alpha(t.get_alpha())
+    gc.set_url(t.get_url())
+    gc.set_antialiased(t._antialiased)
+    gc.set_snap(t.get_snap())
+    t._set_gc_clip(gc)
+    angle = t.get_rotation()
+    for line, _, (x, y) in info:
+        clean, ismath = t._preprocess_math(line)
+        y = y + posy
+        renderer.draw_text(
+            gc,
+            x + posx,
+            canvash - y if renderer.flipy() else y,
+            clean,
+            t.get_fontproperties(),
+            angle,
+            ismath=ismath,
+            mtext=t if len(info) == 1 else None,
+        )
+    gc.restore()
+    t.stale = False
+    return box.translated(posx, posy)
+
+
 def _flatten_axes(fig: Any) -> None:
-    """Every plain axis of ``fig`` (ticks and labels below or left, linear, no minor
-    ticks, no tick settings of its own) drawn by a :func:`_flat_axis_class` artist in
-    place of matplotlib's ticks; any other axis (a colour bar's) as before."""
+    """Every plain axis of ``fig`` (ticks and labels below, left or right (a colour
+    bar's), linear, no minor ticks, no tick settings of its own) drawn by a
+    :func:`_flat_axis_class` artist in place of matplotlib's ticks; any other axis as
+    before."""
     import matplotlib as mpl
     from matplotlib.ticker import NullLocator
 
     flat = _flat_axis_class()
     for ax in fig.axes:
-        for axis, side in ((ax.xaxis, "bottom"), (ax.yaxis, "left")):
+        for axis in (ax.xaxis, ax.yaxis):
             kw = axis._major_tick_kw
+            side = _plain_side(axis)
             plain = (
-                axis.get_visible()
+                side is not None
+                and axis.get_visible()
                 and set(kw) <= _PLAIN_TICK_KEYS
                 and "gridOn" in kw
-                and not kw.get("tick2On")
-                and not kw.get("label2On")
                 and isinstance(axis.get_minor_locator(), NullLocator)
                 and axis.get_scale() == "linear"
                 and mpl.rcParams[f"{axis.axis_name}tick.direction"] in ("in", "out")
@@ -406,7 +501,20 @@ def _flatten_axes(fig: Any) -> None:
             )
             if plain:
                 axis.set_visible(False)
-                ax.add_artist(flat(axis))
+                ax.add_artist(flat(axis, side))
+
+
+def _plain_side(axis: Any) -> str | None:
+    """Where an axis' ticks and labels all are, as its tick settings say (an x axis
+    below, a y axis left or right), or None (on both sides, or an x axis above)."""
+    kw = axis._major_tick_kw
+    one = kw.get("tick1On", True) or kw.get("label1On", True)
+    two = kw.get("tick2On", False) or kw.get("label2On", False)
+    if one and not two:
+        return "bottom" if axis.axis_name == "x" else "left"
+    if two and not one and axis.axis_name == "y":
+        return "right"
+    return None
 
 
 class _NoNewTicks:
@@ -986,7 +1094,8 @@ def views(
         w_in, h_in = fig.get_size_inches()
         y0, y1 = 0.5 / h_in, 1.0 - 0.6 / h_in
         cax = fig.add_axes(
-            (1.0 - 0.9 / w_in, y0 + 0.075 * (y1 - y0), 0.14 / w_in, 0.85 * (y1 - y0))
+            (1.0 - 0.9 / w_in, y0 + 0.075 * (y1 - y0), 0.14 / w_in, 0.85 * (y1 - y0)),
+            axes_class=_tick_free_axes_class(),
         )
         cb = fig.colorbar(sc, cax=cax, extend="max")
         cb.set_label(f"{colour_label} ({unit})")

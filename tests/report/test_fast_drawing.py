@@ -74,7 +74,7 @@ def test_no_grid_without_a_positive_tau():
 
 def _busy_figure() -> object:
     """Axes of each kind a report draws: numbers with a grid, categories without one,
-    a shared y axis without labels, equal aspect, a colour bar (left to matplotlib)."""
+    a shared y axis without labels, equal aspect, a colour bar (ticks on the right)."""
     from matplotlib.cm import ScalarMappable
 
     fig = F._fixed_figure(7.0, 3.0)
@@ -89,7 +89,7 @@ def _busy_figure() -> object:
     c.imshow(np.arange(12.0).reshape(3, 4), extent=(0.0, 4.0, 0.0, 3.0))
     c.set_aspect("equal", adjustable="datalim")
     c.set_xlabel("x (m)")
-    fig.colorbar(ScalarMappable(), ax=c)
+    fig.colorbar(ScalarMappable(), ax=c, extend="max").set_label("distance (mm)")
     return fig
 
 
@@ -105,7 +105,9 @@ def test_flat_axes_draw_the_pixels_of_matplotlibs_ticks():
         F._flatten_axes(fig)
         flat = [a for ax in fig.axes for a in ax.get_children() if type(a).__name__ == "FlatAxis"]
         ours = F.render_rgb(fig, 80)
-    assert len(flat) == 6  # both axes of the three panels; the colour bar's are matplotlib's
+    # both axes of the three panels and the colour bar's long one (ticks on the right);
+    # its short axis, without ticks on either side, is matplotlib's
+    assert len(flat) == 7
     assert ours.shape == theirs[..., :3].shape and np.array_equal(ours, theirs[..., :3])
 
 
@@ -122,8 +124,9 @@ def test_cached_texts_draw_the_same_pixels_again():
         theirs = np.asarray(plain.buffer_rgba())[..., :3]
     assert np.array_equal(first, again)
     # the same texts, placed at whole pixels: only some edge pixels of the glyphs differ
+    # (3.2 % of this figure's pixels since its colour bar has a label)
     differ = np.abs(first.astype(int) - theirs.astype(int)).max(axis=2) > 0
-    assert 0.0 < differ.mean() < 0.03
+    assert 0.0 < differ.mean() < 0.04
 
 
 @pytest.mark.parametrize("odd", [False, True])
