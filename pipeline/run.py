@@ -52,6 +52,7 @@ from .params import RunParams, params_hash, run_preset
 from .report import draw_report
 from .report.background import BackgroundDrawer, preload_drawing
 from .report.data import ReportData
+from .report.figures import gc_paused
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress, scan_scene
@@ -379,9 +380,10 @@ def run_tree(
         # -- report ------------------------------------------------------------------------
         say(0.72, "drawing the reports")
         t0 = time.perf_counter()
-        clouds, viewer = _draw_reports(
-            field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level, drawer
-        )
+        with gc_paused():  # drawing's many small cycles collected after it
+            clouds, viewer = _draw_reports(
+                field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level, drawer
+            )
         summary = _run_summary(
             name,
             inputs,

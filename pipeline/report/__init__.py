@@ -19,6 +19,8 @@ folder (or ``comparison.json``) that ``treesim compare`` wrote, and writes:
 from __future__ import annotations
 
 import datetime as _dt
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -104,16 +106,21 @@ def build_report(
     s["report_software"] = {"matplotlib": report_software("matplotlib")["matplotlib"]}
 
     pngs = {key: out / name for key, name in PNG_FILES.items()}
-    profile = occlusion_profile(data, bin_m=params.profile_bin_m)
     not_drawn = {}
     if params.plots and trivially_exact(s):
         # every point coloured 0: a view that shows nothing the histogram does not say
         not_drawn["views_accuracy"] = "every distance is float rounding, nothing to colour"
     for key in not_drawn if params.plots else list(pngs):
         pngs.pop(key).unlink(missing_ok=True)  # and no plot of an earlier report stays
-    if pngs:
-        with figures.writing_behind():  # each PNG encoded while the next figure is drawn
-            _draw(data, pngs, params, profile)
+    # the occlusion profile's numbers (k-d tree queries, which release the GIL) computed
+    # by a thread while the figures that do not need them are drawn
+    with ThreadPoolExecutor(1, thread_name_prefix="treesim-profile") as pool:
+        profile_job = pool.submit(occlusion_profile, data, bin_m=params.profile_bin_m)
+        if pngs:
+            # each PNG encoded while the next figure is drawn; no garbage collection between
+            with figures.gc_paused(), figures.writing_behind():
+                _draw(data, pngs, params, profile_job.result)
+        profile = profile_job.result()
 
     paragraph = summary_paragraph(s)
     generated = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -171,9 +178,13 @@ def remove_report(folder: str | Path) -> list[Path]:
 
 
 def _draw(
-    data: ReportData, pngs: dict[str, Path], params: ReportParams, profile: dict[str, Any]
+    data: ReportData,
+    pngs: dict[str, Path],
+    params: ReportParams,
+    profile: Callable[[], dict[str, Any]],
 ) -> None:
-    """The PNG plots of one report."""
+    """The PNG plots of one report (``profile()``: the occlusion profile's numbers, asked
+    for last)."""
     s = data.summary
     figures.histograms(data, pngs["histograms"], dpi=params.dpi)
     figures.cumulative(data, pngs["cumulative"], dpi=params.dpi)
@@ -211,7 +222,7 @@ def _draw(
         dpi=params.dpi,
     )
     figures.coverage_bars(data, pngs["coverage"], dpi=params.dpi)
-    figures.occlusion_profile(profile, pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)
+    figures.occlusion_profile(profile(), pngs["occlusion"], ref_word=ref_word, dpi=params.dpi)
 
 
 def draw_report(
