@@ -52,7 +52,7 @@ from .params import RunParams, params_hash, run_preset
 from .report import draw_report
 from .report.background import BackgroundDrawer, preload_drawing
 from .report.data import ReportData
-from .report.figures import gc_paused
+from .report.figures import gc_paused, writing_behind
 from .report.run_page import STAGES, run_page, run_viewer_payload
 from .scene import Scene
 from .steps import scale_progress, scan_scene
@@ -380,7 +380,9 @@ def run_tree(
         # -- report ------------------------------------------------------------------------
         say(0.72, "drawing the reports")
         t0 = time.perf_counter()
-        with gc_paused():  # drawing's many small cycles collected after it
+        # no garbage collection while drawing (its many small cycles collected after it);
+        # each PNG encoded and written by a thread while the next figure is drawn
+        with gc_paused(), writing_behind():
             clouds, viewer = _draw_reports(
                 field_cloud, scanned, vs_mesh, vs_field, tolerance, out, params, say, level, drawer
             )

@@ -668,15 +668,25 @@ def png_bytes(pixels: np.ndarray, dpi: float) -> bytes:
 def render_rgb(fig: Any, dpi: float) -> np.ndarray:
     """Draw ``fig`` on its Agg canvas at ``dpi``: its pixels, (h, w, 3) RGB where every
     pixel is opaque (a report's white figures), else (h, w, 4) RGBA."""
+    return _opaque_as_rgb(_render_rgba(fig, dpi))
+
+
+def _render_rgba(fig: Any, dpi: float) -> np.ndarray:
+    """Draw ``fig`` on its Agg canvas at ``dpi``: its (h, w, 4) RGBA pixels (the
+    canvas' own buffer)."""
     fig.set_dpi(dpi)
     _flatten_axes(fig)
     fig.canvas.draw()
-    rgba = np.asarray(fig.canvas.buffer_rgba())
+    return np.asarray(fig.canvas.buffer_rgba())
+
+
+def _opaque_as_rgb(rgba: np.ndarray) -> np.ndarray:
+    """``rgba``'s RGB where every pixel is opaque, else ``rgba``."""
     return rgba[..., :3] if bool((rgba[..., 3] == 255).all()) else rgba
 
 
-def _write_png(path: Path, pixels: np.ndarray, dpi: float) -> None:
-    Path(path).write_bytes(png_bytes(pixels, dpi))
+def _write_png(path: Path, rgba: np.ndarray, dpi: float) -> None:
+    Path(path).write_bytes(png_bytes(_opaque_as_rgb(rgba), dpi))
 
 
 #: Per thread: the PNG writers that :func:`writing_behind` opened, innermost last.
@@ -736,7 +746,7 @@ def gc_paused() -> Iterator[None]:
 def _save(fig: Any, path: Path, dpi: int) -> Path:
     """Write ``fig`` at ``dpi`` as a PNG (what ``savefig`` draws, encoded by
     :func:`png_bytes`): now, or by :func:`writing_behind`'s thread within it."""
-    pixels = render_rgb(fig, dpi)  # the figure's own buffer, which nothing draws on again
+    pixels = _render_rgba(fig, dpi)  # the figure's own buffer, which nothing draws on again
     stack = getattr(_WRITERS, "stack", None)
     if stack:
         pool, pending = stack[-1]

@@ -193,3 +193,20 @@ def test_the_report_renderer_lays_text_out_as_matplotlib(size, weight):
             )
             assert box.bounds == want_box.bounds
             assert (lines, descent) == (want_lines, want_descent)
+
+
+def test_pngs_written_behind_are_the_ones_written_at_once(tmp_path):
+    """Oracle: the same figures saved inline; a failed write raises where it ends."""
+    import matplotlib
+
+    def draw(path):
+        with matplotlib.rc_context(F._RC):
+            return F._save(_busy_figure(), path, 60)
+
+    at_once = [draw(tmp_path / f"a{i}.png") for i in range(3)]
+    with F.writing_behind():
+        behind = [draw(tmp_path / f"b{i}.png") for i in range(3)]
+    for a, b in zip(at_once, behind, strict=True):
+        assert a.read_bytes() == b.read_bytes()
+    with pytest.raises(OSError), F.writing_behind():
+        draw(tmp_path / "no such folder" / "c.png")
