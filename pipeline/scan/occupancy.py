@@ -129,14 +129,13 @@ def triangle_bounds(tri: np.ndarray) -> TriangleBounds:
     (45.0, 45.0, 1.0)
     """
     # corner by corner, coordinate by coordinate: (3, 3, n) contiguous rows
-    t = np.ascontiguousarray(np.asarray(tri, dtype=np.float64).transpose(1, 2, 0))
-    return _corner_bounds(t[:, 0], t[:, 1], t[:, 2])
+    return _rows_bounds(np.ascontiguousarray(np.asarray(tri, np.float64).transpose(1, 2, 0)))
 
 
 def face_bounds(vertices: np.ndarray, faces: np.ndarray) -> TriangleBounds:
     """:func:`triangle_bounds` of the triangles ``faces`` (n, 3) of ``vertices`` (v, 3)
-    float64 in the scanner frame, gathered coordinate by coordinate (no (n, 3, 3)
-    array: the same figures, issue 25).
+    float64 in the scanner frame, from their corner rows (:func:`face_rows`; no
+    (n, 3, 3) array: the same figures, issue 25).
 
     Examples
     --------
@@ -145,23 +144,28 @@ def face_bounds(vertices: np.ndarray, faces: np.ndarray) -> TriangleBounds:
     >>> float(np.degrees(face_bounds(v, np.array([[0, 1, 2]])).az_hi[0]))
     45.0
     """
-    # each corner's rows gathered, then as coordinate rows (3, n): contiguous figures
-    c = [np.ascontiguousarray(np.take(vertices, faces[:, k], axis=0).T) for k in range(3)]
-    return _corner_bounds(*([c[0][i], c[1][i], c[2][i]] for i in range(3)))
+    return _rows_bounds(face_rows(vertices, faces))
 
 
-def face_corners(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The triangles ``faces`` (n, 3) of ``vertices`` (v, 3): (n, 3, 3), what
-    ``vertices[faces]`` gives (a row at a time: about twice as fast).
+def face_rows(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The triangles ``faces`` (n, 3) of ``vertices`` (v, 3) as corner rows (3, 3, n):
+    corner, coordinate, triangle (``vertices[faces].transpose(1, 2, 0)``, each row
+    contiguous).
 
     Examples
     --------
     >>> import numpy as np
     >>> v = np.arange(12.0).reshape(4, 3)
-    >>> bool((face_corners(v, np.array([[0, 2, 3]])) == v[[[0, 2, 3]]]).all())
+    >>> f = np.array([[0, 2, 3]])
+    >>> bool((face_rows(v, f) == v[f].transpose(1, 2, 0)).all())
     True
     """
-    return np.stack([np.take(vertices, faces[:, k], axis=0) for k in range(3)], axis=1)
+    return np.stack([np.take(vertices, faces[:, k], axis=0).T for k in range(3)])
+
+
+def _rows_bounds(rows: np.ndarray) -> TriangleBounds:
+    """:func:`triangle_bounds` of corner rows (3, 3, n)."""
+    return _corner_bounds(rows[:, 0], rows[:, 1], rows[:, 2])
 
 
 def _corner_bounds(
@@ -187,23 +191,23 @@ def _corner_bounds(
     return TriangleBounds(az_lo, az_hi, full, el_lo, el_hi, np.hypot(r_min, dz))
 
 
-def _bisect_longest(tri: np.ndarray) -> np.ndarray:
-    """Split each triangle (n, 3, 3) at the midpoint of its longest edge: (2n, 3, 3)."""
-    e = np.stack(
-        [
-            np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1),
-            np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-            np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1),
-        ],
-        axis=1,
-    )
-    k = e.argmax(axis=1)  # edge k runs from vertex k to vertex k+1
-    idx = np.arange(len(tri))
-    a = tri[idx, k]
-    b = tri[idx, (k + 1) % 3]
-    c = tri[idx, (k + 2) % 3]
-    m = 0.5 * (a + b)
-    return np.concatenate([np.stack([a, m, c], axis=1), np.stack([m, b, c], axis=1)])
+def _length(d: np.ndarray) -> np.ndarray:
+    """Lengths (n,) of vectors given as coordinate rows (3, n): the squares summed in
+    order, the figure ``np.linalg.norm(e, axis=1)`` gives for the same vectors (n, 3)."""
+    return np.sqrt((d[0] * d[0] + d[1] * d[1]) + d[2] * d[2])
+
+
+def _bisect_longest(rows: np.ndarray) -> np.ndarray:
+    """Split each triangle, as corner rows (3, 3, n), at the midpoint of its longest
+    edge: (3, 3, 2n), the first halves then the second ones."""
+    e = np.stack([_length(rows[(j + 1) % 3] - rows[j]) for j in range(3)])
+    k = e.argmax(axis=0)  # edge k runs from vertex k to vertex k+1 (the first longest)
+    a, b, c = (np.take_along_axis(rows, ((k + j) % 3)[None, None], axis=0)[0] for j in range(3))
+    n = rows.shape[2]
+    out = np.empty((3, 3, 2 * n))
+    out[0, :, :n], out[1, :, :n], out[2, :, :n] = a, 0.5 * (a + b), c
+    out[0, :, n:], out[1, :, n:], out[2, :, n:] = out[1, :, :n], b, c
+    return out
 
 
 @dataclass(frozen=True)
@@ -268,7 +272,9 @@ def _cell_boxes(
     n_c = len(rel)
     c_lo = np.searchsorted(rel, rl, side="left")
     c_hi = np.searchsorted(rel, np.minimum(rh, 360.0), side="right") - 1
-    wrap = np.where(~full & (rh >= 360.0), np.searchsorted(rel, rh - 360.0, side="right") - 1, -1)
+    wrap = np.full(len(rh), -1, dtype=np.intp)
+    past = ~full & (rh >= 360.0)  # the columns past 360° of those that wrap
+    wrap[past] = np.searchsorted(rel, rh[past] - 360.0, side="right") - 1
     keep &= (c_hi >= c_lo) | (wrap >= 0)
     c_lo = np.minimum(c_lo, n_c - 1)
     c_hi = np.maximum(c_hi, -1)
@@ -309,7 +315,7 @@ def occupancy_grid(
     # the triangles a chunk at a time (the bounds' temporaries are ~200 B a triangle)
     for a in range(0, len(faces), _PIECE_CHUNK):
         f = np.asarray(faces[a : a + _PIECE_CHUNK])
-        occ.add(face_bounds(vertices, f), lambda sel, f=f: face_corners(vertices, f[sel]))
+        occ.add(face_bounds(vertices, f), lambda sel, f=f: face_rows(vertices, f[sel]))
     return occ.grid()
 
 
@@ -331,7 +337,7 @@ class Occupancy:
     >>> tri = np.array([[[5.0, -1.0, 0.0], [5.0, 1.0, 0.0], [5.0, 0.0, 1.0]]])
     >>> win = windowed_grid(spec, box_window(tri[0].min(axis=0), tri[0].max(axis=0)))
     >>> occ = Occupancy(spec, win, 0.0, abs_error_m=1e-6)
-    >>> occ.add(triangle_bounds(tri), lambda sel: tri[sel])
+    >>> occ.add(triangle_bounds(tri), lambda sel: tri[sel].transpose(1, 2, 0))
     >>> 0 < occ.grid().n_pulses <= win.n_pulses
     True
     """
@@ -356,8 +362,8 @@ class Occupancy:
         keep: np.ndarray | None = None,
     ) -> None:
         """Pieces with bounds ``b`` (those where ``keep``, default all): the boxes of
-        those that are not big are added at once; ``corners(mask)`` gives the (k, 3, 3)
-        corners of the big ones (kept until :meth:`grid`)."""
+        those that are not big are added at once; ``corners(mask)`` gives the corner rows
+        (3, 3, k) of the big ones (:func:`face_rows`; kept until :meth:`grid`)."""
         n_cols = self.ras.shape[1]
         self.n_pieces += len(b.d_min) if keep is None else int(np.count_nonzero(keep))
         margin = self.m_ray + self.abs_error_m / np.maximum(b.d_min, 1e-300)
@@ -376,21 +382,21 @@ class Occupancy:
         """The window's pulses that some piece can reach (the big pieces bisected at
         their longest edge, level by level, until none is big)."""
         for halvings in range(41):
-            n_big = sum(len(t) for t in self.bigs)
+            n_big = sum(t.shape[2] for t in self.bigs)
             if n_big == 0 or self.n_pieces + n_big > MAX_PIECES or halvings == 40:
                 # a piece's box is conservative however large: keep it
                 if self.waiting:
                     boxes = (np.concatenate([x[i] for x in self.waiting]) for i in range(5))
                     self.diff.add_boxes(*boxes)
                 break
-            bigs, self.bigs, self.waiting, self.n_pieces = self.bigs, [], [], 0
-            bigs.reverse()
-            while bigs:  # each chunk's big pieces halved, then dropped
-                pieces = _bisect_longest(bigs.pop())
-                for a in range(0, len(pieces), _PIECE_CHUNK):
-                    chunk = pieces[a : a + _PIECE_CHUNK]
-                    self.add(triangle_bounds(chunk), chunk.__getitem__)
-                del pieces
+            bigs = self.bigs[0] if len(self.bigs) == 1 else np.concatenate(self.bigs, axis=2)
+            self.bigs, self.waiting, self.n_pieces = [], [], 0
+            pieces = _bisect_longest(bigs)
+            del bigs
+            for a in range(0, pieces.shape[2], _PIECE_CHUNK):
+                chunk = pieces[:, :, a : a + _PIECE_CHUNK]
+                self.add(_rows_bounds(chunk), lambda sel, chunk=chunk: chunk[:, :, sel])
+            del pieces
         n_rows, n_cols = self.ras.shape
         occ = self.diff.counts().cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
         return SparseGrid.from_raster(self.window, self.ras, occ)
