@@ -676,8 +676,34 @@ def _render_rgba(fig: Any, dpi: float) -> np.ndarray:
     canvas' own buffer)."""
     fig.set_dpi(dpi)
     _flatten_axes(fig)
+    _hide_plain_backgrounds(fig)
     fig.canvas.draw()
     return np.asarray(fig.canvas.buffer_rgba())
+
+
+def _hide_plain_backgrounds(fig: Any) -> None:
+    """Not drawn: an axes' background that is the figure's own, opaque, plain colour
+    (filling it again over the figure's changes no pixel; it still clips the axes)."""
+    from matplotlib.colors import to_rgba
+
+    back = fig.patch
+    if not back.get_visible() or back.get_hatch() or back.get_alpha() not in (None, 1.0):
+        return
+    colour = to_rgba(back.get_facecolor())
+    if colour[3] != 1.0:
+        return
+    for ax in fig.axes:
+        patch = ax.patch
+        plain = (
+            patch.get_visible()
+            and not patch.get_hatch()
+            and patch.get_alpha() in (None, 1.0)
+            and to_rgba(patch.get_facecolor()) == colour
+            and (patch.get_linewidth() == 0 or to_rgba(patch.get_edgecolor())[3] == 0)
+            and not patch.get_path_effects()
+        )
+        if plain:
+            patch.set_visible(False)
 
 
 def _opaque_as_rgb(rgba: np.ndarray) -> np.ndarray:
