@@ -11,7 +11,9 @@ libraries counts where a user pays for it. Printed per run: the stage times of i
 report stage's drawing on the run's own thread (``report CPU s``: what the load moves
 least), the process's CPU seconds (its drawing processes included) and the machine's load
 when it started; then, drawn again in this process from the demo's output, the CPU seconds
-of each figure. A baseline
+of each figure. Work that a run's report stage hands to threads of its own (each PNG's
+encoding and writing, the occlusion profile's numbers) counts in ``CPU s``, not in
+``report CPU s``; the per-figure table draws and encodes each figure in turn. A baseline
 revision (``--baseline``) is unpacked with ``git archive`` and run the same way,
 alternating with this code's runs. On a shared machine the load moves every time; compare
 runs made together.
