@@ -565,6 +565,13 @@ def _tick_free_axes_class() -> type:
                     tick.set_clip_path(*self._tick_clip)
                 return tick
 
+            # no ticks asked for (``set_ticks([])``, a colour bar's short axis): none made
+            def get_major_ticks(self, numticks: int | None = None) -> list[Any]:
+                return [] if numticks == 0 else super().get_major_ticks(numticks)
+
+            def get_minor_ticks(self, numticks: int | None = None) -> list[Any]:
+                return [] if numticks == 0 else super().get_minor_ticks(numticks)
+
         TickFreeAxis.__name__ = f"TickFree{base.__name__}"
         return TickFreeAxis
 
