@@ -364,13 +364,21 @@ class Occupancy:
         """Pieces with bounds ``b`` (those where ``keep``, default all): the boxes of
         those that are not big are added at once; ``corners(mask)`` gives the corner rows
         (3, 3, k) of the big ones (:func:`face_rows`; kept until :meth:`grid`)."""
-        n_cols = self.ras.shape[1]
         self.n_pieces += len(b.d_min) if keep is None else int(np.count_nonzero(keep))
         margin = self.m_ray + self.abs_error_m / np.maximum(b.d_min, 1e-300)
         r0, r1, c0, c1, w, boxed = _cell_boxes(b, margin, self.ras, self.a_ref_deg)
         if keep is not None:
             boxed &= keep
-        area = (r1 - r0 + 1) * np.where(w >= 0, n_cols, np.maximum(c1 - c0 + 1, 1))
+        # a box past 360° covers its columns up to the seam and those from 0 to w: counted
+        # as the whole raster's width, a piece at the seam stayed big however small it
+        # was cut, and the seam's pieces doubled every level up to MAX_PIECES
+        cells = self.ras.cell
+        width = np.where(
+            w >= 0,
+            np.maximum(c1 - c0 + 1, 0) + np.where(w >= 0, w // cells + 1, 0),
+            np.maximum(c1 - c0 + 1, 1),
+        )
+        area = (r1 - r0 + 1) * width
         big = boxed & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az
         small = boxed & ~big
         self.diff.add_boxes(r0[small], r1[small], c0[small], c1[small], w[small])

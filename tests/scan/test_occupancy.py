@@ -253,3 +253,48 @@ def test_chunked_planning_and_validation_change_nothing(monkeypatch):
     assert [s.pulses_cast for s in again.station_stats] == [
         s.pulses_cast for s in ref.station_stats
     ]
+
+
+def test_pieces_at_a_full_turns_column_seam_are_not_cut_forever(monkeypatch):
+    # boxes all round make the window the full turn, whose raster measures column angles
+    # from a seam beside azimuth 0; a tree on the +x axis lies across it. A piece across
+    # the seam was counted as wide as the raster, stayed big however small it was cut,
+    # and the seam's pieces doubled every level up to MAX_PIECES (2,097,152)
+    import importlib
+
+    occupancy = importlib.import_module("treesim.scan.occupancy")
+    v, f, _ = generate_tree("sapling", seed=0).mesh(facets=8)
+    c = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    tree = v - np.array([c[0] - 6.0, c[1], 0.0])
+    boxes = [((-0.5, 5.0, 0.0), (0.5, 6.0, 2.0)), ((-6.0, -0.5, 0.0), (-5.0, 0.5, 2.0))]
+    boxes.append(((-0.5, -6.0, 0.0), (0.5, -5.0, 2.0)))
+    parts = [part(tree, f, name="tree")]
+    parts += [part(*box_arrays(lo, hi), name=f"box{i}") for i, (lo, hi) in enumerate(boxes)]
+    # ground all round: every column holds geometry, so the seam cannot sit in a gap
+    g = np.linspace(-9.0, 9.0, 13)
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    gv = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    k = np.arange(12)[:, None] * 13 + np.arange(12)[None, :]
+    k = k.ravel()
+    gf = np.concatenate(
+        [np.column_stack([k, k + 13, k + 1]), np.column_stack([k + 1, k + 13, k + 14])]
+    )
+    parts.append(part(gv, gf, label="ground", name="ground"))
+    scene = Scene(parts)
+    pieces: list[int] = []
+    bisect = occupancy._bisect_longest
+
+    def counted(rows):
+        pieces.append(rows.shape[2])
+        return bisect(rows)
+
+    monkeypatch.setattr(occupancy, "_bisect_longest", counted)
+    culled, whole = culled_and_window(scene, [Station(position_m=(0.0, 0.0, 1.0))], SPEC)
+    az = culled.station_stats[0].azimuth_window_deg
+    assert az is None or az[1] - az[0] >= 359.0, az  # the full turn
+    assert pieces, "no piece was bisected: the case does not reach the seam's pieces"
+    # a piece is halved each level: the largest (a ground triangle beside the station,
+    # ~100° wide) is within the 512-cell box of 2 x 2-pulse cells after about ten levels
+    # (measured before the fix: 21 levels, 10,409 pieces bisected; after: 8 and 1,980)
+    assert len(pieces) <= 12 and sum(pieces) < scene.n_triangles, pieces
+    assert culled.rays_cast < whole.rays_cast
