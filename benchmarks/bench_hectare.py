@@ -17,8 +17,12 @@ Peak RSS sums the case's process and all its descendants (sampled every 0.2 s fr
 ``/proc``). Bytes per triangle while casting: the first station alone in a fresh process
 (inline, no tree kept), its peak over its resident memory before the scan, once with the
 trees and once with the ground only (the rasters, ray buffers and ground a station holds
-whatever its trees), the difference over the trees' triangles. The task runs' own peak
-over their start per loaded triangle is printed too (it holds that fixed part).
+whatever its trees), the difference over the trees' triangles; at the default batch of
+rays and at batches of ``SMALL_CHUNK_RAYS``, whose buffers for the trees' hits (which the
+default batch holds more of with trees than with the ground alone, and which do not grow
+with the triangles) hardly count: that one is what a loaded triangle costs. The task
+runs' own peak over their start per loaded triangle is printed too (it holds the fixed
+part).
 
 Usage: ``python benchmarks/bench_hectare.py --trees 40 --stations 4 --step-deg 0.2
 --executor dask --workers 2 [--facets 32] [--memory-repeats 3] [--memory-only] [--docs]``
@@ -137,6 +141,8 @@ if not {trees!r}:
                 facets=plot.facets, terrain_cell_m=plot.terrain_cell_m)
 spec = ScannerSpec(horizontal_resolution_deg={step!r}, vertical_resolution_deg={step!r})
 params = replace(ScanParams(), scanner=spec, max_rays=10**12)
+if {chunk!r}:
+    params = replace(params, chunk_rays={chunk!r})
 stations = plot_stations(plot, positions={positions!r})
 before = status("VmRSS:")
 r = scan_plot(plot, stations, params, sink=lambda p, f: None, cache_triangles=0, threads=1)
@@ -145,12 +151,16 @@ print("RESULT " + json.dumps({{"before": before, "peak": status("VmHWM:"),
 """
 
 
-def run_memory(plot_dir: Path, position: tuple, step: float, trees: bool) -> dict:
+def run_memory(
+    plot_dir: Path, position: tuple, step: float, trees: bool, chunk: int | None = None
+) -> dict:
     """One station in a fresh process (inline, no tree kept): its peak over its resident
-    memory before the scan, with the plot's trees or with the ground only."""
+    memory before the scan, with the plot's trees or with the ground only; ``chunk``: rays
+    per batch (None: the default)."""
     code = _MEMORY_CHILD.format(
-        root=str(ROOT), plot_dir=str(plot_dir), trees=trees, step=step, positions=[position]
-    )
+        root=str(ROOT), plot_dir=str(plot_dir), trees=trees, step=step, positions=[position],
+        chunk=chunk,
+    )  # fmt: skip
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if p.returncode != 0:
         raise SystemExit(f"the memory case failed:\n{p.stderr[-3000:]}")
@@ -158,33 +168,53 @@ def run_memory(plot_dir: Path, position: tuple, step: float, trees: bool) -> dic
     return json.loads(line[len("RESULT ") :])
 
 
+#: Rays per batch of the second memory measurement: an eighth of the default, so that the
+#: batch's own buffers (their hits' gathered corners, normals and ranges, which a scan
+#: with trees fills more than one of the ground alone) hardly count.
+SMALL_CHUNK_RAYS = 1 << 16
+
+
 def measure_memory(
     plot_dir: Path, position: tuple, step: float, repeats: int
 ) -> tuple[float, float]:
     """Bytes per tree triangle while casting: one station (the first) in a fresh process,
-    with the trees and with the ground only, the difference over the trees' triangles;
-    ``repeats`` times (the peaks move by a few MiB from run to run: the allocator's
-    leftovers). Prints each and returns the median and the ground-only part's."""
+    with the trees and with the ground only, the difference over the trees' triangles; at
+    the default batch of rays and at :data:`SMALL_CHUNK_RAYS`, ``repeats`` times (the
+    peaks move by a few MiB from run to run: the allocator's leftovers). At the default
+    batch the difference holds the batch's extra buffers for the trees' hits, which do
+    not grow with the triangles; the small batch's is what a triangle costs. Prints each
+    and returns the small batch's median and the default batch's ground-only part plus
+    those extra buffers (what does not grow with the trees)."""
     runs = []
     for _ in range(max(1, repeats)):
-        with_trees = run_memory(plot_dir, position, step, trees=True)
-        ground = run_memory(plot_dir, position, step, trees=False)
-        cost = [m["peak"] - m["before"] for m in (with_trees, ground)]
-        tree_tri = with_trees["triangles"] - ground["triangles"]
-        runs.append(((cost[0] - cost[1]) / tree_tri, float(cost[1])))
-        print(
-            f"one station, fresh process, no tree kept: {cost[0] / 2**30:.2f} GiB over its "
-            f"start with the trees ({with_trees['triangles'] / 1e6:.2f} M triangles), "
-            f"{cost[1] / 2**30:.2f} GiB with the ground only ({ground['triangles'] / 1e3:.0f} k "
-            f"triangles): {runs[-1][0]:.0f} B per tree triangle while casting"
-        )
+        row = {}
+        for chunk in (None, SMALL_CHUNK_RAYS):
+            with_trees = run_memory(plot_dir, position, step, True, chunk)
+            ground = run_memory(plot_dir, position, step, False, chunk)
+            cost = [m["peak"] - m["before"] for m in (with_trees, ground)]
+            tree_tri = with_trees["triangles"] - ground["triangles"]
+            row[chunk] = ((cost[0] - cost[1]) / tree_tri, float(cost[0]), float(cost[1]), tree_tri)
+            print(
+                f"one station, fresh process, no tree kept, "
+                f"{'default batch' if chunk is None else f'batches of {chunk:,} rays'}: "
+                f"{cost[0] / 2**30:.2f} GiB over its start with the trees "
+                f"({with_trees['triangles'] / 1e6:.2f} M triangles), {cost[1] / 2**30:.2f} GiB "
+                f"with the ground only ({ground['triangles'] / 1e3:.0f} k triangles): "
+                f"{row[chunk][0]:.0f} B per tree triangle while casting"
+            )
+        small, full = row[SMALL_CHUNK_RAYS], row[None]
+        # the default batch's extra buffers for the trees' hits: its peak with the trees
+        # over what the small batch's per-triangle cost explains, above the ground's
+        extra = max(0.0, full[1] - small[0] * small[3] - full[2])
+        runs.append((small[0], full[2] + extra, full[0]))
     per = sorted(r[0] for r in runs)
     mid = statistics.median(per)
-    if len(runs) > 1:
-        print(
-            f"B per tree triangle while casting over {len(runs)} measurements: median "
-            f"{mid:.0f}, range {per[0]:.0f}-{per[-1]:.0f}"
-        )
+    print(
+        f"B per tree triangle while casting, batches of {SMALL_CHUNK_RAYS:,} rays, over "
+        f"{len(runs)} measurement(s): median {mid:.0f}, range {per[0]:.0f}-{per[-1]:.0f} "
+        f"(the default batch: median {statistics.median(r[2] for r in runs):.0f}, its extra "
+        "buffers for the trees' hits counted per triangle at this size)"
+    )
     return mid, statistics.median(r[1] for r in runs)
 
 
@@ -265,8 +295,9 @@ def extrapolate(r: dict, step: float, full: dict, per_tri: tuple[float, float]) 
         f"{full['triangles_per_tree'] / 1e3:.0f} k triangles, {full['stations']} stations at "
         f"{full['step_deg']} deg, every station loading every tree: {full_tri / 1e6:.0f} M "
         f"triangles a station -> {per * full_tri / 2**30:.0f} GiB per station at {per:.0f} B "
-        f"a triangle, plus the ground-only part ({fixed / 2**30:.2f} GiB here) grown with "
-        f"the pulses (x{pulses:.0f}): ~{(per * full_tri + fixed * pulses) / 2**30:.0f} GiB "
+        f"a triangle, plus what does not grow with the trees (the ground's part and the "
+        f"default batch's buffers, {fixed / 2**30:.2f} GiB here) grown with the pulses "
+        f"(x{pulses:.0f}): ~{(per * full_tri + fixed * pulses) / 2**30:.0f} GiB "
         f"(at 150 B a triangle: {(150 * full_tri + fixed * pulses) / 2**30:.0f} GiB). "
         f"The task runs' peak over their start: {bpt:.0f} B a loaded triangle (all in). "
         f"~{rays_full / 1e6:.0f} M rays a station; on this host's rates ~"
