@@ -163,13 +163,15 @@ def local_tree(
     >>> bool((again[0] == v).all() and (again[1] == f).all()), again[4] is table
     (True, True)
     """
-    from ..models import generate_tree, qsm_mesh
+    from ..models import generate_tree, qsm_mesh, tubes_to_mesh
     from ..params.models import ModelParams
 
     if tree.source == "species":
         if table is not None and not _leafy(tree):
-            v, f, lab = _leafless(tree, table).mesh(facets)
-            return v, f, lab, np.zeros(3), table
+            # a leafless procedural tree's mesh is its table's tubes (ProceduralTree.mesh)
+            wood = tubes_to_mesh(table, facets=facets)
+            lab = np.full(len(wood.faces), LABEL_CODES["wood"], dtype=np.uint8)
+            return wood.vertices, wood.faces, lab, np.zeros(3), table
         params = fit_species(str(tree.species), tree.seed, tree.dbh_m, tree.height_m)
         made = generate_tree(params, seed=int(tree.seed), leaves=tree.leaves)
         v, f, lab = made.mesh(facets)
@@ -207,21 +209,6 @@ def _leafy(tree: PlotTree) -> bool:
     from ..models import species_preset
 
     return bool(species_preset(str(tree.species)).leaves_on if tree.leaves is None else tree.leaves)
-
-
-def _leafless(tree: PlotTree, table: CylinderTable) -> Any:
-    """The procedural tree of ``table`` with no leaves (what ``generate_tree`` made with
-    ``leaves=False``: its mesh is the table's tubes)."""
-    from ..models import ProceduralTree, species_preset
-
-    return ProceduralTree(
-        params=species_preset(str(tree.species)),
-        seed=int(tree.seed),
-        cylinders=table,
-        leaf_vertices=np.zeros((0, 3)),
-        leaf_faces=np.zeros((0, 3), dtype=np.int64),
-        n_leaves=0,
-    )
 
 
 def placed_table(
