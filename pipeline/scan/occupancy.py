@@ -374,9 +374,7 @@ class Occupancy:
         # was cut, and the seam's pieces doubled every level up to MAX_PIECES
         cells = self.ras.cell
         width = np.where(
-            w >= 0,
-            np.maximum(c1 - c0 + 1, 0) + np.where(w >= 0, w // cells + 1, 0),
-            np.maximum(c1 - c0 + 1, 1),
+            w >= 0, np.maximum(c1 - c0 + 1, 0) + w // cells + 1, np.maximum(c1 - c0 + 1, 1)
         )
         area = (r1 - r0 + 1) * width
         big = boxed & (area > MAX_PIECE_CELLS) & (b.d_min > 0) & ~b.full_az

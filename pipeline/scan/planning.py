@@ -118,7 +118,7 @@ def plan_scan(
     radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
     # one station: the occupancy grid takes the bounds that choose the triangles to load
     # (the same triangles, bounded once: issue 25)
-    shared = _Shared.of(stations, windows[0][0], spec, window and cull, lod, radius, frame)
+    shared = _Shared.of(origins, windows[0][0], spec, window and cull, lod, radius)
     keep, geometry = _reachable_triangles(scene, frame, stations, spec, lod, radius, shared)
     if shared is not None and shared.occupancy is not None and geometry["loaded"]:
         shared.cast = shared.occupancy.grid()  # its raster goes before the caster comes
@@ -170,23 +170,20 @@ class _Shared:
     @classmethod
     def of(
         cls,
-        stations: Sequence[Station],
+        origins: Sequence[np.ndarray],
         grid: PulseGrid,
         spec: ScannerSpec,
         culled: bool,
         lod: str,
         radius_m: float,
-        frame: LocalFrame,
     ) -> _Shared | None:
-        """None unless one station plans with ``lod="auto"`` (else the occupancy grid
-        bounds the loaded triangles itself)."""
-        if len(stations) != 1 or lod != "auto":
+        """None unless one station (its origin in the local frame) plans with
+        ``lod="auto"`` (else the occupancy grid bounds the loaded triangles itself)."""
+        if len(origins) != 1 or lod != "auto":
             return None
-        st = stations[0]
-        o = frame.to_local(st.position)
         occ = None
         if culled and grid.n_pulses:
-            err = float32_error_m(radius_m, o)
+            err = float32_error_m(radius_m, origins[0])
             occ = Occupancy(spec, grid, _azimuth_ref(spec, grid), abs_error_m=err)
         return cls(occ)
 
