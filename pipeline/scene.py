@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -114,6 +115,11 @@ class Scene:
     #: keep ``face_tree`` even when every part's id is 0 (a plot station that sees only
     #: the terrain: its points still carry ``tree_id``)
     keep_tree_ids: bool = False
+    #: (2, 3) bounds to report instead of the vertices' own, which it must contain: a
+    #: part of a larger scene (a plot station's azimuth sector) is then cast with the
+    #: whole scene's tolerances and entry distance (:class:`~treesim.scan.caster.Caster`
+    #: measures them from the bounds), so its points are the whole scene's, bit for bit
+    extent: np.ndarray | None = None
     vertices: np.ndarray = field(init=False)
     faces: np.ndarray = field(init=False)
     face_label: np.ndarray = field(init=False)
@@ -184,6 +190,8 @@ class Scene:
         self._used = mask
         used = self.vertices[mask]
         self._bounds = np.stack([used.min(axis=0), used.max(axis=0)])
+        if self.extent is not None:
+            self._bounds = _checked_extent(self.extent, self._bounds)
 
     @classmethod
     def from_labelled_mesh(
@@ -247,6 +255,18 @@ class Scene:
 
 #: Triangles tested at once by the scene's validation (bounds its temporaries: ~1 KB each).
 _CHECK_CHUNK = 1 << 18
+
+
+def _checked_extent(extent: Any, own: np.ndarray) -> np.ndarray:
+    """``extent`` as (2, 3) float64 bounds, checked to contain the bounds ``own``."""
+    ext = np.array(extent, dtype=np.float64)
+    if ext.shape != (2, 3) or not np.isfinite(ext).all():
+        raise InvalidParameterError(f"extent must be finite (2, 3) bounds, got {extent!r}")
+    if (ext[0] > own[0]).any() or (ext[1] < own[1]).any():
+        raise InvalidParameterError(
+            f"extent {ext.tolist()} does not contain the scene's vertices ({own.tolist()})"
+        )
+    return ext
 
 
 def _non_degenerate(v: np.ndarray, f: np.ndarray) -> np.ndarray:
