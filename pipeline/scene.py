@@ -271,13 +271,31 @@ def _checked_extent(extent: Any, own: np.ndarray) -> np.ndarray:
 
 def _non_degenerate(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """(f,) bool: the triangles ``v[f]`` with an area (twice the area over the longest
-    edge squared above 1e-12), tested a chunk at a time (row by row the same figures)."""
+    edge squared above 1e-12), tested a chunk at a time (row by row the same figures).
+
+    The figures ``np.linalg.norm(np.cross(e1, e2))`` and the largest
+    ``np.linalg.norm`` of the edges give, computed as they do (each product rounded,
+    then the difference; the squares summed in order; the root of the largest squared
+    edge, which is the largest root), from corners gathered one at a time: four times
+    faster (issue 25)."""
+
+    def sq_len(e: np.ndarray) -> np.ndarray:
+        sq = np.square(e)
+        return sq[:, 0] + sq[:, 1] + sq[:, 2]
+
     keep = np.empty(len(f), dtype=bool)
     for a in range(0, len(f), _CHECK_CHUNK):
-        tri = v[f[a : a + _CHECK_CHUNK]]
-        area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-        keep[a : a + len(tri)] = area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2
+        rows = f[a : a + _CHECK_CHUNK]
+        p0, p1, p2 = (np.take(v, rows[:, k], axis=0) for k in range(3))
+        e1, e2 = p1 - p0, p2 - p0
+        n = np.empty_like(e1)  # np.cross(e1, e2)
+        n[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+        n[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+        n[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        area2 = np.sqrt(sq_len(n))
+        # the edges p0 - p2, p1 - p0, p2 - p1 (a difference's sign leaves its square)
+        edge = np.sqrt(np.maximum(np.maximum(sq_len(p2 - p0), sq_len(e1)), sq_len(p2 - p1)))
+        keep[a : a + len(rows)] = area2 > 1e-12 * np.maximum(edge, 1e-300) ** 2
     return keep
 
 

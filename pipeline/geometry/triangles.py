@@ -37,6 +37,8 @@ _CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 
 _TIE_FLOOR = 2.0**-40
 _TIE_REACH = 2.0**-18
 _O3D_CHUNK = 1 << 21  # points per Open3D query
+#: Bits of a non-negative int64: :func:`vertex_triangles`' sort keys must fit in them.
+_KEY_BITS = 63
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -161,12 +163,34 @@ def well_conditioned(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """The triangles around each vertex, as a CSR incidence ``(ptr, idx)``: those around
-    vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``, in increasing order."""
-    flat = faces.ravel()
-    order = np.argsort(flat, kind="stable")
+    vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``, in increasing order.
+
+    ``idx`` is what a stable argsort of the corners gives (``order // 3``), found by an
+    ordinary sort of the keys ``vertex << b | triangle`` (equal keys are equal entries,
+    so no order among ties is needed; numpy sorts int64 several times faster than it
+    stable-argsorts int32: 0.14 s instead of 1.2 s for 16.6 M corners, issue 25).
+
+    Examples
+    --------
+    >>> ptr, idx = vertex_triangles(np.array([[0, 1, 2], [2, 1, 3]]), 4)
+    >>> ptr.tolist(), idx.tolist()
+    ([0, 1, 3, 5, 6], [0, 0, 1, 0, 1, 1])
+    """
+    faces = np.asarray(faces)
     ptr = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(flat, minlength=n_vertices), out=ptr[1:])
-    return ptr, order // 3
+    np.cumsum(np.bincount(faces.ravel(), minlength=n_vertices), out=ptr[1:])
+    n = len(faces)
+    bits = max(n - 1, 0).bit_length()  # the triangle's index in the low bits
+    if n_vertices << bits > 2**_KEY_BITS:
+        # the key would not fit in int64: the stable argsort itself
+        return ptr, np.argsort(faces.ravel(), kind="stable") // 3
+    key = np.array(faces, dtype=np.int64, order="C")
+    key <<= bits
+    key += np.arange(n, dtype=np.int64)[:, None]
+    key = key.reshape(-1)
+    key.sort()
+    key &= (1 << bits) - 1
+    return ptr, key
 
 
 def triangles_around(
