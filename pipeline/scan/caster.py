@@ -123,7 +123,7 @@ class Caster:
     def corners(self, idx: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The local float64 corners (three (n, 3) arrays) of triangles ``idx``."""
         f = self.faces[idx]
-        if isinstance(idx, np.ndarray) and f.ndim == 2:
+        if f.ndim == 2:  # an index array or a slice
             # np.take gathers rows about twice as fast as indexing (the same values)
             out = []
             for k in range(3):
@@ -275,17 +275,22 @@ class Caster:
         """Triangles around each vertex position (welded: equal coordinates are one
         vertex, so triangle soups such as STL files have neighbours too). Returns the
         welded corners (f, 3) and a CSR incidence: the triangles around welded vertex
-        ``i`` are ``inc[ptr[i]:ptr[i + 1]]``. Built once, on first need."""
+        ``i`` are ``inc[ptr[i]:ptr[i + 1]]``. Built once, on first need.
+
+        Which number a welded vertex gets is immaterial (only which triangles share one,
+        each vertex's listed in increasing order): where no two vertices share their
+        coordinates, the corners are the faces themselves (:func:`_weld`)."""
         if self._fan is None:
-            key = np.ascontiguousarray(self.v + 0.0)  # + 0.0: -0.0 becomes 0.0
-            _, weld = np.unique(key.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
-            del key, _
-            n_welded = int(weld.max()) + 1 if len(weld) else 0
+            weld, n_welded = _weld(self.v)
+            faces = np.asarray(self.faces)
             # held while the caster lives: int32 indices where they fit (the same values)
-            small = max(n_welded, len(self.faces)) < 2**31 - 1
+            small = max(n_welded, len(faces)) < 2**31 - 1
             index = np.int32 if small else np.int64
-            corners = weld.reshape(-1).astype(index)[np.asarray(self.faces)]
-            del weld
+            if weld is None:
+                corners = faces.astype(index, copy=False)
+            else:
+                corners = weld.astype(index)[faces]
+            del weld, faces
             ptr, inc = vertex_triangles(corners, n_welded)
             self._fan = (corners, ptr, inc.astype(index, copy=False))
         return self._fan
@@ -448,6 +453,53 @@ class Caster:
                 o, d[hidx], t_coarse, pr[hidx].astype(np.int64), uv[hidx], t0
             )
         return t_out, prim
+
+
+def _row_hash(words: np.ndarray) -> np.ndarray:
+    """A 64-bit hash (n,) uint64 of rows of three 64-bit words (n, 3) uint64 (multiply
+    and xor-shift rounds: equal rows hash equal; :func:`_weld` checks the rest)."""
+    h = words[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    for k, mult in ((1, 0xBF58476D1CE4E5B9), (2, 0x94D049BB133111EB)):
+        h ^= h >> np.uint64(31)
+        h ^= words[:, k]
+        h *= np.uint64(mult)
+    h ^= h >> np.uint64(29)
+    return h
+
+
+def _weld(v: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """A labelling of the rows of ``v`` (n, 3) float64 (a scratch array: changed) equal
+    where their coordinates are (-0.0 and 0.0 equal): ``(weld, n_welded)``, ``weld`` (n,)
+    in ``range(n_welded)``, or ``(None, n)`` where every row differs (each its own
+    label, its index). Rows are told apart by a 64-bit hash of their bits, sorted;
+    rows whose hashes are equal are compared, and where two differ (a collision) the
+    labels are np.unique's of the rows' bytes. About 15 times faster than np.unique
+    on 24-byte keys (issue 25)."""
+    v = np.ascontiguousarray(v)
+    v += 0.0  # -0.0 becomes 0.0
+    words = v.view(np.uint64)
+    h = _row_hash(words)
+    s = np.sort(h)
+    if not (s[1:] == s[:-1]).any():  # distinct hashes: distinct rows
+        return None, len(v)
+    del s
+    order = np.argsort(h)
+    h = h[order]
+    first = np.empty(len(h), dtype=bool)
+    first[:1] = True
+    np.not_equal(h[1:], h[:-1], out=first[1:])
+    del h
+    # every row equal to the one before it in its run of equal hashes: no collision
+    same = np.flatnonzero(~first[1:])
+    a, b = order[same], order[same + 1]
+    if not all((words[a, k] == words[b, k]).all() for k in range(3)):
+        _, weld = np.unique(words.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
+        weld = weld.reshape(-1)
+        return weld, int(weld.max()) + 1
+    label = np.cumsum(first) - 1
+    weld = np.empty(len(v), dtype=np.int64)
+    weld[order] = label
+    return weld, int(label[-1]) + 1
 
 
 class _Gathered:
