@@ -491,8 +491,10 @@ def _weld(v: np.ndarray) -> tuple[np.ndarray | None, int]:
     del h
     # every row equal to the one before it in its run of equal hashes: no collision
     same = np.flatnonzero(~first[1:])
-    a, b = order[same], order[same + 1]
-    if not all((words[a, k] == words[b, k]).all() for k in range(3)):
+    before = np.take(words, order[same], axis=0)
+    equal = np.array_equal(before, np.take(words, order[same + 1], axis=0))
+    del same, before
+    if not equal:
         _, weld = np.unique(words.view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
         weld = weld.reshape(-1)
         return weld, int(weld.max()) + 1
