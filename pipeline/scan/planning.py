@@ -88,13 +88,15 @@ def plan_scan(
     check_inside: bool,
     frame: LocalFrame | None = None,
     station_offset: int = 0,
+    columns: tuple[int, int] | None = None,
 ) -> Plan:
     """Each station's window and the pulses of it to cast, the triangles to load and the
     ray-casting scene: everything :func:`~treesim.scan.scan` and
     :func:`~treesim.scan.estimate_scan` do before they cast (``spec`` None:
     ``ScannerSpec()``). ``max_rays`` None: no limit (an estimate reports it instead).
     ``frame`` None: one around the scene's vertices; ``station_offset`` is added to the
-    station indices in messages."""
+    station indices in messages; ``columns`` ``(c0, c1)`` keeps only the pulses of scan
+    columns ``c0 <= column < c1`` (an azimuth sector)."""
     spec = spec or ScannerSpec()
     stations = list(stations)
     if not stations:
@@ -108,7 +110,7 @@ def plan_scan(
     adaptive = s > 1 and spec.beam_sampling == "adaptive" and lod == "auto"
     origins = [frame.to_local(st.position) for st in stations]
     windows = [
-        _grid_for(verts_used, o, st.rotation, spec, window)
+        _grid_for(verts_used, o, st.rotation, spec, window, columns)
         for o, st in zip(origins, stations, strict=True)
     ]
     # the limit is checked on the window with every sub-ray (an upper bound: culling
@@ -146,15 +148,24 @@ def plan_scan(
 
 
 def _grid_for(
-    verts_local: np.ndarray, o: np.ndarray, rot: np.ndarray, spec: ScannerSpec, window: bool
+    verts_local: np.ndarray,
+    o: np.ndarray,
+    rot: np.ndarray,
+    spec: ScannerSpec,
+    window: bool,
+    columns: tuple[int, int] | None = None,
 ) -> tuple[PulseGrid, Any]:
     """A station's pulse grid (its window of the scene's vertices, or, without ``window``,
-    the whole field of view) and the window's angles."""
+    the whole field of view; only ``columns`` ``(c0, c1)`` when given) and the window's
+    angles."""
     rel = (verts_local - o) @ rot  # scanner frame
     # column by column (the same figures, ten times faster than along axis 0)
     lo, hi = (np.array([ext(rel[:, k]) for k in range(3)]) for ext in (np.min, np.max))
     win = box_window(lo, hi)
     grid = windowed_grid(spec, win) if window else full_grid(spec)
+    if columns is not None:
+        c = grid.columns
+        grid = PulseGrid(grid.lines, c[(c >= columns[0]) & (c < columns[1])])
     return grid, win
 
 

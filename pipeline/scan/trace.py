@@ -99,6 +99,7 @@ def scan(
     station_offset: int = 0,
     wind: Wind | None = None,
     sink_fields: Sequence[str] | None = None,
+    columns: tuple[int, int] | None = None,
 ) -> ScanResult:
     """Scan a scene from one or more stations.
 
@@ -164,6 +165,11 @@ def scan(
         The fields the ``sink`` was opened with, when they include the wind's
         ``wind_displacement_m`` (:func:`scan_fields` with the spec); by default a sink
         gets :func:`scan_fields` of the scene alone.
+    columns : (int, int), optional
+        Cast only the pulses of scan columns ``c0 <= column < c1`` (an azimuth sector
+        of each station: :func:`treesim.plot.scan.scan_plot`'s ``sectors``, see
+        :mod:`treesim.plot.sectors` for how close its sectors' points are to the
+        station's).
 
     Returns
     -------
@@ -185,6 +191,8 @@ def scan(
     table = wind.cylinder_table() if wind is not None else None
     if table is not None:
         assert wind is not None
+        if columns is not None:
+            raise InvalidParameterError("a scan with wind casts every column: give no columns")
         opts = {"window": window, "chunk_rays": chunk_rays, "max_rays": max_rays}
         opts |= {"nthreads": nthreads, "check_inside": check_inside, "progress": progress}
         opts |= {"sink": sink, "frame": frame, "station_offset": station_offset}
@@ -202,6 +210,7 @@ def scan(
         check_inside=check_inside,
         frame=frame,
         station_offset=station_offset,
+        columns=columns,
     )
     if estimate is not None:
         estimate(estimate_plan(plan, ".laz", max_rays))
