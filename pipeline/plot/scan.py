@@ -34,6 +34,7 @@ from ..scan.occupancy import TriangleBounds, reachable, triangle_bounds
 from ..scan.timing import station_duration_s, timing_summary
 from ..scene import MeshPart, Scene
 from .core import Plot
+from .sectors import check_sectors, merged_lod, merged_stats, station_extent, station_sectors
 
 __all__ = [
     "PlotScanResult",
@@ -291,11 +292,17 @@ class _StationScan:
         ground: MeshPart | None,
         out: _Gathered,
         release: Callable[[], None] | None = None,
+        *,
+        columns: tuple[int, int] | None = None,
+        station_ids: list[int] | None = None,
     ) -> int:
         """Scan station ``k`` over the trees ``ids`` and the terrain within its range into
         ``out``; returns the triangles it loaded. ``release`` is called once the
         station's scene holds its own copy of the trees (the plot's built trees it no
-        longer needs are dropped before the cast: one copy of the geometry casts)."""
+        longer needs are dropped before the cast: one copy of the geometry casts).
+        ``columns``: only that azimuth sector's pulses (:mod:`treesim.plot.sectors`);
+        ``station_ids``: every tree of the station (default ``ids``), whose bounds with
+        the terrain's are the scene's extent."""
         from ..steps import scale_progress, scan_scene
 
         spec, n, say = self.params.scanner, self.n, self.say
@@ -318,8 +325,10 @@ class _StationScan:
             out.stats.append(_empty_stats(k, st, spec))
             out.lods.append({"mode": self.params.lod, "note": "nothing within range or view"})
             return loaded_tri
-        # a station that sees only the terrain still labels its points (tree_id 0)
-        scene = Scene(parts, keep_tree_ids=True)
+        # a station that sees only the terrain still labels its points (tree_id 0); a
+        # sector's scene reports the whole station's bounds (the same points, bit for bit)
+        extent = station_extent(plot, ids if station_ids is None else station_ids, patch)
+        scene = Scene(parts, keep_tree_ids=True, extent=extent)
         del parts
         scene.parts = []  # the scan reads the merged arrays only: the parts may go
         if release is not None:
@@ -337,6 +346,7 @@ class _StationScan:
             frame=self.frame,
             station_offset=k,
             check_inside=self.check_inside,
+            columns=columns,
         )
         del scene
         out.stats.append(res.station_stats[0])
@@ -416,6 +426,7 @@ def scan_plot(
     workers: int | None = None,
     scheduler: str | None = None,
     cache_dir: str | Path | None = None,
+    sectors: int = 1,
 ) -> PlotScanResult:
     """Scan a plot from ``stations``, one station at a time, loading only what it can
     record (see the module notes).
@@ -462,6 +473,14 @@ def scan_plot(
         files, :func:`save_tree_parts`) and read from by every station that records
         them; default a temporary folder, removed after. A remote cluster needs a folder
         every worker reads at the same path.
+    sectors : int
+        Scan each station in this many azimuth sectors (equal shares of its columns, in
+        turn inline, each a task of its own with an executor), each loading only the
+        trees its columns can record (:mod:`treesim.plot.sectors`): a fraction of a
+        station's geometry held at once, and the station's points, pulse for pulse,
+        except at rays through a shared edge (microns). The same ``sectors`` give the
+        same points, bit for bit, on every executor. One ray a pulse only (a beam's
+        pulses sample their neighbours).
 
     Returns
     -------
@@ -482,6 +501,7 @@ def scan_plot(
         raise InvalidParameterError("give at least one station")
     if isinstance(cache_triangles, bool) or int(cache_triangles) < 0:
         raise InvalidParameterError(f"cache_triangles must be >= 0, got {cache_triangles!r}")
+    sectors = check_sectors(sectors, params.scanner)
     plan = station_executor(
         executor,
         workers=workers,
@@ -492,7 +512,7 @@ def scan_plot(
     )
     t_all = time.perf_counter()
     say = progress or (lambda f, m: None)
-    job = _PlotJob(plot, placed, params, window, terrain, margin_m, check_inside)
+    job = _PlotJob(plot, placed, params, window, terrain, margin_m, check_inside, sectors)
     if plan.kind.value == "inline":
         out = _scan_inline(job, say, int(threads), sink, int(cache_triangles))
     else:
@@ -526,6 +546,7 @@ class _PlotJob:
     terrain: bool
     margin_m: float
     check_inside: bool
+    sectors: int = 1
 
     def ground(self, plot: Plot) -> MeshPart | None:
         return plot.terrain_part(self.margin_m) if self.terrain else None
@@ -535,6 +556,19 @@ class _PlotJob:
         return sum(plot.tree_triangles(t) for t in plot.tree_ids) + (
             len(ground.faces) if ground is not None else 0
         )
+
+    def units(
+        self, plot: Plot, needs: dict[int, list[int]]
+    ) -> list[tuple[int, tuple[int, int] | None, list[int]]]:
+        """Each station's sectors, in order: ``(station, columns, trees)``
+        (:func:`~treesim.plot.sectors.station_sectors`; one a station, its columns None,
+        without sectors)."""
+        spec = self.params.scanner
+        return [
+            (k, cols, ids)
+            for k, st in enumerate(self.placed)
+            for cols, ids in station_sectors(plot, st, spec, needs.get(k, []), self.sectors)
+        ]
 
     def loading(
         self, k: int, ids: list[int], why: list[dict[str, list[int]]], built: list[int]
@@ -551,8 +585,8 @@ class _PlotJob:
 def _scan_inline(
     job: _PlotJob, say: Progress, threads: int, sink: Any, cache_triangles: int
 ) -> _Gathered:
-    """The stations one after another in this process, trees kept between them within
-    ``cache_triangles``."""
+    """The stations (and their sectors) one after another in this process, trees kept
+    between them within ``cache_triangles``."""
     plot, placed, spec = job.plot, job.placed, job.params.scanner
     frame = plot.frame()
     n = len(placed)
@@ -560,37 +594,71 @@ def _scan_inline(
     needs, why = _station_needs(plot, placed, spec, frame.origin_array, cache_triangles)
     ground = job.ground(plot)
     total_tri = job.total_triangles(ground)
-    last_use = {
-        tid: max(k for k in range(n) if tid in needs.get(k, []))
-        for tid in {t for ids in needs.values() for t in ids}
-    }
+    units = job.units(plot, needs)
+    last_use = {tid: u for u, (_, _, ids) in enumerate(units) for tid in ids}
     scan_station = _StationScan(
         job.params, frame, n, say, threads, job.window, sink, job.check_inside
     )
     out = _Gathered()
     for k, st in enumerate(placed):
         t_st = time.perf_counter()
-        ids = needs.get(k, [])
-        built = [t for t in ids if t not in plot.loaded]
-
-        def release(k: int = k) -> None:
-            # drop what no later station needs, then keep the rest within the budget
-            plot.release([t for t in plot.loaded if last_use.get(t, -1) <= k])
-            _trim(plot, set(needs.get(k + 1, [])), cache_triangles)
-
         before = _rss_bytes()
-        loaded_tri = scan_station(plot, k, st, ids, ground, out, release)
+        mine = [u for u, unit in enumerate(units) if unit[0] == k]
+        built: list[int] = []
+        loaded = []
+        w0 = len(out.warnings)
+        for u in mine:
+            _, columns, ids = units[u]
+            built += [t for t in ids if t not in plot.loaded]
+
+            def release(u: int = u) -> None:
+                # drop what no later sector needs, then keep the rest within the budget
+                plot.release([t for t in plot.loaded if last_use.get(t, -1) <= u])
+                upcoming = set(units[u + 1][2]) if u + 1 < len(units) else set()
+                _trim(plot, upcoming, cache_triangles)
+
+            loaded.append(
+                scan_station(
+                    plot, k, st, ids, ground, out, release,
+                    columns=columns, station_ids=needs.get(k, []),
+                )
+            )  # fmt: skip
+            release()
+        said = out.warnings[w0:]  # a station's sectors say a thing once
+        out.warnings[w0:] = [w for j, w in enumerate(said) if w not in said[:j]]
+        _merge_sectors(out, mine, units)
         out.loading.append(
             {
-                **job.loading(k, ids, why, built),
-                "triangles_loaded": int(loaded_tri),
-                "triangles_total": int(total_tri),
+                **job.loading(k, needs.get(k, []), why, built),
+                **_sector_loading(loaded, total_tri),
                 "time_s": time.perf_counter() - t_st,
                 **_memory(before),
             }
         )
-        release()
     return out
+
+
+def _merge_sectors(
+    out: _Gathered, mine: list[int], units: list[tuple[int, Any, list[int]]]
+) -> None:
+    """The last ``len(mine)`` stats and lods of ``out`` (one station's sectors) merged
+    into the station's."""
+    m = len(mine)
+    if m > 1:
+        out.stats[-m:] = [merged_stats(out.stats[-m:])]
+        out.lods[-m:] = [merged_lod(out.lods[-m:], [units[u][1] for u in mine])]
+
+
+def _sector_loading(loaded: list[int], total_tri: int) -> dict[str, Any]:
+    """A station's triangle figures: ``triangles_loaded`` (the most held at once: its
+    largest sector) and, with sectors, each sector's."""
+    row: dict[str, Any] = {
+        "triangles_loaded": int(max(loaded)),
+        "triangles_total": int(total_tri),
+    }
+    if len(loaded) > 1:
+        row["sector_triangles_loaded"] = [int(x) for x in loaded]
+    return row
 
 
 def _scan_tasks(
@@ -642,32 +710,49 @@ def _run_station_tasks(
     for tid in ids:
         sent.set_tree_facts(tid, plot.tree_facts(tid))
     task_job = _PlotJob(sent, [], job.params, *_job_tail(job))
-    futures = [ex.submit(task, task_job, k, st, needs.get(k, [])) for k, st in enumerate(placed)]
-    say(0.0, f"{n} stations on {plan.describe()}")
-    for k, fut in enumerate(futures):
-        r = fut.result()
+    units = job.units(plot, needs)
+    futures = [
+        ex.submit(task, task_job, k, placed[k], ids_u, columns, needs.get(k, []), u)
+        for u, (k, columns, ids_u) in enumerate(units)
+    ]
+    say(0.0, f"{n} stations ({len(units)} tasks) on {plan.describe()}")
+    for k in range(n):
+        mine = [u for u, unit in enumerate(units) if unit[0] == k]
+        rs, said = [], []
+        for u in mine:
+            r = futures[u].result()
+            out.stats.append(r["stats"])
+            out.lods.append(r["lod"])
+            said += [w for w in r["warnings"] if w not in said]  # a station's sectors say it once
+            out.models = r["models"] or out.models
+            _take_points(r, sink, out)
+            rs.append({key: r[key] for key in ("loaded_tri", "time_s", "memory")})
+            futures[u] = None  # type: ignore[call-overload]  # its points may go
+        out.warnings += said
+        _merge_sectors(out, mine, units)
         ids_k = needs.get(k, [])
-        out.stats.append(r["stats"])
-        out.lods.append(r["lod"])
-        out.warnings += r["warnings"]
-        out.models = r["models"] or out.models
-        _take_points(r, sink, out)
+        # the memory of the task that rose most over its start (with sectors)
+        top = max(rs, key=lambda r: _rise(r["memory"]))
         out.loading.append(
             {
                 **job.loading(k, ids_k, why, []),
-                "triangles_loaded": int(r["loaded_tri"]),
-                "triangles_total": int(total_tri),
-                "time_s": r["time_s"],
-                **r["memory"],
+                **_sector_loading([r["loaded_tri"] for r in rs], total_tri),
+                "time_s": sum(r["time_s"] for r in rs),
+                **top["memory"],
             }
         )
-        futures[k] = None  # type: ignore[call-overload]  # its points may go
         say((k + 1) / n, f"station {k + 1}/{n}: {len(ids_k)} trees")
     return out
 
 
-def _job_tail(job: _PlotJob) -> tuple[bool, bool, float, bool]:
-    return job.window, job.terrain, job.margin_m, job.check_inside
+def _rise(memory: dict[str, int | None]) -> int:
+    """A task's peak memory over its start (0 where not known)."""
+    a, b = memory.get("rss_before_bytes"), memory.get("rss_peak_bytes")
+    return b - a if a is not None and b is not None else 0
+
+
+def _job_tail(job: _PlotJob) -> tuple[bool, bool, float, bool, int]:
+    return job.window, job.terrain, job.margin_m, job.check_inside, job.sectors
 
 
 def _tree_facts_task(
@@ -747,7 +832,18 @@ class _StationTask:
     check_inside: bool
     cache_dir: str | None = None
 
-    def __call__(self, job: _PlotJob, k: int, st: Station, ids: list[int]) -> dict[str, Any]:
+    def __call__(
+        self,
+        job: _PlotJob,
+        k: int,
+        st: Station,
+        ids: list[int],
+        columns: tuple[int, int] | None = None,
+        station_ids: list[int] | None = None,
+        unit: int | None = None,
+    ) -> dict[str, Any]:
+        """Station ``k``'s scan over the trees ``ids`` (its sector ``columns`` of
+        ``station_ids``, the task ``unit``, when given)."""
         from ..executors import task_threads
 
         t0 = time.perf_counter()
@@ -767,10 +863,14 @@ class _StationTask:
         out = _Gathered()
         # the points go to files as they are cast (a station's cloud is never held here,
         # nor sent back through the executor)
-        files = _PointFiles(self.cache_dir, k) if self.cache_dir is not None else None
+        name = f"{k}" if unit is None else f"{k}-{unit}"
+        files = _PointFiles(self.cache_dir, name) if self.cache_dir is not None else None
         scan_station.sink = files
         try:
-            loaded_tri = scan_station(plot, k, st, ids, job.ground(plot), out, plot.release)
+            loaded_tri = scan_station(
+                plot, k, st, ids, job.ground(plot), out, plot.release,
+                columns=columns, station_ids=station_ids,
+            )  # fmt: skip
         finally:
             saved = files.close() if files is not None else None
         plot.release()
@@ -792,8 +892,8 @@ class _PointFiles:
     """A station task's sink: each array (``xyz`` and every field) appended to a raw file
     of its own in ``folder`` as the chunks come (:func:`_take_points` reads them)."""
 
-    def __init__(self, folder: str, k: int) -> None:
-        self.prefix = Path(folder) / f"station-{k}"
+    def __init__(self, folder: str, name: str) -> None:
+        self.prefix = Path(folder) / f"station-{name}"
         self.files: dict[str, Any] = {}
         self.kinds: dict[str, tuple[str, str, tuple[int, ...]]] = {}
         self.n = 0
@@ -1200,6 +1300,7 @@ def plot_scan_files(
     workers: int | None = None,
     scheduler: str | None = None,
     cache_dir: str | Path | None = None,
+    sectors: int = 1,
 ) -> Any:
     """Scan a plot into ``outdir``: the cloud (``plot_scan.laz``, written while it is
     cast), ``plot_scan.json`` (the scan, each station's loading, each tree's truth and
@@ -1208,7 +1309,8 @@ def plot_scan_files(
 
     ``executor``, ``workers``, ``scheduler`` and ``cache_dir`` say where the stations
     run (see :func:`scan_plot`: each station a task on local processes or a Dask
-    cluster, the same cloud as inline); the per-tree figures are measured here.
+    cluster, the same cloud as inline), ``sectors`` in how many azimuth sectors; the
+    per-tree figures are measured here.
 
     Returns a :class:`treesim.steps.StepResult` (``result``: the
     :class:`PlotScanResult`; ``details["trees"]``: the per-tree rows).
