@@ -124,10 +124,10 @@ def execution(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def station_task_options(group: Any, where: str, same: str) -> None:
-    """``--executor`` (inline: default, local, dask), ``--workers``, ``--scheduler`` and
-    ``--cache-dir`` of a command whose plot scans run each station as a task (``treesim
-    plot scan``, ``treesim plan``'s verification), in ``group``: ``where`` names the
-    stations that run, ``same`` what stays the same, bit for bit."""
+    """``--executor`` (inline: default, local, dask), ``--workers``, ``--scheduler``,
+    ``--cache-dir`` and ``--sectors`` of a command whose plot scans run each station as a
+    task (``treesim plot scan``, ``treesim plan``'s verification), in ``group``:
+    ``where`` names the stations that run, ``same`` what stays the same, bit for bit."""
     group.add_argument(
         "--executor",
         choices=["inline", "local", "dask"],
@@ -152,6 +152,14 @@ def station_task_options(group: Any, where: str, same: str) -> None:
         metavar="DIR",
         help="the folder the station tasks' trees are built into and read from (default a "
         "temporary one; with --scheduler, a folder every worker reads at the same path)",
+    )
+    group.add_argument(
+        "--sectors",
+        type=whole_number(1),
+        metavar="N",
+        help="scan each station in N azimuth sectors (each a task of its own with an "
+        "executor), each loading only the trees it can record: a fraction of a station's "
+        "geometry in memory at once (default 1; one ray a pulse only)",
     )
 
 

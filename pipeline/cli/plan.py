@@ -171,6 +171,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         cache_dir=args.cache_dir,
+        sectors=args.sectors or 1,
     )
     inputs = {**what, "instrument": inst.name, "resolution_deg": spec.horizontal_resolution_deg}
     paths = write_plan(result, out, inputs=inputs)

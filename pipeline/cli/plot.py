@@ -132,6 +132,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         cache_dir=args.cache_dir,
+        sectors=args.sectors or 1,
     )
     res = step.result
     print(

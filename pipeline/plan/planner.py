@@ -644,12 +644,18 @@ def _verify(
 
 
 def _execution(
-    executor: str, workers: int | None, scheduler: str | None, cache_dir: str | None
+    executor: str,
+    workers: int | None,
+    scheduler: str | None,
+    cache_dir: str | None,
+    sectors: int,
+    spec: ScannerSpec,
 ) -> dict[str, Any]:
-    """The verification scans' ``executor``, ``workers``, ``scheduler`` and
-    ``cache_dir``, checked before the planning (a wrong one would otherwise fail only
+    """The verification scans' ``executor``, ``workers``, ``scheduler``, ``cache_dir``
+    and ``sectors``, checked before the planning (a wrong one would otherwise fail only
     at the verification, the planning's time lost)."""
     from ..plot.scan import station_executor
+    from ..plot.sectors import check_sectors
 
     station_executor(
         executor, workers=workers, scheduler=scheduler, cache_dir=cache_dir,
@@ -660,6 +666,7 @@ def _execution(
         "workers": workers,
         "scheduler": scheduler,
         "cache_dir": cache_dir,
+        "sectors": check_sectors(sectors, spec),
     }
 
 
@@ -693,6 +700,7 @@ def plan_scans(
     workers: int | None = None,
     scheduler: str | None = None,
     cache_dir: str | None = None,
+    sectors: int = 1,
 ) -> PlanResult:
     """Plan the stations that scan ``plot`` to the goal within the budget.
 
@@ -723,6 +731,9 @@ def plan_scans(
     cache_dir : str, optional
         The folder the station tasks' trees are built into and read from (default a
         temporary one; with ``scheduler``, a folder every worker reads at the same path).
+    sectors : int
+        Each verification station scanned in this many azimuth sectors
+        (:func:`treesim.plot.scan.scan_plot`'s ``sectors``: less memory at once).
 
     Returns
     -------
@@ -743,7 +754,7 @@ def plan_scans(
     ... )
     """
     p = params or PlanParams()
-    execution = _execution(executor, workers, scheduler, cache_dir)
+    execution = _execution(executor, workers, scheduler, cache_dir, sectors, spec)
     say = progress or (lambda f, m: None)
     timings: dict[str, float] = {}
     t_all = time.perf_counter()

@@ -75,13 +75,15 @@ def verify_plan(
     workers: int | None = None,
     scheduler: str | None = None,
     cache_dir: str | None = None,
+    sectors: int = 1,
 ) -> dict[str, Any]:
     """Scan ``stations`` at full resolution and measure every tree (module notes).
 
     ``executor`` (``inline``, ``local``, ``dask``), ``workers``, ``scheduler`` and
     ``cache_dir`` say where the stations' scans run, as for ``batch`` (each station a
     task that reads only the trees it can record; the same cloud, bit for bit, as
-    inline; see :func:`treesim.plot.scan.scan_plot`).
+    inline; see :func:`treesim.plot.scan.scan_plot`), ``sectors`` in how many azimuth
+    sectors each station is scanned.
 
     Returns
     -------
@@ -104,6 +106,7 @@ def verify_plan(
         "workers": workers,
         "scheduler": scheduler,
         "cache_dir": cache_dir,
+        "sectors": sectors,
     }
     cloud = _scan_plot(
         plot, stations, spec, nthreads=nthreads, progress=progress, execution=execution
