@@ -261,6 +261,8 @@ def write_plot(
     p = Path(path)
     if p.suffix.lower() != ".toml":
         raise InvalidParameterError(f"{p}: a plot file is TOML; name it plot.toml")
+    if not p.parent.is_dir():
+        raise InvalidParameterError(f"{p.parent}: no such folder; make it first")
     src = None if plot.base_dir is None else Path(plot.base_dir)
     lines = [
         "# treesim plot (see the manual: docs/commands/plot.md)",

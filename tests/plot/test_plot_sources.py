@@ -255,6 +255,16 @@ def test_bad_plot_files_say_what_is_wrong(tmp_path, toml, match):
         read_plot(tmp_path / "plot.toml")
 
 
+def test_writing_a_plot_into_a_missing_folder_is_a_clear_error(tmp_path):
+    from treesim.errors import InvalidParameterError
+    from treesim.plot.io import write_plot
+
+    plot = Plot([PlotTree(tree_id=1, x_m=0, y_m=0, species="sapling")])
+    with pytest.raises(InvalidParameterError, match="no such folder"):
+        write_plot(tmp_path / "gone" / "plot.toml", plot)
+    assert not (tmp_path / "gone").exists()
+
+
 def test_a_missing_tree_file_is_a_clear_error(tmp_path):
     plot = Plot([PlotTree(tree_id=1, x_m=0, y_m=0, source="mesh", path="gone.obj")],
                 base_dir=str(tmp_path))  # fmt: skip
