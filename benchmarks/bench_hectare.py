@@ -11,7 +11,12 @@ hashed as they come (a sink: nothing is kept). Each case runs in a fresh process
   or ``dask`` each station is a task that builds only the trees it can record;
 * with ``local`` or ``dask``, also the one-machine run (``inline``: this process, one
   station after another), and whether the merged points equal it (SHA-256 of every
-  point's coordinates and of every field, in station order).
+  point's coordinates and of every field, in station order);
+* with ``--sectors N`` (each station scanned in N azimuth sectors, each a task with an
+  executor: ``treesim.plot.sectors``), the cases above with those sectors, and (unless
+  ``--no-whole``) the one-machine run with one scene a station, against which the
+  sectors' pulses, returns, labels and tree ids are compared (SHA-256) and their points'
+  distances measured (the coordinates written to files and read back a chunk at a time).
 
 Peak RSS sums the case's process and all its descendants (sampled every 0.2 s from
 ``/proc``). Bytes per triangle while casting: the first station alone in a fresh process
@@ -25,7 +30,8 @@ runs' own peak over their start per loaded triangle is printed too (it holds the
 part).
 
 Usage: ``python benchmarks/bench_hectare.py --trees 40 --stations 4 --step-deg 0.2
---executor dask --workers 2 [--facets 32] [--memory-repeats 3] [--memory-only] [--docs]``
+--executor dask --workers 2 [--facets 32] [--sectors 4 [--no-whole]] [--memory-repeats 3]
+[--memory-only] [--no-memory] [--docs]``
 (``--docs``: the printout becomes ``docs/validation.md``'s ``bench-hectare`` part;
 ``--memory-repeats``: the bytes-per-triangle measurement that many times, each pair of
 fresh processes, the median used and the spread printed; ``--memory-only``: that
@@ -98,22 +104,36 @@ spec = ScannerSpec(horizontal_resolution_deg={step!r}, vertical_resolution_deg={
 params = replace(ScanParams(), scanner=spec, max_rays=10**12)
 stations = plot_stations(plot, positions={positions!r})
 hashes, count = {{}}, [0]
+PULSE = {pulse_fields!r}
+xyz_file = open({xyz_path!r}, "wb") if {xyz_path!r} else None
 
 def sink(p, f):
     count[0] += len(p)
     hashes.setdefault("xyz", hashlib.sha256()).update(p.tobytes())
+    if xyz_file is not None:
+        p.tofile(xyz_file)
     for k in sorted(f):
         hashes.setdefault(k, hashlib.sha256()).update(f[k].tobytes())
 
 t0 = time.perf_counter()
+# progress lines for whoever watches a long run (BENCH_HECTARE_LOG: a file to append to)
+log = open(os.environ.get("BENCH_HECTARE_LOG", os.devnull), "a")
+def progress(f, m):
+    log.write(f"{{time.strftime('%H:%M:%S')}} {{{executor!r}}} sectors {{{sectors!r}}}: "
+              f"{{f:.3f}} {{m}}\n")
+    log.flush()
 r = scan_plot(plot, stations, params, sink=sink, executor={executor!r}, workers={workers!r},
-              threads={threads!r})
+              threads={threads!r}, sectors={sectors!r}, progress=progress)
 wall = time.perf_counter() - t0
+if xyz_file is not None:
+    xyz_file.close()
 stop.set()
 peak[0] = max(peak[0], tree_rss())
 digest = hashlib.sha256("".join(k + h.hexdigest() for k, h in sorted(hashes.items())).encode())
+pulse = hashlib.sha256("".join(k + hashes[k].hexdigest() for k in PULSE if k in hashes).encode())
 print("RESULT " + json.dumps({{
-    "executor": {executor!r}, "time_s": wall, "peak_rss_bytes": peak[0], "points": count[0],
+    "executor": {executor!r}, "sectors": {sectors!r}, "pulse_digest": pulse.hexdigest(),
+    "time_s": wall, "peak_rss_bytes": peak[0], "points": count[0],
     "digest": digest.hexdigest(), "loading": r.loading, "trees_build_s": r.trees_build_s,
     "stations": [s.to_dict() for s in r.station_stats],
 }}))
@@ -218,9 +238,27 @@ def measure_memory(
     return mid, statistics.median(r[1] for r in runs)
 
 
+#: The fields that say which pulse, which return, which surface and which tree: a
+#: station's sectors give these bit for bit (the points may move microns where a ray meets
+#: a shared edge: see ``treesim.plot.sectors``).
+PULSE_FIELDS = (
+    "station", "scan_line", "scan_column", "time_s", "return_number", "number_of_returns",
+    "label", "tree_id",
+)  # fmt: skip
+
+
 def run_case(
-    plot_dir: Path, positions: list, step: float, executor: str, workers: int | None, threads: int
+    plot_dir: Path,
+    positions: list,
+    step: float,
+    executor: str,
+    workers: int | None,
+    threads: int,
+    sectors: int = 1,
+    xyz_path: Path | None = None,
 ) -> dict:
+    """One case in a fresh process (``xyz_path``: its points' coordinates written there,
+    float64, in order)."""
     code = _CHILD.format(
         root=str(ROOT),
         plot_dir=str(plot_dir),
@@ -229,6 +267,9 @@ def run_case(
         executor=executor,
         workers=workers,
         threads=threads,
+        sectors=sectors,
+        pulse_fields=PULSE_FIELDS,
+        xyz_path=str(xyz_path) if xyz_path else "",
     )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if p.returncode != 0:
@@ -263,11 +304,11 @@ def report(r: dict, label: str) -> None:
     bpt = bytes_per_triangle(r)
     rays = sum(s["rays_cast"] for s in r["stations"])
     print(
-        f"{label:28} {r['time_s']:8.1f} s  peak RSS {r['peak_rss_bytes'] / 2**30:6.2f} GiB "
+        f"{label:44} {r['time_s']:8.1f} s  peak RSS {r['peak_rss_bytes'] / 2**30:6.2f} GiB "
         f"(children included)  points {r['points']:>12,}  rays {rays:>12,}"
     )
     print(
-        f"{'':28} triangles loaded per station {min(tri) / 1e6:.2f}-{max(tri) / 1e6:.2f} M "
+        f"{'':44} triangles loaded per station {min(tri) / 1e6:.2f}-{max(tri) / 1e6:.2f} M "
         f"of {ld[0]['triangles_total'] / 1e6:.2f} M; peak bytes per loaded triangle "
         + ("n/a" if bpt is None else f"{bpt:.0f} B")
     )
@@ -321,10 +362,76 @@ def main() -> None:
     ap.add_argument("--radius-m", type=float, default=HECTARE_RADIUS_M)
     ap.add_argument("--memory-repeats", type=int, default=1)
     ap.add_argument("--memory-only", action="store_true")
+    ap.add_argument("--sectors", type=int, default=1, help="azimuth sectors a station")
+    ap.add_argument(
+        "--no-whole", action="store_true",
+        help="with --sectors, skip the one-scene-a-station run they are compared with",
+    )  # fmt: skip
+    ap.add_argument(
+        "--no-memory", action="store_true",
+        help="skip the bytes-per-triangle measurement (a station alone, fresh processes)",
+    )  # fmt: skip
     ap.add_argument("--docs", action="store_true")
     a = ap.parse_args()
     with docs_part.recording(DOCS_PART if a.docs else None, "bench_hectare.py"):
         _run(a)
+
+
+def run_cases(a: argparse.Namespace, folder: Path, positions: list) -> dict:
+    """The case asked for; with an executor, the one-process run with the same sectors
+    (bit for bit); with sectors (unless ``--no-whole``), the one-process run with one scene a
+    station, its pulses compared and its points' distances measured. Returns each case's
+    result by (executor, sectors)."""
+    n = a.sectors
+    cases = [(a.executor, a.workers if a.executor != "inline" else None, n)]
+    if a.executor != "inline":
+        cases.append(("inline", None, n))
+    whole = n > 1 and not a.no_whole
+    if whole:
+        cases.append(("inline", None, 1))
+    out = {}
+    for ex, w, sec in cases:
+        xyz = folder / f"xyz-{ex}-{sec}.bin" if whole and ex == "inline" else None
+        r = run_case(folder, positions, a.step_deg, ex, w, a.threads, sec, xyz)
+        out[(ex, sec)] = r
+        label = f"{ex} ({w} workers)" if w else f"{ex} (one process)"
+        report(r, label + (f", {sec} sectors" if sec > 1 else ", one scene a station"))
+    if a.executor != "inline":
+        same = out[(a.executor, n)]["digest"] == out[("inline", n)]["digest"]
+        print(
+            f"merged points of {a.executor} equal the one-process run with the same sectors: "
+            f"{'yes' if same else 'NO'} (SHA-256 of coordinates and every field, station "
+            f"order; {out[('inline', n)]['points']:,} points)"
+        )
+    if whole:
+        s, o = out[("inline", n)], out[("inline", 1)]
+        pulses = s["pulse_digest"] == o["pulse_digest"] and s["points"] == o["points"]
+        print(
+            f"{n} sectors against one scene a station: the same pulses, returns, labels and "
+            f"tree ids: {'yes' if pulses else 'NO'} (SHA-256 of {', '.join(PULSE_FIELDS)}); "
+            + (xyz_differences(folder / f"xyz-inline-{n}.bin", folder / "xyz-inline-1.bin"))
+        )
+    return out
+
+
+def xyz_differences(a: Path, b: Path) -> str:
+    """How many points of two runs' coordinate files (float64, in order) differ, and by
+    how much at most (m), read a chunk at a time."""
+    import numpy as np
+
+    ma = np.memmap(a, dtype=np.float64, mode="r").reshape(-1, 3)
+    mb = np.memmap(b, dtype=np.float64, mode="r").reshape(-1, 3)
+    if ma.shape != mb.shape:
+        return f"the points differ in number ({len(ma):,} against {len(mb):,})"
+    moved, most = 0, 0.0
+    for i in range(0, len(ma), 1 << 22):
+        d = np.linalg.norm(np.asarray(ma[i : i + (1 << 22)]) - mb[i : i + (1 << 22)], axis=1)
+        moved += int(np.count_nonzero(d))
+        most = max(most, float(d.max()) if len(d) else 0.0)
+    return (
+        f"points at other coordinates: {moved:,} of {len(ma):,} "
+        f"({moved / max(1, len(ma)):.2e}), at most {most * 1e6:.2f} µm away"
+    )
 
 
 def _run(a: argparse.Namespace) -> None:
@@ -352,39 +459,33 @@ def _run(a: argparse.Namespace) -> None:
         if a.memory_only:
             measure_memory(Path(tmp), positions[0], a.step_deg, a.memory_repeats)
             return
-        cases = [(a.executor, a.workers if a.executor != "inline" else None)]
-        if a.executor != "inline":
-            cases.append(("inline", None))
-        out = {}
-        for ex, w in cases:
-            r = run_case(Path(tmp), positions, a.step_deg, ex, w, a.threads)
-            out[ex] = r
-            label = f"{ex} ({w} workers)" if w else f"{ex} (one process)"
-            report(r, label)
-        if len(out) > 1:
-            same = out[a.executor]["digest"] == out["inline"]["digest"]
-            print(
-                f"merged points of {a.executor} equal the one-process run: "
-                f"{'yes' if same else 'NO'} (SHA-256 of coordinates and every field, "
-                f"station order; {out['inline']['points']:,} points)"
-            )
-        per_tri = measure_memory(Path(tmp), positions[0], a.step_deg, a.memory_repeats)
+        out = run_cases(a, Path(tmp), positions)
+        per_tri = None
+        if not a.no_memory:
+            per_tri = measure_memory(Path(tmp), positions[0], a.step_deg, a.memory_repeats)
         print(f"(the stand and every case: {time.perf_counter() - t0:.1f} s of wall time)")
         full = {"trees": 300, "triangles_per_tree": 500_000, "stations": 9, "step_deg": 0.04}
-        tri = out[a.executor]["loading"][0]["triangles_total"]
+        main_case = out[(a.executor, a.sectors)]
+        tri = main_case["loading"][0]["triangles_total"]
+        ran = (
+            len(plot.trees) >= full["trees"]
+            and a.step_deg <= full["step_deg"]
+            and len(positions) >= full["stations"]
+        )
         print(
             f"size run: {len(plot.trees)} trees, {tri / 1e6:.2f} M triangles with the ground, "
             f"{len(positions)} stations at {a.step_deg} deg. The issue's full size "
-            f"({full['trees']} trees of ~{full['triangles_per_tree'] / 1e3:.0f} k triangles, "
+            f"({full['trees']} trees of several hundred k triangles, "
             f"{full['stations']} stations at {full['step_deg']} deg, within 24 GiB) was "
             + (
-                "run."
-                if len(plot.trees) >= full["trees"] and a.step_deg <= full["step_deg"]
-                else "NOT run here (too long for this shared host): the lines below are "
-                "an extrapolation from this run's rates, not a measurement."
+                "run: the figures above are measured."
+                if ran
+                else "NOT run here: the lines below are an extrapolation from this run's "
+                "rates, not a measurement."
             )
         )
-        extrapolate(out[a.executor], a.step_deg, full, per_tri)
+        if not ran and per_tri is not None:
+            extrapolate(main_case, a.step_deg, full, per_tri)
 
 
 if __name__ == "__main__":
