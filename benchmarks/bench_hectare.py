@@ -364,6 +364,10 @@ def main() -> None:
     ap.add_argument("--memory-only", action="store_true")
     ap.add_argument("--sectors", type=int, default=1, help="azimuth sectors a station")
     ap.add_argument(
+        "--docs-part", default=DOCS_PART,
+        help="the part of docs/validation.md --docs writes (bench-hectare-full: a full-size run)",
+    )  # fmt: skip
+    ap.add_argument(
         "--no-whole", action="store_true",
         help="with --sectors, skip the one-scene-a-station run they are compared with",
     )  # fmt: skip
@@ -373,7 +377,7 @@ def main() -> None:
     )  # fmt: skip
     ap.add_argument("--docs", action="store_true")
     a = ap.parse_args()
-    with docs_part.recording(DOCS_PART if a.docs else None, "bench_hectare.py"):
+    with docs_part.recording(a.docs_part if a.docs else None, "bench_hectare.py"):
         _run(a)
 
 
