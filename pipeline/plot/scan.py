@@ -34,7 +34,14 @@ from ..scan.occupancy import TriangleBounds, reachable, triangle_bounds
 from ..scan.timing import station_duration_s, timing_summary
 from ..scene import MeshPart, Scene
 from .core import Plot
-from .sectors import check_sectors, merged_lod, merged_stats, station_extent, station_sectors
+from .sectors import (
+    check_sectors,
+    memory_advice,
+    merged_lod,
+    merged_stats,
+    station_extent,
+    station_sectors,
+)
 
 __all__ = [
     "PlotScanResult",
@@ -600,6 +607,7 @@ def _scan_inline(
         job.params, frame, n, say, threads, job.window, sink, job.check_inside
     )
     out = _Gathered()
+    _advise(job, units, ground, 1, out, say)
     for k, st in enumerate(placed):
         t_st = time.perf_counter()
         before = _rss_bytes()
@@ -636,6 +644,27 @@ def _scan_inline(
             }
         )
     return out
+
+
+def _advise(
+    job: _PlotJob,
+    units: list[tuple[int, Any, list[int]]],
+    ground: MeshPart | None,
+    concurrent: int,
+    out: _Gathered,
+    say: Progress,
+) -> None:
+    """Warn (in ``out`` and at once through ``say``) when the largest scene of ``units``,
+    ``concurrent`` at once, would not fit the memory available
+    (:func:`~treesim.plot.sectors.memory_advice`)."""
+    from .._system import available_memory_bytes
+
+    g = len(ground.faces) if ground is not None else 0
+    tri = [sum(job.plot.tree_triangles(t) for t in ids) + g for _, _, ids in units]
+    advice = memory_advice(tri, concurrent, job.sectors, available_memory_bytes())
+    if advice is not None:
+        out.warnings.append(advice)
+        say(0.0, f"warning: {advice}")
 
 
 def _merge_sectors(
@@ -711,6 +740,7 @@ def _run_station_tasks(
         sent.set_tree_facts(tid, plot.tree_facts(tid))
     task_job = _PlotJob(sent, [], job.params, *_job_tail(job))
     units = job.units(plot, needs)
+    _advise(job, units, job.ground(plot), min(slots(plan, ex), len(units)), out, say)
     futures = [
         ex.submit(task, task_job, k, placed[k], ids_u, columns, needs.get(k, []), u)
         for u, (k, columns, ids_u) in enumerate(units)

@@ -24,6 +24,7 @@ its sectors'.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -34,7 +35,19 @@ from ..scan.rays import box_window, windowed_grid
 from ..scan.result import StationStats
 from ..scan.stations import Station
 
-__all__ = ["check_sectors", "sector_columns", "station_sectors", "tree_columns"]
+__all__ = [
+    "BYTES_PER_TRIANGLE",
+    "check_sectors",
+    "memory_advice",
+    "sector_columns",
+    "station_sectors",
+    "tree_columns",
+]
+
+#: What a loaded triangle costs at a station's peak while it casts (bytes; the scene's
+#: arrays, Open3D's copy and its hierarchy, the build's buffers): ~200 measured by
+#: ``benchmarks/bench_hectare.py --memory-only`` (docs/validation.md), rounded up.
+BYTES_PER_TRIANGLE = 220
 
 
 def check_sectors(sectors: Any, spec: Any) -> int:
@@ -199,3 +212,36 @@ def merged_lod(parts: Sequence[dict[str, Any]], columns: Sequence[Any]) -> dict[
             for c, lod in zip(columns, parts, strict=True)
         ],
     }
+
+
+def memory_advice(
+    triangles: Sequence[int], concurrent: int, sectors: int, available: int | None
+) -> str | None:
+    """A warning when the largest of ``triangles`` (each scene's: a station's, or a
+    sector's) held ``concurrent`` times at once would take more than the ``available``
+    memory (bytes; None: not known, no warning), with the number of sectors that would
+    fit; None when it fits.
+
+    Examples
+    --------
+    >>> memory_advice([80_000_000], 2, 1, 24 * 2**30) is not None
+    True
+    >>> memory_advice([5_000_000], 2, 1, 24 * 2**30) is None
+    True
+    """
+    if available is None or not triangles:
+        return None
+    top = max(triangles)
+    need = top * BYTES_PER_TRIANGLE * max(1, concurrent)
+    if need <= available:
+        return None
+    # a sector holds about its share of the station's trees: a first guess, doubled for
+    # the trees that straddle sectors and for stations that see most trees to one side
+    suggest = int(min(64, 2 ** math.ceil(math.log2(2.0 * sectors * need / max(available, 1)))))
+    what = "station" if sectors == 1 else "sector"
+    return (
+        f"a {what} holds up to {top / 1e6:.1f} M triangles: ~{need / 2**30:.1f} GiB while "
+        f"{max(1, concurrent)} cast at once (~{BYTES_PER_TRIANGLE} B a triangle), more than "
+        f"the {available / 2**30:.1f} GiB available; scan with sectors={suggest} "
+        f"(--sectors {suggest}): each sector loads only the trees it can record"
+    )

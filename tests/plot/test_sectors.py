@@ -160,3 +160,27 @@ def test_cli_sectors_option(tmp_path, capsys):
         main([*argv, "-o", str(tmp_path / "c"), "--sectors", "0"])
     assert exc.value.code == 2
     assert "--sectors" in capsys.readouterr().err
+
+
+def test_a_station_that_would_not_fit_says_how_many_sectors(monkeypatch):
+    import treesim._system as system
+    from treesim.plot.sectors import BYTES_PER_TRIANGLE, memory_advice
+
+    # the advice's sectors bring the need under what is available (a sector holding its
+    # share of the station's triangles)
+    for tri, conc, avail in ((83e6, 2, 22 * 2**30), (40e6, 1, 4 * 2**30), (9e6, 4, 2**30)):
+        text = memory_advice([int(tri)], conc, 1, avail)
+        assert text is not None
+        n = int(text.split("sectors=")[1].split()[0])
+        assert tri / n * BYTES_PER_TRIANGLE * conc <= avail
+    assert memory_advice([1000], 2, 1, None) is None  # not known: no warning
+    # a scan whose stations would not fit is told so, and goes on
+    monkeypatch.setattr(system, "available_memory_bytes", lambda: 2**20)
+    said = []
+    r = scan_plot(_plot(), STATIONS[:1], _params(), progress=lambda f, m: said.append(m))
+    assert any("sectors=" in w for w in r.warnings)
+    assert any(m.startswith("warning: a station holds") for m in said)
+    assert len(r.cloud) > 1000
+    monkeypatch.setattr(system, "available_memory_bytes", lambda: 2**40)
+    r = scan_plot(_plot(), STATIONS[:1], _params())
+    assert not any("sectors=" in w for w in r.warnings)
