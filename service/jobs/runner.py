@@ -126,7 +126,8 @@ def _outcome(spec: JobSpec) -> dict[str, Any]:
             "ok": False,
             "problem": problem(
                 "internal-error",
-                f"{type(exc).__name__}: {exc} (a bug in treesim; the traceback is in this problem's log)",
+                f"{type(exc).__name__}: {exc} (a bug in treesim; the traceback is in this "
+                "problem's log)",
             ),
         }
 
