@@ -1391,6 +1391,7 @@ def plot_scan_files(
                 workers=workers,
                 scheduler=scheduler,
                 cache_dir=cache_dir,
+                sectors=sectors,
             )
         written.append(cloud_path)
         t_scan = time.perf_counter() - t0

@@ -26,6 +26,8 @@ class PlotScanJob:
     compare: CompareParams
     figures: bool
     source: Any  # PlotSource
+    #: azimuth sectors a station is scanned in (treesim.plot.sectors)
+    sectors: int = 1
 
 
 #: ScanParams fields a plot scan does not use (the station rule is one tree's).
@@ -33,6 +35,8 @@ _NOT_FOR_PLOTS = ("min_distance_m",)
 
 #: The most stations one plot scan takes (given as positions or as a stations CSV).
 MAX_STATIONS = 1000
+#: The most azimuth sectors a station is scanned in.
+MAX_SECTORS = 64
 #: The largest magnitude of a station's coordinate (m): every projected coordinate on
 #: Earth fits (UTM northings reach 1e7 m); a larger one is a unit or typing error.
 STATION_COORD_MAX_M = 1e8
@@ -81,6 +85,15 @@ def _plot_scan_extra() -> dict[str, Any]:
             "description": "measure every tree against its own mesh (tree_figures.csv); "
             "false: scan only",
         },
+        "sectors": {
+            "type": "integer",
+            "minimum": 1,
+            "maximum": MAX_SECTORS,
+            "default": 1,
+            "description": "scan each station in this many azimuth sectors, one after "
+            "another, each loading only the trees it can record: less memory at once for "
+            "a large plot (one ray a pulse only)",
+        },
         **source_schema(),
     }
 
@@ -100,7 +113,16 @@ def _parse_plot_scan(parameters: Mapping[str, Any]) -> PlotScanJob:
     tol = data.pop("tolerance_m", None)
     compare = merge(CompareParams(), {} if tol is None else {"tolerance_m": tol})
     figures = bool(data.pop("figures", True))
-    return PlotScanJob(parse_scan(data), stations, compare, figures, source)
+    sectors = data.pop("sectors", 1)
+    scan = parse_scan(data)
+    from treesim.errors import InvalidParameterError
+    from treesim.plot.sectors import check_sectors
+
+    try:
+        sectors = check_sectors(sectors, scan.scanner)
+    except InvalidParameterError as exc:
+        raise field_error("sectors", f"sectors: {exc}") from None
+    return PlotScanJob(scan, stations, compare, figures, source, sectors)
 
 
 def _check_station_values(stations: tuple[tuple[float, ...], ...]) -> None:
@@ -205,6 +227,7 @@ def _execute_plot_scan(
             figures=job.figures,
             threads=threads,
             progress=progress,
+            sectors=job.sectors,
         )
     s = step.summary
     rows = step.details["trees"]

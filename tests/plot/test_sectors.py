@@ -156,6 +156,10 @@ def test_cli_sectors_option(tmp_path, capsys):
     a, b = (read_cloud(tmp_path / d / "plot_scan.laz") for d in ("a", "b"))
     assert len(a) == len(b) > 1000
     np.testing.assert_array_equal(a.fields["scan_column"], b.fields["scan_column"])
+    import json
+
+    station = json.loads((tmp_path / "b" / "plot_scan.json").read_text())["stations"][0]
+    assert len(station["sector_triangles_loaded"]) == 3  # the option reached the scan
     with pytest.raises(SystemExit) as exc:
         main([*argv, "-o", str(tmp_path / "c"), "--sectors", "0"])
     assert exc.value.code == 2

@@ -214,7 +214,8 @@ def test_plan_and_plot_scan_are_described_with_ranges(client):
     assert {"plan.json", "stations.csv", "map.png", "curve.png"} <= _output_files(plan)
     scan = client.get("/v1/processes/plot-scan").json()
     sp = scan["parameters"]["properties"]
-    assert {"stations", "tolerance_m", "figures", "instrument", "scanner"} <= set(sp)
+    assert {"stations", "tolerance_m", "figures", "instrument", "scanner", "sectors"} <= set(sp)
+    assert sp["sectors"]["minimum"] == 1 and sp["sectors"]["default"] == 1
     assert "min_distance_m" not in sp and "max_rays" not in sp
     assert set(_files(scan)) == {"plot", "mesh", "stations"}
     assert {"plot_scan.laz", "plot_scan.json", "tree_figures.csv"} <= _output_files(scan)
@@ -243,6 +244,14 @@ def test_plan_and_plot_scan_are_described_with_ranges(client):
         ("plot-scan", "plot", {"tolerance_m": -1}, "parameters", "tolerance_m"),
         ("plot-scan", "plot", {"scanner": {"max_range_m": -5}}, "parameters.scanner", None),
         ("plot-scan", None, {"figures": True}, "inputs.plot", "give one of"),
+        ("plot-scan", "plot", {"sectors": 0}, "parameters.sectors", ">= 1"),
+        (
+            "plot-scan",
+            "plot",
+            {"sectors": 2, "scanner": {"beam_divergence_mrad": 0.3, "subrays": 7}},
+            "parameters.sectors",
+            "neighbouring pulses",
+        ),
     ],
 )
 def test_bad_plan_and_plot_scan_requests_are_422(
@@ -314,7 +323,7 @@ def test_plan_then_plot_scan_of_its_stations(client, plot_id):
             client,
             "plot-scan",
             {"plot": plot_id, "stations": {"job": job["jobID"], "result": "stations.csv"}},
-            {"resolution_deg": 0.5},
+            {"resolution_deg": 0.5, "sectors": 2},
         ),
         timeout_s=120,
     )
@@ -328,6 +337,8 @@ def test_plan_then_plot_scan_of_its_stations(client, plot_id):
     assert all(int(r["points"]) > 0 for r in figures)
     summary = json.loads(client.get(results["plot_scan.json"]["href"]).content)
     assert len(summary["stations"]) == len(stations)
+    # each station in two sectors (the parameter reached the scan)
+    assert all(len(s["sector_triangles_loaded"]) == 2 for s in summary["stations"])
     assert scan["summary"]["trees_measured"] == 3 and scan["summary"]["points"] > 0
     laz = client.get(results["plot_scan.laz"]["href"]).content
     assert laz[:4] == b"LASF" and len(laz) == results["plot_scan.laz"]["size_bytes"]
