@@ -188,3 +188,28 @@ def test_a_station_that_would_not_fit_says_how_many_sectors(monkeypatch):
     monkeypatch.setattr(system, "available_memory_bytes", lambda: 2**40)
     r = scan_plot(_plot(), STATIONS[:1], _params())
     assert not any("sectors=" in w for w in r.warnings)
+
+
+def test_a_plans_verification_in_sectors_records_the_same_points():
+    from treesim.params import instrument
+    from treesim.plan import PlanParams, plan_scans, verify_plan
+    from treesim.plot.generate import generate_stand
+
+    plot, _ = generate_stand("sapling", 600, 4.0, seed=1, facets=8)
+    vz400 = instrument("riegl-vz400")
+    spec = vz400.spec(horizontal_resolution_deg=0.5, vertical_resolution_deg=0.5)
+    params = PlanParams(
+        goal_coverage=0.5, samples_per_tree=100, band_samples=36, candidate_spacing_m=2.0,
+        verify=False,
+    )  # fmt: skip
+    r = plan_scans(plot, spec=spec, instrument=vz400, params=params)
+
+    def figures(**kw):
+        v = verify_plan(
+            plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02, **kw
+        )
+        return v["points"], {t: f["points"] for t, f in v["trees"].items()}
+
+    whole = figures()
+    assert whole[0] > 1000
+    assert figures(sectors=3) == whole  # the same pulses, so as many points per tree
