@@ -128,3 +128,26 @@ def model_check() -> tuple[Any, Plot, np.ndarray]:
     ver = verify_plan(plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02)
     got = np.array([ver["trees"][t.tree_id]["coverage_samples"] for t in r.targets])
     return r, plot, r.predicted["coverage"] - got
+
+
+def verification_case() -> tuple[Any, Any, Any, Any]:
+    """A small plan to verify on several executors or in sectors (a sapling stand, 0.5°
+    steps, the plan's own verification off): ``(plot, spec, result, figures)``, where
+    ``figures(**kw)`` is :func:`verify_plan` of the plan's stations with ``kw`` (its
+    ``timings_s`` left out: they differ run to run)."""
+    plot, _ = generate_stand("sapling", 600, 4.0, seed=1, facets=8)
+    spec = VZ400.spec(horizontal_resolution_deg=0.5, vertical_resolution_deg=0.5)
+    params = PlanParams(
+        goal_coverage=0.5, samples_per_tree=100, band_samples=36, candidate_spacing_m=2.0,
+        verify=False,
+    )  # fmt: skip
+    r = plan_scans(plot, spec=spec, instrument=VZ400, params=params)
+
+    def figures(**kw: Any) -> dict[str, Any]:
+        v = verify_plan(
+            plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02, **kw
+        )
+        v.pop("timings_s")
+        return v
+
+    return plot, spec, r, figures

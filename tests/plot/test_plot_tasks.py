@@ -149,27 +149,10 @@ def test_cli_plot_scan_on_local_workers_writes_the_inline_files(tmp_path, capsys
 
 
 def test_a_plans_verification_on_local_workers_gives_the_inline_figures():
-    from treesim.params import instrument
-    from treesim.plan import PlanParams, plan_scans, verify_plan
-    from treesim.plot.generate import generate_stand
+    from tests.plan.setups import verification_case
 
-    plot, _ = generate_stand("sapling", 600, 4.0, seed=1, facets=8)
-    vz400 = instrument("riegl-vz400")
-    spec = vz400.spec(horizontal_resolution_deg=0.5, vertical_resolution_deg=0.5)
-    params = PlanParams(
-        goal_coverage=0.5, samples_per_tree=100, band_samples=36, candidate_spacing_m=2.0,
-        verify=False,
-    )  # fmt: skip
-    r = plan_scans(plot, spec=spec, instrument=vz400, params=params)
+    _, _, r, figures = verification_case()
     assert len(r.stations) >= 2  # more than one task
-
-    def figures(**kw):
-        v = verify_plan(
-            plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02, **kw
-        )
-        v.pop("timings_s")
-        return v
-
     inline = figures()
     assert inline["points"] > 1000
     assert figures(executor="local", workers=2, nthreads=1) == inline

@@ -191,23 +191,12 @@ def test_a_station_that_would_not_fit_says_how_many_sectors(monkeypatch):
 
 
 def test_a_plans_verification_in_sectors_records_the_same_points():
-    from treesim.params import instrument
-    from treesim.plan import PlanParams, plan_scans, verify_plan
-    from treesim.plot.generate import generate_stand
+    from tests.plan.setups import verification_case
 
-    plot, _ = generate_stand("sapling", 600, 4.0, seed=1, facets=8)
-    vz400 = instrument("riegl-vz400")
-    spec = vz400.spec(horizontal_resolution_deg=0.5, vertical_resolution_deg=0.5)
-    params = PlanParams(
-        goal_coverage=0.5, samples_per_tree=100, band_samples=36, candidate_spacing_m=2.0,
-        verify=False,
-    )  # fmt: skip
-    r = plan_scans(plot, spec=spec, instrument=vz400, params=params)
+    _, _, _, verify = verification_case()
 
     def figures(**kw):
-        v = verify_plan(
-            plot, r.stations, spec, r.targets, r.samples, r.objective, tolerance_m=0.02, **kw
-        )
+        v = verify(**kw)
         return v["points"], {t: f["points"] for t, f in v["trees"].items()}
 
     whole = figures()
