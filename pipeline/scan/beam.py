@@ -523,6 +523,12 @@ EDGE_PLANE_TOL_M = 2e-3
 EDGE_FAR_PROBES = (0.0, 0.6, -0.6)
 #: Largest neighbourhood (steps each way) the edge model looks in for hits beside a miss.
 EDGE_MAX_NEIGHBOUR_STEPS = 8
+#: Pulses walked (:func:`_walk`), pulses whose surface range is worked out
+#: (:func:`_surface_range`) and rows of :func:`_edge_lines`, at a time: a few thousand, so
+#: that the arrays stay in the processor's cache (the answers do not depend on them).
+_WALK_CHUNK = 4096
+_RANGE_CHUNK = 4096
+_EDGE_CHUNK = 16384
 
 
 def _profile_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -598,21 +604,35 @@ def _edge_lines(
     line ``nu·x + nv·y + c = 0`` on the footprint's plane (unit radius: tangents over
     ``th``), oriented so that the triangle is on its ``>= 0`` side; ``dist``: the
     distance from the axis to the edge's segment (the line's where a corner is behind
-    the station); ``m``: the normal of the plane through the station and the edge,
-    ``sg`` its sign towards the triangle. Arrays (n, 3) ((n, 3, 3) for ``m``)."""
+    the station); ``sg``: the sign towards the triangle of the normal of the plane
+    through the station and the edge, that normal being ``m[inv]`` (``m`` (u, 3, 3): one
+    row per distinct triangle, ``inv`` (n,) each row's). Arrays (n, 3) but ``m``, ``inv``.
+    What depends on the triangle alone is worked out once per distinct triangle."""
+    if len(tri) > _EDGE_CHUNK:  # a few thousand rows at a time (the processor's cache)
+        parts = [
+            _edge_lines(v, faces, o, th, tuple(x[a : a + _EDGE_CHUNK] for x in frame), t)
+            for a, t in ((a, tri[a : a + _EDGE_CHUNK]) for a in range(0, len(tri), _EDGE_CHUNK))
+        ]
+        shift = np.cumsum([0] + [len(g["m"]) for g in parts[:-1]])
+        out = {k: np.concatenate([g[k] for g in parts]) for k in parts[0] if k != "inv"}
+        out["inv"] = np.concatenate([g["inv"] + s for g, s in zip(parts, shift, strict=True)])
+        return out
     d, e1, e2 = frame
-    a = v[faces[tri]] - o
+    ut, inv = np.unique(tri, return_inverse=True)
+    au = v[faces[ut]] - o
+    a = au[inv]
     ad = np.einsum("mkj,mj->mk", a, d)
-    front = ad > 1e-12 * np.linalg.norm(a, axis=2)
+    front = ad > 1e-12 * np.linalg.norm(au, axis=2)[inv]
     safe = np.where(front, ad, 1.0)
     pu = np.einsum("mkj,mj->mk", a, e1) / safe / th
     pv = np.einsum("mkj,mj->mk", a, e2) / safe / th
     out = {k: np.empty(ad.shape) for k in ("nu", "nv", "c", "dist", "sg")}
-    out["m"] = np.empty(a.shape)
+    out["m"], out["inv"] = np.empty(au.shape), inv
     for j in range(3):
         j1, j2 = (j + 1) % 3, (j + 2) % 3
-        m = np.cross(a[:, j], a[:, j1])
-        sg = np.sign(np.einsum("ij,ij->i", m, a[:, j2]))
+        mu = np.cross(au[:, j], au[:, j1])
+        sgu = np.sign(np.einsum("ij,ij->i", mu, au[:, j2]))
+        m, sg = mu[inv], sgu[inv]
         la = np.einsum("ij,ij->i", m, e1) * th
         lb = np.einsum("ij,ij->i", m, e2) * th
         ln = np.maximum(np.hypot(la, lb), 1e-300)
@@ -623,8 +643,13 @@ def _edge_lines(
         both = front[:, j] & front[:, j1]
         out["nu"][:, j], out["nv"][:, j], out["c"][:, j] = sg * la / ln, sg * lb / ln, c
         out["dist"][:, j] = np.where(both, seg, np.abs(c))
-        out["sg"][:, j], out["m"][:, j] = sg, m
+        out["sg"][:, j], out["m"][:, j] = sg, mu
     return out
+
+
+def _edge_rows(g: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    """The rows ``rows`` of :func:`_edge_lines`' answer (``m`` kept whole)."""
+    return {k: (x if k == "m" else x[rows]) for k, x in g.items()}
 
 
 def _walk(
@@ -633,19 +658,38 @@ def _walk(
     th: float,
     frame: tuple,
     start: np.ndarray,
-    quad: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    first: dict[str, np.ndarray] | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
     """The silhouette edges inside each pulse's footprint, found by walking the mesh
     from the triangle ``start`` (one per pulse, inside its footprint) across every edge
     the footprint meets, as long as the surface goes on (the triangle across the edge
     lies beyond it as seen from the station). An edge with no triangle across it, or
     whose neighbour folds back behind it, is a silhouette edge. ``geo``: vertices,
-    faces, :func:`edge_neighbours`. Returns the silhouette lines (``pulse``, ``nu``,
-    ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side) and which
-    pulses the walk did not finish within :data:`EDGE_WALK_STEPS` rings. With ``quad``
-    (points (k, 2) on the unit footprint, their weights (k,)), ``lines["range"]``
-    holds per pulse the weighted mean range of the points on the walked surface (nan
-    where none is), the surface's range over its footprint."""
+    faces, :func:`edge_neighbours`; ``first``: :func:`_edge_lines` of ``start`` along
+    ``frame`` where the caller has it. Returns the silhouette lines (``pulse``, ``nu``,
+    ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side, ``tri``),
+    which pulses the walk did not finish within :data:`EDGE_WALK_STEPS` rings, and the
+    triangles walked (``pulse``, ``tri`` and their edge lines ``nu``, ``nv``, ``c``
+    (n, 3)), for :func:`_surface_range`. Pulses go :data:`_WALK_CHUNK` at a time (the
+    arrays stay in the processor's cache); each pulse's lines keep their order."""
+    parts = []
+    for a in range(0, max(len(start), 1), _WALK_CHUNK):
+        sl = slice(a, a + _WALK_CHUNK)
+        f = None if first is None else _edge_rows(first, sl)
+        lines, unres, trail = _walk_rings(geo, o, th, tuple(x[sl] for x in frame), start[sl], f)
+        lines["pulse"] += a
+        trail["pulse"] += a
+        parts.append((lines, unres, trail))
+    if len(parts) == 1:
+        return parts[0]
+    lines, trail = (
+        {k: np.concatenate([p[i][k] for p in parts]) for k in parts[0][i]} for i in (0, 2)
+    )
+    return lines, np.concatenate([p[1] for p in parts]), trail
+
+
+def _walk_rings(geo, o, th, frame, start, first):
+    """:func:`_walk` of a few pulses: ring after ring of triangles."""
     v, faces, nbr = geo
     n_t = len(faces)
     it_p = np.arange(len(start), dtype=np.int64)
@@ -653,19 +697,21 @@ def _walk(
     it_e = np.full(len(start), -1, dtype=np.int64)
     seen = np.sort(it_p * n_t + it_t)
     lines: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "nu", "nv", "c", "tri")}
+    walked: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "tri", "nu", "nv", "c")}
     unresolved = np.zeros(len(start), dtype=bool)
-    q_r = None if quad is None else np.full((len(start), len(quad[1])), np.inf)
     for step in range(EDGE_WALK_STEPS + 1):
         if not len(it_p):
             break
         if step == EDGE_WALK_STEPS:
             unresolved[it_p] = True
             break
-        g = _edge_lines(v, faces, o, th, tuple(x[it_p] for x in frame), it_t)
-        if q_r is not None:
-            _quad_ranges(
-                q_r, g, quad[0], (v, faces, o, th), tuple(x[it_p] for x in frame), it_p, it_t
-            )
+        if step == 0 and first is not None:
+            g = first
+        else:
+            g = _edge_lines(v, faces, o, th, tuple(x[it_p] for x in frame), it_t)
+        for k, x in (("pulse", it_p), ("tri", it_t), ("nu", g["nu"]), ("nv", g["nv"])):
+            walked[k].append(x)
+        walked["c"].append(g["c"])
         reach = (g["dist"] < 1.0) & (np.arange(3)[None, :] != it_e[:, None])
         ii, jj = np.nonzero(reach)
         tri = it_t[ii]
@@ -673,7 +719,7 @@ def _walk(
         ia, ib = faces[tri, jj], faces[tri, (jj + 1) % 3]
         nf = faces[np.maximum(nb, 0)]
         opp = nf.sum(axis=1) - ia - ib
-        side = np.sign(np.einsum("ij,ij->i", g["m"][ii, jj], v[opp] - o))
+        side = np.sign(np.einsum("ij,ij->i", g["m"][g["inv"][ii], jj], v[opp] - o))
         cont = (nb >= 0) & (side == -g["sg"][ii, jj])
         sil = ~cont
         for k in ("nu", "nv", "c"):
@@ -689,38 +735,111 @@ def _walk(
         once[1:] = ks[1:] != ks[:-1]
         pos = np.minimum(np.searchsorted(seen, ks), max(len(seen) - 1, 0))
         fresh = once & ~((seen[pos] == ks) if len(seen) else np.zeros(len(ks), bool))
-        first = order[fresh]
+        first_ = order[fresh]
         seen = np.sort(np.concatenate([seen, ks[fresh]]))
-        k_opp = np.argmax(nf[cont][first] == opp[cont][first][:, None], axis=1)
-        it_p, it_t, it_e = np_[first], nt[first], (k_opp + 1) % 3
+        k_opp = np.argmax(nf[cont][first_] == opp[cont][first_][:, None], axis=1)
+        it_p, it_t, it_e = np_[first_], nt[first_], (k_opp + 1) % 3
     out = {k: np.concatenate(x) if x else np.empty(0) for k, x in lines.items()}
     out["pulse"] = out["pulse"].astype(np.int64)
     out["tri"] = out["tri"].astype(np.int64)
-    if q_r is not None:
+    trail = {
+        k: np.concatenate(x) if x else np.empty((0, 3) if k in ("nu", "nv", "c") else 0)
+        for k, x in walked.items()
+    }
+    trail["pulse"] = trail["pulse"].astype(np.int64)
+    trail["tri"] = trail["tri"].astype(np.int64)
+    return out, unresolved, trail
+
+
+def _surface_range(
+    geo: tuple[np.ndarray, np.ndarray, np.ndarray],
+    frame: tuple,
+    th: float,
+    trail: dict[str, np.ndarray],
+    pulses: np.ndarray,
+    quad: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """The walked surface's range over the footprints of ``pulses`` (indices into the
+    walk's pulses, frames ``frame``): the weighted mean range of the footprint points
+    ``quad`` (points (k, 2) on the unit footprint, their weights (k,)) that fall inside
+    the triangles the walk crossed (``trail``, :func:`_walk`), the nearest where several
+    hold one; nan where none does. ``geo``: vertices, faces, the station."""
+    pts, wts = quad
+    pos = np.full(len(frame[0]), -1, dtype=np.int64)
+    pos[pulses] = np.arange(len(pulses))
+    at = pos[trail["pulse"]]
+    rows = np.flatnonzero(at >= 0)
+    rows = rows[np.argsort(at[rows], kind="stable")]
+    out = np.empty(len(pulses))
+    # a few thousand pulses at a time: the arrays stay in the processor's cache
+    ends = np.searchsorted(at[rows], np.arange(0, len(pulses), _RANGE_CHUNK)[1:])
+    for a, (lo, hi) in enumerate(zip([0, *ends], [*ends, len(rows)], strict=True)):
+        r = rows[lo:hi]
+        p0, p1 = a * _RANGE_CHUNK, min(len(pulses), (a + 1) * _RANGE_CHUNK)
+        lines = [trail[k][r] for k in ("nu", "nv", "c")]
+        w = _point_rays(tuple(x[pulses[p0:p1]] for x in frame), pts, th)
+        q_r = np.full((p1 - p0, len(wts)), np.inf)
+        _quad_ranges(q_r, at[r] - p0, trail["tri"][r], lines, w, pts, geo)
         on = np.isfinite(q_r)
-        wq = np.where(on, quad[1][None, :], 0.0)
+        wq = np.where(on, wts[None, :], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out["range"] = (np.where(on, q_r, 0.0) * wq).sum(axis=1) / wq.sum(axis=1)
-    return out, unresolved
+            out[p0:p1] = (np.where(on, q_r, 0.0) * wq).sum(axis=1) / wq.sum(axis=1)
+    return out
 
 
-def _quad_ranges(q_r, g, pts, geo, frame, it_p, it_t) -> None:
-    """Ranges (into ``q_r``, nearest kept) of the footprint points ``pts`` that fall
-    inside the walked triangles ``it_t`` (edge lines ``g``) of pulses ``it_p``."""
-    v, faces, o, th = geo
-    x, y = pts[:, 0][None, None, :], pts[:, 1][None, None, :]
-    val = g["nu"][:, :, None] * x + g["nv"][:, :, None] * y + g["c"][:, :, None]
-    ii, kk = np.nonzero((val >= -1e-9).all(axis=1))
+def _point_rays(frame: tuple, pts: np.ndarray, th: float) -> np.ndarray:
+    """Unit directions (p, k, 3) through the footprint points ``pts`` (k, 2) (unit
+    radius; ``th``: the tangent of the beam's half-angle) of pulses ``frame``."""
+    d, e1, e2 = frame
+    w = pts[None, :, :1] * e1[:, None, :]
+    w += pts[None, :, 1:2] * e2[:, None, :]
+    w *= th
+    w += d[:, None, :]
+    w /= np.linalg.norm(w, axis=2, keepdims=True)
+    return w
+
+
+def _inside_points(lines: list[np.ndarray], pts: np.ndarray) -> np.ndarray:
+    """Which points ``pts`` (k, 2) lie inside each triangle, its edges given as lines
+    ``[nu, nv, c]`` (n, 3) (:func:`_edge_lines`): ``nu·x + nv·y + c >= -1e-9`` for its
+    three edges, (n, k). An edge whose line lies farther than every point from the
+    footprint's centre, on the inner side, keeps them all (no need to evaluate it)."""
+    nu, nv, c = lines
+    x, y = pts[:, 0][None, :], pts[:, 1][None, :]
+    clear = float(np.sqrt((pts * pts).sum(axis=1)).max(initial=0.0)) * (1 + 1e-9) + 1e-6
+    inside = np.ones((len(c), len(pts)), dtype=bool)
+    for j in range(3):
+        r = np.flatnonzero(~(c[:, j] >= clear))
+        val = nu[r, j][:, None] * x + nv[r, j][:, None] * y + c[r, j][:, None]
+        inside[r] &= val >= -1e-9
+    return inside
+
+
+def _quad_ranges(q_r, row, tri, lines, w, pts, geo) -> None:
+    """Ranges (into ``q_r`` (p, k), all inf before, nearest kept) of the footprint
+    points ``pts`` (k, 2) that fall inside the walked triangles ``tri`` (edge lines
+    ``lines``), ``row`` the row of ``q_r`` of each, along the points' rays ``w``
+    (p, k, 3) (:func:`_point_rays`). ``geo``: vertices, faces, the station."""
+    v, faces, o = geo
+    ii, kk = np.nonzero(_inside_points(lines, pts))
     if not len(ii):
         return
-    d, e1, e2 = (a[ii] for a in frame)
-    w = d + th * (pts[kk, :1] * e1 + pts[kk, 1:2] * e2)
-    w /= np.linalg.norm(w, axis=1, keepdims=True)
-    tri = faces[it_t[ii]]
-    p0 = v[tri[:, 0]]
-    n = np.cross(v[tri[:, 1]] - p0, v[tri[:, 2]] - p0)
-    r = np.einsum("ij,ij->i", p0 - o, n) / np.einsum("ij,ij->i", n, w)
-    np.minimum.at(q_r, (it_p[ii], kk), np.where(r > 0, r, np.inf))
+    # the plane of each triangle with points inside, once
+    new = np.ones(len(ii), dtype=bool)
+    new[1:] = ii[1:] != ii[:-1]
+    at = np.cumsum(new) - 1
+    t3 = faces[tri[ii[new]]]
+    p0 = v[t3[:, 0]]
+    n = np.cross(v[t3[:, 1]] - p0, v[t3[:, 2]] - p0)
+    num = np.einsum("ij,ij->i", p0 - o, n)
+    rr = row[ii]
+    r = num[at] / np.einsum("ij,ij->i", n[at], w[rr, kk])
+    r = np.where(r > 0, r, np.inf)
+    # a point inside one triangle takes its range; inside several, the nearest
+    flat = rr * q_r.shape[1] + kk
+    dup = np.bincount(flat, minlength=q_r.size)[flat] > 1
+    q_r.reshape(-1)[flat[~dup]] = r[~dup]
+    np.minimum.at(q_r.reshape(-1), flat[dup], r[dup])
 
 
 def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -833,34 +952,77 @@ class EdgeBeam(AdaptiveBeam):
         num = np.einsum("ij,ij->i", self.caster.v0[prim] - self.o, n)
         return num / np.einsum("ij,ij->i", n, w)
 
+    def _surface_range(self, frame: tuple, trail: dict, pulses: np.ndarray) -> np.ndarray:
+        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``)."""
+        geo = (self.geo[0], self.geo[1], self.o)
+        return _surface_range(geo, frame, self.th, trail, pulses, self.quad)
+
     def _neighbours(self, lines, cols, t, prim, n_core) -> tuple[np.ndarray, np.ndarray]:
         """Core pulses whose central ray missed while a neighbour within k steps hit,
         and core hits with a neighbour hit off the plane of their triangle by more than
         :data:`EDGE_PLANE_TOL_M` (another surface may lie inside the footprint)."""
-        key = cols * self.n_lines + lines
-        find = self._neighbour_finder(lines, cols, key)
-        cl, cc, tc = lines[:n_core], cols[:n_core], t[:n_core]
         hit = np.isfinite(t)
         x = np.zeros((len(t), 3))
         x[hit] = self.o + t[hit, None] * self._directions(lines[hit], cols[hit])
-        pp = np.where(hit[:n_core], prim[:n_core], 0)
-        n_p, v0_p = self.caster.normal[pp], self.caster.v0[pp]
-        near = np.zeros(n_core, dtype=bool)
+        # misses look for a hit beside them, hits for one off their triangle's plane
+        hc, mc = np.flatnonzero(hit[:n_core]), np.flatnonzero(~hit[:n_core])
+        n_p, v0_p = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
+        near = np.zeros(len(mc), dtype=bool)
+        jump_h = np.zeros(len(hc), dtype=bool)
+        around = self._around(lines, cols)
+        for qm, qh in zip(around(mc), around(hc), strict=True):
+            near |= (qm >= 0) & hit[np.maximum(qm, 0)]
+            s = np.flatnonzero((qh >= 0) & hit[np.maximum(qh, 0)])
+            dev = np.abs(np.einsum("ij,ij->i", x[qh[s]] - v0_p[s], n_p[s]))
+            jump_h[s] |= dev > EDGE_PLANE_TOL_M
         jump = np.zeros(n_core, dtype=bool)
-        for dc in range(-self.k, self.k + 1):
-            qc = (cc + dc) % self.n_az if self.full_turn else cc + dc
-            col_ok = np.ones(n_core, bool) if self.full_turn else (qc >= 0) & (qc < self.n_az)
-            for dl in range(-self.k, self.k + 1):
-                if dc or dl:
-                    ql = cl + dl
-                    ok = col_ok & (ql >= 0) & (ql < self.n_lines)
-                    q = np.maximum(find(np.where(ok, qc, 0), ql, ok), -1)
-                    q_hit = (q >= 0) & hit[np.maximum(q, 0)]
-                    near |= q_hit
-                    dev = np.abs(np.einsum("ij,ij->i", x[np.maximum(q, 0)] - v0_p, n_p))
-                    jump |= q_hit & (dev > EDGE_PLANE_TOL_M)
-        miss = ~np.isfinite(tc)
-        return np.flatnonzero(miss & near), jump & ~miss
+        jump[hc] = jump_h
+        return mc[near], jump
+
+    def _around(self, lines: np.ndarray, cols: np.ndarray):
+        """A function of some of the block's pulses (``idx``, into ``lines``/``cols``)
+        yielding, for each step (dc, dl) within ``k`` of (0, 0), the index of the pulse
+        ``dc`` columns and ``dl`` lines from each, -1 where the block has none: from a
+        flat table over the block's columns and lines where it is small, else from
+        :meth:`_neighbour_finder`."""
+        ucols = np.unique(cols)
+        lmin = int(lines.min()) if len(lines) else 0
+        height = int(lines.max()) - lmin + 1 if len(lines) else 0
+        steps = [(c, r) for c in range(-self.k, self.k + 1) for r in range(-self.k, self.k + 1)]
+        steps.remove((0, 0))
+        if len(ucols) * height > _DENSE_NEIGHBOUR_CELLS:
+            find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
+            return lambda idx: (self._beside(find, lines[idx], cols[idx], c, r) for c, r in steps)
+        colpos = np.full(self.n_az, -1, dtype=np.int64)
+        colpos[ucols] = np.arange(len(ucols)) * height
+        table = np.full(len(ucols) * height, -1, dtype=np.int32)
+        table[colpos[cols] + (lines - lmin)] = np.arange(len(lines), dtype=np.int32)
+
+        def around(idx: np.ndarray):
+            row0 = lines[idx] - lmin
+            for dc in range(-self.k, self.k + 1):
+                qc = cols[idx] + dc
+                if self.full_turn:
+                    qc %= self.n_az
+                base = colpos[np.clip(qc, 0, self.n_az - 1)]
+                base[(qc < 0) | (qc >= self.n_az)] = -1
+                for dl in range(-self.k, self.k + 1):
+                    if dc or dl:
+                        row = row0 + dl
+                        ok = (base >= 0) & (row >= 0) & (row < height)
+                        yield np.where(ok, table[np.where(ok, base + row, 0)], -1)
+
+        return around
+
+    def _beside(self, find, cl: np.ndarray, cc: np.ndarray, dc: int, dl: int) -> np.ndarray:
+        """Index of the pulse ``dc`` columns and ``dl`` lines from each pulse (``cl``,
+        ``cc``) among the block's, -1 where none is cast (``find``:
+        :meth:`_neighbour_finder`)."""
+        qc = (cc + dc) % self.n_az if self.full_turn else cc + dc
+        col_ok = np.ones(len(cc), bool) if self.full_turn else (qc >= 0) & (qc < self.n_az)
+        ql = cl + dl
+        ok = col_ok & (ql >= 0) & (ql < self.n_lines)
+        return np.maximum(find(np.where(ok, qc, 0), ql, ok), -1)
 
     def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing
@@ -881,7 +1043,7 @@ class EdgeBeam(AdaptiveBeam):
         inside = (g["c"] >= 1.0).all(axis=1)
         cut = np.flatnonzero(~inside)
         sub = tuple(x[cut] for x in frame)
-        lines, unres = _walk(self.geo, self.o, self.th, sub, prim[cut], self.quad)
+        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, prim[cut], _edge_rows(g, cut))
         cov = _coverage(len(cut), lines)
         alone = jump[cut] & (np.bincount(lines["pulse"], minlength=len(cut)) == 0)
         fb = unres | ~cov["ok"] | alone
@@ -894,7 +1056,7 @@ class EdgeBeam(AdaptiveBeam):
         good = cut[gi]
         ww[good, 0] = cov["energy"][gi]
         w0 = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = lines["range"][gi]
+        r_quad = self._surface_range(sub, trail, gi)
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
         lp = lines["pulse"]
         li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
@@ -936,8 +1098,7 @@ class EdgeBeam(AdaptiveBeam):
         of those left to the sub-rays, and the rays cast."""
         m, k = len(d), len(self.rim)
         frame = (d, *beam_basis(d))
-        rep = np.repeat(np.arange(m), k)
-        tp, pp = self._cast(self._ray(tuple(x[rep] for x in frame), np.tile(self.rim, (m, 1))))
+        tp, pp = self._cast(_point_rays(frame, self.rim, self.th).reshape(-1, 3))
         tp, pp = tp.reshape(m, k), pp.reshape(m, k)
         fin = np.isfinite(tp)
         has = fin.any(axis=1)
@@ -947,7 +1108,7 @@ class EdgeBeam(AdaptiveBeam):
         idx = np.flatnonzero(has & ~several)
         start = pp[idx, np.argmax(fin[idx], axis=1)]
         sub = tuple(x[idx] for x in frame)
-        lines, unres = _walk(self.geo, self.o, self.th, sub, start, self.quad)
+        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, start)
         cov = _coverage(len(idx), lines)
         fb = unres | ~cov["ok"] | (np.bincount(lines["pulse"], minlength=len(idx)) == 0)
         # the probes must agree: those that hit inside the covered part, the rest beyond
@@ -971,7 +1132,7 @@ class EdgeBeam(AdaptiveBeam):
         near_tri = start.copy()
         near_tri[lp[order][first]] = lines["tri"][order][first]
         w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = lines["range"][gi]
+        r_quad = self._surface_range(sub, trail, gi)
         r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
         e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
         self.edge_stats["rim-probed misses"] += m

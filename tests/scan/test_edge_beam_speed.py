@@ -1,0 +1,289 @@
+"""The edge beam model's faster helpers against the formulas they replaced.
+
+Oracle: the helpers as they stood before (``old_edge_lines``, ``old_walk``,
+``old_quad_ranges`` below, copied from ``treesim.scan.beam`` at commit dc78f01): the
+new ones (work per distinct triangle, chunks of pulses, the surface's range only where
+asked) must give the same numbers bit for bit, and the edge scan the same cloud whichever
+way it finds a pulse's neighbours.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.scan.test_beam_footprint import SPEC, edge_scene
+from treesim.scan import Station, beam, scan
+from treesim.scan.beam import (
+    _edge_lines,
+    _inside_points,
+    _point_rays,
+    _surface_range,
+    _walk,
+    beam_basis,
+    edge_neighbours,
+    subray_pattern,
+)
+
+# --------------------------------------------------------------------------------------
+# the old formulas (commit dc78f01), the oracle
+# --------------------------------------------------------------------------------------
+
+
+def old_edge_lines(
+    v: np.ndarray, faces: np.ndarray, o: np.ndarray, th: float, frame: tuple, tri: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Each edge j of triangles ``tri`` seen along pulses ``frame = (d, e1, e2)`` as a
+    line ``nu·x + nv·y + c = 0`` on the footprint's plane (unit radius: tangents over
+    ``th``), oriented so that the triangle is on its ``>= 0`` side; ``dist``: the
+    distance from the axis to the edge's segment (the line's where a corner is behind
+    the station); ``m``: the normal of the plane through the station and the edge,
+    ``sg`` its sign towards the triangle. Arrays (n, 3) ((n, 3, 3) for ``m``)."""
+    d, e1, e2 = frame
+    a = v[faces[tri]] - o
+    ad = np.einsum("mkj,mj->mk", a, d)
+    front = ad > 1e-12 * np.linalg.norm(a, axis=2)
+    safe = np.where(front, ad, 1.0)
+    pu = np.einsum("mkj,mj->mk", a, e1) / safe / th
+    pv = np.einsum("mkj,mj->mk", a, e2) / safe / th
+    out = {k: np.empty(ad.shape) for k in ("nu", "nv", "c", "dist", "sg")}
+    out["m"] = np.empty(a.shape)
+    for j in range(3):
+        j1, j2 = (j + 1) % 3, (j + 2) % 3
+        m = np.cross(a[:, j], a[:, j1])
+        sg = np.sign(np.einsum("ij,ij->i", m, a[:, j2]))
+        la = np.einsum("ij,ij->i", m, e1) * th
+        lb = np.einsum("ij,ij->i", m, e2) * th
+        ln = np.maximum(np.hypot(la, lb), 1e-300)
+        c = sg * np.einsum("ij,ij->i", m, d) / ln
+        du, dv = pu[:, j1] - pu[:, j], pv[:, j1] - pv[:, j]
+        t = np.clip(-(pu[:, j] * du + pv[:, j] * dv) / np.maximum(du * du + dv * dv, 1e-300), 0, 1)
+        seg = np.hypot(pu[:, j] + t * du, pv[:, j] + t * dv)
+        both = front[:, j] & front[:, j1]
+        out["nu"][:, j], out["nv"][:, j], out["c"][:, j] = sg * la / ln, sg * lb / ln, c
+        out["dist"][:, j] = np.where(both, seg, np.abs(c))
+        out["sg"][:, j], out["m"][:, j] = sg, m
+    return out
+
+
+def old_walk(
+    geo: tuple[np.ndarray, np.ndarray, np.ndarray],
+    o: np.ndarray,
+    th: float,
+    frame: tuple,
+    start: np.ndarray,
+    quad: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The silhouette edges inside each pulse's footprint, found by walking the mesh
+    from the triangle ``start`` (one per pulse, inside its footprint) across every edge
+    the footprint meets, as long as the surface goes on (the triangle across the edge
+    lies beyond it as seen from the station). An edge with no triangle across it, or
+    whose neighbour folds back behind it, is a silhouette edge. ``geo``: vertices,
+    faces, :func:`edge_neighbours`. Returns the silhouette lines (``pulse``, ``nu``,
+    ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side) and which
+    pulses the walk did not finish within :data:`beam.EDGE_WALK_STEPS` rings. With ``quad``
+    (points (k, 2) on the unit footprint, their weights (k,)), ``lines["range"]``
+    holds per pulse the weighted mean range of the points on the walked surface (nan
+    where none is), the surface's range over its footprint."""
+    v, faces, nbr = geo
+    n_t = len(faces)
+    it_p = np.arange(len(start), dtype=np.int64)
+    it_t = np.asarray(start, dtype=np.int64)
+    it_e = np.full(len(start), -1, dtype=np.int64)
+    seen = np.sort(it_p * n_t + it_t)
+    lines: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "nu", "nv", "c", "tri")}
+    unresolved = np.zeros(len(start), dtype=bool)
+    q_r = None if quad is None else np.full((len(start), len(quad[1])), np.inf)
+    for step in range(beam.EDGE_WALK_STEPS + 1):
+        if not len(it_p):
+            break
+        if step == beam.EDGE_WALK_STEPS:
+            unresolved[it_p] = True
+            break
+        g = old_edge_lines(v, faces, o, th, tuple(x[it_p] for x in frame), it_t)
+        if q_r is not None:
+            old_quad_ranges(
+                q_r, g, quad[0], (v, faces, o, th), tuple(x[it_p] for x in frame), it_p, it_t
+            )
+        reach = (g["dist"] < 1.0) & (np.arange(3)[None, :] != it_e[:, None])
+        ii, jj = np.nonzero(reach)
+        tri = it_t[ii]
+        nb = nbr[tri, jj]
+        ia, ib = faces[tri, jj], faces[tri, (jj + 1) % 3]
+        nf = faces[np.maximum(nb, 0)]
+        opp = nf.sum(axis=1) - ia - ib
+        side = np.sign(np.einsum("ij,ij->i", g["m"][ii, jj], v[opp] - o))
+        cont = (nb >= 0) & (side == -g["sg"][ii, jj])
+        sil = ~cont
+        for k in ("nu", "nv", "c"):
+            lines[k].append(g[k][ii[sil], jj[sil]])
+        lines["pulse"].append(it_p[ii[sil]])
+        lines["tri"].append(tri[sil])
+        # the walk goes on into the triangles across, each once per pulse
+        np_, nt = it_p[ii[cont]], nb[cont]
+        key = np_ * n_t + nt
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        once = np.ones(len(ks), dtype=bool)
+        once[1:] = ks[1:] != ks[:-1]
+        pos = np.minimum(np.searchsorted(seen, ks), max(len(seen) - 1, 0))
+        fresh = once & ~((seen[pos] == ks) if len(seen) else np.zeros(len(ks), bool))
+        first = order[fresh]
+        seen = np.sort(np.concatenate([seen, ks[fresh]]))
+        k_opp = np.argmax(nf[cont][first] == opp[cont][first][:, None], axis=1)
+        it_p, it_t, it_e = np_[first], nt[first], (k_opp + 1) % 3
+    out = {k: np.concatenate(x) if x else np.empty(0) for k, x in lines.items()}
+    out["pulse"] = out["pulse"].astype(np.int64)
+    out["tri"] = out["tri"].astype(np.int64)
+    if q_r is not None:
+        on = np.isfinite(q_r)
+        wq = np.where(on, quad[1][None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["range"] = (np.where(on, q_r, 0.0) * wq).sum(axis=1) / wq.sum(axis=1)
+    return out, unresolved
+
+
+def old_quad_ranges(q_r, g, pts, geo, frame, it_p, it_t) -> None:
+    """Ranges (into ``q_r``, nearest kept) of the footprint points ``pts`` that fall
+    inside the walked triangles ``it_t`` (edge lines ``g``) of pulses ``it_p``."""
+    v, faces, o, th = geo
+    x, y = pts[:, 0][None, None, :], pts[:, 1][None, None, :]
+    val = g["nu"][:, :, None] * x + g["nv"][:, :, None] * y + g["c"][:, :, None]
+    ii, kk = np.nonzero((val >= -1e-9).all(axis=1))
+    if not len(ii):
+        return
+    d, e1, e2 = (a[ii] for a in frame)
+    w = d + th * (pts[kk, :1] * e1 + pts[kk, 1:2] * e2)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    tri = faces[it_t[ii]]
+    p0 = v[tri[:, 0]]
+    n = np.cross(v[tri[:, 1]] - p0, v[tri[:, 2]] - p0)
+    r = np.einsum("ij,ij->i", p0 - o, n) / np.einsum("ij,ij->i", n, w)
+    np.minimum.at(q_r, (it_p[ii], kk), np.where(r > 0, r, np.inf))
+
+
+def old_ray(th: float, frame: tuple, xy: np.ndarray) -> np.ndarray:
+    """``EdgeBeam._ray`` as it stood: unit directions at footprint points ``xy``."""
+    d, e1, e2 = frame
+    w = d + th * (xy[:, :1] * e1 + xy[:, 1:2] * e2)
+    return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+# --------------------------------------------------------------------------------------
+# the new helpers, bit for bit
+# --------------------------------------------------------------------------------------
+
+#: beam half-angle tangents: the benchmarks' 0.3 mrad beam, and a beam ten times wider
+#: (footprints over many triangles: long walks, some left unfinished)
+THS = (np.tan(0.15e-3), np.tan(1.5e-3))
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same dtype, shape and bytes (-0.0 is not 0.0; NaN is NaN)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    """(vertices, faces, edge neighbours, station) of the beam agreement tests' coffee
+    tree (12 facets, 10 m away)."""
+    from tests.scan.beam_agreement import coffee_window
+
+    scene, st, _ = coffee_window()
+    faces = np.asarray(scene.faces, dtype=np.int64)
+    return scene.vertices, faces, edge_neighbours(faces), np.asarray(st.position_m, float)
+
+
+def aim(mesh, n: int = 500, seed: int = 3) -> tuple[tuple, np.ndarray]:
+    """Pulses (frames) aimed at random points of random triangles, most triangles
+    twice (two pulses on one triangle), and those triangles."""
+    v, faces, _, o = mesh
+    rng = np.random.default_rng(seed)
+    tri = rng.choice(len(faces), n, replace=False)
+    tri = np.concatenate([tri, tri[: 2 * n // 3]])
+    b = rng.dirichlet(np.ones(3), len(tri))
+    d = np.einsum("mk,mkj->mj", b, v[faces[tri]]) - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return (d, *beam_basis(d)), tri
+
+
+@pytest.mark.parametrize("th", THS)
+def test_edge_lines_match_the_old_formula(mesh, th, monkeypatch):
+    v, faces, _, o = mesh
+    frame, tri = aim(mesh)
+    old = old_edge_lines(v, faces, o, th, frame, tri)
+    assert (old["dist"] < 1.0).any() and (old["dist"] >= 1.0).any()
+    for chunk in (1 << 20, 37):  # one piece, and many
+        monkeypatch.setattr(beam, "_EDGE_CHUNK", chunk)
+        new = _edge_lines(v, faces, o, th, frame, tri)
+        for k in ("nu", "nv", "c", "dist", "sg"):
+            assert same(new[k], old[k]), k
+        assert same(new["m"][new["inv"]], old["m"])
+        if chunk > len(tri):  # once per distinct triangle
+            assert len(new["m"]) == len(np.unique(tri)) < len(tri)
+
+
+@pytest.mark.parametrize("th", THS)
+def test_the_walk_and_its_surface_range_match_the_old_formula(mesh, th, monkeypatch):
+    v, faces, nbr, o = mesh
+    frame, tri = aim(mesh)
+    quad = subray_pattern(beam.EDGE_RANGE_POINTS, 2.0e3)
+    old, old_unres = old_walk((v, faces, nbr), o, th, frame, tri, quad)
+    assert len(old["pulse"]) > 100 and np.isfinite(old["range"]).mean() > 0.5
+    if th > 1e-3:
+        assert old_unres.any()
+    # small pieces: the walk and the range go piece by piece
+    monkeypatch.setattr(beam, "_WALK_CHUNK", 53)
+    monkeypatch.setattr(beam, "_RANGE_CHUNK", 41)
+    every = np.arange(len(tri))
+    for first in (None, _edge_lines(v, faces, o, th, frame, tri)):
+        lines, unres, trail = _walk((v, faces, nbr), o, th, frame, tri, first)
+        assert same(unres, old_unres)
+        # each pulse's silhouette lines, in the same order
+        a, b = np.argsort(lines["pulse"], kind="stable"), np.argsort(old["pulse"], kind="stable")
+        for k in ("pulse", "nu", "nv", "c", "tri"):
+            assert same(lines[k][a], old[k][b]), k
+        geo = (v, faces, o)
+        assert same(_surface_range(geo, frame, th, trail, every, quad), old["range"])
+        some = every[1::3]
+        assert same(_surface_range(geo, frame, th, trail, some, quad), old["range"][some])
+
+
+def test_point_rays_match_the_old_rays(mesh):
+    frame, _ = aim(mesh, 200)
+    m = len(frame[0])
+    for pts in (subray_pattern(19, 2.0e3)[0], 0.95 * np.array([[1.0, 0.0], [-0.5, 0.8]])):
+        k = len(pts)
+        rep = np.repeat(np.arange(m), k)
+        old = old_ray(THS[0], tuple(x[rep] for x in frame), np.tile(pts, (m, 1)))
+        assert same(_point_rays(frame, pts, THS[0]).reshape(-1, 3), old)
+
+
+def test_inside_points_match_the_full_test():
+    rng = np.random.default_rng(11)
+    n = 4000
+    ang = rng.uniform(0, 2 * np.pi, (n, 3))
+    nu, nv = np.cos(ang), np.sin(ang)
+    c = rng.uniform(-1.5, 1.5, (n, 3))
+    c[::7, 0] = 1.0 + rng.uniform(-1e-6, 1e-6, len(c[::7]))  # about the disc's rim
+    c[::11, 1] = np.nan
+    c[::13, 2] = -np.inf
+    pts = subray_pattern(19, 2.0e3)[0]
+    x, y = pts[:, 0][None, None, :], pts[:, 1][None, None, :]
+    val = nu[:, :, None] * x + nv[:, :, None] * y + c[:, :, None]
+    want = (val >= -1e-9).all(axis=1)
+    assert want.any() and not want.all()
+    assert same(_inside_points([nu, nv, c], pts), want)
+
+
+def test_the_edge_scan_is_the_same_whichever_way_it_finds_neighbours(monkeypatch):
+    spec = SPEC.with_(beam_sampling="edge", vertical_fov_deg=(-0.06, 0.06))
+    st = [Station(position_m=(0.0, 0.0, 0.0))]
+    table = scan(edge_scene(True), st, spec).cloud
+    monkeypatch.setattr(beam, "_DENSE_NEIGHBOUR_CELLS", 0)  # search the sorted keys
+    search = scan(edge_scene(True), st, spec).cloud
+    assert len(table) > 20 and (table.fields["number_of_returns"] == 2).any()
+    assert same(table.points, search.points)
+    for k, val in table.fields.items():
+        assert same(val, search.fields[k]), k
