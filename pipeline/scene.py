@@ -7,7 +7,12 @@ one triangle soup. Mesh files are read into scenes by :func:`treesim.io.load_sce
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -245,6 +250,65 @@ class Scene:
         if self.face_tree is None:
             return []
         return [int(t) for t in np.unique(self.face_tree)]
+
+    #: The arrays :meth:`spilled` moves to a file (the per-vertex and per-triangle ones).
+    SPILLED = ("vertices", "faces", "face_label", "face_tree", "_used")
+
+    @property
+    def array_bytes(self) -> int:
+        """Bytes of the scene's per-vertex and per-triangle arrays (what :meth:`spilled`
+        moves out of memory).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from treesim.scene import MeshPart, Scene
+        >>> v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+        >>> Scene([MeshPart(v, np.array([[0, 1, 2]]), "wood")]).array_bytes  # 72 + 12 + 1 + 3
+        88
+        """
+        return sum(a.nbytes for a in (getattr(self, k) for k in self.SPILLED) if a is not None)
+
+    @contextmanager
+    def spilled(self, directory: str | None = None) -> Iterator[None]:
+        """Meanwhile, the scene's vertices, faces, labels, tree ids and used-vertex mask
+        live in temporary files (read-only memory maps of it: pages read only when
+        touched), and are read back after into fresh arrays, the same bits, the files
+        removed (also on an exception). Memory (issue 25): what a caller does meanwhile
+        (Open3D building its BVH) peaks without the scene's ~30 B a triangle, provided
+        nothing else holds the arrays themselves. ``directory``: where the files go
+        (default: Python's temporary folder; a RAM-backed one such as tmpfs saves the
+        process's resident memory but not the host's).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from treesim.scene import MeshPart, Scene
+        >>> v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+        >>> scene = Scene([MeshPart(v, np.array([[0, 1, 2]]), "wood")])
+        >>> with scene.spilled():
+        ...     isinstance(scene.vertices, np.memmap)
+        True
+        >>> isinstance(scene.vertices, np.memmap), scene.vertices[1].tolist()
+        (False, [1.0, 0.0, 0.0])
+        """
+        folder = tempfile.mkdtemp(prefix="treesim-spill-", dir=directory)
+        names = [k for k in self.SPILLED if getattr(self, k) is not None]
+        try:
+            for k in names:
+                path = os.path.join(folder, f"{k}.npy")
+                np.save(path, getattr(self, k), allow_pickle=False)
+                # the array itself goes (unless held elsewhere): only its map stays
+                setattr(self, k, np.load(path, mmap_mode="r", allow_pickle=False))
+            yield
+        finally:
+            try:
+                for k in names:
+                    if isinstance(getattr(self, k), np.memmap):
+                        path = os.path.join(folder, f"{k}.npy")
+                        setattr(self, k, np.load(path, allow_pickle=False))
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)
 
     def labels_present(self) -> list[str]:
         """Labels (``wood``, ``leaf``, ...) of the triangles, in label-code order."""

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..frame import LocalFrame
-from ..geometry import triangles_around, vertex_triangles
+from ..geometry import triangles_around
 from ..params import ScannerSpec
 from ..scene import Scene
 from .rays import column_azimuth_rad, line_elevation_rad
@@ -45,6 +45,14 @@ DISTORTED_SHARE = 0.1
 #: holds them (each hit reads them: a scan is faster); larger scenes gather them from the
 #: corners when read (the same figures: memory per triangle, issue 25).
 HELD_GEOMETRY_BYTES = 16 << 20
+#: Vertices or triangles the edge fans (:meth:`Caster._fans`) are built from at once:
+#: their temporaries (~100 B each) stay a few MiB whatever the scene (issue 25).
+FAN_CHUNK = 1 << 15
+#: A scene whose arrays (vertices, faces, labels, tree ids: ~30 B a triangle) take at
+#: least this many bytes is spilled to a temporary file while Open3D builds its BVH
+#: (:meth:`~treesim.scene.Scene.spilled`): the build's peak, a station's highest, is then
+#: Open3D's alone (issue 25); smaller scenes skip the file.
+SPILL_BYTES = 16 << 20
 
 
 def triangle_chunks(n: int) -> Iterator[tuple[int, int]]:
@@ -69,7 +77,11 @@ class Caster:
     (through an int32 index when only some triangles are loaded), and gathers what a
     hit needs (the local corners, the normal, the smallest height) when it needs it,
     with the figures a held array computed row by row would give. A scene whose normals
-    and heights fit in :data:`HELD_GEOMETRY_BYTES` holds those two (faster hits).
+    and heights fit in :data:`HELD_GEOMETRY_BYTES` holds those two (faster hits). While
+    Open3D builds its BVH (a station's highest peak with its casts), a scene of
+    :data:`SPILL_BYTES` or more waits in a temporary file, the caster and the scene
+    holding only its maps; the edge fans are built a chunk at a time and share the
+    scene's faces where no two vertices are welded.
     """
 
     def __init__(
@@ -80,14 +92,9 @@ class Caster:
         o3d = load_open3d()
         self.o3d = o3d
         self.nthreads = int(nthreads)
-        # the scene's vertices (global), moved into the local frame when gathered
-        self._sv = np.asarray(scene.vertices, dtype=np.float64)
         self._origin = frame.origin_array
         index = None if keep is None else _small_index(np.flatnonzero(keep))
-        self.faces: Any = _rows(scene.faces, index)
-        self.label: Any = _rows(scene.face_label, index)
-        ft = scene.face_tree
-        self.tree: Any = None if ft is None else _rows(ft, index)
+        self._bind(scene, index)
         self._thickness: np.ndarray | None = None
         # each triangle's first corner, normal and smallest height, gathered when read
         # (the normals and heights held instead when they are small)
@@ -109,10 +116,38 @@ class Caster:
         f32 = f.view(np.uint32) if f.dtype == np.int32 else f.astype(np.uint32)
         self.rc.add_triangles(_o3d_view(o3d, v32), _o3d_view(o3d, f32))
         del v32, f, f32
-        t0 = time.perf_counter()
-        # Open3D builds its BVH lazily on the first query: build it now, timed apart.
-        self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
-        self.build_s = time.perf_counter() - t0
+        self._build(scene, index)
+
+    def _bind(self, scene: Any, index: np.ndarray | None) -> None:
+        """Read the scene's vertices (global, moved into the local frame when gathered),
+        faces, labels and tree ids (rows ``index`` of them when given)."""
+        self._sv = np.asarray(scene.vertices, dtype=np.float64)
+        self.faces: Any = _rows(scene.faces, index)
+        self.label: Any = _rows(scene.face_label, index)
+        ft = scene.face_tree
+        self.tree: Any = None if ft is None else _rows(ft, index)
+
+    def _build(self, scene: Any, index: np.ndarray | None) -> None:
+        """Build Open3D's BVH (lazily built on the first query: built now, timed apart
+        in ``build_s``); a scene of :data:`SPILL_BYTES` or more meanwhile spilled to a
+        temporary file, the caster holding only its maps (``spill_s``: the time of the
+        writing and reading back)."""
+        t_all = time.perf_counter()
+        spill = isinstance(scene, Scene) and scene.array_bytes >= SPILL_BYTES
+        if spill:
+            # the caster lets go of the scene's arrays (the file's maps come instead)
+            self._sv = self.faces = self.label = self.tree = None
+            with scene.spilled():
+                self._bind(scene, index)
+                t0 = time.perf_counter()
+                self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+                self.build_s = time.perf_counter() - t0
+                self._sv = self.faces = self.label = self.tree = None
+            self._bind(scene, index)  # the arrays read back
+        else:
+            self.cast(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+            self.build_s = time.perf_counter() - t_all
+        self.spill_s = time.perf_counter() - t_all - self.build_s
 
     @property
     def v(self) -> np.ndarray:
@@ -281,18 +316,16 @@ class Caster:
         each vertex's listed in increasing order): where no two vertices share their
         coordinates, the corners are the faces themselves (:func:`_weld`)."""
         if self._fan is None:
-            weld, n_welded = _weld(self.v)
-            faces = np.asarray(self.faces)
+            weld, n_welded = _weld_fast(self._sv, self._origin)
             # held while the caster lives: int32 indices where they fit (the same values)
-            small = max(n_welded, len(faces)) < 2**31 - 1
+            small = max(n_welded, 3 * len(self.faces)) < 2**31 - 1
             index = np.int32 if small else np.int64
-            if weld is None:
-                corners = faces.astype(index, copy=False)
-            else:
-                corners = weld.astype(index)[faces]
-            del weld, faces
-            ptr, inc = vertex_triangles(corners, n_welded)
-            self._fan = (corners, ptr, inc.astype(index, copy=False))
+            corners: Any = self.faces  # every vertex its own: the faces (no copy)
+            if weld is not None:
+                corners = weld.astype(index)[np.asarray(self.faces)]
+            del weld
+            ptr, inc = _vertex_triangles(corners, n_welded, index)
+            self._fan = (corners, ptr, inc)
         return self._fan
 
     def _outside_m(self, tri: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -453,6 +486,66 @@ class Caster:
                 o, d[hidx], t_coarse, pr[hidx].astype(np.int64), uv[hidx], t0
             )
         return t_out, prim
+
+
+def _vertex_triangles(faces: Any, n_vertices: int, index: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~treesim.geometry.vertex_triangles` of ``faces`` (an (f, 3) array, or rows
+    gathered when sliced), ``idx`` in ``index``'s type (the same values), built a chunk
+    of triangles at a time into the arrays it returns: its temporaries are a chunk's,
+    not 36 B a triangle (issue 25). Each chunk's corners are sorted by (vertex,
+    triangle) and placed after those of the chunks before (lower triangles)."""
+    n = len(faces)
+    fill = np.zeros(n_vertices, dtype=np.int64)  # the counts, then the next free slots
+    for a, b in _chunks(n):
+        f = np.asarray(faces[a:b]).reshape(-1)
+        if len(f):
+            lo = int(f.min())  # a chunk's vertices are near each other in most meshes
+            fill[lo : int(f.max()) + 1] += np.bincount(f - lo)
+    ptr = np.zeros(n_vertices + 1, dtype=np.int64)
+    np.cumsum(fill, out=ptr[1:])
+    fill[:] = ptr[:-1]  # where each vertex's next triangle goes
+    inc = np.empty(int(ptr[-1]), dtype=index)
+    bits = max(FAN_CHUNK - 1, 0).bit_length()
+    for a, b in _chunks(n):
+        key = np.array(faces[a:b], dtype=np.int64, order="C")
+        key <<= bits
+        key += np.arange(b - a, dtype=np.int64)[:, None]
+        key = key.reshape(-1)
+        key.sort()
+        vert = key >> bits
+        first = np.flatnonzero(np.concatenate([[True], vert[1:] != vert[:-1]]))
+        run = np.diff(np.append(first, len(key)))
+        # each corner's place: its vertex's next free slot plus its rank in its run
+        place = np.repeat(fill[vert[first]] - first, run)
+        place += np.arange(len(key))
+        key &= (1 << bits) - 1
+        key += a
+        inc[place] = key
+        fill[vert[first]] += run
+    return ptr, inc
+
+
+def _chunks(n: int) -> Iterator[tuple[int, int]]:
+    """``(start, stop)`` of consecutive chunks of ``n`` rows, :data:`FAN_CHUNK` at most."""
+    for a in range(0, n, FAN_CHUNK):
+        yield a, min(n, a + FAN_CHUNK)
+
+
+def _weld_fast(sv: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """:func:`_weld` of the local vertices ``sv - origin`` (the same result), without
+    their copy where every row differs (most meshes): the rows' hashes are made a chunk
+    at a time and sorted in place (16 B a vertex instead of 40: issue 25); where two
+    hashes are equal, :func:`_weld` itself on the copy."""
+    h = np.empty(len(sv), dtype=np.uint64)
+    for a, b in _chunks(len(sv)):
+        local = sv[a:b] - origin
+        local += 0.0  # -0.0 becomes 0.0
+        h[a:b] = _row_hash(local.view(np.uint64))
+    h.sort()
+    if not (h[1:] == h[:-1]).any():  # distinct hashes: distinct rows
+        return None, len(sv)
+    del h
+    return _weld(sv - origin)
 
 
 def _row_hash(words: np.ndarray) -> np.ndarray:

@@ -118,6 +118,7 @@ def plan_scan(
     upper = sum(grid.n_pulses for grid, _ in windows) * s
     checks.check_ray_limit(upper, len(stations), spec, max_rays, nthreads)
     radius = float(np.linalg.norm(verts_used, axis=1).max()) if len(verts_used) else 0.0
+    del verts_used  # a float64 copy (~12 B a triangle): gone before the caster is built
     # one station: the occupancy grid takes the bounds that choose the triangles to load
     # (the same triangles, bounded once: issue 25)
     shared = _Shared.of(origins, windows[0][0], spec, window and cull, lod, radius)
