@@ -274,7 +274,8 @@ class Scene:
         """Meanwhile, the scene's vertices, faces, labels, tree ids and used-vertex mask
         live in temporary files (read-only memory maps of it: pages read only when
         touched), and are read back after into fresh arrays, the same bits, the files
-        removed (also on an exception). Memory (issue 25): what a caller does meanwhile
+        removed (also on an exception); where the files cannot be written (a full
+        disk), the arrays stay in memory. Memory (issue 25): what a caller does meanwhile
         (Open3D building its BVH) peaks without the scene's ~30 B a triangle, provided
         nothing else holds the arrays themselves. ``directory``: where the files go
         (default: Python's temporary folder; a RAM-backed one such as tmpfs saves the
@@ -292,23 +293,33 @@ class Scene:
         >>> isinstance(scene.vertices, np.memmap), scene.vertices[1].tolist()
         (False, [1.0, 0.0, 0.0])
         """
-        folder = tempfile.mkdtemp(prefix="treesim-spill-", dir=directory)
         names = [k for k in self.SPILLED if getattr(self, k) is not None]
+        folder = None
         try:
-            for k in names:
-                path = os.path.join(folder, f"{k}.npy")
-                np.save(path, getattr(self, k), allow_pickle=False)
-                # the array itself goes (unless held elsewhere): only its map stays
-                setattr(self, k, np.load(path, mmap_mode="r", allow_pickle=False))
+            try:
+                folder = tempfile.mkdtemp(prefix="treesim-spill-", dir=directory)
+                for k in names:
+                    path = os.path.join(folder, f"{k}.npy")
+                    np.save(path, getattr(self, k), allow_pickle=False)
+                    # the array itself goes (unless held elsewhere): only its map stays
+                    setattr(self, k, np.load(path, mmap_mode="r", allow_pickle=False))
+            except OSError:  # no room for the files: the arrays stay in memory
+                self._read_back(folder, names)
             yield
         finally:
             try:
-                for k in names:
-                    if isinstance(getattr(self, k), np.memmap):
-                        path = os.path.join(folder, f"{k}.npy")
-                        setattr(self, k, np.load(path, allow_pickle=False))
+                self._read_back(folder, names)
             finally:
-                shutil.rmtree(folder, ignore_errors=True)
+                if folder is not None:
+                    shutil.rmtree(folder, ignore_errors=True)
+
+    def _read_back(self, folder: str | None, names: list[str]) -> None:
+        """The arrays ``names`` that :meth:`spilled` mapped from ``folder``, read back
+        into memory."""
+        for k in names:
+            if isinstance(getattr(self, k), np.memmap):
+                path = os.path.join(str(folder), f"{k}.npy")
+                setattr(self, k, np.load(path, allow_pickle=False))
 
     def labels_present(self) -> list[str]:
         """Labels (``wood``, ``leaf``, ...) of the triangles, in label-code order."""

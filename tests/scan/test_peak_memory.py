@@ -97,6 +97,25 @@ def test_an_exception_inside_reads_back_too_and_the_file_goes(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.parametrize("fail_at", [0, 2])
+def test_no_room_for_the_files_keeps_the_arrays_in_memory(monkeypatch, tmp_path, fail_at):
+    scene = _scene()
+    want = {k: a.copy() for k, a in _arrays(scene).items()}
+    save, calls = np.save, []
+
+    def full_disk(path, a, **kw):
+        calls.append(path)
+        if len(calls) > fail_at:
+            raise OSError(28, "No space left on device")
+        save(path, a, **kw)
+
+    monkeypatch.setattr(np, "save", full_disk)
+    with scene.spilled(str(tmp_path)):
+        _assert_same_bits(_arrays(scene), want)  # in memory meanwhile
+    _assert_same_bits(_arrays(scene), want)
+    assert len(calls) == fail_at + 1 and os.listdir(tmp_path) == []
+
+
 def test_spilling_lets_go_of_the_arrays(tmp_path):
     """Meanwhile nothing of the scene keeps its arrays alive: no second copy in memory."""
     scene = _scene()
