@@ -833,11 +833,10 @@ def _quad_ranges(q_r, row, tri, lines, w, pts, geo) -> None:
     p0 = v[t3[:, 0]]
     n = np.cross(v[t3[:, 1]] - p0, v[t3[:, 2]] - p0)
     num = np.einsum("ij,ij->i", p0 - o, n)
-    rr = row[ii]
-    r = num[at] / np.einsum("ij,ij->i", n[at], w[rr, kk])
+    flat = row[ii] * q_r.shape[1] + kk
+    r = num[at] / np.einsum("ij,ij->i", n[at], w.reshape(-1, 3)[flat])
     r = np.where(r > 0, r, np.inf)
     # a point inside one triangle takes its range; inside several, the nearest
-    flat = rr * q_r.shape[1] + kk
     dup = np.bincount(flat, minlength=q_r.size)[flat] > 1
     q_r.reshape(-1)[flat[~dup]] = r[~dup]
     np.minimum.at(q_r.reshape(-1), flat[dup], r[dup])
