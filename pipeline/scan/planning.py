@@ -69,6 +69,9 @@ class Plan:
     plan_s: float
     #: what ran but may not be what was meant (stations on surfaces, lost precision)
     warnings: list[str]
+    #: the beam's edge model casts (``beam_sampling="edge"`` under ``lod="auto"``; with
+    #: ``lod="full"`` every pulse gets its sub-rays)
+    edge: bool = False
 
     @property
     def pulses_cast(self) -> int:
@@ -145,7 +148,8 @@ def plan_scan(
                 checks.check_inside(caster, sp.o, k, sp.station)
             warnings += checks.station_warnings(caster, sp.o, k, sp.station)
     plan_s = time.perf_counter() - t_all
-    return Plan(spec, stations, frame, caster, plans, geometry, adaptive, plan_s, warnings)
+    edge = s > 1 and spec.beam_sampling == "edge" and lod == "auto"
+    return Plan(spec, stations, frame, caster, plans, geometry, adaptive, plan_s, warnings, edge)
 
 
 def _grid_for(

@@ -234,8 +234,9 @@ def lod_summary(
                 reasons[key] = reasons.get(key, 0) + value
         step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
         ratio = spec.beam_divergence_mrad * 1e-3 / step
+        edge = spec.beam_sampling == "edge" and lod == "auto"  # as the plan's
         out["beam"] = {
-            "sampling": "adaptive" if adaptive else "full",
+            "sampling": "adaptive" if adaptive else ("edge" if edge else "full"),
             "pulses_cast": pulses,
             "pulses_subrays": sub,
             "reasons": reasons,
@@ -246,6 +247,12 @@ def lod_summary(
                 f"spacing (the footprint is {ratio:.2f}× the spacing at any range); the "
                 "others keep their central ray"
                 if adaptive
+                else (
+                    f"the edge model: a pulse's footprint shared out over the surfaces its "
+                    f"neighbours' central rays meet; {spec.subrays} sub-rays for the {sub:,} "
+                    f"of {pulses:,} pulses it could not resolve"
+                )
+                if edge
                 else f"{spec.subrays} sub-rays for every pulse"
                 + (" (lod full)" if lod == "full" else " (beam_sampling full)")
             ),

@@ -628,7 +628,7 @@ def _station(run: _Run, sp: StationPlan, k: int) -> StationStats:
     beam = None
     # no thin-geometry mask (thin geometry nearly everywhere): every pulse needs its
     # sub-rays anyway, cast as the full model casts them
-    if run.s > 1 and run.spec.beam_sampling == "edge":
+    if run.plan.edge:
         from .beam import EdgeBeam
 
         beam = EdgeBeam(run.caster, run.spec, sp, tables, k)

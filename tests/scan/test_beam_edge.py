@@ -74,6 +74,19 @@ def test_a_plate_before_a_wall_splits_pulses_in_two():
         assert total == pytest.approx(1.0, abs=2e-4)
 
 
+def test_the_edge_model_says_it_ran_and_lod_full_samples_every_pulse():
+    edge = scan(edge_scene(True), ORIGIN, EDGE)
+    beam = edge.lod["beam"]
+    assert beam["sampling"] == "edge" and "edge model" in beam["why"]
+    assert 0 < beam["pulses_subrays"] < beam["pulses_cast"]
+    # lod "full" gives every pulse its sub-rays, as documented: the brute force's cloud
+    full = scan(edge_scene(True), ORIGIN, SPEC.with_(beam_sampling="full"))
+    forced = scan(edge_scene(True), ORIGIN, EDGE, lod="full")
+    assert forced.lod["beam"]["sampling"] == "full"
+    assert forced.rays_cast == full.rays_cast == SPEC.subrays * forced.lod["beam"]["pulses_cast"]
+    np.testing.assert_array_equal(forced.cloud.points, full.cloud.points)
+
+
 def test_without_a_beam_the_edge_choice_changes_nothing():
     spec = ScannerSpec(
         horizontal_resolution_deg=0.02,
