@@ -468,7 +468,8 @@ def scan_plot(
         ``inline`` one after another here; ``local`` or ``dask``: each station is a task
         that builds only the trees it can record and returns its points, merged here in
         station order (the same points, bit for bit, as inline; the trees' bounds are
-        found by tasks too). A sink then receives one chunk per station.
+        found by tasks too). A sink then receives one chunk per station (per sector with
+        ``sectors``; larger ones in pieces).
     workers : int, optional
         Worker processes of ``local`` and of a local dask cluster (default one per core,
         at most one per station).
