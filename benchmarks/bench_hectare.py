@@ -321,7 +321,9 @@ def extrapolate(r: dict, step: float, full: dict, per_tri: tuple[float, float]) 
     bpt = bytes_per_triangle(r) or float("nan")
     cast_s = sum(s["time_s"] for s in st)
     rays = max(1, sum(s["rays_cast"] for s in st))
-    loaded = max(1, sum(x["triangles_loaded"] for x in ld))
+    # with sectors a station loads each sector's triangles in turn (a tree two sectors
+    # share twice): its set-up is over all of them
+    loaded = max(1, sum(sum(x.get("sector_triangles_loaded", [x["triangles_loaded"]])) for x in ld))
     # a station's time besides its cast (reading its trees, its scene, its caster) per
     # loaded triangle; the trees' building (once each) per triangle
     setup_per_tri = max(0.0, sum(x["time_s"] for x in ld) - cast_s) / loaded
