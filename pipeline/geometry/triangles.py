@@ -17,6 +17,8 @@ Coordinates are metres, preferably in a :class:`~treesim.frame.LocalFrame`.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..errors import InvalidGeometryError
@@ -37,8 +39,9 @@ _CHUNK = 1 << 18  # points per refinement batch (bounds the temporaries to ~100 
 _TIE_FLOOR = 2.0**-40
 _TIE_REACH = 2.0**-18
 _O3D_CHUNK = 1 << 21  # points per Open3D query
-#: Bits of a non-negative int64: :func:`vertex_triangles`' sort keys must fit in them.
-_KEY_BITS = 63
+#: Triangles :func:`vertex_triangles` sorts the corners of at once (its temporaries,
+#: ~100 B a triangle, stay a few MiB whatever the mesh).
+INCIDENCE_CHUNK = 1 << 15
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -161,14 +164,20 @@ def well_conditioned(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.take_along_axis(f, (opposite[:, None] + np.arange(3)) % 3, axis=1)
 
 
-def vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+def vertex_triangles(
+    faces: Any, n_vertices: int, index: Any = np.int64, chunk: int = INCIDENCE_CHUNK
+) -> tuple[np.ndarray, np.ndarray]:
     """The triangles around each vertex, as a CSR incidence ``(ptr, idx)``: those around
-    vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``, in increasing order.
+    vertex ``i`` are ``idx[ptr[i]:ptr[i + 1]]``, in increasing order (``idx`` in the
+    dtype ``index``; ``ptr`` int64).
 
-    ``idx`` is what a stable argsort of the corners gives (``order // 3``), found by an
-    ordinary sort of the keys ``vertex << b | triangle`` (equal keys are equal entries,
-    so no order among ties is needed; numpy sorts int64 several times faster than it
-    stable-argsorts int32: 0.14 s instead of 1.2 s for 16.6 M corners, issue 25).
+    ``faces`` is an (f, 3) array or anything whose slices are one (a caster's loaded
+    rows). ``idx`` is what a stable argsort of the corners gives (``order // 3``), built
+    ``chunk`` triangles at a time straight into the arrays returned: each chunk's corners
+    sorted by the int64 keys ``vertex << b | triangle`` (equal keys are equal entries, so
+    no order among ties is needed; numpy sorts int64 several times faster than it
+    stable-argsorts int32) and placed after those of the chunks before (lower
+    triangles). Its temporaries are a chunk's, not 36 B a triangle (issue 25).
 
     Examples
     --------
@@ -176,21 +185,35 @@ def vertex_triangles(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np
     >>> ptr.tolist(), idx.tolist()
     ([0, 1, 3, 5, 6], [0, 0, 1, 0, 1, 1])
     """
-    faces = np.asarray(faces)
+    n, chunk = len(faces), max(1, int(chunk))
+    fill = np.zeros(n_vertices, dtype=np.int64)  # the counts, then the next free slots
+    for a in range(0, n, chunk):
+        f = np.asarray(faces[a : a + chunk]).reshape(-1)
+        if len(f):
+            lo = int(f.min())  # a chunk's vertices are near each other in most meshes
+            fill[lo : int(f.max()) + 1] += np.bincount(f - lo)
     ptr = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(faces.ravel(), minlength=n_vertices), out=ptr[1:])
-    n = len(faces)
-    bits = max(n - 1, 0).bit_length()  # the triangle's index in the low bits
-    if n_vertices << bits > 2**_KEY_BITS:
-        # the key would not fit in int64: the stable argsort itself
-        return ptr, np.argsort(faces.ravel(), kind="stable") // 3
-    key = np.array(faces, dtype=np.int64, order="C")
-    key <<= bits
-    key += np.arange(n, dtype=np.int64)[:, None]
-    key = key.reshape(-1)
-    key.sort()
-    key &= (1 << bits) - 1
-    return ptr, key
+    np.cumsum(fill, out=ptr[1:])
+    fill[:] = ptr[:-1]  # where each vertex's next triangle goes
+    inc = np.empty(int(ptr[-1]), dtype=index)
+    bits = (chunk - 1).bit_length()
+    for a in range(0, n, chunk):
+        key = np.array(faces[a : a + chunk], dtype=np.int64, order="C")
+        key <<= bits
+        key += np.arange(len(key), dtype=np.int64)[:, None]
+        key = key.reshape(-1)
+        key.sort()
+        vert = key >> bits
+        first = np.flatnonzero(np.concatenate([[True], vert[1:] != vert[:-1]]))
+        run = np.diff(np.append(first, len(key)))
+        # each corner's place: its vertex's next free slot plus its rank in its run
+        place = np.repeat(fill[vert[first]] - first, run)
+        place += np.arange(len(key))
+        key &= (1 << bits) - 1
+        key += a
+        inc[place] = key
+        fill[vert[first]] += run
+    return ptr, inc
 
 
 def triangles_around(

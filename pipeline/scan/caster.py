@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..frame import LocalFrame
-from ..geometry import triangles_around
+from ..geometry import triangles_around, vertex_triangles
 from ..params import ScannerSpec
 from ..scene import Scene
 from .rays import column_azimuth_rad, line_elevation_rad
@@ -45,7 +45,8 @@ DISTORTED_SHARE = 0.1
 #: holds them (each hit reads them: a scan is faster); larger scenes gather them from the
 #: corners when read (the same figures: memory per triangle, issue 25).
 HELD_GEOMETRY_BYTES = 16 << 20
-#: Vertices or triangles the edge fans (:meth:`Caster._fans`) are built from at once:
+#: Vertices or triangles the edge fans (:meth:`Caster._fans`) are built from at once
+#: (:func:`~treesim.geometry.vertex_triangles`' ``chunk``):
 #: their temporaries (~100 B each) stay a few MiB whatever the scene (issue 25).
 FAN_CHUNK = 1 << 15
 #: A scene whose arrays (vertices, faces, labels, tree ids: ~30 B a triangle) take at
@@ -55,11 +56,13 @@ FAN_CHUNK = 1 << 15
 SPILL_BYTES = 16 << 20
 
 
-def triangle_chunks(n: int) -> Iterator[tuple[int, int]]:
-    """``(start, stop)`` of consecutive chunks of ``n`` triangles, :data:`BOUNDS_CHUNK`
-    at most each (read when called, so a test can shrink it for every user at once)."""
-    for a in range(0, n, BOUNDS_CHUNK):
-        yield a, min(n, a + BOUNDS_CHUNK)
+def triangle_chunks(n: int, size: int | None = None) -> Iterator[tuple[int, int]]:
+    """``(start, stop)`` of consecutive chunks of ``n`` rows (triangles, or vertices),
+    ``size`` at most each (default :data:`BOUNDS_CHUNK`, read when called, so a test can
+    shrink it for every user at once)."""
+    step = BOUNDS_CHUNK if size is None else size
+    for a in range(0, n, step):
+        yield a, min(n, a + step)
 
 
 def float32_error_m(radius_m: float, o: np.ndarray) -> float:
@@ -316,7 +319,7 @@ class Caster:
         each vertex's listed in increasing order): where no two vertices share their
         coordinates, the corners are the faces themselves (:func:`_weld`)."""
         if self._fan is None:
-            weld, n_welded = _weld_fast(self._sv, self._origin)
+            weld, n_welded = _weld(self._sv, self._origin)
             # held while the caster lives: int32 indices where they fit (the same values)
             small = max(n_welded, 3 * len(self.faces)) < 2**31 - 1
             index = np.int32 if small else np.int64
@@ -324,7 +327,7 @@ class Caster:
             if weld is not None:
                 corners = weld.astype(index)[np.asarray(self.faces)]
             del weld
-            ptr, inc = _vertex_triangles(corners, n_welded, index)
+            ptr, inc = vertex_triangles(corners, n_welded, index, chunk=FAN_CHUNK)
             self._fan = (corners, ptr, inc)
         return self._fan
 
@@ -488,66 +491,6 @@ class Caster:
         return t_out, prim
 
 
-def _vertex_triangles(faces: Any, n_vertices: int, index: Any) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~treesim.geometry.vertex_triangles` of ``faces`` (an (f, 3) array, or rows
-    gathered when sliced), ``idx`` in ``index``'s type (the same values), built a chunk
-    of triangles at a time into the arrays it returns: its temporaries are a chunk's,
-    not 36 B a triangle (issue 25). Each chunk's corners are sorted by (vertex,
-    triangle) and placed after those of the chunks before (lower triangles)."""
-    n = len(faces)
-    fill = np.zeros(n_vertices, dtype=np.int64)  # the counts, then the next free slots
-    for a, b in _chunks(n):
-        f = np.asarray(faces[a:b]).reshape(-1)
-        if len(f):
-            lo = int(f.min())  # a chunk's vertices are near each other in most meshes
-            fill[lo : int(f.max()) + 1] += np.bincount(f - lo)
-    ptr = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(fill, out=ptr[1:])
-    fill[:] = ptr[:-1]  # where each vertex's next triangle goes
-    inc = np.empty(int(ptr[-1]), dtype=index)
-    bits = max(FAN_CHUNK - 1, 0).bit_length()
-    for a, b in _chunks(n):
-        key = np.array(faces[a:b], dtype=np.int64, order="C")
-        key <<= bits
-        key += np.arange(b - a, dtype=np.int64)[:, None]
-        key = key.reshape(-1)
-        key.sort()
-        vert = key >> bits
-        first = np.flatnonzero(np.concatenate([[True], vert[1:] != vert[:-1]]))
-        run = np.diff(np.append(first, len(key)))
-        # each corner's place: its vertex's next free slot plus its rank in its run
-        place = np.repeat(fill[vert[first]] - first, run)
-        place += np.arange(len(key))
-        key &= (1 << bits) - 1
-        key += a
-        inc[place] = key
-        fill[vert[first]] += run
-    return ptr, inc
-
-
-def _chunks(n: int) -> Iterator[tuple[int, int]]:
-    """``(start, stop)`` of consecutive chunks of ``n`` rows, :data:`FAN_CHUNK` at most."""
-    for a in range(0, n, FAN_CHUNK):
-        yield a, min(n, a + FAN_CHUNK)
-
-
-def _weld_fast(sv: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray | None, int]:
-    """:func:`_weld` of the local vertices ``sv - origin`` (the same result), without
-    their copy where every row differs (most meshes): the rows' hashes are made a chunk
-    at a time and sorted in place (16 B a vertex instead of 40: issue 25); where two
-    hashes are equal, :func:`_weld` itself on the copy."""
-    h = np.empty(len(sv), dtype=np.uint64)
-    for a, b in _chunks(len(sv)):
-        local = sv[a:b] - origin
-        local += 0.0  # -0.0 becomes 0.0
-        h[a:b] = _row_hash(local.view(np.uint64))
-    h.sort()
-    if not (h[1:] == h[:-1]).any():  # distinct hashes: distinct rows
-        return None, len(sv)
-    del h
-    return _weld(sv - origin)
-
-
 def _row_hash(words: np.ndarray) -> np.ndarray:
     """A 64-bit hash (n,) uint64 of rows of three 64-bit words (n, 3) uint64 (multiply
     and xor-shift rounds: equal rows hash equal; :func:`_weld` checks the rest)."""
@@ -560,22 +503,35 @@ def _row_hash(words: np.ndarray) -> np.ndarray:
     return h
 
 
-def _weld(v: np.ndarray) -> tuple[np.ndarray | None, int]:
-    """A labelling of the rows of ``v`` (n, 3) float64 (a scratch array: changed) equal
-    where their coordinates are (-0.0 and 0.0 equal): ``(weld, n_welded)``, ``weld`` (n,)
-    in ``range(n_welded)``, or ``(None, n)`` where every row differs (each its own
-    label, its index). Rows are told apart by a 64-bit hash of their bits, sorted;
-    rows whose hashes are equal are compared, and where two differ (a collision) the
-    labels are np.unique's of the rows' bytes. About 15 times faster than np.unique
-    on 24-byte keys (issue 25)."""
-    v = np.ascontiguousarray(v)
+def _local_hashes(sv: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """:func:`_row_hash` of the local vertices ``sv - origin`` (-0.0 made 0.0), made a
+    chunk of :data:`FAN_CHUNK` rows at a time (no copy of every vertex)."""
+    h = np.empty(len(sv), dtype=np.uint64)
+    for a, b in triangle_chunks(len(sv), FAN_CHUNK):
+        local = sv[a:b] - origin
+        local += 0.0  # -0.0 becomes 0.0
+        h[a:b] = _row_hash(local.view(np.uint64))
+    return h
+
+
+def _weld(sv: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """A labelling of the local vertices ``sv - origin`` (n, 3) float64, equal where
+    their coordinates are (-0.0 and 0.0 equal): ``(weld, n_welded)``, ``weld`` (n,) in
+    ``range(n_welded)``, or ``(None, n)`` where every row differs (each its own label,
+    its index; most meshes). Rows are told apart by a 64-bit hash of their bits
+    (:func:`_local_hashes`, sorted in place: 16 B a vertex, no copy of the vertices, where
+    every hash differs); where two hashes are equal, the rows are copied, those of equal
+    hash compared, and where two differ (a collision) the labels are np.unique's of the
+    rows' bytes. About 15 times faster than np.unique on 24-byte keys (issue 25)."""
+    h = _local_hashes(sv, origin)
+    h.sort()
+    if not (h[1:] == h[:-1]).any():  # distinct hashes: distinct rows
+        return None, len(sv)
+    del h
+    v = sv - origin
     v += 0.0  # -0.0 becomes 0.0
     words = v.view(np.uint64)
     h = _row_hash(words)
-    s = np.sort(h)
-    if not (s[1:] == s[:-1]).any():  # distinct hashes: distinct rows
-        return None, len(v)
-    del s
     order = np.argsort(h)
     h = h[order]
     first = np.empty(len(h), dtype=bool)

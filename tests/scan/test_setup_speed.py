@@ -20,7 +20,6 @@ from treesim.scene import MeshPart, Scene
 
 caster_module = importlib.import_module("treesim.scan.caster")
 scene_module = importlib.import_module("treesim.scene")
-triangles_module = importlib.import_module("treesim.geometry.triangles")
 
 
 def _stable_incidence(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -45,13 +44,12 @@ def test_vertex_triangles_is_the_stable_argsort(n_faces, dtype):
     np.testing.assert_array_equal(idx, idx0)
 
 
-def test_vertex_triangles_of_a_strided_view_and_when_keys_would_not_fit(monkeypatch):
+def test_vertex_triangles_of_a_strided_view_in_chunks():
     rng = np.random.default_rng(1)
     faces = rng.integers(0, 50, size=(400, 6))[:, ::2]  # not contiguous
     ptr0, idx0 = _stable_incidence(np.ascontiguousarray(faces), 50)
-    for key_bits in (63, 8):  # 8: 50 vertices << 9 bits do not fit: the argsort itself
-        monkeypatch.setattr(triangles_module, "_KEY_BITS", key_bits)
-        ptr, idx = vertex_triangles(faces, 50)
+    for chunk in (1 << 15, 7, 1):  # one chunk, several, a triangle at a time
+        ptr, idx = vertex_triangles(faces, 50, chunk=chunk)
         np.testing.assert_array_equal(ptr, ptr0)
         np.testing.assert_array_equal(idx, idx0)
 
@@ -106,7 +104,7 @@ def test_the_weld_groups_equal_coordinates_as_np_unique(monkeypatch, row_hash, s
         monkeypatch.setattr(caster_module, "_row_hash", row_hash)
     v, _ = _soup(seed)
     oracle = _unique_weld(v)
-    weld, n = caster_module._weld(v.copy())
+    weld, n = caster_module._weld(v, np.zeros(3))
     assert weld is not None and n == oracle.max() + 1
     assert weld.min() == 0 and weld.max() == n - 1
     assert _same_labelling(weld, oracle)
@@ -118,10 +116,10 @@ def test_the_weld_groups_equal_coordinates_as_np_unique(monkeypatch, row_hash, s
 def test_distinct_coordinates_weld_to_themselves(monkeypatch):
     rng = np.random.default_rng(2)
     v = rng.normal(size=(5000, 3))
-    assert caster_module._weld(v.copy()) == (None, 5000)
+    assert caster_module._weld(v, np.zeros(3)) == (None, 5000)
     # a collision among distinct rows: the labels still tell every row apart
     monkeypatch.setattr(caster_module, "_row_hash", _hash_zero)
-    weld, n = caster_module._weld(v.copy())
+    weld, n = caster_module._weld(v, np.zeros(3))
     assert n == 5000 and _same_labelling(weld, np.arange(5000))
 
 
