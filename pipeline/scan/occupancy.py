@@ -718,8 +718,7 @@ def reachable(b: TriangleBounds, spec: ScannerSpec, *, abs_error_m: float) -> np
     ``max_range_m``, or its widened angular bounds miss the field of view. Nearer than
     ``min_range_m`` is kept (a near triangle records nothing but still occludes).
     """
-    with np.errstate(over="ignore"):  # a triangle through the station: an infinite margin
-        m = pointing_margin_rad(spec) + abs_error_m / np.maximum(b.d_min, 1e-300)
+    m = pointing_margin_rad(spec) + abs_error_m / np.maximum(b.d_min, 1e-300)
     v0, v1 = (math.radians(a) for a in spec.vertical_fov_deg)
     ok = (b.d_min <= spec.max_range_m) & (b.el_hi + m >= v0) & (b.el_lo - m <= v1)
     if spec.full_turn:
@@ -727,6 +726,7 @@ def reachable(b: TriangleBounds, spec: ScannerSpec, *, abs_error_m: float) -> np
     h0, h1 = spec.horizontal_fov_deg
     el_abs = np.maximum(np.abs(b.el_lo), np.abs(b.el_hi)) + m
     cos_el = np.cos(np.minimum(el_abs, np.pi / 2))
+    # a triangle through the station: its margin ~1e295, over a cosine: infinite
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         m_az = np.where(cos_el > 1e-3, m / cos_el, np.inf)
         a_lo = np.degrees(b.az_lo - m_az)

@@ -186,8 +186,10 @@ def lod_summary(
     geometry: dict[str, Any],
     culled: bool,
     adaptive: bool,
+    edge: bool = False,
 ) -> dict[str, Any]:
-    """JSON-ready account of which models ran, where, and why."""
+    """JSON-ready account of which models ran, where, and why (``adaptive``, ``edge``:
+    the beam sampling the plan chose, :class:`~treesim.scan.planning.Plan`)."""
     window = sum(s.pulses_window for s in stats)
     cast = sum(s.pulses_cast for s in stats)
     out: dict[str, Any] = {"mode": lod}
@@ -234,7 +236,6 @@ def lod_summary(
                 reasons[key] = reasons.get(key, 0) + value
         step = math.radians(min(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
         ratio = spec.beam_divergence_mrad * 1e-3 / step
-        edge = spec.beam_sampling == "edge" and lod == "auto"  # as the plan's
         out["beam"] = {
             "sampling": "adaptive" if adaptive else ("edge" if edge else "full"),
             "pulses_cast": pulses,

@@ -231,7 +231,7 @@ def scan(
         window=window,
         cull=culled,
         points_written=run.output.written,
-        lod=lod_summary(lod, spec, stats, plan.geometry, culled, plan.adaptive),
+        lod=lod_summary(lod, spec, stats, plan.geometry, culled, plan.adaptive, plan.edge),
         models=spec.active_models(),
         warnings=warnings,
     )
