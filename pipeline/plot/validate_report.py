@@ -323,7 +323,8 @@ def write_validation(
 
     Examples
     --------
-    >>> from treesim.plot.validate import validate_scans, write_validation
+    >>> from treesim.plot.validate import validate_scans
+    >>> from treesim.plot.validate_report import write_validation
     >>> paths = write_validation(validate_scans(real, sim), "validation/")  # doctest: +SKIP
     """
     from ..atomic import write_text

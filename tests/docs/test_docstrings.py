@@ -1,12 +1,16 @@
 """Every verb and type the facade exports (``treesim.__all__``) has a numpydoc docstring
 with an ``Examples`` section, functions a ``Parameters`` section naming each of their
 parameters; and the examples run (doctest), except lines marked ``# doctest: +SKIP``
-(those need a user's files or run the loop for long)."""
+(those need a user's files or run the loop for long). The examples of every other
+module's functions and classes run too (the architecture tests ask each public function
+for one)."""
 
 from __future__ import annotations
 
 import doctest
+import importlib
 import inspect
+import pkgutil
 import re
 
 import pytest
@@ -85,3 +89,26 @@ def test_examples_run(name, tmp_path, monkeypatch):
         runner.run(test)
     result = runner.summarize(verbose=False)
     assert result.failed == 0, f"treesim.{name}: {result.failed} example(s) failed (above)"
+
+
+def _library_modules() -> list[str]:
+    """Every module of the library (``treesim.*``, the service's too), ``__main__``
+    modules left out (importing one runs it)."""
+    found = pkgutil.walk_packages(treesim.__path__, "treesim.")
+    return sorted(m.name for m in found if not m.name.endswith("__main__"))
+
+
+@pytest.mark.parametrize("module", _library_modules())
+def test_every_modules_examples_run(module, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # examples write their files here
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    mod = importlib.import_module(module)
+    tests = doctest.DocTestFinder().find(mod, module)
+    runner = doctest.DocTestRunner(
+        optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, verbose=False
+    )
+    for test in tests:
+        if test.examples and test.name.startswith(module):  # its own, not an import's
+            runner.run(test)
+    result = runner.summarize(verbose=False)
+    assert result.failed == 0, f"{module}: {result.failed} example(s) failed (above)"
