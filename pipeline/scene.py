@@ -123,7 +123,8 @@ class Scene:
     #: (2, 3) bounds to report instead of the vertices' own, which it must contain: a
     #: part of a larger scene (a plot station's azimuth sector) is then cast with the
     #: whole scene's tolerances and entry distance (:class:`~treesim.scan.caster.Caster`
-    #: measures them from the bounds), so its points are the whole scene's, bit for bit
+    #: measures them from the bounds): its pulses meet what they meet in the whole scene,
+    #: with the same float64 arithmetic (see :mod:`treesim.plot.sectors` for how close)
     extent: np.ndarray | None = None
     vertices: np.ndarray = field(init=False)
     faces: np.ndarray = field(init=False)

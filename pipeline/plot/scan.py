@@ -35,6 +35,7 @@ from ..scan.timing import station_duration_s, timing_summary
 from ..scene import MeshPart, Scene
 from .core import Plot
 from .sectors import (
+    box_corners,
     check_sectors,
     memory_advice,
     merged_lod,
@@ -71,13 +72,6 @@ _BOX_FACES = np.array(
 _TOP = [2, 3]  # rows of _BOX_FACES on z = max (corners 1, 3, 5, 7 have z = max)
 
 
-def _box_corners(bounds: np.ndarray) -> np.ndarray:
-    lo, hi = np.asarray(bounds, dtype=np.float64)
-    return np.array(
-        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-    )
-
-
 def box_reachable(bounds: np.ndarray, station: Station, spec: Any, origin: np.ndarray) -> bool:
     """Whether ``station`` scanning with ``spec`` can record anything inside the box
     ``bounds`` (2, 3), or have a ray stopped by it. False only when the whole box lies
@@ -90,7 +84,7 @@ def box_reachable(bounds: np.ndarray, station: Station, spec: Any, origin: np.nd
     pos = station.position
     if np.all(pos >= lo - 1e-3) and np.all(pos <= hi + 1e-3):
         return True
-    corners = _box_corners(bounds) - pos
+    corners = box_corners(bounds) - pos
     rel = corners @ station.rotation
     b = triangle_bounds(rel[_BOX_FACES])
     # one box-wide bound: the top face's halves carry the azimuths of the whole box's
@@ -612,7 +606,7 @@ def _scan_inline(
     for k, st in enumerate(placed):
         t_st = time.perf_counter()
         before = _rss_bytes()
-        mine = [u for u, unit in enumerate(units) if unit[0] == k]
+        mine = _of_station(units, k)
         built: list[int] = []
         loaded = []
         w0 = len(out.warnings)
@@ -633,8 +627,7 @@ def _scan_inline(
                 )
             )  # fmt: skip
             release()
-        said = out.warnings[w0:]  # a station's sectors say a thing once
-        out.warnings[w0:] = [w for j, w in enumerate(said) if w not in said[:j]]
+        out.warnings[w0:] = _once(out.warnings[w0:])  # a station's sectors say a thing once
         _merge_sectors(out, mine, units)
         out.loading.append(
             {
@@ -666,6 +659,16 @@ def _advise(
     if advice is not None:
         out.warnings.append(advice)
         say(0.0, f"warning: {advice}")
+
+
+def _of_station(units: list[tuple[int, Any, list[int]]], k: int) -> list[int]:
+    """The indices of station ``k``'s units (its sectors, in order)."""
+    return [u for u, unit in enumerate(units) if unit[0] == k]
+
+
+def _once(said: list[str]) -> list[str]:
+    """``said`` without repeats, in order."""
+    return list(dict.fromkeys(said))
 
 
 def _merge_sectors(
@@ -748,18 +751,18 @@ def _run_station_tasks(
     ]
     say(0.0, f"{n} stations ({len(units)} tasks) on {plan.describe()}")
     for k in range(n):
-        mine = [u for u, unit in enumerate(units) if unit[0] == k]
+        mine = _of_station(units, k)
         rs, said = [], []
         for u in mine:
             r = futures[u].result()
             out.stats.append(r["stats"])
             out.lods.append(r["lod"])
-            said += [w for w in r["warnings"] if w not in said]  # a station's sectors say it once
+            said += r["warnings"]
             out.models = r["models"] or out.models
             _take_points(r, sink, out)
             rs.append({key: r[key] for key in ("loaded_tri", "time_s", "memory")})
             futures[u] = None  # type: ignore[call-overload]  # its points may go
-        out.warnings += said
+        out.warnings += _once(said)  # a station's sectors say a thing once
         _merge_sectors(out, mine, units)
         ids_k = needs.get(k, [])
         # the memory of the task that rose most over its start (with sectors)

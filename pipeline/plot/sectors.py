@@ -50,6 +50,20 @@ __all__ = [
 BYTES_PER_TRIANGLE = 220
 
 
+def box_corners(bounds: np.ndarray) -> np.ndarray:
+    """The eight corners (8, 3) of the axis-aligned box ``bounds`` (2, 3).
+
+    Examples
+    --------
+    >>> box_corners(np.array([[0.0, 0, 0], [1, 2, 3]]))[[0, -1]].tolist()
+    [[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]]
+    """
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    return np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+
+
 def check_sectors(sectors: Any, spec: Any) -> int:
     """``sectors`` as a checked count: an integer >= 1, and 1 for a beam of several
     rays (its pulses sample their neighbours, across a sector's edge too).
@@ -82,8 +96,8 @@ def sector_columns(spec: Any, sectors: int) -> list[tuple[int, int]]:
     Examples
     --------
     >>> from treesim.scan import ScannerSpec
-    >>> sector_columns(ScannerSpec(horizontal_resolution_deg=90.0), 2)
-    [(0, 2), (2, 4)]
+    >>> sector_columns(ScannerSpec(horizontal_resolution_deg=45.0), 2)  # 8 columns
+    [(0, 4), (4, 8)]
     """
     n = spec.n_azimuth
     edges = [(n * j) // sectors for j in range(sectors + 1)]
@@ -101,16 +115,12 @@ def tree_columns(bounds: np.ndarray, station: Station, spec: Any) -> np.ndarray:
     >>> import numpy as np
     >>> from treesim.scan import ScannerSpec, Station
     >>> spec = ScannerSpec(horizontal_resolution_deg=1.0, vertical_resolution_deg=1.0)
-    >>> box = np.array([[9.0, -1.0, 0.0], [11.0, 1.0, 3.0]])  # due east (+x), 10 m
+    >>> box = np.array([[-1.0, 9.0, 0.0], [1.0, 11.0, 3.0]])  # 10 m north (+y)
     >>> cols = tree_columns(box, Station(position_m=(0.0, 0.0, 1.5)), spec)
-    >>> int(cols.min()), int(cols.max())  # azimuth 0 is column 180 of -180..180
-    (172, 188)
+    >>> int(cols.min()), int(cols.max())  # azimuth 90 deg ± 5.7 deg and the margins
+    (81, 99)
     """
-    lo, hi = np.asarray(bounds, dtype=np.float64)
-    corners = np.array(
-        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-    )
-    rel = (corners - station.position) @ station.rotation
+    rel = (box_corners(bounds) - station.position) @ station.rotation
     return windowed_grid(spec, box_window(rel.min(axis=0), rel.max(axis=0))).columns
 
 
