@@ -44,9 +44,10 @@ __all__ = [
     "tree_columns",
 ]
 
-#: What a loaded triangle costs at a station's peak while it casts (bytes; the scene's
-#: arrays, Open3D's copy and its hierarchy, the build's buffers): ~200 measured by
-#: ``benchmarks/bench_hectare.py --memory-only`` (docs/validation.md), rounded up.
+#: What a loaded triangle costs at a station's peak while it casts (bytes; Open3D's copy
+#: and its hierarchy, the scene's arrays, the default batch's buffers): what
+#: ``benchmarks/bench_hectare.py`` prints at the default batch (docs/validation.md),
+#: rounded up.
 BYTES_PER_TRIANGLE = 220
 
 
