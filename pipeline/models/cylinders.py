@@ -15,7 +15,10 @@ reads / writes the table formats treesim meets:
   ``cylinder_NAME.txt`` of TreeQSM 2.4 (a 13-name header over 17 columns: radius,
   length, start (3), axis (3), parent, extension, branch, branch order, position in
   branch, mad, SurfCov, added, UnmodRadius) or the headerless ``cyl_data_NAME.txt`` of
-  TreeQSM 2.3 (15 columns: the same without mad and SurfCov), values rounded to 0.1 mm.
+  TreeQSM 2.3 (15 columns: the same without mad and SurfCov), values rounded to 0.1 mm;
+  a headerless 15-column table with added and UnmodRadius before branch (the order of
+  TreeQSM's ``cylinder`` structure, as aRchi ships its tables) is told apart by which
+  columns hold whole numbers.
 
 Rows are numbered from 1 in messages, counting data rows after the header: the row a
 TreeQSM ``parent`` entry refers to, and the line number minus one in a file without blank
@@ -85,6 +88,20 @@ TREEQSM_TEXT_COLUMNS: dict[int, tuple[str, ...]] = {
         "unmod_radius",
     ),
 }
+#: Other column orders a headerless export of that width is found in: the 15 columns in
+#: the order of TreeQSM's ``cylinder`` structure (parent, extension, added, UnmodRadius,
+#: then branch, branch order, position in branch), as aRchi's ``Tree_1_TreeQSM.txt`` has
+#: them. A file is read in the first order whose whole-number columns hold whole numbers
+#: in every row (:func:`_text_layout`).
+TREEQSM_TEXT_ORDERS: dict[int, tuple[tuple[str, ...], ...]] = {
+    15: (
+        TREEQSM_TEXT_COLUMNS[15],
+        TREEQSM_TEXT_COLUMNS[15][:10]
+        + ("added", "unmod_radius", "branch", "branch_order", "position_in_branch"),
+    ),
+}
+#: TreeQSM's columns that hold whole numbers.
+_TREEQSM_WHOLE = ("parent", "extension", "branch", "branch_order", "position_in_branch", "added")
 
 #: treesim's CSV columns, in order (TreeQSM's order, then ``end_radius`` and ``tag``).
 TREESIM_COLUMNS: tuple[str, ...] = (
@@ -903,8 +920,25 @@ def _read_treeqsm_text(path: Path) -> CylinderTable:
             raise InputFormatError(
                 f"{path}: row {i + 1} has {len(r)} columns but row 1 has {width}; fix the row"
             )
-    cols = _Columns(path, list(TREEQSM_TEXT_COLUMNS[width]), lines)
+    cols = _Columns(path, list(_text_layout(width, lines)), lines)
     return _read_treeqsm(cols, "treeqsm")
+
+
+def _text_layout(width: int, lines: list[list[str]]) -> tuple[str, ...]:
+    """The column names of a TreeQSM text export ``width`` columns wide: the first of
+    :data:`TREEQSM_TEXT_ORDERS` whose whole-number columns hold whole numbers in every row
+    (TreeQSM's own order where none does: its reader names the bad cell)."""
+    orders = TREEQSM_TEXT_ORDERS.get(width, (TREEQSM_TEXT_COLUMNS[width],))
+    for names in orders:
+        try:
+            values = np.array(
+                [[r[names.index(c)] for c in _TREEQSM_WHOLE] for r in lines], dtype=np.float64
+            )
+        except ValueError:
+            break  # a cell that is no number: the reader says which
+        if np.all(np.isfinite(values) & (values == np.round(values))):
+            return names
+    return orders[0]
 
 
 def read_cylinders(path: str | Path, format: str | None = None) -> CylinderTable:

@@ -9,6 +9,7 @@ here are written the same way from known tables.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -17,13 +18,25 @@ import pytest
 from treesim.errors import EmptyInputError, InputFormatError, ModelError
 from treesim.models import TREEQSM_TEXT_COLUMNS, CylinderTable, read_cylinders
 
+#: aRchi's TreeQSM table of its Tree_1 (tests/data/trees/PROVENANCE.md).
+ARCHI_QSM = (
+    Path(__file__).resolve().parents[1] / "data" / "trees" / "archi_tree1" / "Tree_1_TreeQSM.txt"
+)
+#: The 15 columns in the order of TreeQSM's ``cylinder`` structure, written out here by
+#: hand (not taken from the reader): added and UnmodRadius before branch.
+STRUCTURE_ORDER = (
+    "radius", "length", "start_x", "start_y", "start_z", "axis_x", "axis_y", "axis_z",
+    "parent", "extension", "added", "unmod_radius", "branch", "branch_order",
+    "position_in_branch",
+)  # fmt: skip
+
 HEADER_24 = (
     "radius (m)\tlength (m)\tstart_point\taxis_direction\tparent\textension\tbranch\t"
     "branch_order\tposition_in_branch\tmad\tSurfCov\tadded\tUnmodRadius (m)"
 )
 
 
-def _columns(table: CylinderTable, width: int) -> list[np.ndarray]:
+def _columns(table: CylinderTable, width: int, names=None) -> list[np.ndarray]:
     """The table's columns in the export's order, rounded as TreeQSM rounds them."""
     r4 = lambda a: np.round(10000 * np.asarray(a, dtype=float)) / 10000  # noqa: E731
     n = table.n_cylinders
@@ -42,11 +55,11 @@ def _columns(table: CylinderTable, width: int) -> list[np.ndarray]:
         "added": table.added.astype(int),
         "unmod_radius": r4(table.unmod_radius_m),
     }
-    return [cols[name] for name in TREEQSM_TEXT_COLUMNS[width]]
+    return [cols[name] for name in names or TREEQSM_TEXT_COLUMNS[width]]
 
 
-def _write_text(path: Path, table: CylinderTable, width: int = 17) -> Path:
-    cols = _columns(table, width)
+def _write_text(path: Path, table: CylinderTable, width: int = 17, names=None) -> Path:
+    cols = _columns(table, width, names)
     lines = ["\t".join(f"{float(c[i]):g}" for c in cols) for i in range(table.n_cylinders)]
     header = [HEADER_24] if width == 17 else []
     path.write_text("\n".join(header + lines) + "\n")
@@ -79,6 +92,34 @@ def test_both_layouts_read_back_the_table(tmp_path: Path, width: int) -> None:
         for field in ("parent", "extension", "branch", "branch_order", "position_in_branch"):
             assert getattr(table, field).tolist() == getattr(expected, field).tolist(), field
         assert table.summary() == expected.summary()
+
+
+def test_the_structure_order_is_told_apart_by_its_whole_number_columns(tmp_path: Path) -> None:
+    """A headerless 15-column table in the ``cylinder`` structure's order reads back the
+    same table as TreeQSM 2.3's order (it was read as 2.3's and refused: "column
+    branch_order holds 0.05, not a whole number")."""
+    small = dataclasses.replace(_small(), unmod_radius_m=[0.051, 0.042, 0.033, 0.014])
+    a = read_cylinders(_write_text(tmp_path / "a.txt", small, 15))
+    b = read_cylinders(_write_text(tmp_path / "b.txt", small, 15, STRUCTURE_ORDER))
+    for field in ("start", "axis", "length_m", "radius_m", "unmod_radius_m", "added"):
+        np.testing.assert_array_equal(getattr(b, field), getattr(a, field))
+    for field in ("parent", "extension", "branch", "branch_order", "position_in_branch"):
+        assert getattr(b, field).tolist() == getattr(small, field).tolist(), field
+    np.testing.assert_array_equal(b.unmod_radius_m, [0.051, 0.042, 0.033, 0.014])
+
+
+def test_archis_treeqsm_table_reads_as_its_provenance_measured_it() -> None:
+    """aRchi's Tree_1 table (the structure's order): PROVENANCE.md's figures, measured from
+    the file when it was added: 2,271 cylinders, 233 branches, trunk (branch 1) 2,035 L and
+    total 3,899 L as the sum of pi r^2 l, DBH 49.4 cm."""
+    t = read_cylinders(ARCHI_QSM)
+    assert t.n_cylinders == 2271
+    assert len(np.unique(t.branch)) == 233
+    vol = np.pi * t.radius_m**2 * t.length_m
+    assert vol[t.branch == 1].sum() * 1e3 == pytest.approx(2035, abs=0.5)
+    assert vol.sum() * 1e3 == pytest.approx(3899, abs=0.5)
+    assert t.dbh_m() * 1e2 == pytest.approx(49.4, abs=0.05)
+    assert (t.branch_order[t.branch == 1] == 0).all() and t.parent[0] == -1
 
 
 @pytest.mark.shared_data
