@@ -306,7 +306,15 @@ def stem_axis_near_foot(points: np.ndarray, low_z_m: float) -> tuple[float, floa
     inv = inv.ravel()
     pairs = np.unique(np.column_stack([inv, layer]), axis=0)
     layers = np.bincount(pairs[:, 0], minlength=len(keys))
-    best = int(np.argmax(layers))
+    # ties broken by the layers a cell fills up to 3 m: a stem goes on above a shrub
+    above = points[(points[:, 2] > top) & (points[:, 2] <= low_z_m + 3.0)]
+    a_ij = np.floor(above[:, :2] / cell).astype(np.int64)
+    a_layer = np.floor((above[:, 2] - lo) / 0.1).astype(np.int64)
+    cell_of = {tuple(k): i for i, k in enumerate(keys.tolist())}
+    a_cell = np.array([cell_of.get(tuple(k), -1) for k in a_ij.tolist()], dtype=np.int64)
+    a_pairs = np.unique(np.column_stack([a_cell, a_layer])[a_cell >= 0], axis=0)
+    more = np.bincount(a_pairs[:, 0], minlength=len(keys)) if len(a_pairs) else 0 * layers
+    best = int(np.lexsort((-more, -layers))[0])
     strong = np.flatnonzero(layers >= 0.5 * layers[best])
     # the strong cells near the best one (gaps of a cell bridged: sparse stems)
     lab = _clusters(keys[strong].astype(np.float64), 2.5)
@@ -320,6 +328,26 @@ def stem_axis_near_foot(points: np.ndarray, low_z_m: float) -> tuple[float, floa
     if circ is not None and circ.radius_m <= 3 * extent and circ.coverage_deg >= 60:
         return circ.cx_m, circ.cy_m, circ.radius_m
     return float(cx), float(cy), max(extent, cell)
+
+
+#: The cloud's low level is the lowest height whose window of LOW_WINDOW_M holds
+#: LOW_MIN_POINTS points: a few stray points below do not set it, and a sparse trunk under a
+#: dense crown does (a percentile of the heights did not: rTLS's leaf-on tree holds 0.5 % of
+#: its points in its 1.75 m of trunk, and its 0.5th percentile fell at the crown's base).
+LOW_WINDOW_M = 0.1
+LOW_MIN_POINTS = 10
+#: Heights above the disk's lowest point against whose density the stem's foot is found.
+FOOT_WINDOW_M = 1.5
+
+
+def lowest_level(z: np.ndarray) -> float:
+    """The lowest height whose window of :data:`LOW_WINDOW_M` above it holds
+    :data:`LOW_MIN_POINTS` points (the lowest point of a smaller cloud)."""
+    zs = np.sort(np.asarray(z, dtype=np.float64))
+    if len(zs) < LOW_MIN_POINTS:
+        return float(zs[0])
+    full = zs[LOW_MIN_POINTS - 1 :] - zs[: len(zs) - LOW_MIN_POINTS + 1] <= LOW_WINDOW_M
+    return float(zs[int(np.argmax(full))] if full.any() else zs[0])
 
 
 def _lowest_dense_z(z: np.ndarray, bin_m: float = 0.02) -> float:
@@ -345,7 +373,9 @@ def base_height(
     """
     d = np.hypot(points[:, 0] - axis_xy[0], points[:, 1] - axis_xy[1])
     disk = points[d <= max(radius_m, 3 * stem_radius_m)]
-    z_low = _lowest_dense_z(disk[:, 2])
+    # dense against the lowest metres only: a dense crown above a sparse trunk does not
+    # make the trunk's foot look empty
+    z_low = _lowest_dense_z(disk[disk[:, 2] <= disk[:, 2].min() + FOOT_WINDOW_M, 2])
     dd = np.hypot(disk[:, 0] - axis_xy[0], disk[:, 1] - axis_xy[1])
     ring = disk[(dd > stem_radius_m + 0.05) & (disk[:, 2] <= z_low + 0.5)]
     if len(ring) >= 8:
@@ -603,7 +633,7 @@ def reference(
         raise ValueError("points hold NaN or infinite values")
     origin = np.array([*np.median(pts[:, :2], axis=0), 0.0])
     local = pts - origin
-    low = float(np.percentile(local[:, 2], 0.5))
+    low = lowest_level(local[:, 2])
     ax, ay, r0 = stem_axis_near_foot(local, low)
     base, source = base_height(local, (ax, ay), r0)
     top = top_height(local)

@@ -178,3 +178,20 @@ def test_bad_input_is_a_clear_error():
     bad[0, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         reference(bad)
+
+
+def test_a_sparse_trunk_under_a_dense_crown_keeps_its_foot():
+    """A leaf-on tree whose 2 m of trunk holds under 0.5 % of the points (rTLS's tree in
+    tests/data/trees): the cloud's low level is the trunk's foot, not the crown's base (a
+    0.5th percentile of the heights put it at 1.9 m, the 1.3 m slab in the crown, 64 cm)."""
+    rng = np.random.default_rng(7)
+    trunk = stem_points(rng, lambda z: 0.09 + 0 * z, 0.0, 2.4, per_m2=700.0)
+    ball = rng.uniform(-1.0, 1.0, (400_000, 3))  # a crown filling a ball 2.2-6.2 m up
+    leaves = 2.0 * ball[np.linalg.norm(ball, axis=1) <= 1.0] + [0.0, 0.0, 4.2]
+    pts = np.vstack([trunk, leaves])
+    assert (pts[:, 2] < 2.0).mean() < 0.005  # the case: a sparse trunk under a dense crown
+    ref = reference(pts)
+    assert ref.base_z_m == pytest.approx(0.0, abs=0.02)
+    assert ref.height_m == pytest.approx(6.2, abs=0.1)
+    assert ref.dbh_slab.verdict == "clean", ref.dbh_slab.describe()
+    assert ref.dbh_m == pytest.approx(0.18, abs=0.005)
