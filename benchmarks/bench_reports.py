@@ -48,7 +48,7 @@ def _child_cpu_s() -> float:
 
 #: Runs the CLI with the report stage's drawing (``treesim.run._draw_reports``) timed on
 #: the CPU clock of the run's own thread: on a shared machine its wall time moves with the
-#: load, its CPU time much less (drawing processes, where forked, are not counted).
+#: load, its CPU time much less (drawing processes, where there are any, are not counted).
 _CLI = """
 import json, os, sys, time
 import treesim.run as run
@@ -110,8 +110,9 @@ def _baseline(rev: str, into: Path) -> Path:
 def _row(name: str, run: dict, cpu_s: float, load: float, report_cpu: float) -> list[str]:
     t = run["timings_s"]
     share = 100.0 * t["report"] / t["total"]
-    forked = (run.get("report_drawing") or {}).get("forked")
-    how = " (forked)" if forked else ""
+    drawing = run.get("report_drawing") or {}
+    n = drawing.get("processes", 2 if drawing.get("forked") else 0)  # "forked": before 2026-11
+    how = f" ({n} drawing process{'es' if n > 1 else ''})" if n else ""
     return [
         f"{name}{how}",
         f"{t['total']:.1f}",

@@ -343,9 +343,9 @@ def run_tree(
     t_all = time.perf_counter()
     level = params.report.resolved(report_auto)
     ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
-    # full reports: drawing processes forked now, drawing as soon as their inputs exist
+    # full reports: drawing processes started now, drawing as soon as their inputs exist
     with BackgroundDrawer.start() if level == "full" else BackgroundDrawer(0) as drawer:
-        if level == "full" and not drawer.forked:
+        if level == "full" and not drawer.apart:
             preload_drawing()  # matplotlib loaded beside the science, not in the report stage
         # -- read --------------------------------------------------------------------------
         say(0.0, "reading")
@@ -404,7 +404,11 @@ def run_tree(
             for key in ("vs_mesh_report", "vs_field_report"):
                 summary["files"].pop(key)
         summary["summary_text"] = _summary_texts(out, level)
-        summary["report_drawing"] = {"forked": drawer.forked, "seconds": drawer.seconds}
+        summary["report_drawing"] = {
+            "processes": drawer.processes,
+            "seconds": drawer.seconds,
+            "fallback": drawer.fallback,
+        }
         timings["report"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
         summary["timings_s"] = timings
@@ -664,11 +668,9 @@ def _draw_reports(
             field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=level == "full"
         )
     else:  # full: what the drawer has not drawn yet, then every piece waited for
-        if not drawer.forked:  # inline: drawn here, in the report stage's time
+        if not drawer.apart:  # inline: drawn here, in the report stage's time
             _early_drawing(drawer, field_cloud, scanned, params, out, inline=True)(vs_mesh)
-        drawer.submit(
-            "vs_field", draw_report, *_report_job(drawer, vs_field, out / "vs_field", params)
-        )
+        drawer.submit("vs_field", draw_report, *_report_job(vs_field, out / "vs_field", params))
         clouds = _clouds_side_by_side(
             field_cloud, scanned.cloud, mesh_data, tolerance, out, params, draw=None
         )
@@ -696,14 +698,12 @@ def _early_drawing(
     """What the drawer draws once the comparison with the mesh is written (its report and
     the clouds side by side), beside the comparison with the field cloud; None when the
     drawer draws inline (then the report stage draws them, ``inline``)."""
-    if not (drawer.forked or inline):
+    if not (drawer.apart or inline):
         return None
 
     def submit(vs_mesh: Any) -> None:
         rp = params.report
-        drawer.submit(
-            "vs_mesh", draw_report, *_report_job(drawer, vs_mesh, out / "vs_mesh", params)
-        )
+        drawer.submit("vs_mesh", draw_report, *_report_job(vs_mesh, out / "vs_mesh", params))
         drawer.submit(
             "clouds",
             draw_clouds,
@@ -717,15 +717,10 @@ def _early_drawing(
     return submit
 
 
-def _report_job(
-    drawer: BackgroundDrawer, comparison: Any, folder: Path, params: RunParams
-) -> tuple[Any, ...]:
+def _report_job(comparison: Any, folder: Path, params: RunParams) -> tuple[Any, ...]:
     """:func:`~treesim.report.draw_report`'s arguments for a comparison just written to
-    ``folder``: drawn here, what the folder holds is taken from memory
-    (:meth:`ReportData.from_written`); a drawing process reads the folder itself, beside
-    the run, rather than be sent the arrays."""
-    if drawer.forked:
-        return folder, params.report
+    ``folder``: what the folder holds, taken from memory (:meth:`ReportData.from_written`;
+    a drawing process is sent the arrays, pickled, rather than read the files again)."""
     return folder, params.report, ReportData.from_written(comparison, folder)
 
 

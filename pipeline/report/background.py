@@ -1,45 +1,50 @@
-"""Drawing a run's reports beside its science: a small pool of forked processes.
+"""Drawing a run's reports beside its science: drawing processes of their own, or inline.
 
 A run's figures are single-threaded matplotlib work that needs only what the run has
-already written. :class:`BackgroundDrawer` forks its drawing processes when a run starts
-(they import matplotlib and load its fonts while the run reconstructs), then draws each
-piece as soon as its inputs exist: the clouds side by side after the scan, a comparison's
-report after that comparison is written, while the run goes on comparing. The run's
-report stage then waits only for what is left.
+already computed. Where the run has idle cores (:func:`parallel_pays`),
+:class:`BackgroundDrawer` starts two drawing processes when the run starts
+(:class:`~treesim.report.child.DrawingProcess`: fresh interpreters, never forks, that
+import matplotlib and load its fonts while the run reconstructs), then sends each piece as
+soon as its inputs exist: the clouds side by side and the comparison with the mesh's
+report while the run compares with the field cloud, that comparison's report when it is
+done. The run's report stage then waits only for what is left.
 
-The drawing processes run matplotlib and numpy only, never Open3D (whose thread pools
-do not survive a fork: the scanner's and the comparisons' processes are spawned), and
-each ends with the run that forked it (:func:`treesim._process.exit_with_parent`).
-
-It pays where the run has idle cores to spare (:func:`parallel_pays`) and processes can
-be forked (Linux: a forked child needs no re-import of the caller's script, which a
-spawned one would run again). Elsewhere, in a daemonic process (a pool's worker, which may not
-have children) or when the pool cannot start, nothing is forked and every piece is drawn
-in the calling process, in the same order, with the same result.
+The drawing processes run matplotlib and numpy only (never Open3D, whose thread pools do
+not survive a fork), are sent the arrays they draw (pickled) and end with the run
+(:func:`treesim._process.exit_with_parent`). Where none can start, or one dies before it
+answers, its pieces are drawn in the run's process with the same result, and the
+``treesim`` logger says so; an error raised by a piece's drawing is raised again in the
+run's process (the drawing process's traceback as its cause). Without idle cores every
+piece is drawn in the run's process, in the same order, with the same result: matplotlib
+imported by a thread beside the science (:func:`preload_drawing`), the figures in the
+report stage.
 """
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
-import sys
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-__all__ = ["BackgroundDrawer", "parallel_pays", "preload_drawing"]
+from .child import CHILD_ENV, ChildDied, DrawingProcess, draw_once
+
+__all__ = ["BackgroundDrawer", "draw_once", "parallel_pays", "preload_drawing"]
 
 
 def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
-    """Whether a run's reports are drawn by forked processes beside it: on Linux, outside
-    a daemonic process, with at least two cores for this process of which at least two
-    are idle (the system's one-minute load average at most ``cores - 2``). On a machine
-    whose cores are busy with other work, drawing processes only take turns with the
-    run's own threads: measured on 2 shared cores (load 4-6), the report stage took as
-    long forked as inline.
+    """Whether a run's reports are drawn by drawing processes beside it: outside a
+    daemonic process and a drawing process, with at least two cores for this process of
+    which at least two are idle (the system's one-minute load average at most
+    ``cores - 2``). A drawing process costs its own start-up (an interpreter, numpy,
+    scipy's k-d tree and matplotlib: 0.6 s of CPU, against 0.25 s for matplotlib alone in
+    the run's process); on idle cores that is free, on busy ones it is paid in the run's
+    time: measured on 2 shared cores (load 2.6-3.0, ``treesim demo``), one drawing
+    process cost the run 0.4-0.6 s more CPU than drawing inline, two 1.1-1.3 s, and the
+    run took longer.
 
     Examples
     --------
@@ -59,34 +64,9 @@ def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
     return (
         n >= 2
         and load <= n - 2
-        and sys.platform.startswith("linux")
+        and not os.environ.get(CHILD_ENV)
         and not multiprocessing.current_process().daemon
     )
-
-
-def draw_once() -> None:
-    """Draw one small figure and throw it away: matplotlib's font cache and text layout
-    loaded, so that the next figure costs its own drawing only."""
-    import io
-
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(2, 2), dpi=50)
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    ax.plot([0, 1], [0, 1])
-    ax.set_title("warm-up")
-    fig.savefig(io.BytesIO(), format="png")
-
-
-def _warm_up() -> float:
-    """Import matplotlib and draw once (font cache, text layout), in a drawing process."""
-    t0 = time.perf_counter()
-    from . import data, figures, html, profile  # noqa: F401 - the report's modules, once
-
-    draw_once()
-    return time.perf_counter() - t0
 
 
 def preload_drawing() -> threading.Thread:
@@ -121,13 +101,39 @@ def _timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, floa
     return out, time.perf_counter() - t0
 
 
+class _Children:
+    """A drawer's drawing processes, by pid (what :class:`BackgroundDrawer` sends to)."""
+
+    def __init__(self, n: int) -> None:
+        self._processes: dict[int, DrawingProcess] = {}
+        try:
+            for _ in range(n):
+                child = DrawingProcess()
+                self._processes[child.pid] = child
+        except BaseException:
+            self.close(kill=True)
+            raise
+
+    def least_busy(self) -> DrawingProcess | None:
+        """The live child with the fewest pieces waiting (the first of equals)."""
+        live = [c for c in self._processes.values() if c.proc.poll() is None]
+        return min(live, key=lambda c: len(c.pending)) if live else None
+
+    def close(self, *, kill: bool = False) -> None:
+        for child in self._processes.values():
+            child.close(kill=kill or bool(child.pending))
+
+
 class BackgroundDrawer:
-    """Draws pieces of a run's reports in forked processes, or inline.
+    """Draws pieces of a run's reports in drawing processes, or inline.
 
     Parameters
     ----------
     workers : int
-        Drawing processes (0: draw inline, in the caller).
+        Drawing processes (0: draw inline, in the caller), started now
+        (:class:`~treesim.report.child.DrawingProcess`). Where one cannot start, or dies
+        before it answers, its pieces are drawn in the caller instead: a report is never
+        lost to a drawing process (the ``treesim`` logger says so, and :attr:`fallback`).
 
     Examples
     --------
@@ -139,29 +145,20 @@ class BackgroundDrawer:
     """
 
     def __init__(self, workers: int = 0) -> None:
-        self._pool: ProcessPoolExecutor | None = None
-        self._futures: dict[str, Future[tuple[Any, float]]] = {}
+        self._pool: _Children | None = None
         self._jobs: dict[str, tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]] = {}
+        self._left: list[str] = []  # pieces no drawing process took: drawn when waited for
         self._done: dict[str, Any] = {}
-        #: Seconds each piece took where it was drawn (its own process's clock).
+        #: Seconds each piece took where it was drawn (its own process's clock); a
+        #: drawing process's start-up (imports, one figure drawn) as ``warm_up_<i>``.
         self.seconds: dict[str, float] = {}
-        if workers > 0 and sys.platform != "win32":  # Windows cannot fork: draw inline
+        #: Why pieces meant for a drawing process were drawn here instead (empty: none).
+        self.fallback: list[str] = []
+        if workers > 0:
             try:
-                from .._process import exit_with_parent
-
-                # each drawing process ends with the run (a forked child holds the ends of
-                # its own queue's pipes, so it would never see the run's end on its own)
-                self._pool = ProcessPoolExecutor(
-                    max_workers=workers,
-                    mp_context=multiprocessing.get_context("fork"),
-                    initializer=exit_with_parent,
-                    initargs=(os.getpid(),),
-                )
-                for i in range(workers):  # fork them all now, before the run's threads
-                    self._futures[f"warm_up_{i}"] = self._pool.submit(_timed, _warm_up)
-            except (OSError, ValueError, RuntimeError):  # cannot fork here: draw inline
-                self._pool = None
-                self._futures.clear()
+                self._pool = _Children(workers)
+            except OSError as e:  # no interpreter to start: draw inline
+                self._fall_back(f"no drawing process could start ({e}); drawing here")
 
     @classmethod
     def start(cls, workers: int | None = None) -> BackgroundDrawer:
@@ -172,37 +169,61 @@ class BackgroundDrawer:
         return cls(workers)
 
     @property
-    def forked(self) -> bool:
+    def apart(self) -> bool:
         """Whether pieces are drawn in other processes."""
         return self._pool is not None
 
+    @property
+    def processes(self) -> int:
+        """How many drawing processes were started (0: every piece drawn here)."""
+        return 0 if self._pool is None else len(self._pool._processes)
+
+    def _fall_back(self, why: str) -> None:
+        self.fallback.append(why)
+        logging.getLogger("treesim").warning("report drawing: %s", why)
+
     def submit(self, key: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         """Draw ``fn(*args, **kwargs)`` (a module-level function; its arguments are
-        pickled) in a drawing process, or now when there is none."""
+        pickled) in the least busy drawing process, or now when there is none."""
         if self._pool is None:
             self._done[key], self.seconds[key] = _timed(fn, *args, **kwargs)
             return
         self._jobs[key] = (fn, args, kwargs)
-        self._futures[key] = self._pool.submit(_timed, fn, *args, **kwargs)
+        child = self._pool.least_busy()
+        if child is None:
+            self._left.append(key)
+        else:
+            child.send(key, fn, args, kwargs)
 
     def results(self) -> dict[str, Any]:
         """Wait for every piece; their results by key. A piece that failed raises its
-        error here (the pool is closed first); one whose process died is drawn again
-        here."""
+        error here (the drawing processes are stopped first); one whose process died is
+        drawn again here."""
         try:
-            for key, fut in self._futures.items():
-                try:
-                    self._done[key], self.seconds[key] = fut.result()
-                except BrokenProcessPool:  # a drawing process died (killed, out of memory)
-                    if key.startswith("warm_up_"):
-                        continue
-                    fn, args, kwargs = self._jobs[key]  # drawn again here
-                    self._done[key], self.seconds[key] = _timed(fn, *args, **kwargs)
+            for i, child in enumerate((self._pool._processes if self._pool else {}).values()):
+                self._collect(child)
+                if child.warm_up_s is not None:
+                    self.seconds[f"warm_up_{i}"] = child.warm_up_s
+            for key in self._left:
+                fn, args, kwargs = self._jobs[key]
+                self._done[key], self.seconds[key] = _timed(fn, *args, **kwargs)
         except BaseException:
             self.close()
             raise
-        self._futures.clear()
-        return {k: v for k, v in self._done.items() if not k.startswith("warm_up_")}
+        self._left.clear()
+        return {k: self._done[k] for k in self._done}
+
+    def _collect(self, child: DrawingProcess) -> None:
+        """Every answer ``child`` owes; after its death, what it had not drawn is drawn
+        here (in the order it was sent)."""
+        while child.pending:
+            try:
+                key, result, seconds = child.answer()
+                self._done[key], self.seconds[key] = result, seconds
+            except ChildDied as e:
+                self._fall_back(f"{e}; drawing {', '.join(child.pending)} here")
+                self._left.extend(child.pending)
+                child.pending.clear()
 
     def __enter__(self) -> BackgroundDrawer:
         return self
@@ -211,7 +232,8 @@ class BackgroundDrawer:
         self.close()
 
     def close(self) -> None:
-        """Stop the drawing processes (pieces not started are dropped)."""
+        """Stop the drawing processes (one still drawing is killed: pieces not waited
+        for are dropped)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool.close()
             self._pool = None

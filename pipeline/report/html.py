@@ -43,6 +43,32 @@ def _json_script(obj: Any) -> str:
     return text.replace("</", "<\\/").replace("<!--", "<\\!--")
 
 
+#: The 3D viewer's colour table: :func:`figures.cmap` at 256 even steps, 8-bit RGB, written
+#: out so that a run whose figures are drawn in another process does not import matplotlib
+#: for it (tests/report check it against matplotlib's own).
+VIEWER_LUT = bytes.fromhex(
+    "44015444015444025645045745055946075a46085c460a5d460b5e470d60470e61471063471164471365"
+    "47136548146748166848176948186a481a6c481b6d481c6e481d6f481f70482071482173482374482374"
+    "482475482576482677482878482979472a7a472c7a472d7b472e7c472f7d46307e46327e46327e46337f"
+    "463480453581453781453882443983443a83443b84433d84433e85423f85424086424086424186414287"
+    "4144874045884046883f47883f48893e49893e4a893e4c8a3d4d8a3d4e8a3d4e8a3c4f8a3c508b3b518b"
+    "3b528b3a538b3a548c39558c39568c38588c38598c375a8c375b8d375b8d365c8d365d8d355e8d355f8d"
+    "34608d34618d33628d33638d32648e32658e31668e31678e31678e31688e30698e306a8e2f6b8e2f6c8e"
+    "2e6d8e2e6e8e2e6f8e2d708e2d718e2c718e2c728e2c728e2c738e2b748e2b758e2a768e2a778e2a788e"
+    "29798e297a8e297b8e287c8e287d8e277e8e277e8e277f8e27808e26818e26828e26828e25838e25848e"
+    "25858e24868e24878e23888e23898e23898e238a8d228b8d228c8d228d8d218e8d218f8d21908d21918c"
+    "20928c20928c20938c1f948c1f948c1f958b1f968b1f978b1f988b1f998a1f9a8a1e9b8a1e9c891e9d89"
+    "1f9e891f9f881fa0881fa1881fa1881fa1871fa28720a38620a48621a58521a68522a78522a88423a983"
+    "24aa8325ab8225ac8225ac8226ad8127ad8128ae8029af7f2ab07f2cb17e2db27d2eb37c2fb47c31b57b"
+    "32b67a34b67934b67935b77937b87838b9773aba763bbb753dbc743fbc7340bd7242be7144bf7046c06f"
+    "48c16e48c16e4ac16d4cc26c4ec36b50c46a52c56954c56856c66758c7655ac8645cc8635ec96260ca60"
+    "60ca6063cb5f65cb5e67cc5c69cd5b6ccd5a6ece5870cf5773d05675d05477d1537ad1517cd2507cd250"
+    "7fd34e81d34d84d44b86d54989d5488bd6468ed64590d74393d74195d84098d83e9bd93c9bd93c9dd93b"
+    "a0da39a2da37a5db36a8db34aadc32addc30b0dd2fb2dd2db5de2bb8de29bade28bade28bddf26c0df25"
+    "c2df23c5e021c8e020cae11f"
+)
+
+
 #: One data set of the 3D view: key, name, points (n, 3), distances (n,), top of the
 #: colour scale (m), colour legend, τ (m) or None.
 ViewerSet = tuple[str, str, np.ndarray, np.ndarray, float, str, "float | None"]
@@ -54,7 +80,6 @@ def viewer_sets_payload(
     """The 3D viewer's data for any data sets in one coordinate system: subsampled points
     quantised to 16 bits per axis in their common bounding box, colour indices (0-255)
     into a 256-entry colour table, and legends."""
-    lut = (figures.cmap()(np.linspace(0, 1, 256))[:, :3] * 255).round().astype(np.uint8)
     picked = [figures._subsample(len(st[2]), max_points, seed + i) for i, st in enumerate(sets)]
     allp = np.concatenate([st[2][idx] for st, idx in zip(sets, picked, strict=True)])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
@@ -79,7 +104,7 @@ def viewer_sets_payload(
                 + (" (random subsample)" if len(idx) < len(pts) else ""),
             }
         )
-    return {"datasets": out, "lut": _b64(lut.tobytes()), "bbox_size_m": size.tolist()}
+    return {"datasets": out, "lut": _b64(VIEWER_LUT), "bbox_size_m": size.tolist()}
 
 
 def comparison_sets(data: ReportData, *, prefix: str = "") -> list[ViewerSet]:

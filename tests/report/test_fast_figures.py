@@ -1,4 +1,4 @@
-"""Issue 25: the report's figures drawn by aggregation, in forked processes or inline, and
+"""Issue 25: the report's figures drawn by aggregation, in drawing processes or inline, and
 the report levels of a run. Oracles: brute-force loops over the points, the inline
 drawing (a figure drawn elsewhere is the same file), the files a level promises."""
 
@@ -15,6 +15,8 @@ from treesim.compare import compare, write_comparison
 from treesim.report import PNG_FILES, ReportParams, build_report, draw_report
 from treesim.report import figures as F
 from treesim.report.background import BackgroundDrawer, parallel_pays
+from treesim.report.child import CHILD_ENV, RemoteTraceback
+from treesim.report.data import ReportData
 
 
 def test_the_largest_distance_per_cell_is_what_a_view_shows():
@@ -116,36 +118,55 @@ def comparison_dir(tmp_path_factory):
     return d
 
 
-def test_a_report_drawn_in_a_forked_process_is_the_inline_one(comparison_dir, tmp_path):
+def test_a_report_drawn_in_a_drawing_process_is_the_inline_one(comparison_dir, tmp_path):
     params = ReportParams(max_view_points=2000, max_plot_points=20_000, dpi=60)
     inline = build_report(comparison_dir, tmp_path / "inline", params=params)
+    sent = ReportData.from_file(comparison_dir)  # its arrays pickled to the drawing process
     with BackgroundDrawer(workers=1) as drawer:
-        assert drawer.forked
-        drawer.submit("r", draw_report, comparison_dir, params)
-        forked = drawer.results()["r"]
-    assert set(forked) == set(inline) == {"report_json", "report_html", *PNG_FILES}
+        assert drawer.apart and drawer.processes == 1
+        drawer.submit("r", draw_report, tmp_path / "apart", params, sent)
+        apart = drawer.results()["r"]
+    assert set(apart) == set(inline) == {"report_json", "report_html", *PNG_FILES}
     for key in PNG_FILES:
-        assert forked[key].read_bytes() == inline[key].read_bytes(), key
-    a, b = (json.loads(p["report_json"].read_text()) for p in (forked, inline))
+        assert apart[key].read_bytes() == inline[key].read_bytes(), key
+    a, b = (json.loads(p["report_json"].read_text()) for p in (apart, inline))
     assert a["figures"] == b["figures"] and a["occlusion_profile"] == b["occlusion_profile"]
-    assert drawer.seconds["r"] > 0
+    assert drawer.seconds["r"] > 0 and drawer.seconds["warm_up_0"] > 0
+    assert drawer.fallback == []
 
 
 def _fails(what: str) -> None:
     raise ValueError(what)
 
 
+class _Unpicklable(Exception):
+    def __init__(self, a: str, b: str) -> None:  # pickling re-creates it with one argument
+        super().__init__(f"{a} {b}")
+
+
+def _fails_unpicklably() -> None:
+    raise _Unpicklable("cannot", "travel")
+
+
 def test_a_failed_piece_raises_its_error_where_the_run_waits():
     with BackgroundDrawer(workers=1) as drawer:
         drawer.submit("bad", _fails, "no such comparison")
-        with pytest.raises(ValueError, match="no such comparison"):
+        with pytest.raises(ValueError, match="no such comparison") as got:
             drawer.results()
+        assert isinstance(got.value.__cause__, RemoteTraceback)
+        assert "_fails" in got.value.__cause__.text  # the drawing process's traceback
+        assert drawer.fallback == []  # an error is the piece's, not the process's
+    with BackgroundDrawer(workers=1) as drawer:
+        drawer.submit("odd", _fails_unpicklably)
+        with pytest.raises(RuntimeError, match="drawing 'odd' failed") as got:
+            drawer.results()
+        assert "cannot travel" in got.value.__cause__.text
     inline = BackgroundDrawer(workers=0)  # inline: at once
     with pytest.raises(ValueError, match="x"):
         inline.submit("bad", _fails, "x")
 
 
-def test_forking_pays_only_with_idle_cores():
+def test_drawing_processes_pay_only_with_idle_cores():
     assert not parallel_pays(cores=1, load=0.0)
     assert not parallel_pays(cores=2, load=1.5)  # a shared machine: take turns, no gain
     assert parallel_pays(cores=4, load=0.5) is True or not Path("/proc").exists()
@@ -180,11 +201,11 @@ def test_the_sweep_reads_the_trade_without_drawing_time():
 
 
 def _dies() -> str:
-    import multiprocessing
     import os
     import signal
 
-    if multiprocessing.parent_process() is not None:  # in a drawing process: killed
+    if os.environ.get(CHILD_ENV):  # in a drawing process: killed
+        print("about to die", flush=True)
         os.kill(os.getpid(), signal.SIGKILL)
     return "drawn here"
 
@@ -193,9 +214,59 @@ def _echo(x: int) -> int:
     return x
 
 
-def test_a_piece_whose_process_died_is_drawn_again_here():
+def _where() -> str:
+    import os
+
+    return "apart" if os.environ.get(CHILD_ENV) else "here"
+
+
+def test_a_piece_whose_process_died_is_drawn_again_here(caplog):
     with BackgroundDrawer(workers=1) as drawer:
         drawer.submit("dead", _dies)
         drawer.submit("next", _echo, 7)
-        got = drawer.results()  # the pool broke under both: drawn again in this process
+        got = drawer.results()  # the process died under both: drawn again in this process
     assert got == {"dead": "drawn here", "next": 7}
+    assert len(drawer.fallback) == 1
+    assert "exit status -9" in drawer.fallback[0] and "about to die" in drawer.fallback[0]
+    assert "drawing dead, next here" in drawer.fallback[0]
+    assert "report drawing" in caplog.text  # the run's log says so
+
+
+def test_a_drawer_whose_process_cannot_start_draws_here(monkeypatch, caplog):
+    monkeypatch.setattr("sys.executable", "/nonexistent/python")
+    with BackgroundDrawer(workers=2) as drawer:
+        assert not drawer.apart and drawer.processes == 0
+        drawer.submit("w", _where)
+        assert drawer.results() == {"w": "here"}
+    assert "no drawing process could start" in drawer.fallback[0]
+    assert "no drawing process could start" in caplog.text
+
+
+def test_pieces_go_to_the_least_busy_process_and_come_back_by_key():
+    with BackgroundDrawer(workers=2) as drawer:
+        for i in range(5):
+            drawer.submit(f"e{i}", _echo, i)
+        drawer.submit("w", _where)
+        sent = [len(c.pending) for c in drawer._pool._processes.values()]
+        got = drawer.results()
+    assert sorted(sent) == [3, 3]
+    assert got == {**{f"e{i}": i for i in range(5)}, "w": "apart"}
+
+
+def test_closing_a_drawer_stops_a_process_still_drawing():
+    import time
+
+    drawer = BackgroundDrawer(workers=1)
+    drawer.submit("nap", time.sleep, 60)
+    (child,) = drawer._pool._processes.values()
+    t0 = time.monotonic()
+    drawer.close()  # not waited for: killed
+    assert child.proc.poll() is not None and time.monotonic() - t0 < 30
+
+
+def test_the_viewers_colour_table_is_matplotlibs():
+    from treesim.report.html import VIEWER_LUT
+
+    # the oracle: the distance colour map evaluated by matplotlib
+    want = (F.cmap()(np.linspace(0, 1, 256))[:, :3] * 255).round().astype(np.uint8)
+    assert VIEWER_LUT == want.tobytes()
