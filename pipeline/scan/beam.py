@@ -515,6 +515,8 @@ EDGE_MIN_ENERGY = 0.0025
 #: Points of the footprint (the sub-ray layout) whose ranges on the walked surface give
 #: a cut pulse's range (the surface curves across a footprint: facets of a branch).
 EDGE_RANGE_POINTS = 19
+#: The same for a sliver of a footprint (a rim-probed miss's, thin geometry's).
+EDGE_SLIVER_RANGE_POINTS = 127
 #: A neighbour's hit farther than this from the plane of a pulse's triangle may be
 #: another surface inside its footprint, one the mesh walk cannot reach.
 EDGE_PLANE_TOL_M = 2e-3
@@ -888,6 +890,66 @@ def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     }
 
 
+#: Thin geometry (a triangle of a part thinner than this many angular steps as seen, or
+#: of an open part whose angular inradius is under a step) is looked for between central
+#: rays: every central ray of a pulse's neighbourhood can miss a twig its footprint meets.
+EDGE_STRAY_THICKNESS_STEPS = 1.5
+
+
+def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str, np.ndarray]:
+    """Boxes of pulses whose footprint thin triangles may reach: each triangle of ``tri``
+    (n, 3, 3; the scanner frame, the station at the origin) is sampled along its longest
+    side (half a step apart), and each sample's box is widened by the triangle's angular
+    width, half the sample spacing and ``reach`` (the footprint's angular radius plus
+    pointing slack). Returns per box its first and last ``line`` and ``col`` (``col``
+    unwrapped: taken modulo the turn, or past the end back to the start of the field of
+    view, by the caller) and ``tri`` (index into ``tri``); empty where a box would reach
+    a pole."""
+    keys = ("l_lo", "l_hi", "c_lo", "c_hi", "tri")
+    if not len(tri):
+        return {k: np.empty(0, np.int64) for k in keys}
+    u = tri / np.linalg.norm(tri, axis=2, keepdims=True)
+    side = np.stack([np.linalg.norm(u[:, (j + 1) % 3] - u[:, j], axis=1) for j in range(3)])
+    j = side.argmax(axis=0)
+    rows = np.arange(len(u))
+    ua, ub, uc = u[rows, j], u[rows, (j + 1) % 3], u[rows, (j + 2) % 3]
+    nrm = np.cross(ua, ub)
+    nn = np.linalg.norm(nrm, axis=1)
+    length = np.arctan2(nn, np.einsum("ij,ij->i", ua, ub))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        width = np.where(
+            nn > 0,
+            np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", uc, nrm)) / nn, 0.0, 1.0)),
+            np.arccos(np.clip(np.einsum("ij,ij->i", ua, uc), -1.0, 1.0)),
+        )
+    vres = math.radians(spec.vertical_resolution_deg)
+    hres = math.radians(spec.horizontal_resolution_deg)
+    # a chord's samples: evenly spaced on the chord, at most half a step apart on the arc
+    n_s = np.ceil(1.2 * length / (0.5 * min(vres, hres))).astype(np.int64) + 1
+    k = np.repeat(rows, n_s)
+    f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
+        n_s[k] - 1, 1
+    )
+    d = (1.0 - f)[:, None] * ua[k] + f[:, None] * ub[k]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+    radius = reach + 1.01 * width[k] + 0.6 * length[k] / np.maximum(n_s[k] - 1, 1)
+    cos_el = np.cos(np.minimum(np.abs(el) + radius, math.pi / 2))
+    if (cos_el < 1e-3).any():
+        return {k: np.empty(0, np.int64) for k in keys}
+    line = (el - math.radians(spec.vertical_fov_deg[0])) / vres
+    az = np.arctan2(d[:, 1], d[:, 0]) - math.radians(spec.horizontal_fov_deg[0])
+    col = (az % (2 * math.pi)) / hres
+    rc = radius / (hres * cos_el)
+    return {
+        "l_lo": np.ceil(line - radius / vres).astype(np.int64),
+        "l_hi": np.floor(line + radius / vres).astype(np.int64),
+        "c_lo": np.ceil(col - rc).astype(np.int64),
+        "c_hi": np.floor(col + rc).astype(np.int64),
+        "tri": k,
+    }
+
+
 class EdgeBeam(AdaptiveBeam):
     """The footprint at the price of about one ray a pulse (``beam_sampling="edge"``).
 
@@ -908,14 +970,25 @@ class EdgeBeam(AdaptiveBeam):
       resolution);
     * a miss beside a hit (a neighbour within ``k`` steps hit) casts
       :data:`EDGE_RIM_PROBES` rays on the footprint's rim; the first that hits starts the
-      same walk, and the covered share is the sliver's energy;
+      same walk, and the covered share is the sliver's energy; its range is the walked
+      surface's over :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint;
+    * thin geometry (twigs thinner than :data:`EDGE_STRAY_THICKNESS_STEPS` angular
+      steps, leaves) is indexed once per station by the pulses whose footprint it may
+      reach (:func:`_stray_samples`): a miss that nothing else settled walks from the
+      nearest thin triangle its footprint overlaps (a twig between central rays), and a
+      hit with thin geometry in front of it inside its footprint gets the sub-rays;
     * returns under :data:`EDGE_MIN_ENERGY` of the pulse's energy are not recorded;
     * pulses the walk cannot settle (a corner, two crossing silhouettes, more than two,
       probes on several surfaces, a walk longer than :data:`EDGE_WALK_STEPS` rings,
-      ranges near a range limit) get the sub-rays, as ``beam_sampling="full"`` does.
+      ranges near a range limit), hits with a neighbour's hit in front of their
+      triangle's plane (another surface may hide part of the footprint), misses whose
+      neighbours' hits lie farther apart than the range resolution (two echoes may
+      share the footprint), and thin geometry that the walk from one thin triangle does
+      not account for get the sub-rays, as ``beam_sampling="full"`` does.
 
-    Not seen: a surface in front of part of a footprint whose central ray meets a
-    triangle behind it, and thin geometry between pulses whose neighbours all missed.
+    Not seen: a thick surface in front of part of a footprint whose central ray, and
+    its neighbours', meet a triangle behind it; what lies beyond a silhouette where the
+    far probes miss it (a twig behind, a few counts of intensity).
     """
 
     def __init__(self, caster, spec, plan, tables, station_index) -> None:  # noqa: D107
@@ -931,6 +1004,9 @@ class EdgeBeam(AdaptiveBeam):
         q_off, q_w = subray_pattern(EDGE_RANGE_POINTS, 2.0e3)
         #: the points (unit footprint) and weights of the walked surface's mean range
         self.quad = (q_off, q_w)
+        #: a denser one for slivers (a rim-probed miss, thin geometry): a few of the
+        #: points of the walked surface's mean range fall in a narrow part
+        self.quad_sliver = subray_pattern(EDGE_SLIVER_RANGE_POINTS, 2.0e3)
         self.rim = EDGE_RIM_RHO * np.stack([np.cos(ang), np.sin(ang)], axis=1)
         self.reasons = {
             "corner or several surfaces": 0,
@@ -938,7 +1014,15 @@ class EdgeBeam(AdaptiveBeam):
             "range_limit": 0,
         }
         #: pulses resolved by the walk (hits, misses) and rays cast beyond edges / rims
-        self.edge_stats = {"walked hits": 0, "rim-probed misses": 0, "probe rays": 0}
+        self.edge_stats = {
+            "walked hits": 0,
+            "rim-probed misses": 0,
+            "probe rays": 0,
+            "thin geometry found": 0,
+        }
+        self.reasons["thin geometry"] = 0
+        self._stray: dict[str, np.ndarray] | None = None
+        self.station = plan.station
 
     def _ray(self, frame: tuple, xy: np.ndarray) -> np.ndarray:
         """Unit directions at footprint-plane points ``xy`` (unit radius) of pulses."""
@@ -952,31 +1036,48 @@ class EdgeBeam(AdaptiveBeam):
         num = np.einsum("ij,ij->i", self.caster.v0[prim] - self.o, n)
         return num / np.einsum("ij,ij->i", n, w)
 
-    def _surface_range(self, frame: tuple, trail: dict, pulses: np.ndarray) -> np.ndarray:
-        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``)."""
+    def _surface_range(
+        self, frame: tuple, trail: dict, pulses: np.ndarray, sliver: bool = False
+    ) -> np.ndarray:
+        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``),
+        on the denser points where the covered part is a ``sliver``."""
         geo = (self.geo[0], self.geo[1], self.o)
-        return _surface_range(geo, frame, self.th, trail, pulses, self.quad)
+        quad = self.quad_sliver if sliver else self.quad
+        return _surface_range(geo, frame, self.th, trail, pulses, quad)
 
     def _neighbours(self, lines, cols, t, prim, n_core) -> tuple[np.ndarray, np.ndarray]:
         """Core pulses whose central ray missed while a neighbour within k steps hit,
-        and core hits with a neighbour hit off the plane of their triangle by more than
-        :data:`EDGE_PLANE_TOL_M` (another surface may lie inside the footprint)."""
+        and core hits with a neighbour hit in front of the plane of their triangle (on
+        the station's side) by more than :data:`EDGE_PLANE_TOL_M`: another surface may
+        hide part of the footprint. A neighbour's hit behind the plane cannot: where the
+        walk finds the footprint covered by the pulse's surface, whatever lies behind
+        that surface is hidden (the other side of a branch, the ground beyond it)."""
         hit = np.isfinite(t)
         x = np.zeros((len(t), 3))
         x[hit] = self.o + t[hit, None] * self._directions(lines[hit], cols[hit])
         # misses look for a hit beside them, hits for one off their triangle's plane
         hc, mc = np.flatnonzero(hit[:n_core]), np.flatnonzero(~hit[:n_core])
         n_p, v0_p = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
+        # the plane's normal turned towards the station
+        n_p = n_p * np.where(np.einsum("ij,ij->i", self.o - v0_p, n_p) < 0, -1.0, 1.0)[:, None]
         near = np.zeros(len(mc), dtype=bool)
+        lo, hi = np.full(len(mc), np.inf), np.full(len(mc), -np.inf)
         jump_h = np.zeros(len(hc), dtype=bool)
         around = self._around(lines, cols)
         for qm, qh in zip(around(mc), around(hc), strict=True):
-            near |= (qm >= 0) & hit[np.maximum(qm, 0)]
+            q_hit = (qm >= 0) & hit[np.maximum(qm, 0)]
+            near |= q_hit
+            tq = t[np.maximum(qm, 0)]
+            lo = np.where(q_hit, np.minimum(lo, tq), lo)
+            hi = np.where(q_hit, np.maximum(hi, tq), hi)
             s = np.flatnonzero((qh >= 0) & hit[np.maximum(qh, 0)])
-            dev = np.abs(np.einsum("ij,ij->i", x[qh[s]] - v0_p[s], n_p[s]))
+            dev = np.einsum("ij,ij->i", x[qh[s]] - v0_p[s], n_p[s])
             jump_h[s] |= dev > EDGE_PLANE_TOL_M
         jump = np.zeros(n_core, dtype=bool)
         jump[hc] = jump_h
+        # a miss whose neighbours' hits lie farther apart than the range resolution
+        # may have two echoes in its footprint: the rim probes may see one of them
+        self._several = mc[near & (hi - lo > self.spec.range_resolution_m)]
         return mc[near], jump
 
     def _around(self, lines: np.ndarray, cols: np.ndarray):
@@ -1045,7 +1146,7 @@ class EdgeBeam(AdaptiveBeam):
         sub = tuple(x[cut] for x in frame)
         lines, unres, trail = _walk(self.geo, self.o, self.th, sub, prim[cut], _edge_rows(g, cut))
         cov = _coverage(len(cut), lines)
-        alone = jump[cut] & (np.bincount(lines["pulse"], minlength=len(cut)) == 0)
+        alone = jump[cut]
         fb = unres | ~cov["ok"] | alone
         self.reasons["another surface beside"] += int(alone.sum() + (jump & inside).sum())
         tt = np.full((m, 3), np.inf)
@@ -1132,11 +1233,201 @@ class EdgeBeam(AdaptiveBeam):
         near_tri = start.copy()
         near_tri[lp[order][first]] = lines["tri"][order][first]
         w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi)
+        r_quad = self._surface_range(sub, trail, gi, sliver=True)
         r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
         e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
         self.edge_stats["rim-probed misses"] += m
         return (r, e, p), np.concatenate([np.flatnonzero(several), idx[fb]]), m * k
+
+    def _stray_boxes(self) -> dict[str, np.ndarray]:
+        """This station's boxes of pulses thin triangles may reach
+        (:func:`_stray_samples`), once: of open parts (leaves) and of the sides of thin
+        closed parts (twigs) that face the station."""
+        if self._stray is None:
+            from .occupancy import angular_inradius_rad
+
+            spec, caster = self.spec, self.caster
+            tri = ((caster.v - self.o) @ self.station.rotation)[self.geo[1]]
+            step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+            centroid = tri.mean(axis=1)
+            dist = np.linalg.norm(centroid, axis=1)
+            thick = caster.thickness_m()
+            closed = np.isfinite(thick)
+            # a closed part's normals point outwards (``thickness_m`` looks inwards)
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            facing = np.einsum("ij,ij->i", n, centroid) < 0
+            with np.errstate(invalid="ignore"):
+                thin = np.where(
+                    closed,
+                    (thick < EDGE_STRAY_THICKNESS_STEPS * step * dist) & facing,
+                    angular_inradius_rad(tri) < step,
+                )
+            idx = np.flatnonzero(thin & (dist <= spec.max_range_m * 1.01))
+            jitter = 6.0 * math.sqrt(2.0) * math.radians(spec.angular_jitter_sd_deg)
+            reach = 1.01 * math.atan(self.th) + jitter + 1e-6
+            box = _stray_samples(tri[idx], spec, reach)
+            box["tri"] = idx[box["tri"]]
+            order = np.argsort(box["c_lo"], kind="stable")
+            self._stray = {k: x[order] for k, x in box.items()}
+            #: each triangle's farthest corner from the station
+            self._stray["far"] = np.linalg.norm(tri, axis=2).max(axis=1)
+        return self._stray
+
+    def _stray_pairs(self, lines: np.ndarray, cols: np.ndarray, n_core: int):
+        """(pulse, triangle) pairs: the block's core pulses (the first ``n_core`` of
+        ``lines``, ``cols``) whose footprint a thin triangle may reach
+        (:meth:`_stray_boxes`); a pair may repeat."""
+        box = self._stray_boxes()
+        none = np.empty(0, np.int64)
+        if not n_core or not len(box["tri"]):
+            return none, none
+        n_az, lines, cols = self.n_az, lines[:n_core], cols[:n_core]
+        want = np.zeros(n_az + 1, dtype=bool)
+        want[cols] = True
+        cum = np.concatenate([[0], np.cumsum(want[:n_az])])
+        c_lo, c_hi = box["c_lo"], box["c_hi"]
+        if self.full_turn:
+            lo, hi = c_lo % n_az, c_hi % n_az
+            wrap = hi < lo
+            any_ = np.where(wrap, cum[-1] - cum[lo] + cum[hi + 1], cum[hi + 1] - cum[lo]) > 0
+        else:
+            lo, hi = np.clip(c_lo, 0, n_az - 1), np.clip(c_hi, 0, n_az - 1)
+            any_ = (cum[hi + 1] - cum[lo] > 0) & (c_hi >= 0) & (c_lo < n_az)
+        sel = np.flatnonzero(any_)
+        nl = np.maximum(box["l_hi"][sel] - box["l_lo"][sel] + 1, 0)
+        nc = np.maximum(c_hi[sel] - c_lo[sel] + 1, 0)
+        n = nl * nc
+        b = np.repeat(np.arange(len(sel)), n)
+        q = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        ql = box["l_lo"][sel][b] + q % nl[b]
+        qc = c_lo[sel][b] + q // nl[b]
+        qc = qc % n_az if self.full_turn else qc
+        ok = (ql >= 0) & (ql < self.n_lines) & (qc >= 0) & (qc < n_az)
+        find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
+        at = find(np.where(ok, qc, 0), np.where(ok, ql, 0), ok)
+        found = at >= 0
+        return at[found], box["tri"][sel][b[found]]
+
+    def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
+        """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``)
+        whose triangle overlaps the pulse's footprint (as seen), each once."""
+        n_t = len(self.geo[1])
+        pair = np.unique(rep * n_t + tri)
+        rep, tri = pair // n_t, pair % n_t
+        frame = (d, *beam_basis(d))
+        v, faces, _ = self.geo
+        g = _edge_lines(v, faces, self.o, self.th, tuple(x[rep] for x in frame), tri)
+        over = (g["dist"] < 1.0).any(axis=1) | (g["c"] >= 0.0).all(axis=1)
+        return rep[over], tri[over]
+
+    def _thin_in_front(self, pairs, hit: np.ndarray, d: np.ndarray, t: np.ndarray):
+        """Which hits (core indices ``hit``, directions ``d``, ranges ``t``) have thin
+        geometry in front of their surface inside their footprint (``pairs``:
+        :meth:`_stray_pairs`): a twig before a branch that the central ray passed by."""
+        at, tri = pairs
+        pos = np.full(int(hit.max(initial=-1)) + 2, -1, dtype=np.int64)
+        pos[hit] = np.arange(len(hit))
+        k = pos[np.minimum(at, len(pos) - 1)]
+        s = np.flatnonzero(k >= 0)
+        k, tri = k[s], tri[s]
+        s = np.flatnonzero(self._stray["far"][tri] < t[k] - EDGE_PLANE_TOL_M)
+        rep, _ = self._overlapping(d, k[s], tri[s])
+        front = np.zeros(len(hit), dtype=bool)
+        front[rep] = True
+        return front
+
+    def _strays(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
+        """Thin geometry in the footprints of pulses (directions ``d``) whose central ray
+        missed and whose neighbours (or rim probes) saw nothing, from the candidate thin
+        triangles ``tri`` of each (``rep``: index into ``d``;
+        :meth:`_stray_candidates`): the nearest that the footprint overlaps starts the
+        walk, and its surface's share is the return, as for a rim-probed miss. (range,
+        energy, triangle) per pulse (energy 0: none), and the indices of those left to
+        the sub-rays (a walk that does not settle, or another thin surface facing the
+        station that it did not reach)."""
+        m = len(d)
+        r, e, p = np.full(m, np.inf), np.zeros(m), np.full(m, -1, dtype=np.int64)
+        if not len(rep):
+            return (r, e, p), np.empty(0, np.int64)
+        rep, tri = self._overlapping(d, rep, tri)
+        frame = (d, *beam_basis(d))
+        v, faces, _ = self.geo
+        a = v[faces[tri]] - self.o
+        near = np.linalg.norm(a.mean(axis=1), axis=1)
+        nrm = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
+        facing = np.einsum("ij,ij->i", nrm, a[:, 0]) < 0
+        order = np.lexsort((near, rep))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = rep[order][1:] != rep[order][:-1]
+        idx = rep[order][first]
+        start = tri[order][first]
+        sub = tuple(x[idx] for x in frame)
+        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, start)
+        cov = _coverage(len(idx), lines)
+        lp = lines["pulse"]
+        # the central ray missed: the footprint's centre lies beyond some silhouette line
+        centre_out = np.zeros(len(idx), dtype=bool)
+        np.logical_or.at(centre_out, lp, lines["c"] < 0.0)
+        fb = unres | ~cov["ok"] | ~centre_out
+        # every overlapping thin triangle facing the station as the start does is walked
+        pos = np.full(m, -1, dtype=np.int64)
+        pos[idx] = np.arange(len(idx))
+        n_t = len(faces)
+        walked = np.sort(trail["pulse"] * n_t + trail["tri"])
+        same = facing == facing[order][first][pos[rep]]
+        ck = pos[rep] * n_t + tri
+        at = np.minimum(np.searchsorted(walked, ck), max(len(walked) - 1, 0))
+        seen = (walked[at] == ck) if len(walked) else np.zeros(len(ck), dtype=bool)
+        np.logical_or.at(fb, pos[rep][same & ~seen], True)
+        gi = np.flatnonzero(~fb)
+        order2 = np.lexsort((-lines["c"], lp))
+        first2 = np.ones(len(order2), dtype=bool)
+        first2[1:] = lp[order2][1:] != lp[order2][:-1]
+        near_tri = start.copy()
+        near_tri[lp[order2][first2]] = lines["tri"][order2][first2]
+        w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
+        r_quad = self._surface_range(sub, trail, gi, sliver=True)
+        r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
+        e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
+        self.edge_stats["thin geometry found"] += len(gi)
+        return (r, e, p), idx[fb]
+
+    def _miss_parts(self, lines, cols, t, miss, n_core, pairs):
+        """Returns of the block's core pulses whose central ray missed: the rim-probed
+        slivers of those beside a hit (:meth:`_misses`), then thin geometry
+        (:meth:`_strays`) in the footprints of the rest; the records, the pulses left to
+        the sub-rays (rim-probed, thin) and the rays cast."""
+        spec = self.spec
+        (r, e, p), fb, n_probe = self._misses(self._directions(lines[miss], cols[miss]))
+        fb = np.union1d(fb, np.flatnonzero(np.isin(miss, self._several)))
+        e[fb] = 0.0
+        seen = np.zeros(n_core, dtype=bool)
+        seen[miss[fb]] = True
+        found = (e >= EDGE_MIN_ENERGY) & in_range(spec, r)
+        seen[miss[found]] = True
+        empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen)
+        pos = np.full(n_core, -1, dtype=np.int64)
+        pos[empty] = np.arange(len(empty))
+        rep = pos[pairs[0]]
+        s = rep >= 0
+        d_empty = self._directions(lines[empty], cols[empty])
+        (r2, e2, p2), fb2 = self._strays(d_empty, rep[s], pairs[1][s])
+        parts = []
+        for pulses, rr, ee, pp in ((miss, r, e, p), (empty, r2, e2, p2)):
+            ok = np.flatnonzero((ee >= EDGE_MIN_ENERGY) & in_range(spec, rr))
+            one = np.ones(len(ok), dtype=np.int64)
+            parts.append(
+                {
+                    "pulse": pulses[ok],
+                    "range_m": rr[ok],
+                    "primitive": pp[ok],
+                    "direction": None,
+                    "energy": ee[ok],
+                    "return_number": one,
+                    "number_of_returns": one,
+                }
+            )
+        return parts, [miss[fb], empty[fb2]], n_probe
 
     def _records(self, lines, cols, t, prim, n_core, offsets, weights, step):
         """The return records of one block's core pulses (central rays cast) and the
@@ -1153,6 +1444,11 @@ class EdgeBeam(AdaptiveBeam):
         hit = hit[~near_limit]
         miss, jump = self._neighbours(lines, cols, t, prim, n_core)
         d_hit = self._directions(lines[hit], cols[hit])
+        pairs = self._stray_pairs(lines, cols, n_core)
+        front = self._thin_in_front(pairs, hit, d_hit, tc[hit])
+        self.reasons["thin geometry"] += int(front.sum())
+        fall.append(hit[front])
+        hit, d_hit = hit[~front], d_hit[~front]
         beside0 = self.reasons["another surface beside"]
         (tt, ww, pp), fb, n_rays = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
         fall.append(hit[fb])
@@ -1171,25 +1467,18 @@ class EdgeBeam(AdaptiveBeam):
                 "number_of_returns": g["number_of_returns"][sel],
             }
         ]
-        (r, e, p), fb, n_probe = self._misses(self._directions(lines[miss], cols[miss]))
+        miss_parts, miss_fall, n_probe = self._miss_parts(lines, cols, t, miss, n_core, pairs)
         n_rays += n_probe
-        fall.append(miss[fb])
-        ok = np.flatnonzero((e >= EDGE_MIN_ENERGY) & in_range(spec, r))
-        one = np.ones(len(ok), dtype=np.int64)
-        parts.append(
-            {
-                "pulse": miss[ok],
-                "range_m": r[ok],
-                "primitive": p[ok],
-                "direction": None,
-                "energy": e[ok],
-                "return_number": one,
-                "number_of_returns": one,
-            }
-        )
+        parts += miss_parts
+        fall += miss_fall
         cand = np.sort(np.concatenate(fall))
+        self.reasons["thin geometry"] += len(miss_fall[1])
         self.reasons["corner or several surfaces"] += (
-            len(cand) - int(near_limit.sum()) - (self.reasons["another surface beside"] - beside0)
+            len(cand)
+            - int(near_limit.sum())
+            - (self.reasons["another surface beside"] - beside0)
+            - len(miss_fall[1])
+            - int(front.sum())
         )
         self.edge_stats["probe rays"] += n_rays
         s = len(weights)
