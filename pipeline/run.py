@@ -343,8 +343,10 @@ def run_tree(
     t_all = time.perf_counter()
     level = params.report.resolved(report_auto)
     ref_table = _check_inputs(cloud, reference_qsm)  # before any work: fail at once
-    # full reports: drawing processes started now, drawing as soon as their inputs exist
-    with BackgroundDrawer.start() if level == "full" else BackgroundDrawer(0) as drawer:
+    # full reports: drawing processes started now (importing this module, whose draw_clouds
+    # they draw), drawing as soon as their inputs exist
+    workers = None if level == "full" else 0
+    with BackgroundDrawer.start(workers, preload=[__name__]) as drawer:
         if level == "full" and not drawer.apart:
             preload_drawing()  # matplotlib loaded beside the science, not in the report stage
         # -- read --------------------------------------------------------------------------

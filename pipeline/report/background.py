@@ -27,12 +27,17 @@ import multiprocessing
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from .child import CHILD_ENV, ChildDied, DrawingProcess, draw_once
 
-__all__ = ["BackgroundDrawer", "draw_once", "parallel_pays", "preload_drawing"]
+__all__ = ["PROCESSES_ENV", "BackgroundDrawer", "draw_once", "parallel_pays", "preload_drawing"]
+
+#: Environment variable: how many drawing processes a run with full reports starts (``0``:
+#: draw inline), instead of :func:`parallel_pays`'s choice (benchmarks/bench_reports.py
+#: compares them with ``--processes``).
+PROCESSES_ENV = "TREESIM_DRAWING_PROCESSES"
 
 
 def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
@@ -40,11 +45,12 @@ def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
     daemonic process and a drawing process, with at least two cores for this process of
     which at least two are idle (the system's one-minute load average at most
     ``cores - 2``). A drawing process costs its own start-up (an interpreter, numpy,
-    scipy's k-d tree and matplotlib: 0.6 s of CPU, against 0.25 s for matplotlib alone in
-    the run's process); on idle cores that is free, on busy ones it is paid in the run's
-    time: measured on 2 shared cores (load 2.6-3.0, ``treesim demo``), one drawing
-    process cost the run 0.4-0.6 s more CPU than drawing inline, two 1.1-1.3 s, and the
-    run took longer.
+    scipy's k-d tree, matplotlib: 0.7 s of CPU, against 0.25 s for matplotlib alone in
+    the run's process). On idle cores that is free; on busy ones the run pays it. Measured
+    on 2 shared cores (load 2.0-2.8, ``treesim demo``, medians of 7): drawn inline, the
+    reports took 16 % of a 3.9 s run (4.3 s of CPU); with one drawing process 9 % of a
+    4.1 s run (4.8 s of CPU: the start-up in the reconstruction's time), with two 6 % of
+    a 5.0 s run (5.6 s); without reports the run took 3.0 s.
 
     Examples
     --------
@@ -104,11 +110,11 @@ def _timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, floa
 class _Children:
     """A drawer's drawing processes, by pid (what :class:`BackgroundDrawer` sends to)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, preload: Sequence[str] = ()) -> None:
         self._processes: dict[int, DrawingProcess] = {}
         try:
             for _ in range(n):
-                child = DrawingProcess()
+                child = DrawingProcess(preload=preload)
                 self._processes[child.pid] = child
         except BaseException:
             self.close(kill=True)
@@ -134,6 +140,9 @@ class BackgroundDrawer:
         (:class:`~treesim.report.child.DrawingProcess`). Where one cannot start, or dies
         before it answers, its pieces are drawn in the caller instead: a report is never
         lost to a drawing process (the ``treesim`` logger says so, and :attr:`fallback`).
+    preload : sequence of str
+        Modules the drawing processes import while they start (those of the functions
+        that will be submitted, beyond the report's own).
 
     Examples
     --------
@@ -144,7 +153,7 @@ class BackgroundDrawer:
     >>> drawer.close()
     """
 
-    def __init__(self, workers: int = 0) -> None:
+    def __init__(self, workers: int = 0, preload: Sequence[str] = ()) -> None:
         self._pool: _Children | None = None
         self._jobs: dict[str, tuple[Callable[..., Any], tuple[Any, ...], dict[str, Any]]] = {}
         self._left: list[str] = []  # pieces no drawing process took: drawn when waited for
@@ -156,17 +165,21 @@ class BackgroundDrawer:
         self.fallback: list[str] = []
         if workers > 0:
             try:
-                self._pool = _Children(workers)
+                self._pool = _Children(workers, preload)
             except OSError as e:  # no interpreter to start: draw inline
                 self._fall_back(f"no drawing process could start ({e}); drawing here")
 
     @classmethod
-    def start(cls, workers: int | None = None) -> BackgroundDrawer:
-        """A drawer with ``workers`` processes (default: two where :func:`parallel_pays`,
-        else none)."""
+    def start(cls, workers: int | None = None, preload: Sequence[str] = ()) -> BackgroundDrawer:
+        """A drawer with ``workers`` processes (default: the environment variable
+        :data:`PROCESSES_ENV` where set, else two where :func:`parallel_pays`, else none)."""
         if workers is None:
-            workers = 2 if parallel_pays() else 0
-        return cls(workers)
+            chosen = os.environ.get(PROCESSES_ENV, "").strip()
+            if chosen.isdigit():
+                workers = int(chosen)
+            else:
+                workers = 2 if parallel_pays() else 0
+        return cls(workers, preload)
 
     @property
     def apart(self) -> bool:

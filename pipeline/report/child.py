@@ -19,6 +19,7 @@ first, by itself (:func:`treesim._process.exit_with_parent`).
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import queue
@@ -29,9 +30,11 @@ import tempfile
 import threading
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
+
+import numpy as np
 
 __all__ = ["CHILD_ENV", "ChildDied", "DrawingProcess", "RemoteTraceback", "draw_once"]
 
@@ -111,14 +114,22 @@ def draw_once() -> None:
     fig.savefig(io.BytesIO(), format="png")
 
 
-def _warm_up() -> float:
-    """Import the report's modules and matplotlib, and draw once (font cache, text
-    layout): a drawing process's start-up."""
-    t0 = time.perf_counter()
-    from . import data, figures, html, profile  # noqa: F401 - the report's modules, once
+def _warm_up(preload: Sequence[str] = ()) -> None:
+    """A drawing process's start-up, before its first piece: the report's modules,
+    scipy's k-d tree (the occlusion profile's), the software versions a report records,
+    the modules ``preload`` names (those of the pieces' functions), and one figure drawn
+    (matplotlib's font cache and text layout)."""
+    import importlib
 
+    from ..geometry.spacing import kdtree
+    from . import figures, html, profile  # noqa: F401 - the report's modules, once
+    from .data import report_software
+
+    kdtree(np.zeros((2, 3)))
+    report_software("matplotlib")
+    for name in preload:
+        importlib.import_module(name)
     draw_once()
-    return time.perf_counter() - t0
 
 
 def _child_main(parent_pid: int) -> int:
@@ -131,9 +142,13 @@ def _child_main(parent_pid: int) -> int:
     first = _receive(inbox)
     if first is None:
         return 0
-    sys.path[:] = pickle.loads(first)  # the parent's, so that its pieces' functions import
+    sys.path[:], preload = pickle.loads(first)  # the parent's: its pieces' functions import
     t0 = time.perf_counter()
-    _warm_up()
+    _warm_up(preload)
+    # what the start-up made lives as long as the process: out of the collector's sight,
+    # a collection during a piece does not walk matplotlib's (a third of a first figure)
+    gc.collect()
+    gc.freeze()
     _send(outbox, pickle.dumps(("warm_up", True, None, time.perf_counter() - t0), 5))
     while (message := _receive(inbox)) is not None:
         key, fn, args, kwargs = pickle.loads(message)
@@ -165,6 +180,9 @@ class DrawingProcess:
     ----------
     parent_pid : int, optional
         The process it ends with (default this one).
+    preload : sequence of str
+        Modules it imports while it starts (those of the functions it will be sent: a
+        piece then costs its own drawing only).
 
     Raises
     ------
@@ -181,7 +199,7 @@ class DrawingProcess:
     >>> child.close()
     """
 
-    def __init__(self, parent_pid: int | None = None) -> None:
+    def __init__(self, parent_pid: int | None = None, preload: Sequence[str] = ()) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(
             p for p in (_PACKAGE_ROOT, env.get("PYTHONPATH", "")) if p
@@ -205,7 +223,7 @@ class DrawingProcess:
             target=self._write, name="treesim-drawing-writer", daemon=True
         )
         self._writer.start()
-        self._outbox.put(pickle.dumps(list(sys.path), 5))
+        self._outbox.put(pickle.dumps((list(sys.path), list(preload)), 5))
 
     @property
     def pid(self) -> int:

@@ -270,3 +270,21 @@ def test_the_viewers_colour_table_is_matplotlibs():
     # the oracle: the distance colour map evaluated by matplotlib
     want = (F.cmap()(np.linspace(0, 1, 256))[:, :3] * 255).round().astype(np.uint8)
     assert VIEWER_LUT == want.tobytes()
+
+
+def _loaded(name: str) -> bool:
+    import sys
+
+    return name in sys.modules
+
+
+def test_a_drawing_process_imports_what_it_is_told_before_its_first_piece(monkeypatch):
+    from treesim.report.background import PROCESSES_ENV
+
+    monkeypatch.setenv(PROCESSES_ENV, "1")  # chosen, whatever the load
+    with BackgroundDrawer.start(preload=["tabnanny"]) as drawer:
+        assert drawer.processes == 1
+        drawer.submit("t", _loaded, "tabnanny")  # a module nothing else imports
+        assert drawer.results() == {"t": True}
+    monkeypatch.setenv(PROCESSES_ENV, "0")
+    assert BackgroundDrawer.start().processes == 0
