@@ -3,6 +3,8 @@
     python benchmarks/bench_reports.py                     # this code: demo, --report levels
     python benchmarks/bench_reports.py --baseline 847b160  # and a revision's demo beside it
     python benchmarks/bench_reports.py --docs              # write docs/validation.md's table
+    python benchmarks/bench_reports.py --processes 0,1,2   # and the demo with that many
+                                                           # drawing processes (0: inline)
 
 Each run is a fresh ``treesim`` process on the bundled coffee tree (as ``treesim demo``:
 the standard preset, the tree's TreeQSM model beside it), so that importing the drawing
@@ -15,8 +17,9 @@ of each figure. Work that a run's report stage hands to threads of its own (each
 encoding and writing, the occlusion profile's numbers) counts in ``CPU s``, not in
 ``report CPU s``; the per-figure table draws and encodes each figure in turn. A baseline
 revision (``--baseline``) is unpacked with ``git archive`` and run the same way,
-alternating with this code's runs. On a shared machine the load moves every time; compare
-runs made together.
+alternating with this code's runs. With ``--repeat`` above 1, a second table gives each
+kind of run's medians and how much longer than ``run --report none`` it took. On a shared
+machine the load moves every time; compare runs made together.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import argparse
 import json
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tarfile
@@ -68,11 +72,16 @@ sys.exit(main())
 """
 
 
-def _treesim(args: list[str], pythonpath: Path | None = None) -> tuple[dict, float, float, float]:
-    """Run the ``treesim`` CLI with ``ARGS`` in a fresh process: its run.json, its CPU
-    seconds (children included), the one-minute load when it started and the CPU seconds
-    of its report stage's drawing (NaN where not measured)."""
+def _treesim(
+    args: list[str], pythonpath: Path | None = None, processes: int | None = None
+) -> tuple[dict, float, float, float]:
+    """Run the ``treesim`` CLI with ``ARGS`` in a fresh process (``processes``: drawing
+    processes chosen, ``TREESIM_DRAWING_PROCESSES``): its run.json, its CPU seconds
+    (children included), the one-minute load when it started and the CPU seconds of its
+    report stage's drawing (NaN where not measured)."""
     env = dict(os.environ)
+    if processes is not None:
+        env["TREESIM_DRAWING_PROCESSES"] = str(processes)
     if pythonpath is not None:  # a baseline revision's package ahead of the installed one
         env["PYTHONPATH"] = f"{pythonpath}{os.pathsep}{env.get('PYTHONPATH', '')}"
     out = Path(args[args.index("-o") + 1])
@@ -208,28 +217,65 @@ def _figures_cpu_in(folder: Path, out: Path) -> list[tuple[str, float]]:
     return rows
 
 
+def _print_medians(runs: list[tuple[str, tuple[dict, float, float, float]]]) -> None:
+    """Per kind of run: the median total, report stage, reports' share and CPU seconds
+    (the medians of each column, not of one run), and the median total's excess over
+    ``run --report none``'s where that was run."""
+    by: dict[str, list[tuple[float, float, float, float]]] = {}
+    for name, (run, cpu_s, _load, _report_cpu) in runs:
+        name = name.split(" (")[0]
+        t = run["timings_s"]
+        by.setdefault(name, []).append(
+            (t["total"], t["report"], 100.0 * t["report"] / t["total"], cpu_s)
+        )
+    med = {k: [statistics.median(col) for col in zip(*v, strict=True)] for k, v in by.items()}
+    none = med.get("run --report none")
+    print(
+        "| run | runs | median total s | median report s | median reports' share | "
+        "median CPU s | total over `--report none` s |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for name, (total, report, share, cpu) in med.items():
+        over = f"{total - none[0]:+.2f}" if none is not None else "-"
+        print(
+            f"| {name} | {len(by[name])} | {total:.2f} | {report:.2f} | {share:.1f} % | "
+            f"{cpu:.2f} | {over} |"
+        )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=1, help="runs of each (default 1)")
     parser.add_argument("--baseline", metavar="REV", help="also run this git revision's demo")
     parser.add_argument("--no-levels", action="store_true", help="the demo only")
     parser.add_argument("--docs", action="store_true", help="write docs/validation.md's part")
+    parser.add_argument(
+        "--processes",
+        metavar="N,...",
+        help="also run the demo with each of these numbers of drawing processes (0: inline)",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_reports_") as tmp_s:
         tmp = Path(tmp_s)
         base = _baseline(args.baseline, tmp / "base") if args.baseline else None
         cloud, qsm = SAMPLE / "cloud.txt", SAMPLE / "QSM_treeqsm_v2.4.1_cylinders.csv"
-        variants: list[tuple[str, list[str], Path | None]] = []
+        chosen = [int(n) for n in args.processes.split(",")] if args.processes else []
+        variants: list[tuple[str, list[str], Path | None, int | None]] = []
         for i in range(args.repeat):
-            variants.append(("demo", ["demo", "-o", str(tmp / f"demo{i}")], None))
+            variants.append(("demo", ["demo", "-o", str(tmp / f"demo{i}")], None, None))
+            for n in chosen:
+                name = f"demo, TREESIM_DRAWING_PROCESSES={n}"
+                variants.append((name, ["demo", "-o", str(tmp / f"p{n}_{i}")], None, n))
             if base is not None:
                 name = f"demo at {args.baseline}"
-                variants.append((name, ["demo", "-o", str(tmp / f"base{i}")], base))
+                variants.append((name, ["demo", "-o", str(tmp / f"base{i}")], base, None))
             if not args.no_levels:
                 for level in ("summary", "none"):
                     cmd = ["run", str(cloud), "--reference-qsm", str(qsm), "--report", level]
-                    variants.append((f"run --report {level}", [*cmd, "-o", str(tmp / level)], None))
-        rows = [_row(name, *_treesim(a, pp)) for name, a, pp in variants]
+                    out = ["-o", str(tmp / level)]
+                    variants.append((f"run --report {level}", [*cmd, *out], None, None))
+        runs = [(name, _treesim(a, pp, n)) for name, a, pp, n in variants]
+        rows = [_row(name, *got) for name, got in runs]
         figs = _figures_cpu(tmp / "demo0")
     head = ["run", "total s", *(f"{s.replace('_', ' ')} s" for s in STAGES)]
     head += ["reports' share", "report CPU s", "CPU s", "load"]
@@ -238,6 +284,9 @@ def main() -> int:
         print("|" + "---|" * len(head))
         for r in rows:
             print("| " + " | ".join(r) + " |")
+        if args.repeat > 1:
+            print()
+            _print_medians(runs)
         print()
         print(
             "CPU seconds of each figure of the demo's reports, drawn again in one warm process "
