@@ -163,6 +163,7 @@ class BackgroundDrawer:
         self.seconds: dict[str, float] = {}
         #: Why pieces meant for a drawing process were drawn here instead (empty: none).
         self.fallback: list[str] = []
+        self._gone: set[int] = set()  # drawing processes whose death is in fallback
         if workers > 0:
             try:
                 self._pool = _Children(workers, preload)
@@ -205,6 +206,7 @@ class BackgroundDrawer:
         child = self._pool.least_busy()
         if child is None:
             self._left.append(key)
+            self._fall_back(f"no drawing process is left; drawing {key} here")
         else:
             child.send(key, fn, args, kwargs)
 
@@ -234,9 +236,13 @@ class BackgroundDrawer:
                 key, result, seconds = child.answer()
                 self._done[key], self.seconds[key] = result, seconds
             except ChildDied as e:
+                self._gone.add(child.pid)
                 self._fall_back(f"{e}; drawing {', '.join(child.pending)} here")
                 self._left.extend(child.pending)
                 child.pending.clear()
+        if child.pid not in self._gone and child.proc.poll() is not None:
+            self._gone.add(child.pid)  # died owing nothing: its pieces went elsewhere
+            self._fall_back(f"{child._death()}, owing no piece")
 
     def __enter__(self) -> BackgroundDrawer:
         return self

@@ -288,3 +288,15 @@ def test_a_drawing_process_imports_what_it_is_told_before_its_first_piece(monkey
         assert drawer.results() == {"t": True}
     monkeypatch.setenv(PROCESSES_ENV, "0")
     assert BackgroundDrawer.start().processes == 0
+
+
+def test_a_piece_sent_after_its_process_died_is_drawn_here_and_said():
+    drawer = BackgroundDrawer(workers=1)
+    (child,) = drawer._pool._processes.values()
+    child.proc.kill()
+    child.proc.wait()
+    with drawer:
+        drawer.submit("w", _where)
+        assert drawer.results() == {"w": "here"}
+    assert drawer.fallback[0] == "no drawing process is left; drawing w here"
+    assert drawer.fallback[1].endswith("ended (exit status -9), owing no piece")
