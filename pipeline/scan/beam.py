@@ -506,7 +506,10 @@ EDGE_RIM_PROBES = 6
 EDGE_RIM_RHO = 0.95
 #: Triangles the edge model walks from a pulse's first triangle across its footprint
 #: (rings of neighbours) before it gives the pulse its sub-rays instead.
-EDGE_WALK_STEPS = 4
+EDGE_WALK_STEPS = 6
+#: The same for a miss's walk from a rim probe's triangle: a sliver whose surface goes on
+#: for rings is often beside another surface the probes did not meet.
+EDGE_MISS_WALK_STEPS = 4
 #: Returns carrying less than this share of a pulse's energy are not recorded by the
 #: edge model: a sliver the 127-sub-ray reference meets with at most one of its outer
 #: sub-rays (each ~0.25 % of the energy), where whether it has a return is the chance of
@@ -516,7 +519,7 @@ EDGE_MIN_ENERGY = 0.0025
 #: a cut pulse's range (the surface curves across a footprint: facets of a branch).
 EDGE_RANGE_POINTS = 19
 #: The same for a sliver of a footprint (a rim-probed miss's, thin geometry's).
-EDGE_SLIVER_RANGE_POINTS = 127
+EDGE_SLIVER_RANGE_POINTS = 61
 #: A neighbour's hit farther than this from the plane of a pulse's triangle may be
 #: another surface inside its footprint, one the mesh walk cannot reach.
 EDGE_PLANE_TOL_M = 2e-3
@@ -661,6 +664,7 @@ def _walk(
     frame: tuple,
     start: np.ndarray,
     first: dict[str, np.ndarray] | None = None,
+    steps: int = EDGE_WALK_STEPS,
 ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
     """The silhouette edges inside each pulse's footprint, found by walking the mesh
     from the triangle ``start`` (one per pulse, inside its footprint) across every edge
@@ -670,7 +674,7 @@ def _walk(
     faces, :func:`edge_neighbours`; ``first``: :func:`_edge_lines` of ``start`` along
     ``frame`` where the caller has it. Returns the silhouette lines (``pulse``, ``nu``,
     ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side, ``tri``),
-    which pulses the walk did not finish within :data:`EDGE_WALK_STEPS` rings, and the
+    which pulses the walk did not finish within ``steps`` rings, and the
     triangles walked (``pulse``, ``tri`` and their edge lines ``nu``, ``nv``, ``c``
     (n, 3)), for :func:`_surface_range`. Pulses go :data:`_WALK_CHUNK` at a time (the
     arrays stay in the processor's cache); each pulse's lines keep their order."""
@@ -678,7 +682,8 @@ def _walk(
     for a in range(0, max(len(start), 1), _WALK_CHUNK):
         sl = slice(a, a + _WALK_CHUNK)
         f = None if first is None else _edge_rows(first, sl)
-        lines, unres, trail = _walk_rings(geo, o, th, tuple(x[sl] for x in frame), start[sl], f)
+        fr = tuple(x[sl] for x in frame)
+        lines, unres, trail = _walk_rings(geo, o, th, fr, start[sl], f, steps)
         lines["pulse"] += a
         trail["pulse"] += a
         parts.append((lines, unres, trail))
@@ -690,7 +695,7 @@ def _walk(
     return lines, np.concatenate([p[1] for p in parts]), trail
 
 
-def _walk_rings(geo, o, th, frame, start, first):
+def _walk_rings(geo, o, th, frame, start, first, steps):
     """:func:`_walk` of a few pulses: ring after ring of triangles."""
     v, faces, nbr = geo
     n_t = len(faces)
@@ -701,10 +706,10 @@ def _walk_rings(geo, o, th, frame, start, first):
     lines: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "nu", "nv", "c", "tri")}
     walked: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "tri", "nu", "nv", "c")}
     unresolved = np.zeros(len(start), dtype=bool)
-    for step in range(EDGE_WALK_STEPS + 1):
+    for step in range(steps + 1):
         if not len(it_p):
             break
-        if step == EDGE_WALK_STEPS:
+        if step == steps:
             unresolved[it_p] = True
             break
         if step == 0 and first is not None:
@@ -760,12 +765,15 @@ def _surface_range(
     trail: dict[str, np.ndarray],
     pulses: np.ndarray,
     quad: tuple[np.ndarray, np.ndarray],
+    cut: tuple[np.ndarray, ...] | None = None,
 ) -> np.ndarray:
     """The walked surface's range over the footprints of ``pulses`` (indices into the
     walk's pulses, frames ``frame``): the weighted mean range of the footprint points
     ``quad`` (points (k, 2) on the unit footprint, their weights (k,)) that fall inside
     the triangles the walk crossed (``trail``, :func:`_walk`), the nearest where several
-    hold one; nan where none does. ``geo``: vertices, faces, the station."""
+    hold one; nan where none does. ``geo``: vertices, faces, the station. ``cut``: the
+    silhouette lines of the covered parts (``pulse``, index into ``pulses``; ``nu``,
+    ``nv``, ``c``), points beyond any of which are not looked at (a sliver's are few)."""
     pts, wts = quad
     pos = np.full(len(frame[0]), -1, dtype=np.int64)
     pos[pulses] = np.arange(len(pulses))
@@ -779,9 +787,15 @@ def _surface_range(
         r = rows[lo:hi]
         p0, p1 = a * _RANGE_CHUNK, min(len(pulses), (a + 1) * _RANGE_CHUNK)
         lines = [trail[k][r] for k in ("nu", "nv", "c")]
-        w = _point_rays(tuple(x[pulses[p0:p1]] for x in frame), pts, th)
+        ok = None
+        if cut is not None:
+            s = np.flatnonzero((cut[0] >= p0) & (cut[0] < p1))
+            nu, nv, c = (x[s][:, None] for x in cut[1:])
+            ok = np.ones((p1 - p0, len(wts)), dtype=bool)
+            np.logical_and.at(ok, cut[0][s] - p0, nu * pts[:, 0] + nv * pts[:, 1] + c >= -1e-9)
         q_r = np.full((p1 - p0, len(wts)), np.inf)
-        _quad_ranges(q_r, at[r] - p0, trail["tri"][r], lines, w, pts, geo)
+        fr = tuple(x[pulses[p0:p1]] for x in frame)
+        _quad_ranges(q_r, at[r] - p0, trail["tri"][r], lines, (fr, th, ok), pts, geo)
         on = np.isfinite(q_r)
         wq = np.where(on, wts[None, :], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -818,13 +832,24 @@ def _inside_points(lines: list[np.ndarray], pts: np.ndarray) -> np.ndarray:
     return inside
 
 
-def _quad_ranges(q_r, row, tri, lines, w, pts, geo) -> None:
+def _quad_ranges(q_r, row, tri, lines, rays, pts, geo) -> None:
     """Ranges (into ``q_r`` (p, k), all inf before, nearest kept) of the footprint
     points ``pts`` (k, 2) that fall inside the walked triangles ``tri`` (edge lines
-    ``lines``), ``row`` the row of ``q_r`` of each, along the points' rays ``w``
-    (p, k, 3) (:func:`_point_rays`). ``geo``: vertices, faces, the station."""
+    ``lines``), ``row`` the row of ``q_r`` of each, along the points' rays: ``rays`` =
+    (the pulses' frames (d, e1, e2), the tangent of the beam's half-angle, which points
+    of each pulse to look at ((p, k) bool) or None: all). ``geo``: vertices, faces, the
+    station."""
     v, faces, o = geo
-    ii, kk = np.nonzero(_inside_points(lines, pts))
+    frame, th, ok = rays
+    if ok is None:
+        ii, kk = np.nonzero(_inside_points(lines, pts))
+    else:  # the few points looked at alone (in row order, as np.nonzero gives them)
+        ii, kk = np.nonzero(ok[row])
+        nu, nv, c = lines
+        keep = np.ones(len(ii), dtype=bool)
+        for j in range(3):
+            keep &= nu[ii, j] * pts[kk, 0] + nv[ii, j] * pts[kk, 1] + c[ii, j] >= -1e-9
+        ii, kk = ii[keep], kk[keep]
     if not len(ii):
         return
     # the plane of each triangle with points inside, once
@@ -835,8 +860,18 @@ def _quad_ranges(q_r, row, tri, lines, w, pts, geo) -> None:
     p0 = v[t3[:, 0]]
     n = np.cross(v[t3[:, 1]] - p0, v[t3[:, 2]] - p0)
     num = np.einsum("ij,ij->i", p0 - o, n)
-    flat = row[ii] * q_r.shape[1] + kk
-    r = num[at] / np.einsum("ij,ij->i", n[at], w.reshape(-1, 3)[flat])
+    pr = row[ii]
+    flat = pr * q_r.shape[1] + kk
+    if ok is None:  # most points of most pulses: every point's ray at once
+        w = _point_rays(frame, pts, th).reshape(-1, 3)[flat]
+        r = num[at] / np.einsum("ij,ij->i", n[at], w)
+    else:  # the point's ray, (d + th (x e1 + y e2)) / norm, for the pairs inside alone
+        d, e1, e2 = frame
+        w = pts[kk, :1] * e1[pr]
+        w += pts[kk, 1:2] * e2[pr]
+        w *= th
+        w += d[pr]
+        r = num[at] * np.sqrt(np.add.reduce(w * w, axis=1)) / np.einsum("ij,ij->i", n[at], w)
     r = np.where(r > 0, r, np.inf)
     # a point inside one triangle takes its range; inside several, the nearest
     dup = np.bincount(flat, minlength=q_r.size)[flat] > 1
@@ -894,18 +929,22 @@ def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 #: of an open part whose angular inradius is under a step) is looked for between central
 #: rays: every central ray of a pulse's neighbourhood can miss a twig its footprint meets.
 EDGE_STRAY_THICKNESS_STEPS = 1.5
+#: Samples along a thin triangle's longest side are this many angular steps apart (each
+#: sample's box of pulses widened by half of it).
+EDGE_STRAY_SPACING_STEPS = 1.0
 
 
 def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str, np.ndarray]:
     """Boxes of pulses whose footprint thin triangles may reach: each triangle of ``tri``
     (n, 3, 3; the scanner frame, the station at the origin) is sampled along its longest
-    side (half a step apart), and each sample's box is widened by the triangle's angular
-    width, half the sample spacing and ``reach`` (the footprint's angular radius plus
+    side (:data:`EDGE_STRAY_SPACING_STEPS` apart), and each sample's box is widened by
+    the triangle's angular width, half the sample spacing (and a tenth more, the chord's
+    samples being uneven on the arc) and ``reach`` (the footprint's angular radius plus
     pointing slack). Returns per box its first and last ``line`` and ``col`` (``col``
     unwrapped: taken modulo the turn, or past the end back to the start of the field of
     view, by the caller) and ``tri`` (index into ``tri``); empty where a box would reach
     a pole."""
-    keys = ("l_lo", "l_hi", "c_lo", "c_hi", "tri")
+    keys = ("l_lo", "l_hi", "c_lo", "c_hi", "tri", "line", "col", "rl", "rc")
     if not len(tri):
         return {k: np.empty(0, np.int64) for k in keys}
     u = tri / np.linalg.norm(tri, axis=2, keepdims=True)
@@ -924,8 +963,8 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
         )
     vres = math.radians(spec.vertical_resolution_deg)
     hres = math.radians(spec.horizontal_resolution_deg)
-    # a chord's samples: evenly spaced on the chord, at most half a step apart on the arc
-    n_s = np.ceil(1.2 * length / (0.5 * min(vres, hres))).astype(np.int64) + 1
+    # a chord's samples: evenly spaced on the chord, at most the spacing apart on the arc
+    n_s = np.ceil(1.2 * length / (EDGE_STRAY_SPACING_STEPS * min(vres, hres))).astype(np.int64) + 1
     k = np.repeat(rows, n_s)
     f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
         n_s[k] - 1, 1
@@ -947,6 +986,11 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
         "c_lo": np.ceil(col - rc).astype(np.int64),
         "c_hi": np.floor(col + rc).astype(np.int64),
         "tri": k,
+        # the sample and its reach in lines and columns: the box's pulses inside it
+        "line": line,
+        "col": col,
+        "rl": radius / vres,
+        "rc": rc,
     }
 
 
@@ -1037,13 +1081,20 @@ class EdgeBeam(AdaptiveBeam):
         return num / np.einsum("ij,ij->i", n, w)
 
     def _surface_range(
-        self, frame: tuple, trail: dict, pulses: np.ndarray, sliver: bool = False
+        self, frame: tuple, trail: dict, pulses: np.ndarray, sliver: dict | None = None
     ) -> np.ndarray:
-        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``),
-        on the denser points where the covered part is a ``sliver``."""
+        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``);
+        where the covered part is a sliver, on the denser points that lie inside its
+        silhouette lines ``sliver`` (:func:`_walk`)."""
         geo = (self.geo[0], self.geo[1], self.o)
-        quad = self.quad_sliver if sliver else self.quad
-        return _surface_range(geo, frame, self.th, trail, pulses, quad)
+        if sliver is None:
+            return _surface_range(geo, frame, self.th, trail, pulses, self.quad)
+        pos = np.full(len(frame[0]), -1, dtype=np.int64)
+        pos[pulses] = np.arange(len(pulses))
+        at = pos[sliver["pulse"]]
+        s = at >= 0
+        cut = (at[s], sliver["nu"][s], sliver["nv"][s], sliver["c"][s])
+        return _surface_range(geo, frame, self.th, trail, pulses, self.quad_sliver, cut)
 
     def _neighbours(self, lines, cols, t, prim, n_core) -> tuple[np.ndarray, np.ndarray]:
         """Core pulses whose central ray missed while a neighbour within k steps hit,
@@ -1078,6 +1129,8 @@ class EdgeBeam(AdaptiveBeam):
         # a miss whose neighbours' hits lie farther apart than the range resolution
         # may have two echoes in its footprint: the rim probes may see one of them
         self._several = mc[near & (hi - lo > self.spec.range_resolution_m)]
+        #: the nearest and farthest hit beside each miss returned
+        self._beside = (lo[near], hi[near])
         return mc[near], jump
 
     def _around(self, lines: np.ndarray, cols: np.ndarray):
@@ -1193,7 +1246,7 @@ class EdgeBeam(AdaptiveBeam):
         rows = np.arange(n)
         return tf[rows, pick], pf[rows, pick], fin.mean(axis=1)
 
-    def _misses(self, d: np.ndarray):
+    def _misses(self, d: np.ndarray, thin: tuple[np.ndarray, np.ndarray]):
         """The sliver each pulse whose central ray missed has from the surface its rim
         probes meet: (range, energy, triangle) per pulse (energy 0: none), the indices
         of those left to the sub-rays, and the rays cast."""
@@ -1209,7 +1262,9 @@ class EdgeBeam(AdaptiveBeam):
         idx = np.flatnonzero(has & ~several)
         start = pp[idx, np.argmax(fin[idx], axis=1)]
         sub = tuple(x[idx] for x in frame)
-        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, start)
+        lines, unres, trail = _walk(
+            self.geo, self.o, self.th, sub, start, steps=EDGE_MISS_WALK_STEPS
+        )
         cov = _coverage(len(idx), lines)
         fb = unres | ~cov["ok"] | (np.bincount(lines["pulse"], minlength=len(idx)) == 0)
         # the probes must agree: those that hit inside the covered part, the rest beyond
@@ -1221,6 +1276,8 @@ class EdgeBeam(AdaptiveBeam):
         out = np.zeros((len(idx), k), dtype=bool)
         np.logical_or.at(out, lp, val + lines["c"][:, None] < 0.0)
         fb |= (fin[idx] == out).any(axis=1)
+        # a thin triangle in the footprint that the walk did not reach: a second echo
+        fb |= self._unwalked(idx, start, trail, thin, m, d)
         r = np.full(m, np.inf)
         e = np.zeros(m)
         p = np.full(m, -1, dtype=np.int64)
@@ -1233,7 +1290,7 @@ class EdgeBeam(AdaptiveBeam):
         near_tri = start.copy()
         near_tri[lp[order][first]] = lines["tri"][order][first]
         w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi, sliver=True)
+        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
         r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
         e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
         self.edge_stats["rim-probed misses"] += m
@@ -1301,12 +1358,17 @@ class EdgeBeam(AdaptiveBeam):
         q = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
         ql = box["l_lo"][sel][b] + q % nl[b]
         qc = c_lo[sel][b] + q // nl[b]
+        sb = sel[b]
+        # the box's corners lie outside the sample's reach (an ellipse in lines, columns)
+        near = ((ql - box["line"][sb]) / box["rl"][sb]) ** 2 + (
+            (qc - box["col"][sb]) / box["rc"][sb]
+        ) ** 2 <= 1.0
         qc = qc % n_az if self.full_turn else qc
-        ok = (ql >= 0) & (ql < self.n_lines) & (qc >= 0) & (qc < n_az)
+        ok = near & (ql >= 0) & (ql < self.n_lines) & (qc >= 0) & (qc < n_az)
         find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
         at = find(np.where(ok, qc, 0), np.where(ok, ql, 0), ok)
         found = at >= 0
-        return at[found], box["tri"][sel][b[found]]
+        return at[found], box["tri"][sb[found]]
 
     def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
         """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``)
@@ -1336,6 +1398,41 @@ class EdgeBeam(AdaptiveBeam):
         front[rep] = True
         return front
 
+    def _facing(self, tri: np.ndarray) -> np.ndarray:
+        """Whether triangles ``tri`` turn their front (their normal's side) to the
+        station."""
+        v, faces, _ = self.geo
+        a = v[faces[tri]] - self.o
+        nrm = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
+        return np.einsum("ij,ij->i", nrm, a[:, 0]) < 0
+
+    def _unwalked(self, idx, start, trail, thin, m: int, d: np.ndarray | None = None):
+        """Which walks (pulses ``idx`` of ``m``, from triangles ``start``, their
+        ``trail``: :func:`_walk`) leave out a thin triangle that overlaps their footprint
+        (``thin``: pairs (pulse of ``m``, triangle), overlapping or, given the pulses'
+        directions ``d``, to be tested: :meth:`_overlapping`) and faces the station as
+        the start does: another twig inside the footprint."""
+        rep, tri = thin
+        pos = np.full(m, -1, dtype=np.int64)
+        pos[idx] = np.arange(len(idx))
+        k = pos[rep]
+        s = np.flatnonzero(k >= 0)
+        k, tri = k[s], tri[s]
+        out = np.zeros(len(idx), dtype=bool)
+        if not len(k):
+            return out
+        n_t = len(self.geo[1])
+        walked = np.sort(trail["pulse"] * n_t + trail["tri"])
+        same = self._facing(tri) == self._facing(start)[k]
+        ck = k * n_t + tri
+        at = np.minimum(np.searchsorted(walked, ck), max(len(walked) - 1, 0))
+        seen = (walked[at] == ck) if len(walked) else np.zeros(len(ck), dtype=bool)
+        k, tri = k[same & ~seen], tri[same & ~seen]
+        if d is not None:  # the few left out overlap the footprint?
+            k, _ = self._overlapping(d[idx], k, tri)
+        out[k] = True
+        return out
+
     def _strays(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
         """Thin geometry in the footprints of pulses (directions ``d``) whose central ray
         missed and whose neighbours (or rim probes) saw nothing, from the candidate thin
@@ -1354,8 +1451,6 @@ class EdgeBeam(AdaptiveBeam):
         v, faces, _ = self.geo
         a = v[faces[tri]] - self.o
         near = np.linalg.norm(a.mean(axis=1), axis=1)
-        nrm = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
-        facing = np.einsum("ij,ij->i", nrm, a[:, 0]) < 0
         order = np.lexsort((near, rep))
         first = np.ones(len(order), dtype=bool)
         first[1:] = rep[order][1:] != rep[order][:-1]
@@ -1369,16 +1464,7 @@ class EdgeBeam(AdaptiveBeam):
         centre_out = np.zeros(len(idx), dtype=bool)
         np.logical_or.at(centre_out, lp, lines["c"] < 0.0)
         fb = unres | ~cov["ok"] | ~centre_out
-        # every overlapping thin triangle facing the station as the start does is walked
-        pos = np.full(m, -1, dtype=np.int64)
-        pos[idx] = np.arange(len(idx))
-        n_t = len(faces)
-        walked = np.sort(trail["pulse"] * n_t + trail["tri"])
-        same = facing == facing[order][first][pos[rep]]
-        ck = pos[rep] * n_t + tri
-        at = np.minimum(np.searchsorted(walked, ck), max(len(walked) - 1, 0))
-        seen = (walked[at] == ck) if len(walked) else np.zeros(len(ck), dtype=bool)
-        np.logical_or.at(fb, pos[rep][same & ~seen], True)
+        fb |= self._unwalked(idx, start, trail, (rep, tri), len(d))
         gi = np.flatnonzero(~fb)
         order2 = np.lexsort((-lines["c"], lp))
         first2 = np.ones(len(order2), dtype=bool)
@@ -1386,7 +1472,7 @@ class EdgeBeam(AdaptiveBeam):
         near_tri = start.copy()
         near_tri[lp[order2][first2]] = lines["tri"][order2][first2]
         w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi, sliver=True)
+        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
         r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
         e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
         self.edge_stats["thin geometry found"] += len(gi)
@@ -1398,8 +1484,17 @@ class EdgeBeam(AdaptiveBeam):
         (:meth:`_strays`) in the footprints of the rest; the records, the pulses left to
         the sub-rays (rim-probed, thin) and the rays cast."""
         spec = self.spec
-        (r, e, p), fb, n_probe = self._misses(self._directions(lines[miss], cols[miss]))
-        fb = np.union1d(fb, np.flatnonzero(np.isin(miss, self._several)))
+        pos = np.full(n_core, -1, dtype=np.int64)
+        pos[miss] = np.arange(len(miss))
+        at = pos[pairs[0]]
+        s = at >= 0
+        d_miss = self._directions(lines[miss], cols[miss])
+        (r, e, p), fb, n_probe = self._misses(d_miss, (at[s], pairs[1][s]))
+        # ... or whose sliver lies on another surface than their neighbours' hits
+        lo, hi = self._beside
+        res = self.spec.range_resolution_m
+        other = np.isfinite(r) & (e > 0) & ((r < lo - res) | (r > hi + res))
+        fb = np.union1d(fb, np.flatnonzero(np.isin(miss, self._several) | other))
         e[fb] = 0.0
         seen = np.zeros(n_core, dtype=bool)
         seen[miss[fb]] = True
