@@ -518,6 +518,13 @@ EDGE_MIN_ENERGY = 0.0025
 #: Points of the footprint (the sub-ray layout) whose ranges on the walked surface give
 #: a cut pulse's range (the surface curves across a footprint: facets of a branch).
 EDGE_RANGE_POINTS = 19
+#: The same for a footprint its surface covers whole (no silhouette crosses it): the
+#: surface's curvature across it alone (facets of a branch).
+EDGE_WHOLE_RANGE_POINTS = 12
+#: How far (footprint radii) inside a sliver the point that gives its return's triangle
+#: lies from the silhouette line nearest the axis (about the spacing of the reference's
+#: sub-rays, whose strongest hit there is the return's).
+EDGE_SLIVER_INSET = 0.05
 #: The same for a sliver of a footprint (a rim-probed miss's, thin geometry's).
 EDGE_SLIVER_RANGE_POINTS = 61
 #: A neighbour's hit farther than this from the plane of a pulse's triangle may be
@@ -1051,6 +1058,8 @@ class EdgeBeam(AdaptiveBeam):
         #: a denser one for slivers (a rim-probed miss, thin geometry): a few of the
         #: points of the walked surface's mean range fall in a narrow part
         self.quad_sliver = subray_pattern(EDGE_SLIVER_RANGE_POINTS, 2.0e3)
+        #: and a sparser one where the surface covers the footprint whole
+        self.quad_whole = subray_pattern(EDGE_WHOLE_RANGE_POINTS, 2.0e3)
         self.rim = EDGE_RIM_RHO * np.stack([np.cos(ang), np.sin(ang)], axis=1)
         self.reasons = {
             "corner or several surfaces": 0,
@@ -1081,14 +1090,20 @@ class EdgeBeam(AdaptiveBeam):
         return num / np.einsum("ij,ij->i", n, w)
 
     def _surface_range(
-        self, frame: tuple, trail: dict, pulses: np.ndarray, sliver: dict | None = None
+        self,
+        frame: tuple,
+        trail: dict,
+        pulses: np.ndarray,
+        sliver: dict | None = None,
+        quad: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
-        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``);
-        where the covered part is a sliver, on the denser points that lie inside its
-        silhouette lines ``sliver`` (:func:`_walk`)."""
+        """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``),
+        on the points ``quad`` (default: :data:`EDGE_RANGE_POINTS`); where the covered
+        part is a sliver, on the denser points that lie inside its silhouette lines
+        ``sliver`` (:func:`_walk`)."""
         geo = (self.geo[0], self.geo[1], self.o)
         if sliver is None:
-            return _surface_range(geo, frame, self.th, trail, pulses, self.quad)
+            return _surface_range(geo, frame, self.th, trail, pulses, quad or self.quad)
         pos = np.full(len(frame[0]), -1, dtype=np.int64)
         pos[pulses] = np.arange(len(pulses))
         at = pos[sliver["pulse"]]
@@ -1210,7 +1225,11 @@ class EdgeBeam(AdaptiveBeam):
         good = cut[gi]
         ww[good, 0] = cov["energy"][gi]
         w0 = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi)
+        # a footprint the surface covers whole: its curvature alone, on fewer points
+        whole = np.bincount(lines["pulse"], minlength=len(cut))[gi] == 0
+        r_quad = np.empty(len(gi))
+        r_quad[whole] = self._surface_range(sub, trail, gi[whole], quad=self.quad_whole)
+        r_quad[~whole] = self._surface_range(sub, trail, gi[~whole])
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
         lp = lines["pulse"]
         li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
@@ -1282,17 +1301,8 @@ class EdgeBeam(AdaptiveBeam):
         e = np.zeros(m)
         p = np.full(m, -1, dtype=np.int64)
         gi = np.flatnonzero(~fb)
-        # the sliver's strongest point lies on its nearest silhouette line: the
-        # triangle of that edge is the return's (its incidence, its plane)
-        order = np.lexsort((-lines["c"], lp))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = lp[order][1:] != lp[order][:-1]
-        near_tri = start.copy()
-        near_tri[lp[order][first]] = lines["tri"][order][first]
-        w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
-        r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
-        e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
+        r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
+        e[idx[gi]] = cov["energy"][gi]
         self.edge_stats["rim-probed misses"] += m
         return (r, e, p), np.concatenate([np.flatnonzero(several), idx[fb]]), m * k
 
@@ -1398,6 +1408,38 @@ class EdgeBeam(AdaptiveBeam):
         front[rep] = True
         return front
 
+    def _sliver(self, sub, gi, start, lines, trail, cov):
+        """The range and triangle of the covered part of walked footprints ``gi`` (a
+        sliver: frames ``sub``, walks from ``start`` with silhouette ``lines``, ``trail``
+        and coverage ``cov``): the range over the sliver's points; the triangle (its
+        incidence, its label) the walked one that holds the sliver's point nearest the
+        axis (:data:`EDGE_SLIVER_INSET` inside), else that of its silhouette line with
+        the largest offset."""
+        lp = lines["pulse"]
+        order = np.lexsort((-lines["c"], lp))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = lp[order][1:] != lp[order][:-1]
+        tri = start.copy()
+        tri[lp[order][first]] = lines["tri"][order][first]
+        # the sliver's point nearest the axis, just inside the line that parts them: the
+        # walked triangle there, where one holds it (an edge-on face is passed over)
+        order = np.lexsort((lines["c"], lp))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = lp[order][1:] != lp[order][:-1]
+        o1 = order[first]
+        n1 = np.stack([lines["nu"][o1], lines["nv"][o1]], axis=1)
+        q = np.zeros((len(start), 2))
+        q[lp[o1]] = (EDGE_SLIVER_INSET - np.minimum(lines["c"][o1], 0.0))[:, None] * n1
+        tp = trail["pulse"]
+        val = trail["nu"] * q[tp, :1] + trail["nv"] * q[tp, 1:2] + trail["c"]
+        under = np.flatnonzero((val >= -1e-9).all(axis=1))
+        tri[tp[under]] = trail["tri"][under]
+        cen = cov["centroid"]
+        w = self._ray(tuple(x[gi] for x in sub), cen[gi])
+        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
+        rng = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, tri[gi]))
+        return rng, tri[gi]
+
     def _facing(self, tri: np.ndarray) -> np.ndarray:
         """Whether triangles ``tri`` turn their front (their normal's side) to the
         station."""
@@ -1466,15 +1508,8 @@ class EdgeBeam(AdaptiveBeam):
         fb = unres | ~cov["ok"] | ~centre_out
         fb |= self._unwalked(idx, start, trail, (rep, tri), len(d))
         gi = np.flatnonzero(~fb)
-        order2 = np.lexsort((-lines["c"], lp))
-        first2 = np.ones(len(order2), dtype=bool)
-        first2[1:] = lp[order2][1:] != lp[order2][:-1]
-        near_tri = start.copy()
-        near_tri[lp[order2][first2]] = lines["tri"][order2][first2]
-        w = self._ray(tuple(x[gi] for x in sub), cov["centroid"][gi])
-        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
-        r[idx[gi]] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, near_tri[gi]))
-        e[idx[gi]], p[idx[gi]] = cov["energy"][gi], near_tri[gi]
+        r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
+        e[idx[gi]] = cov["energy"][gi]
         self.edge_stats["thin geometry found"] += len(gi)
         return (r, e, p), idx[fb]
 
