@@ -939,6 +939,11 @@ EDGE_STRAY_THICKNESS_STEPS = 1.5
 #: Samples along a thin triangle's longest side are this many angular steps apart (each
 #: sample's box of pulses widened by half of it).
 EDGE_STRAY_SPACING_STEPS = 1.0
+#: Most samples (about 80 bytes each) a station's thin-geometry index holds; beyond, the
+#: edge model does without it (thin geometry between central rays is not seen).
+_STRAY_MAX_SAMPLES = 1 << 23
+#: Box pulses of that index enumerated at a time.
+_STRAY_BATCH = 1 << 21
 
 
 def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str, np.ndarray]:
@@ -950,7 +955,7 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
     pointing slack). Returns per box its first and last ``line`` and ``col`` (``col``
     unwrapped: taken modulo the turn, or past the end back to the start of the field of
     view, by the caller) and ``tri`` (index into ``tri``); empty where a box would reach
-    a pole."""
+    a pole or the samples would be more than :data:`_STRAY_MAX_SAMPLES`."""
     keys = ("l_lo", "l_hi", "c_lo", "c_hi", "tri", "line", "col", "rl", "rc")
     if not len(tri):
         return {k: np.empty(0, np.int64) for k in keys}
@@ -972,6 +977,8 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
     hres = math.radians(spec.horizontal_resolution_deg)
     # a chord's samples: evenly spaced on the chord, at most the spacing apart on the arc
     n_s = np.ceil(1.2 * length / (EDGE_STRAY_SPACING_STEPS * min(vres, hres))).astype(np.int64) + 1
+    if int(n_s.sum()) > _STRAY_MAX_SAMPLES:  # its memory: thin geometry stays unseen
+        return {k: np.empty(0, np.int64) for k in keys}
     k = np.repeat(rows, n_s)
     f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
         n_s[k] - 1, 1
@@ -1361,8 +1368,22 @@ class EdgeBeam(AdaptiveBeam):
             lo, hi = np.clip(c_lo, 0, n_az - 1), np.clip(c_hi, 0, n_az - 1)
             any_ = (cum[hi + 1] - cum[lo] > 0) & (c_hi >= 0) & (c_lo < n_az)
         sel = np.flatnonzero(any_)
+        find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
+        # a few million box pulses at a time (bounded memory)
+        n = np.maximum(box["l_hi"][sel] - box["l_lo"][sel] + 1, 0) * np.maximum(
+            c_hi[sel] - c_lo[sel] + 1, 0
+        )
+        cuts = np.searchsorted(np.cumsum(n), np.arange(_STRAY_BATCH, int(n.sum()), _STRAY_BATCH))
+        out = [self._box_pulses(box, part, find) for part in np.split(sel, cuts)]
+        return tuple(np.concatenate([x[i] for x in out]) for i in (0, 1))
+
+    def _box_pulses(self, box: dict, sel: np.ndarray, find) -> tuple[np.ndarray, np.ndarray]:
+        """(pulse, triangle) pairs of the boxes ``sel`` of :meth:`_stray_boxes`: their
+        pulses within the sample's reach that ``find`` (:meth:`_neighbour_finder`)
+        knows."""
+        n_az, c_lo = self.n_az, box["c_lo"]
         nl = np.maximum(box["l_hi"][sel] - box["l_lo"][sel] + 1, 0)
-        nc = np.maximum(c_hi[sel] - c_lo[sel] + 1, 0)
+        nc = np.maximum(box["c_hi"][sel] - c_lo[sel] + 1, 0)
         n = nl * nc
         b = np.repeat(np.arange(len(sel)), n)
         q = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
@@ -1375,7 +1396,6 @@ class EdgeBeam(AdaptiveBeam):
         ) ** 2 <= 1.0
         qc = qc % n_az if self.full_turn else qc
         ok = near & (ql >= 0) & (ql < self.n_lines) & (qc >= 0) & (qc < n_az)
-        find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
         at = find(np.where(ok, qc, 0), np.where(ok, ql, 0), ok)
         found = at >= 0
         return at[found], box["tri"][sb[found]]
