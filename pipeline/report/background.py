@@ -1,8 +1,8 @@
 """Drawing a run's reports beside its science: drawing processes of their own, or inline.
 
 A run's figures are single-threaded matplotlib work that needs only what the run has
-already computed. Where the run has idle cores (:func:`parallel_pays`),
-:class:`BackgroundDrawer` starts two drawing processes when the run starts
+already computed. Where the run has idle cores (:func:`drawing_processes`),
+:class:`BackgroundDrawer` starts one or two drawing processes when the run starts
 (:class:`~treesim.report.child.DrawingProcess`: fresh interpreters, never forks, that
 import matplotlib and load its fonts while the run reconstructs), then sends each piece as
 soon as its inputs exist: the clouds side by side and the comparison with the mesh's
@@ -32,32 +32,40 @@ from typing import Any
 
 from .child import CHILD_ENV, ChildDied, DrawingProcess, draw_once
 
-__all__ = ["PROCESSES_ENV", "BackgroundDrawer", "draw_once", "parallel_pays", "preload_drawing"]
+__all__ = ["PROCESSES_ENV", "BackgroundDrawer", "draw_once", "drawing_processes", "preload_drawing"]
 
 #: Environment variable: how many drawing processes a run with full reports starts (``0``:
-#: draw inline), instead of :func:`parallel_pays`'s choice (benchmarks/bench_reports.py
+#: draw inline), instead of :func:`drawing_processes`' choice (benchmarks/bench_reports.py
 #: compares them with ``--processes``).
 PROCESSES_ENV = "TREESIM_DRAWING_PROCESSES"
 
 
-def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
-    """Whether a run's reports are drawn by drawing processes beside it: outside a
-    daemonic process and a drawing process, with at least two cores for this process of
-    which at least two are idle (the system's one-minute load average at most
-    ``cores - 2``). A drawing process costs its own start-up (an interpreter, numpy,
-    scipy's k-d tree, matplotlib: 0.7 s of CPU, against 0.25 s for matplotlib alone in
-    the run's process). On idle cores that is free; on busy ones the run pays it. Measured
-    on 2 shared cores (load 2.0-2.8, ``treesim demo``, medians of 7): drawn inline, the
-    reports took 16 % of a 3.9 s run (4.3 s of CPU); with one drawing process 9 % of a
-    4.1 s run (4.8 s of CPU: the start-up in the reconstruction's time), with two 6 % of
-    a 5.0 s run (5.6 s); without reports the run took 3.0 s.
+def drawing_processes(cores: int | None = None, load: float | None = None) -> int:
+    """How many drawing processes a run's reports are drawn by beside it: none inside a
+    daemonic process or a drawing process, or without an idle core (the system's
+    one-minute load average above ``cores - 1``); one with one to two idle cores; two with
+    three or more.
+
+    A drawing process costs its own start-up (an interpreter, numpy, scipy's k-d tree,
+    matplotlib: about 0.45 s of CPU more than matplotlib's import in the run's process).
+    On an idle core that is free; on a busy one the run pays it. Measured with
+    ``benchmarks/bench_reports.py --processes 0,1,2`` on 2 cores (``treesim demo``,
+    medians of 3, 2026-11-27): with the host otherwise idle (load 0.5-1.4, the
+    benchmark's own runs), drawn inline the reports took 16 % of a 3.1 s run (4.6 s of
+    CPU), with one drawing process 11 % of a 3.1 s run (5.0 s of CPU), with two 8 % of a
+    3.3 s run (5.7 s); with another job on the cores (load 1.6-2.8, medians of 8), one
+    drawing process made the run 0.3 s longer than drawing inline, two 1.1 s.
 
     Examples
     --------
-    >>> parallel_pays(cores=1, load=0.0)
-    False
-    >>> parallel_pays(cores=16, load=20.0)
-    False
+    >>> drawing_processes(cores=1, load=0.0)
+    0
+    >>> drawing_processes(cores=2, load=0.3)
+    1
+    >>> drawing_processes(cores=2, load=1.6)
+    0
+    >>> drawing_processes(cores=16, load=2.0)
+    2
     """
     from .._system import cpu_count
 
@@ -67,12 +75,14 @@ def parallel_pays(cores: int | None = None, load: float | None = None) -> bool:
             load = os.getloadavg()[0]
         except (AttributeError, OSError):  # no load average here: assume busy
             load = float(n)
-    return (
-        n >= 2
-        and load <= n - 2
-        and not os.environ.get(CHILD_ENV)
-        and not multiprocessing.current_process().daemon
-    )
+    if (
+        n < 2
+        or load > n - 1
+        or os.environ.get(CHILD_ENV)
+        or multiprocessing.current_process().daemon
+    ):
+        return 0
+    return 2 if load <= n - 3 else 1
 
 
 def preload_drawing() -> threading.Thread:
@@ -173,13 +183,13 @@ class BackgroundDrawer:
     @classmethod
     def start(cls, workers: int | None = None, preload: Sequence[str] = ()) -> BackgroundDrawer:
         """A drawer with ``workers`` processes (default: the environment variable
-        :data:`PROCESSES_ENV` where set, else two where :func:`parallel_pays`, else none)."""
+        :data:`PROCESSES_ENV` where set, else :func:`drawing_processes`)."""
         if workers is None:
             chosen = os.environ.get(PROCESSES_ENV, "").strip()
             if chosen.isdigit():
                 workers = int(chosen)
             else:
-                workers = 2 if parallel_pays() else 0
+                workers = drawing_processes()
         return cls(workers, preload)
 
     @property

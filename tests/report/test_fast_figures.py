@@ -5,7 +5,6 @@ drawing (a figure drawn elsewhere is the same file), the files a level promises.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,7 @@ from tests.report.test_report import _case
 from treesim.compare import compare, write_comparison
 from treesim.report import PNG_FILES, ReportParams, build_report, draw_report
 from treesim.report import figures as F
-from treesim.report.background import BackgroundDrawer, parallel_pays
+from treesim.report.background import BackgroundDrawer, drawing_processes
 from treesim.report.child import CHILD_ENV, RemoteTraceback
 from treesim.report.data import ReportData
 
@@ -166,10 +165,12 @@ def test_a_failed_piece_raises_its_error_where_the_run_waits():
         inline.submit("bad", _fails, "x")
 
 
-def test_drawing_processes_pay_only_with_idle_cores():
-    assert not parallel_pays(cores=1, load=0.0)
-    assert not parallel_pays(cores=2, load=1.5)  # a shared machine: take turns, no gain
-    assert parallel_pays(cores=4, load=0.5) is True or not Path("/proc").exists()
+def test_drawing_processes_only_with_idle_cores():
+    assert drawing_processes(cores=1, load=0.0) == 0
+    assert drawing_processes(cores=2, load=1.5) == 0  # a shared machine: take turns, no gain
+    assert drawing_processes(cores=2, load=0.2) == 1  # one idle core: one drawing process
+    assert drawing_processes(cores=4, load=2.5) == 1
+    assert drawing_processes(cores=4, load=0.5) == 2
 
 
 def test_an_exact_comparison_draws_no_view_of_its_accuracy(tmp_path):
