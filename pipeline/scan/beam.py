@@ -31,6 +31,7 @@ import numpy as np
 
 from ..params import ScannerSpec
 from .caster import Caster, RayTables, cast_central
+from .occupancy import seen_sides
 from .planning import StationPlan
 from .rays import directions, pulse_angles
 
@@ -960,19 +961,8 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
     if not len(tri):
         return {k: np.empty(0, np.int64) for k in keys}
     u = tri / np.linalg.norm(tri, axis=2, keepdims=True)
-    side = np.stack([np.linalg.norm(u[:, (j + 1) % 3] - u[:, j], axis=1) for j in range(3)])
-    j = side.argmax(axis=0)
+    ua, ub, length, width = seen_sides(u)
     rows = np.arange(len(u))
-    ua, ub, uc = u[rows, j], u[rows, (j + 1) % 3], u[rows, (j + 2) % 3]
-    nrm = np.cross(ua, ub)
-    nn = np.linalg.norm(nrm, axis=1)
-    length = np.arctan2(nn, np.einsum("ij,ij->i", ua, ub))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        width = np.where(
-            nn > 0,
-            np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", uc, nrm)) / nn, 0.0, 1.0)),
-            np.arccos(np.clip(np.einsum("ij,ij->i", ua, uc), -1.0, 1.0)),
-        )
     vres = math.radians(spec.vertical_resolution_deg)
     hres = math.radians(spec.horizontal_resolution_deg)
     # a chord's samples: evenly spaced on the chord, at most the spacing apart on the arc

@@ -544,6 +544,41 @@ def angular_inradius_rad(tri: np.ndarray) -> np.ndarray:
     return area2 / np.maximum(perimeter, 1e-300)
 
 
+def seen_sides(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each triangle's longest side as seen from the origin, from its corners' unit
+    directions ``u`` (n, 3, 3): the side's end directions (n, 3) each, its angular length
+    and the angular distance of the opposite corner from the side's great circle (rad; the
+    triangle lies within that distance of the side where the angles at its ends are acute).
+
+    Examples
+    --------
+    >>> u = np.array([[[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]])
+    >>> ua, ub, length, width = seen_sides(u)
+    >>> bool(np.isclose(length[0], np.pi / 2) and np.isclose(width[0], np.pi / 2))
+    True
+    """
+    side = np.stack(
+        [
+            np.linalg.norm(u[:, 1] - u[:, 0], axis=1),
+            np.linalg.norm(u[:, 2] - u[:, 1], axis=1),
+            np.linalg.norm(u[:, 0] - u[:, 2], axis=1),
+        ],
+        axis=1,
+    ).argmax(axis=1)
+    rows = np.arange(len(u))
+    ua, ub, uc = u[rows, side], u[rows, (side + 1) % 3], u[rows, (side + 2) % 3]
+    normal = np.cross(ua, ub)
+    nn = np.linalg.norm(normal, axis=1)
+    length = np.arctan2(nn, np.einsum("ij,ij->i", ua, ub))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        width = np.where(
+            nn > 0,
+            np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", uc, normal)) / nn, 0.0, 1.0)),
+            np.arccos(np.clip(np.einsum("ij,ij->i", ua, uc), -1.0, 1.0)),
+        )
+    return ua, ub, length, width
+
+
 def thin_mask(
     tri: np.ndarray,
     spec: ScannerSpec,
@@ -590,25 +625,7 @@ def thin_mask(
     # the longest side of each thin triangle (as seen) and the angular distance of the
     # opposite corner from its great circle: every direction of the triangle is within
     # that distance of the side (the angles at the side's ends are acute)
-    side = np.stack(
-        [
-            np.linalg.norm(u[:, 1] - u[:, 0], axis=1),
-            np.linalg.norm(u[:, 2] - u[:, 1], axis=1),
-            np.linalg.norm(u[:, 0] - u[:, 2], axis=1),
-        ],
-        axis=1,
-    ).argmax(axis=1)
-    rows = np.arange(len(t))
-    ua, ub, uc = u[rows, side], u[rows, (side + 1) % 3], u[rows, (side + 2) % 3]
-    normal = np.cross(ua, ub)
-    nn = np.linalg.norm(normal, axis=1)
-    length = np.arctan2(nn, np.einsum("ij,ij->i", ua, ub))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        width = np.where(
-            nn > 0,
-            np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", uc, normal)) / nn, 0.0, 1.0)),
-            np.arccos(np.clip(np.einsum("ij,ij->i", ua, uc), -1.0, 1.0)),
-        )
+    ua, ub, length, width = seen_sides(u)
     d_min = triangle_bounds(t).d_min
     margin = pointing_margin_rad(spec) + abs_error_m / np.maximum(d_min, 1e-300)
     vres = math.radians(spec.vertical_resolution_deg)
