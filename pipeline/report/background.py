@@ -189,6 +189,13 @@ class BackgroundDrawer:
             if chosen.isdigit():
                 workers = int(chosen)
             else:
+                if chosen:
+                    logging.getLogger("treesim").warning(
+                        "report drawing: %s=%r is not a whole number of drawing processes "
+                        "(0 draws in the run's process); choosing by the idle cores",
+                        PROCESSES_ENV,
+                        chosen,
+                    )
                 workers = drawing_processes()
         return cls(workers, preload)
 

@@ -165,6 +165,20 @@ def test_a_failed_piece_raises_its_error_where_the_run_waits():
         inline.submit("bad", _fails, "x")
 
 
+def test_a_bad_drawing_process_count_is_said_and_ignored(monkeypatch, caplog):
+    monkeypatch.setenv("TREESIM_DRAWING_PROCESSES", "two")
+    with caplog.at_level("WARNING", logger="treesim"):
+        drawer = BackgroundDrawer.start()
+    drawer.close()
+    assert "TREESIM_DRAWING_PROCESSES='two' is not a whole number" in caplog.text
+    monkeypatch.setenv("TREESIM_DRAWING_PROCESSES", "0")
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="treesim"):
+        drawer = BackgroundDrawer.start()
+    assert drawer.processes == 0 and not caplog.text
+    drawer.close()
+
+
 def test_drawing_processes_only_with_idle_cores():
     assert drawing_processes(cores=1, load=0.0) == 0
     assert drawing_processes(cores=2, load=1.5) == 0  # a shared machine: take turns, no gain
