@@ -31,7 +31,7 @@ import numpy as np
 
 from ..params import ScannerSpec
 from .caster import Caster, RayTables, cast_central
-from .occupancy import seen_sides
+from .occupancy import THIN_STEPS, seen_sides
 from .planning import StationPlan
 from .rays import directions, pulse_angles
 
@@ -934,9 +934,10 @@ def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 #: Thin geometry (a triangle of a part thinner than this many angular steps as seen, or
-#: of an open part whose angular inradius is under a step) is looked for between central
-#: rays: every central ray of a pulse's neighbourhood can miss a twig its footprint meets.
-EDGE_STRAY_THICKNESS_STEPS = 1.5
+#: of an open part whose angular inradius is under a step: the occupancy cull's rule,
+#: :func:`~treesim.scan.occupancy.thin_triangles`) is looked for between central rays:
+#: every central ray of a pulse's neighbourhood can miss a twig its footprint meets.
+EDGE_STRAY_THICKNESS_STEPS = THIN_STEPS
 #: Samples along a thin triangle's longest side are this many angular steps apart (each
 #: sample's box of pulses widened by half of it).
 EDGE_STRAY_SPACING_STEPS = 1.0
@@ -1308,24 +1309,18 @@ class EdgeBeam(AdaptiveBeam):
         (:func:`_stray_samples`), once: of open parts (leaves) and of the sides of thin
         closed parts (twigs) that face the station."""
         if self._stray is None:
-            from .occupancy import angular_inradius_rad
+            from .occupancy import thin_triangles
 
             spec, caster = self.spec, self.caster
             tri = ((caster.v - self.o) @ self.station.rotation)[self.geo[1]]
-            step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
             centroid = tri.mean(axis=1)
             dist = np.linalg.norm(centroid, axis=1)
             thick = caster.thickness_m()
-            closed = np.isfinite(thick)
-            # a closed part's normals point outwards (``thickness_m`` looks inwards)
+            # a closed part's normals point outwards (``thickness_m`` looks inwards): of
+            # a twig, only the sides that face the station
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             facing = np.einsum("ij,ij->i", n, centroid) < 0
-            with np.errstate(invalid="ignore"):
-                thin = np.where(
-                    closed,
-                    (thick < EDGE_STRAY_THICKNESS_STEPS * step * dist) & facing,
-                    angular_inradius_rad(tri) < step,
-                )
+            thin = thin_triangles(tri, thick, spec) & (facing | ~np.isfinite(thick))
             idx = np.flatnonzero(thin & (dist <= spec.max_range_m * 1.01))
             jitter = 6.0 * math.sqrt(2.0) * math.radians(spec.angular_jitter_sd_deg)
             reach = 1.01 * math.atan(self.th) + jitter + 1e-6

@@ -579,6 +579,37 @@ def seen_sides(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
     return ua, ub, length, width
 
 
+#: A closed part is thin where its local thickness subtends fewer angular steps than this.
+THIN_STEPS = 1.5
+
+
+def thin_triangles(tri: np.ndarray, thickness_m: np.ndarray, spec: ScannerSpec) -> np.ndarray:
+    """Which triangles (``tri`` (n, 3, 3) in the scanner's frame, the station at the
+    origin) are *thin* geometry that central rays can miss between them: of a closed part
+    whose local thickness (``thickness_m``, e.g. a branch's diameter) subtends less than
+    :data:`THIN_STEPS` angular steps (the coarser of the two), or of an open part
+    (``thickness_m`` inf: a leaf) whose own angular inradius is under a step.
+
+    Examples
+    --------
+    >>> from treesim.params import ScannerSpec
+    >>> spec = ScannerSpec(horizontal_resolution_deg=0.1, vertical_resolution_deg=0.1)
+    >>> tri = np.array([[[10.0, 0, 0], [10.0, 0.1, 0], [10.0, 0, 0.1]]])
+    >>> thin_triangles(tri, np.array([0.01]), spec).tolist()  # a 1 cm twig at 10 m
+    [True]
+    >>> thin_triangles(tri, np.array([0.5]), spec).tolist()
+    [False]
+    """
+    step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
+    centroid_m = np.linalg.norm(tri.mean(axis=1), axis=1)
+    with np.errstate(invalid="ignore"):
+        return np.where(
+            np.isfinite(thickness_m),
+            thickness_m < THIN_STEPS * step * centroid_m,
+            angular_inradius_rad(tri) < step,
+        )
+
+
 def thin_mask(
     tri: np.ndarray,
     spec: ScannerSpec,
@@ -607,15 +638,7 @@ def thin_mask(
     """
     if grid.n_pulses == 0 or len(tri) == 0:
         return np.empty(0, np.int64)
-    step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
-    centroid_m = np.linalg.norm(tri.mean(axis=1), axis=1)
-    with np.errstate(invalid="ignore"):
-        thin = np.where(
-            np.isfinite(thickness_m),
-            thickness_m < 1.5 * step * centroid_m,
-            angular_inradius_rad(tri) < step,
-        )
-    idx = np.flatnonzero(thin)
+    idx = np.flatnonzero(thin_triangles(tri, thickness_m, spec))
     if len(idx) == 0:
         return np.empty(0, np.int64)
     if max(spec.n_elevation, spec.n_azimuth) >= 1 << 19:
