@@ -116,3 +116,26 @@ def test_the_commands_list_says_what_the_commands_register():
         alone = build_parser(only=command)
         one = next(a for a in alone._actions if a.dest == "command").choices[command]
         assert one.format_help() == sub.choices[command].format_help()
+
+
+def test_a_built_in_commands_run_reads_no_distribution_metadata():
+    """Commands from other packages (entry points) are looked up for the commands list and
+    for a command that is not built in, not for ``treesim scan ...``: the look-up reads
+    every installed distribution's metadata at start-up. The oracle is ``sys.modules``."""
+    probe = (
+        "import sys\nfrom treesim.cli import build_parser\n"
+        "build_parser(only={only!r})\nprint('importlib.metadata' in sys.modules)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    seen = {}
+    for only in ("scan", ""):
+        out = subprocess.run(
+            [sys.executable, "-c", probe.format(only=only)],
+            env=env,
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode == 0, out.stderr
+        seen[only] = out.stdout.strip().splitlines()[-1]
+    assert seen == {"scan": "False", "": "True"}
