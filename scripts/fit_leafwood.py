@@ -8,7 +8,12 @@ exactly, scanned with the RIEGL VZ-400 noise model from three stations at severa
 angular steps (0.05-0.14°), on seeds the tests never use (1 and 2); the tests and the
 manual (docs/validation.md) measure it on seed 0. Run from the repository root:
 
-    python scripts/fit_leafwood.py     # writes pipeline/data/leafwood_model.json
+    python scripts/fit_leafwood.py            # writes pipeline/data/leafwood_model.json
+    python scripts/fit_leafwood.py --fronds   # pipeline/data/leafwood_fronds_model.json
+
+The frond model adds the scans of :data:`FRONDS` (palms) and counts palms as leaf-on;
+the reconstruction asks it for a second opinion where a first QSM warns that leaves may
+have been taken for wood (``treesim.reconstruct.SECOND_OPINION_CODES``).
 
 Deterministic (seeded draws and start weights): the same code on the same machine writes
 the same model; a different BLAS may change the last digits. About 10 minutes on 2 cores.
@@ -38,6 +43,14 @@ TRAINING = (
     ("balsam-fir", 1, 0.08),
     ("aspen", 1, 0.08),
     ("sapling", 1, 0.06),
+)
+#: The frond model's scans on top of :data:`TRAINING` (``--fronds``): palms, whose
+#: leaflets hang in curtains that look like twigs at field density, at a fine and a
+#: field-like step, and a leaf-off tree as sparse, so that sparse wood stays wood.
+FRONDS = (
+    ("palm", 1, 0.08),
+    ("palm", 2, 0.20),
+    ("aspen", 2, 0.20),
 )
 #: Points drawn from each scan for the fit.
 PER_SCAN = 60_000
@@ -107,15 +120,28 @@ def main() -> None:
     import json
 
     from treesim._version import software_versions
-    from treesim.reconstruct.leafwood import MODEL_PATH, context_features, stage_score
+    from treesim.reconstruct.leafwood import (
+        FRONDS_MODEL_PATH,
+        MODEL_PATH,
+        context_features,
+        stage_score,
+    )
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, help="keep the training scans in this folder")
-    ap.add_argument("-o", "--output", type=Path, default=MODEL_PATH)
+    ap.add_argument(
+        "--fronds",
+        action="store_true",
+        help="the frond model (the scans of FRONDS added; palms count as leaf-on)",
+    )
+    ap.add_argument("-o", "--output", type=Path)
     args = ap.parse_args()
+    training = TRAINING + FRONDS if args.fronds else TRAINING
+    leaf_on = (*LEAF_ON, "palm") if args.fronds else LEAF_ON
+    output = args.output or (FRONDS_MODEL_PATH if args.fronds else MODEL_PATH)
     rng = np.random.default_rng(0)
     scans = []
-    for name, seed, step in TRAINING:
+    for name, seed, step in training:
         t0 = time.perf_counter()
         cached = args.cache / f"{name}_{seed}_{step}.npz" if args.cache else None
         if cached is not None and cached.is_file():
@@ -154,7 +180,7 @@ def main() -> None:
         print(f"stage {k}: {len(y):,} rows, {time.perf_counter() - t0:.0f} s", flush=True)
         for s in scans:
             s["score"] = stage_score(stage, s["x"])
-    leafy = [s for s in scans if s["name"] in LEAF_ON]
+    leafy = [s for s in scans if s["name"] in leaf_on]
     score = np.concatenate([s["score"][s["pick"]] for s in leafy])
     wood = np.concatenate([s["wood"][s["pick"]] for s in leafy])
     threshold = balanced_threshold(score, wood)
@@ -166,15 +192,15 @@ def main() -> None:
         "fitted_by": "scripts/fit_leafwood.py",
         "training": [
             {"preset": n, "seed": sd, "step_deg": st, "scanner": "riegl-vz400 noise", "stations": 3}
-            for n, sd, st in TRAINING
+            for n, sd, st in training
         ],
         "software": software_versions("pgeof"),
         "decision": f"one hidden layer of {HIDDEN} tanh units, logistic output",
         "threshold": threshold,
         "stages": [{k: v.tolist() for k, v in st.items()} for st in stages],
     }
-    args.output.write_text(json.dumps(model, indent=None) + "\n", encoding="utf-8")
-    print(f"threshold {threshold:.3f}; wrote {args.output}")
+    output.write_text(json.dumps(model, indent=None) + "\n", encoding="utf-8")
+    print(f"threshold {threshold:.3f}; wrote {output}")
 
 
 if __name__ == "__main__":

@@ -100,17 +100,20 @@ class Separated:
         model.timings_s["leaf_layer"] = time.perf_counter() - t0
 
 
-def separate(prepared: PreparedCloud, mode: str) -> Separated | None:
+def separate(
+    prepared: PreparedCloud, mode: str, model: dict[str, Any] | None = None
+) -> Separated | None:
     """Label the prepared points wood or leaf (``mode``: ``on`` or ``auto``).
 
     ``auto`` keeps the labels only where the classifier calls at least
     :data:`LEAF_SHARE_CUT` of the points leaf (else the result has ``used`` False), and
-    returns None for a cloud too small to classify.
+    returns None for a cloud too small to classify. ``model``: the classifier's
+    (default: the shipped one).
     """
     t0 = time.perf_counter()
     if mode == "auto" and len(prepared.points) < MIN_POINTS:
         return None
-    result = separate_leaves(prepared.points)
+    result = separate_leaves(prepared.points, model)
     w = prepared.weights
     share = float(w[~result.wood].sum() / w.sum()) if w.sum() > 0 else 0.0
     leafy = share >= LEAF_SHARE_CUT

@@ -36,7 +36,9 @@ The weights live in ``pipeline/data/leafwood_model.json``, fitted by
 exactly (aspen-leafon, balsam-fir shoots, leaf-off aspen and sapling), scanned with the
 RIEGL VZ-400 noise model at several angular steps, on seeds 1 and 2; the tests measure
 it on seed 0. Measured there, see the manual (docs/guides/reconstruction.md, "Leaf-on
-field clouds").
+field clouds"). A second model, ``leafwood_fronds_model.json`` (:func:`fronds_model`),
+is fitted on the same scans plus palms; :func:`treesim.reconstruct.reconstruct` asks it
+for a second opinion where the first QSM warns that leaves were taken for wood.
 
 Everything is deterministic; coordinates enter pgeof as float32 in the local frame the
 reconstruction works in (float32 resolves 1 µm at 20 m).
@@ -61,6 +63,7 @@ __all__ = [
     "LeafWoodResult",
     "base_features",
     "context_features",
+    "fronds_model",
     "neighbours",
     "separate_leaves",
 ]
@@ -78,6 +81,9 @@ CONTEXT_K = (4, 8, 16, 32)
 SKELETON_K = (8, 16)
 #: The fitted model (scripts/fit_leafwood.py writes it).
 MODEL_PATH = Path(__file__).resolve().parents[1] / "data" / "leafwood_model.json"
+#: The frond model (``scripts/fit_leafwood.py --fronds``): the same features, fitted with
+#: palm scans too; used for a second opinion where the first leaves fronds as wood.
+FRONDS_MODEL_PATH = MODEL_PATH.with_name("leafwood_fronds_model.json")
 #: Fewest points the classifier accepts.
 MIN_POINTS = max(KNN_SCALES) + 1
 #: Points whose context features are made and scored at a time: the float64 features
@@ -223,18 +229,35 @@ def _chunks(n: int) -> list[slice]:
 
 
 @cache
-def _model() -> dict[str, Any]:
+def _model(path: Path = MODEL_PATH) -> dict[str, Any]:
     try:
-        model = json.loads(MODEL_PATH.read_text(encoding="utf-8"))
+        model = json.loads(path.read_text(encoding="utf-8"))
         for stage in model["stages"]:
             for key in ("mean", "scale", "W1", "b1", "w2", "b2"):
                 stage[key] = np.asarray(stage[key], dtype=np.float64)
     except (OSError, ValueError, KeyError) as exc:
         raise ReconstructionError(
-            f"cannot read the wood/leaf model {MODEL_PATH}: {exc}; reinstall treesim or "
+            f"cannot read the wood/leaf model {path}: {exc}; reinstall treesim or "
             "run scripts/fit_leafwood.py"
         ) from exc
     return model
+
+
+def fronds_model() -> dict[str, Any]:
+    """The frond model (:data:`FRONDS_MODEL_PATH`), read once.
+
+    Returns
+    -------
+    dict
+        Stages and threshold, as :func:`separate_leaves` takes them.
+
+    Examples
+    --------
+    >>> from treesim.reconstruct.leafwood import fronds_model
+    >>> len(fronds_model()["stages"])
+    3
+    """
+    return _model(FRONDS_MODEL_PATH)
 
 
 def stage_score(stage: dict[str, Any], x: np.ndarray) -> np.ndarray:
