@@ -229,9 +229,28 @@ def reconstruct(
     prepared = prepare(cloud, params.prepare, normals=params.method != "qsm")
     t_prep = time.perf_counter() - t0
     separated = _separate(prepared, params, say)
+    say(0.3, f"reconstructing ({params.method})")
+    model, t_rec = _built(prepared, separated, params)
+    if _second_opinion_due(model, params):
+        model = _second_opinion(prepared, model, params, say)
+    model.timings_s = {
+        "prepare": t_prep,
+        "reconstruct": t_rec,
+        "total": time.perf_counter() - t0,
+        **model.timings_s,
+    }
+    say(1.0, "done")
+    return model
+
+
+def _built(
+    prepared: PreparedCloud, separated: Any, params: ReconstructParams
+) -> tuple[TreeModel, float]:
+    """The model built from ``prepared`` (its wood points where ``separated`` is used),
+    with the separation's labels and figures and the plausibility figures and warnings
+    (``figures["plausibility"]``, ``figures["warnings"]``); and its build's seconds."""
     if separated is not None and separated.used:
         prepared = separated.wood
-    say(0.3, f"reconstructing ({params.method})")
     t1 = time.perf_counter()
     if params.method == "qsm":
         model = _qsm_model(prepared, params)
@@ -242,15 +261,60 @@ def reconstruct(
         separated.apply(model, params)
     from .plausibility import add_plausibility
 
-    add_plausibility(model, prepared)  # figures["plausibility"] and figures["warnings"]
-    model.timings_s = {
-        "prepare": t_prep,
-        "reconstruct": t_rec,
-        "total": time.perf_counter() - t0,
-        **model.timings_s,
+    add_plausibility(model, prepared)
+    return model, t_rec
+
+
+#: Warnings of a first QSM after which the frond model separates the leaves again (a
+#: second opinion): both say that leaves may have been taken for wood. Palms' leaflets
+#: hang in curtains that the shipped classifier takes for twigs at field density.
+SECOND_OPINION_CODES = frozenset({"leaves_as_wood", "volume_total_high"})
+
+
+def _codes(model: TreeModel) -> set[str]:
+    return {str(w["code"]) for w in model.figures.get("warnings") or []}
+
+
+def _second_opinion_due(model: TreeModel, params: ReconstructParams) -> bool:
+    return (
+        params.method == "qsm"
+        and params.separate_leaves in ("auto", "on")
+        and bool(_codes(model) & SECOND_OPINION_CODES)
+    )
+
+
+def _second_opinion(
+    prepared: PreparedCloud, first: TreeModel, params: ReconstructParams, say: Any
+) -> TreeModel:
+    """Separate the leaves again with the frond model and rebuild; keep the second model
+    only where it clears :data:`SECOND_OPINION_CODES` and ends with fewer warnings in
+    all (the real palm's: its column of a stem reads a form factor of 0.67, above the
+    range published for conifers and broadleaves, in place of two volume warnings).
+    Either way ``diagnostics["second_opinion"]`` says what was tried and found, and
+    ``figures["leaf_model"]`` which classifier the kept model's labels come from."""
+    from ._leaves import separate
+    from .leafwood import fronds_model
+
+    say(0.6, "leaves taken for wood? separating again with the frond model")
+    t0 = time.perf_counter()
+    separated = separate(prepared, params.separate_leaves, fronds_model())
+    second = None
+    if separated is not None and separated.used:
+        second, _ = _built(prepared, separated, params)
+    before = _codes(first)
+    after = None if second is None else _codes(second)
+    keep = after is not None and not after & SECOND_OPINION_CODES and len(after) < len(before)
+    chosen = second if keep and second is not None else first
+    chosen.figures["leaf_model"] = "fronds" if chosen is second else "default"
+    chosen.diagnostics["second_opinion"] = {
+        "why": sorted(before & SECOND_OPINION_CODES),
+        "model": "fronds",
+        "leaf_share": None if separated is None else separated.figures.get("leaf_share"),
+        "warnings": None if after is None else sorted(after),
+        "kept": chosen is second,
     }
-    say(1.0, "done")
-    return model
+    chosen.timings_s["second_opinion"] = time.perf_counter() - t0
+    return chosen
 
 
 def _separate(prepared: PreparedCloud, params: ReconstructParams, say: Any) -> Any:

@@ -1,0 +1,60 @@
+"""The frond model's second opinion (issue 21): when a first QSM says that leaves may have
+been taken for wood (``leaves_as_wood``, ``volume_total_high``), the reconstruction
+separates the leaves again with the frond model and keeps the second model only where it
+clears those warnings and ends with fewer warnings in all. What it tried is in ``diagnostics``.
+
+Oracles not computed by the code under test: a tree whose first model carries neither
+warning is never given a second opinion (its figures are those of a reconstruction with
+the second opinion disabled); and a "second opinion" from the very classifier of the
+first gives the same warnings, which the rule must refuse.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import pytest
+
+from tests.reconstruct.leafon import scan_preset
+from treesim.reconstruct import SECOND_OPINION_CODES, leafwood, reconstruct
+
+#: The module (``treesim.reconstruct`` the attribute is the function).
+rec = importlib.import_module("treesim.reconstruct")
+
+
+def _codes(model) -> set[str]:
+    return {w["code"] for w in model.figures["warnings"]}
+
+
+def test_a_plausible_tree_gets_no_second_opinion(monkeypatch):
+    _, cloud = scan_preset("aspen", 0.2)
+    model = reconstruct(cloud)
+    assert not _codes(model) & SECOND_OPINION_CODES, _codes(model)
+    assert "second_opinion" not in model.diagnostics
+    assert "leaf_model" not in model.figures
+    monkeypatch.setattr(rec, "_second_opinion_due", lambda model, params: False)
+    alone = reconstruct(cloud)
+    assert alone.figures["volume_total_m3"] == model.figures["volume_total_m3"]
+
+
+@pytest.mark.slow
+def test_a_second_opinion_that_changes_nothing_is_not_kept(monkeypatch):
+    """The sparse palm's first model carries the warnings; given the shipped classifier
+    again as the "frond model", the second model has the same warnings: not kept."""
+    _, cloud = scan_preset("palm", 0.2)
+    monkeypatch.setattr(leafwood, "fronds_model", lambda: leafwood._model())
+    model = reconstruct(cloud)
+    why = model.diagnostics["second_opinion"]
+    assert why["why"] and set(why["why"]) <= SECOND_OPINION_CODES
+    assert why["kept"] is False and model.figures["leaf_model"] == "default"
+    assert set(why["warnings"] or []) & SECOND_OPINION_CODES or why["warnings"] is None
+    assert _codes(model) & SECOND_OPINION_CODES
+
+
+@pytest.mark.slow
+def test_the_sparse_palm_keeps_the_frond_models_second_opinion():
+    _, cloud = scan_preset("palm", 0.2)
+    model = reconstruct(cloud)
+    why = model.diagnostics["second_opinion"]
+    assert why["kept"] is True and model.figures["leaf_model"] == "fronds"
+    assert not _codes(model) & SECOND_OPINION_CODES
