@@ -94,6 +94,12 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
             f"  leaves present: about {fig['leaf_fraction'] * 100:.0f} % of points look leaf-like; "
             "wood volume figures include them as modelled twigs"
         )
+    second = model.diagnostics.get("second_opinion")
+    if second:
+        print(
+            f"  second opinion on the leaves ({', '.join(second['why'])} at first): the frond "
+            + ("model's separation kept" if second["kept"] else "model's did not help; first kept")
+        )
     print(
         f"method {model.method}: DBH {_fmt(fig['dbh_m'], 100, 'cm')}, "
         f"height {_fmt(fig['height_m'], 1, 'm')}, "

@@ -58,3 +58,20 @@ def test_the_sparse_palm_keeps_the_frond_models_second_opinion():
     why = model.diagnostics["second_opinion"]
     assert why["kept"] is True and model.figures["leaf_model"] == "fronds"
     assert not _codes(model) & SECOND_OPINION_CODES
+
+
+@pytest.mark.slow
+def test_the_command_line_and_tree_json_say_which_model_was_kept(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    from treesim.cli import main
+
+    palm = Path(__file__).resolve().parents[1] / "data" / "trees" / "pytlidar_palm2"
+    assert main(["reconstruct", str(palm / "tree_2.laz"), "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "second opinion on the leaves (leaves_as_wood, volume_total_high at first)" in out
+    assert "the frond model's separation kept" in out
+    tree = json.loads((tmp_path / "tree.json").read_text())
+    assert tree["leaf_model"] == "fronds"
+    assert tree["diagnostics"]["second_opinion"]["kept"] is True
