@@ -24,7 +24,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from ._lazy import keep_functions
+from ._lazy import keep_functions, mirror_submodules
 from ._version import __version__
 from .errors import TreesimError
 
@@ -123,6 +123,8 @@ def __getattr__(name: str) -> Any:
             raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
     value = getattr(importlib.import_module(module, __name__), name)
     globals()[name] = value  # found directly from now on
+    if name in _VERBS:  # `import treesim.scan.beam as beam` reads `beam` off the function
+        mirror_submodules(__name__, name, value)
     return value
 
 
