@@ -244,11 +244,15 @@ def reconstruct(
 
 
 def _built(
-    prepared: PreparedCloud, separated: Any, params: ReconstructParams
+    prepared: PreparedCloud,
+    separated: Any,
+    params: ReconstructParams,
+    leaf_model: str | None = None,
 ) -> tuple[TreeModel, float]:
     """The model built from ``prepared`` (its wood points where ``separated`` is used),
     with the separation's labels and figures and the plausibility figures and warnings
-    (``figures["plausibility"]``, ``figures["warnings"]``); and its build's seconds."""
+    (``figures["plausibility"]``, ``figures["warnings"]``); and its build's seconds.
+    ``leaf_model``: the classifier that labelled it, as ``figures["leaf_model"]``."""
     if separated is not None and separated.used:
         prepared = separated.wood
     t1 = time.perf_counter()
@@ -259,6 +263,8 @@ def _built(
     t_rec = time.perf_counter() - t1
     if separated is not None:
         separated.apply(model, params)
+    if leaf_model is not None:
+        model.figures["leaf_model"] = leaf_model
     from .plausibility import add_plausibility
 
     add_plausibility(model, prepared)
@@ -300,7 +306,7 @@ def _second_opinion(
     separated = separate(prepared, params.separate_leaves, fronds_model())
     second = None
     if separated is not None and separated.used:
-        second, _ = _built(prepared, separated, params)
+        second, _ = _built(prepared, separated, params, leaf_model="fronds")
     before = _codes(first)
     after = None if second is None else _codes(second)
     keep = after is not None and not after & SECOND_OPINION_CODES and len(after) < len(before)

@@ -634,7 +634,8 @@ def _assess_stem(
     vol = float(table.volume_m3[table.branch_order == 0].sum())
     noise = float(figures.get("noise_sd_m") or 0.0)
     out["terminal_crown"] = terminal_crown(table, rows)
-    _stem_form(dbh, vol, h_stem, out, warns, ground_fix)
+    fronds = figures.get("leaf_model") == "fronds"
+    _stem_form(dbh, vol, h_stem, out, warns, ground_fix, fronds)
     _stem_radii(z, r, dbh, h_stem, noise, out, warns)
     _stem_hidden(table, rows, out, warns)
     _stem_foot(table, rows, dbh, out, warns, ground_fix, points, points_origin)
@@ -647,9 +648,11 @@ def _stem_form(
     out: dict[str, Any],
     warns: list[dict[str, Any]],
     ground_fix: str,
+    fronds: bool = False,
 ) -> None:
     """The stem's form factor (volume over a cylinder of its DBH and height) against the
-    range expected for its height."""
+    range expected for its height. ``fronds``: the frond model's labels were kept (a
+    second opinion), so a stem that does not taper, a palm's, is named as a cause."""
     if dbh and h_stem >= MIN_HEIGHT_FOR_FORM_M:
         f = vol / (math.pi / 4.0 * dbh * dbh * h_stem)
         lo, hi = form_factor_range(h_stem)
@@ -669,7 +672,12 @@ def _stem_form(
             high=(
                 "form_factor_high",
                 what + "; a cylinder is 1.0)",
-                "a stem too wide above 1.3 m: ground left in under the stem, radii "
+                (
+                    "a palm's stem, which does not taper (the frond model found fronds), or "
+                    if fronds
+                    else ""
+                )
+                + "a stem too wide above 1.3 m: ground left in under the stem, radii "
                 "held constant or modelled where the stem is hidden",
                 "see the stem warnings; " + ground_fix,
             ),
