@@ -276,26 +276,34 @@ def write_mesh(
     return p
 
 
-def _write_ply(path: Path, v: np.ndarray, f: np.ndarray, lab: np.ndarray) -> None:
-    from plyfile import PlyData, PlyElement
+#: A face record of the binary PLY: the list's length (always 3), its three vertex
+#: indices, the label; packed, as the format lays it out.
+_PLY_FACE = np.dtype([("n", "u1"), ("vertex_indices", "<i4", (3,)), ("label", "u1")])
 
-    vert = np.empty(len(v), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
-    vert["x"], vert["y"], vert["z"] = v[:, 0], v[:, 1], v[:, 2]
-    face = np.empty(len(f), dtype=[("vertex_indices", "O"), ("label", "u1")])
-    face["vertex_indices"] = list(f.astype(np.int32))
-    face["label"] = lab
+
+def _write_ply(path: Path, v: np.ndarray, f: np.ndarray, lab: np.ndarray) -> None:
+    """Binary little-endian PLY, the header plyfile writes for these elements, the records
+    written as two numpy buffers (plyfile writes a list property face by face: 0.2 s for
+    59 k faces; tests/io/test_mesh_ply.py holds the bytes to plyfile's own writer's)."""
+    if len(v) and int(f.max(initial=0)) >= 2**31:
+        raise InvalidGeometryError("a PLY face index must fit 32 bits")
     names = ",".join(f"{k}={n}" for k, n in sorted(LABEL_NAMES.items()))
-    PlyData(
-        [
-            PlyElement.describe(vert, "vertex"),
-            PlyElement.describe(
-                face, "face", len_types={"vertex_indices": "u1"}, val_types={"vertex_indices": "i4"}
-            ),
-        ],
-        text=False,
-        byte_order="<",
-        comments=[f"treesim label_names {names}"],
-    ).write(str(path))
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"comment treesim label_names {names}\n"
+        f"element vertex {len(v)}\n"
+        "property double x\nproperty double y\nproperty double z\n"
+        f"element face {len(f)}\n"
+        "property list uchar int vertex_indices\nproperty uchar label\nend_header\n"
+    )
+    face = np.empty(len(f), dtype=_PLY_FACE)
+    face["n"] = 3
+    face["vertex_indices"] = f
+    face["label"] = lab
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(np.ascontiguousarray(v, dtype="<f8").tobytes())
+        fh.write(face.tobytes())
 
 
 _MTL_COLOURS = {"wood": "0.45 0.33 0.22", "leaf": "0.25 0.55 0.2", "ground": "0.5 0.45 0.35"}

@@ -71,3 +71,41 @@ def test_a_quad_after_triangles_is_not_read_as_a_triangle(tmp_path):
 
     # the fixed-length read refuses it: trimesh gets the file (and triangulates)
     assert _load_ply(path, None) is None
+
+
+def _plyfile_writes(path, v, f, lab):
+    """The mesh as plyfile's own writer lays it out (the writer write_mesh used before it
+    wrote the records as numpy buffers): the oracle for the bytes."""
+    from plyfile import PlyData, PlyElement
+
+    from treesim.cloud import LABEL_NAMES
+
+    vert = np.empty(len(v), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+    vert["x"], vert["y"], vert["z"] = v[:, 0], v[:, 1], v[:, 2]
+    face = np.empty(len(f), dtype=[("vertex_indices", "O"), ("label", "u1")])
+    face["vertex_indices"] = list(f.astype(np.int32))
+    face["label"] = lab
+    names = ",".join(f"{k}={n}" for k, n in sorted(LABEL_NAMES.items()))
+    PlyData(
+        [
+            PlyElement.describe(vert, "vertex"),
+            PlyElement.describe(
+                face, "face", len_types={"vertex_indices": "u1"}, val_types={"vertex_indices": "i4"}
+            ),
+        ],
+        text=False,
+        byte_order="<",
+        comments=[f"treesim label_names {names}"],
+    ).write(str(path))
+
+
+def test_the_ply_writer_writes_plyfiles_bytes(tmp_path):
+    rng = np.random.default_rng(7)
+    for n_v, n_f in ((0, 0), (3, 1), (500, 997)):
+        v = rng.normal(size=(n_v, 3)) * 10.0 + [3e5, 5e6, 120.0]
+        f = rng.integers(0, max(n_v, 1), size=(n_f, 3))
+        lab = rng.integers(0, 4, size=n_f).astype(np.uint8)
+        ours = write_mesh(tmp_path / f"ours_{n_f}.ply", v, f, face_label=lab)
+        theirs = tmp_path / f"theirs_{n_f}.ply"
+        _plyfile_writes(theirs, v, f, lab)
+        assert ours.read_bytes() == theirs.read_bytes(), (n_v, n_f)
