@@ -14,9 +14,9 @@ shipped classifier stays as it was and the frond model (``leafwood_fronds_model.
 the same features, fitted with palm scans too; ``scripts/fit_leafwood.py --fronds``) is
 asked for a second opinion only where the first QSM warns that leaves may have been
 taken for wood (``treesim.reconstruct.SECOND_OPINION_CODES``); its model is kept where it
-clears those warnings with fewer warnings in all. Measured on 2026-11-27: the sparse palm
-stem -2.3 %, total -8.8 %; the real palm's leaf share 0.83, branches 90 L under a stem of
-317 L (997 L in all before, 407 L now).
+clears those warnings with no more warnings in all and the same DBH. Measured on
+2026-11-27: the sparse palm stem -2.3 %, total -8.8 %; the real palm's leaf share 0.83,
+branches 90 L under a stem of 317 L (997 L in all before, 407 L now).
 """
 
 from __future__ import annotations

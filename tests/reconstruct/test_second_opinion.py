@@ -1,7 +1,8 @@
 """The frond model's second opinion (issue 21): when a first QSM says that leaves may have
 been taken for wood (``leaves_as_wood``, ``volume_total_high``), the reconstruction
 separates the leaves again with the frond model and keeps the second model only where it
-clears those warnings and ends with fewer warnings in all. What it tried is in ``diagnostics``.
+clears those warnings, ends with no more warnings in all, and keeps the DBH within 5 %.
+What it tried is in ``diagnostics``.
 
 Oracles not computed by the code under test: a tree whose first model carries neither
 warning is never given a second opinion (its figures are those of a reconstruction with
@@ -78,3 +79,31 @@ def test_the_command_line_and_tree_json_say_which_model_was_kept(tmp_path, capsy
     tree = json.loads((tmp_path / "tree.json").read_text())
     assert tree["leaf_model"] == "fronds"
     assert tree["diagnostics"]["second_opinion"]["kept"] is True
+
+
+@pytest.mark.slow
+def test_a_second_opinion_that_moves_the_dbh_is_refused():
+    """A palm scanned at 0.3° (seed 7): the frond model takes stem points for leaves, and
+    its model's DBH falls far from the exact one; the first model's, within 5 mm of it,
+    is kept, with its volume warning."""
+    tree, cloud = scan_preset("palm", 0.3, seed=7)
+    truth = tree.truth()["dbh_m"]
+    model = reconstruct(cloud)
+    why = model.diagnostics["second_opinion"]
+    first, second = why["dbh_m"]
+    assert abs(first - truth) <= 0.005 and abs(second - truth) > 0.05
+    assert why["kept"] is False and model.figures["dbh_m"] == first
+    assert "volume_total_high" in _codes(model)
+
+
+@pytest.mark.slow
+def test_a_second_opinion_that_trades_a_volume_warning_for_a_local_one_is_kept():
+    """A palm at 0.15° (seed 5): the frond model clears volume_total_high and brings
+    stem_wider_upwards, as many warnings in all; its total is within 10 % of the exact
+    one, the first's is not."""
+    tree, cloud = scan_preset("palm", 0.15, seed=5)
+    truth = tree.truth()
+    model = reconstruct(cloud)
+    assert model.diagnostics["second_opinion"]["kept"] is True
+    assert model.figures["volume_total_m3"] == pytest.approx(truth["volume_total_m3"], rel=0.10)
+    assert abs(model.figures["dbh_m"] - truth["dbh_m"]) <= 0.005
