@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,16 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 #: Its coffee_tree/cloud.txt and QSM_treeqsm_v2.4.1_cylinders.csv are byte-identical to
 #: ../shared/data/trees/coffee_tree's (checked with cmp when the tests switched to them).
 BUNDLED_DATA = Path(__file__).resolve().parents[1] / "pipeline" / "data"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C reaches the tests however the suite was started: a shell starts a background
+    job (``make test &``, nohup) with SIGINT ignored, which every test process inherits
+    and passes on to the commands it starts, and the tests of what Ctrl-C does then saw
+    commands run to their end (exit 0 for 130). Python's own handler is put back (the
+    pytest-xdist workers run this too)."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 #: A progress line a command writes per stage when stderr is not a terminal
