@@ -31,7 +31,7 @@ import numpy as np
 
 from ..params import ScannerSpec
 from .caster import Caster, RayTables, cast_central
-from .occupancy import THIN_STEPS, seen_sides
+from .occupancy import seen_sides
 from .planning import StationPlan
 from .rays import directions, pulse_angles
 
@@ -933,11 +933,6 @@ def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     }
 
 
-#: Thin geometry (a triangle of a part thinner than this many angular steps as seen, or
-#: of an open part whose angular inradius is under a step: the occupancy cull's rule,
-#: :func:`~treesim.scan.occupancy.thin_triangles`) is looked for between central rays:
-#: every central ray of a pulse's neighbourhood can miss a twig its footprint meets.
-EDGE_STRAY_THICKNESS_STEPS = THIN_STEPS
 #: Samples along a thin triangle's longest side are this many angular steps apart (each
 #: sample's box of pulses widened by half of it).
 EDGE_STRAY_SPACING_STEPS = 1.0
@@ -1021,11 +1016,14 @@ class EdgeBeam(AdaptiveBeam):
       :data:`EDGE_RIM_PROBES` rays on the footprint's rim; the first that hits starts the
       same walk, and the covered share is the sliver's energy; its range is the walked
       surface's over :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint;
-    * thin geometry (twigs thinner than :data:`EDGE_STRAY_THICKNESS_STEPS` angular
-      steps, leaves) is indexed once per station by the pulses whose footprint it may
-      reach (:func:`_stray_samples`): a miss that nothing else settled walks from the
-      nearest thin triangle its footprint overlaps (a twig between central rays), and a
-      hit with thin geometry in front of it inside its footprint gets the sub-rays;
+    * thin geometry (the occupancy cull's rule,
+      :func:`~treesim.scan.occupancy.thin_triangles`: twigs thinner than
+      :data:`~treesim.scan.occupancy.THIN_STEPS` angular steps, leaves), which every
+      central ray of a pulse's neighbourhood can miss, is indexed once per station by
+      the pulses whose footprint it may reach (:func:`_stray_samples`): a miss that
+      nothing else settled walks from the nearest thin triangle its footprint overlaps
+      (a twig between central rays), and a hit with thin geometry in front of it inside
+      its footprint gets the sub-rays;
     * returns under :data:`EDGE_MIN_ENERGY` of the pulse's energy are not recorded;
     * pulses the walk cannot settle (a corner, two crossing silhouettes, more than two,
       probes on several surfaces, a walk longer than :data:`EDGE_WALK_STEPS` rings,
