@@ -82,7 +82,8 @@ def keep_functions(package: str, names: Iterable[str]) -> None:
     function eagerly, after its module). The submodule stays reachable in ``sys.modules``
     and by from-imports; and ``import package.name.module as m`` works, its last step
     reading ``module`` off the function: each submodule of the hidden subpackage is bound
-    to the function too.
+    to the function too, those loaded before the function by the package's lazy name
+    (:func:`mirror_submodules`), those loaded after as they load.
 
     Examples
     --------
@@ -93,11 +94,7 @@ def keep_functions(package: str, names: Iterable[str]) -> None:
     class _Package(ModuleType):
         def __setattr__(self, name: str, value: Any) -> None:
             if name in kept and isinstance(value, ModuleType):
-                function = vars(value).get(name)
-                if callable(function) and not isinstance(function, ModuleType):
-                    super().__setattr__(name, function)  # what the lazy name would give
-                    mirror_submodules(package, name, function)
-                value.__class__ = _Mirrored
+                value.__class__ = _Mirrored  # the package's lazy name mirrors what loaded
                 return
             super().__setattr__(name, value)
 
