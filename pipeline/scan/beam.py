@@ -536,12 +536,6 @@ EDGE_PLANE_TOL_M = 2e-3
 EDGE_FAR_PROBES = (0.0, 0.6, -0.6)
 #: Largest neighbourhood (steps each way) the edge model looks in for hits beside a miss.
 EDGE_MAX_NEIGHBOUR_STEPS = 8
-#: Pulses walked (:func:`_walk`), pulses whose surface range is worked out
-#: (:func:`_surface_range`) and rows of :func:`_edge_lines`, at a time: a few thousand, so
-#: that the arrays stay in the processor's cache (the answers do not depend on them).
-_WALK_CHUNK = 4096
-_RANGE_CHUNK = 4096
-_EDGE_CHUNK = 16384
 
 
 def _profile_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -610,6 +604,14 @@ def edge_neighbours(faces: np.ndarray) -> np.ndarray:
     return out.reshape(-1, 3)
 
 
+def _jit():
+    """The compiled kernels (:mod:`treesim.scan._edge_jit`), imported on first use: numba
+    and its compilation cost only the scans that run the edge model."""
+    from . import _edge_jit
+
+    return _edge_jit
+
+
 def _edge_lines(
     v: np.ndarray, faces: np.ndarray, o: np.ndarray, th: float, frame: tuple, tri: np.ndarray
 ) -> dict[str, np.ndarray]:
@@ -617,52 +619,14 @@ def _edge_lines(
     line ``nu·x + nv·y + c = 0`` on the footprint's plane (unit radius: tangents over
     ``th``), oriented so that the triangle is on its ``>= 0`` side; ``dist``: the
     distance from the axis to the edge's segment (the line's where a corner is behind
-    the station); ``sg``: the sign towards the triangle of the normal of the plane
-    through the station and the edge, that normal being ``m[inv]`` (``m`` (u, 3, 3): one
-    row per distinct triangle, ``inv`` (n,) each row's). Arrays (n, 3) but ``m``, ``inv``.
-    What depends on the triangle alone is worked out once per distinct triangle."""
-    if len(tri) > _EDGE_CHUNK:  # a few thousand rows at a time (the processor's cache)
-        parts = [
-            _edge_lines(v, faces, o, th, tuple(x[a : a + _EDGE_CHUNK] for x in frame), t)
-            for a, t in ((a, tri[a : a + _EDGE_CHUNK]) for a in range(0, len(tri), _EDGE_CHUNK))
-        ]
-        shift = np.cumsum([0] + [len(g["m"]) for g in parts[:-1]])
-        out = {k: np.concatenate([g[k] for g in parts]) for k in parts[0] if k != "inv"}
-        out["inv"] = np.concatenate([g["inv"] + s for g, s in zip(parts, shift, strict=True)])
-        return out
-    d, e1, e2 = frame
-    ut, inv = np.unique(tri, return_inverse=True)
-    au = v[faces[ut]] - o
-    a = au[inv]
-    ad = np.einsum("mkj,mj->mk", a, d)
-    front = ad > 1e-12 * np.linalg.norm(au, axis=2)[inv]
-    safe = np.where(front, ad, 1.0)
-    pu = np.einsum("mkj,mj->mk", a, e1) / safe / th
-    pv = np.einsum("mkj,mj->mk", a, e2) / safe / th
-    out = {k: np.empty(ad.shape) for k in ("nu", "nv", "c", "dist", "sg")}
-    out["m"], out["inv"] = np.empty(au.shape), inv
-    for j in range(3):
-        j1, j2 = (j + 1) % 3, (j + 2) % 3
-        mu = np.cross(au[:, j], au[:, j1])
-        sgu = np.sign(np.einsum("ij,ij->i", mu, au[:, j2]))
-        m, sg = mu[inv], sgu[inv]
-        la = np.einsum("ij,ij->i", m, e1) * th
-        lb = np.einsum("ij,ij->i", m, e2) * th
-        ln = np.maximum(np.hypot(la, lb), 1e-300)
-        c = sg * np.einsum("ij,ij->i", m, d) / ln
-        du, dv = pu[:, j1] - pu[:, j], pv[:, j1] - pv[:, j]
-        t = np.clip(-(pu[:, j] * du + pv[:, j] * dv) / np.maximum(du * du + dv * dv, 1e-300), 0, 1)
-        seg = np.hypot(pu[:, j] + t * du, pv[:, j] + t * dv)
-        both = front[:, j] & front[:, j1]
-        out["nu"][:, j], out["nv"][:, j], out["c"][:, j] = sg * la / ln, sg * lb / ln, c
-        out["dist"][:, j] = np.where(both, seg, np.abs(c))
-        out["sg"][:, j], out["m"][:, j] = sg, mu
-    return out
-
-
-def _edge_rows(g: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
-    """The rows ``rows`` of :func:`_edge_lines`' answer (``m`` kept whole)."""
-    return {k: (x if k == "m" else x[rows]) for k, x in g.items()}
+    the station); ``sg``: the sign towards the triangle of the normal ``m`` (n, 3, 3) of
+    the plane through the station and the edge. Arrays (n, 3) but ``m``. Compiled
+    (:func:`treesim.scan._edge_jit.edge_lines`)."""
+    d, e1, e2 = (np.ascontiguousarray(x, dtype=np.float64) for x in frame)
+    out = _jit().edge_lines(
+        v, faces, np.asarray(o, np.float64), float(th), d, e1, e2, np.asarray(tri, np.int64)
+    )
+    return dict(zip(("nu", "nv", "c", "dist", "sg", "m"), out, strict=True))
 
 
 def _walk(
@@ -671,7 +635,6 @@ def _walk(
     th: float,
     frame: tuple,
     start: np.ndarray,
-    first: dict[str, np.ndarray] | None = None,
     steps: int = EDGE_WALK_STEPS,
 ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
     """The silhouette edges inside each pulse's footprint, found by walking the mesh
@@ -679,91 +642,31 @@ def _walk(
     the footprint meets, as long as the surface goes on (the triangle across the edge
     lies beyond it as seen from the station). An edge with no triangle across it, or
     whose neighbour folds back behind it, is a silhouette edge. ``geo``: vertices,
-    faces, :func:`edge_neighbours`; ``first``: :func:`_edge_lines` of ``start`` along
-    ``frame`` where the caller has it. Returns the silhouette lines (``pulse``, ``nu``,
+    faces, :func:`edge_neighbours`. Returns the silhouette lines (``pulse``, ``nu``,
     ``nv``, ``c`` as :func:`_edge_lines`, the surface on the ``>= 0`` side, ``tri``),
     which pulses the walk did not finish within ``steps`` rings, and the
     triangles walked (``pulse``, ``tri`` and their edge lines ``nu``, ``nv``, ``c``
-    (n, 3)), for :func:`_surface_range`. Pulses go :data:`_WALK_CHUNK` at a time (the
-    arrays stay in the processor's cache); each pulse's lines keep their order."""
-    parts = []
-    for a in range(0, max(len(start), 1), _WALK_CHUNK):
-        sl = slice(a, a + _WALK_CHUNK)
-        f = None if first is None else _edge_rows(first, sl)
-        fr = tuple(x[sl] for x in frame)
-        lines, unres, trail = _walk_rings(geo, o, th, fr, start[sl], f, steps)
-        lines["pulse"] += a
-        trail["pulse"] += a
-        parts.append((lines, unres, trail))
-    if len(parts) == 1:
-        return parts[0]
-    lines, trail = (
-        {k: np.concatenate([p[i][k] for p in parts]) for k in parts[0][i]} for i in (0, 2)
-    )
-    return lines, np.concatenate([p[1] for p in parts]), trail
-
-
-def _walk_rings(geo, o, th, frame, start, first, steps):
-    """:func:`_walk` of a few pulses: ring after ring of triangles."""
+    (n, 3)), for :func:`_surface_range`: pulse by pulse, ring after ring (compiled:
+    :func:`treesim.scan._edge_jit.walk`)."""
     v, faces, nbr = geo
-    n_t = len(faces)
-    it_p = np.arange(len(start), dtype=np.int64)
-    it_t = np.asarray(start, dtype=np.int64)
-    it_e = np.full(len(start), -1, dtype=np.int64)
-    seen = np.sort(it_p * n_t + it_t)
-    lines: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "nu", "nv", "c", "tri")}
-    walked: dict[str, list[np.ndarray]] = {k: [] for k in ("pulse", "tri", "nu", "nv", "c")}
-    unresolved = np.zeros(len(start), dtype=bool)
-    for step in range(steps + 1):
-        if not len(it_p):
-            break
-        if step == steps:
-            unresolved[it_p] = True
-            break
-        if step == 0 and first is not None:
-            g = first
-        else:
-            g = _edge_lines(v, faces, o, th, tuple(x[it_p] for x in frame), it_t)
-        for k, x in (("pulse", it_p), ("tri", it_t), ("nu", g["nu"]), ("nv", g["nv"])):
-            walked[k].append(x)
-        walked["c"].append(g["c"])
-        reach = (g["dist"] < 1.0) & (np.arange(3)[None, :] != it_e[:, None])
-        ii, jj = np.nonzero(reach)
-        tri = it_t[ii]
-        nb = nbr[tri, jj]
-        ia, ib = faces[tri, jj], faces[tri, (jj + 1) % 3]
-        nf = faces[np.maximum(nb, 0)]
-        opp = nf[:, 0] + nf[:, 1] + nf[:, 2] - ia - ib
-        side = np.sign(np.einsum("ij,ij->i", g["m"][g["inv"][ii], jj], v[opp] - o))
-        cont = (nb >= 0) & (side == -g["sg"][ii, jj])
-        sil = ~cont
-        for k in ("nu", "nv", "c"):
-            lines[k].append(g[k][ii[sil], jj[sil]])
-        lines["pulse"].append(it_p[ii[sil]])
-        lines["tri"].append(tri[sil])
-        # the walk goes on into the triangles across, each once per pulse
-        np_, nt = it_p[ii[cont]], nb[cont]
-        key = np_ * n_t + nt
-        order = np.argsort(key, kind="stable")
-        ks = key[order]
-        once = np.ones(len(ks), dtype=bool)
-        once[1:] = ks[1:] != ks[:-1]
-        pos = np.minimum(np.searchsorted(seen, ks), max(len(seen) - 1, 0))
-        fresh = once & ~((seen[pos] == ks) if len(seen) else np.zeros(len(ks), bool))
-        first_ = order[fresh]
-        seen = np.sort(np.concatenate([seen, ks[fresh]]))
-        k_opp = np.argmax(nf[cont][first_] == opp[cont][first_][:, None], axis=1)
-        it_p, it_t, it_e = np_[first_], nt[first_], (k_opp + 1) % 3
-    out = {k: np.concatenate(x) if x else np.empty(0) for k, x in lines.items()}
-    out["pulse"] = out["pulse"].astype(np.int64)
-    out["tri"] = out["tri"].astype(np.int64)
-    trail = {
-        k: np.concatenate(x) if x else np.empty((0, 3) if k in ("nu", "nv", "c") else 0)
-        for k, x in walked.items()
-    }
-    trail["pulse"] = trail["pulse"].astype(np.int64)
-    trail["tri"] = trail["tri"].astype(np.int64)
-    return out, unresolved, trail
+    d, e1, e2 = (np.ascontiguousarray(x, dtype=np.float64) for x in frame)
+    out = _jit().walk(
+        v,
+        faces,
+        nbr,
+        np.asarray(o, np.float64),
+        float(th),
+        d,
+        e1,
+        e2,
+        np.asarray(start, np.int64),
+        int(steps),
+    )
+    lines = dict(zip(("pulse", "nu", "nv", "c", "tri"), out[:5], strict=True))
+    idx, edges = out[6], out[7]
+    trail = {"pulse": idx[0], "tri": idx[1], "nu": edges[:, 0], "nv": edges[:, 1]}
+    trail.update(c=edges[:, 2], packed=(idx, edges))
+    return lines, out[5], trail
 
 
 def _surface_range(
@@ -781,34 +684,34 @@ def _surface_range(
     the triangles the walk crossed (``trail``, :func:`_walk`), the nearest where several
     hold one; nan where none does. ``geo``: vertices, faces, the station. ``cut``: the
     silhouette lines of the covered parts (``pulse``, index into ``pulses``; ``nu``,
-    ``nv``, ``c``), points beyond any of which are not looked at (a sliver's are few)."""
+    ``nv``, ``c``), points beyond any of which are not looked at (a sliver's are few).
+    Compiled (:func:`treesim.scan._edge_jit.surface_range`)."""
+    v, faces, o = geo
+    d, e1, e2 = (np.ascontiguousarray(x, dtype=np.float64) for x in frame)
+    idx, edges = trail["packed"]
+    if cut is None:
+        lines, at = np.empty((0, 3)), np.empty(0, np.int64)
+    else:
+        order = np.argsort(cut[0], kind="stable")
+        lines = np.stack([x[order] for x in cut[1:]], axis=1)
+        at = np.searchsorted(cut[0][order], np.arange(len(pulses) + 1))
     pts, wts = quad
-    pos = np.full(len(frame[0]), -1, dtype=np.int64)
-    pos[pulses] = np.arange(len(pulses))
-    at = pos[trail["pulse"]]
-    rows = np.flatnonzero(at >= 0)
-    rows = rows[np.argsort(at[rows], kind="stable")]
-    out = np.empty(len(pulses))
-    # a few thousand pulses at a time: the arrays stay in the processor's cache
-    ends = np.searchsorted(at[rows], np.arange(0, len(pulses), _RANGE_CHUNK)[1:])
-    for a, (lo, hi) in enumerate(zip([0, *ends], [*ends, len(rows)], strict=True)):
-        r = rows[lo:hi]
-        p0, p1 = a * _RANGE_CHUNK, min(len(pulses), (a + 1) * _RANGE_CHUNK)
-        lines = [trail[k][r] for k in ("nu", "nv", "c")]
-        ok = None
-        if cut is not None:
-            s = np.flatnonzero((cut[0] >= p0) & (cut[0] < p1))
-            nu, nv, c = (x[s][:, None] for x in cut[1:])
-            ok = np.ones((p1 - p0, len(wts)), dtype=bool)
-            np.logical_and.at(ok, cut[0][s] - p0, nu * pts[:, 0] + nv * pts[:, 1] + c >= -1e-9)
-        q_r = np.full((p1 - p0, len(wts)), np.inf)
-        fr = tuple(x[pulses[p0:p1]] for x in frame)
-        _quad_ranges(q_r, at[r] - p0, trail["tri"][r], lines, (fr, th, ok), pts, geo)
-        on = np.isfinite(q_r)
-        wq = np.where(on, wts[None, :], 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[p0:p1] = (np.where(on, q_r, 0.0) * wq).sum(axis=1) / wq.sum(axis=1)
-    return out
+    return _jit().surface_range(
+        v,
+        faces,
+        np.asarray(o, np.float64),
+        float(th),
+        d,
+        e1,
+        e2,
+        idx,
+        edges,
+        np.asarray(pulses, np.int64),
+        np.ascontiguousarray(pts, np.float64),
+        np.asarray(wts, np.float64),
+        lines,
+        at,
+    )
 
 
 def _point_rays(frame: tuple, pts: np.ndarray, th: float) -> np.ndarray:
@@ -822,69 +725,6 @@ def _point_rays(frame: tuple, pts: np.ndarray, th: float) -> np.ndarray:
     # np.linalg.norm's own sum (the conjugate of a real number is itself), one pass less
     w /= np.sqrt(np.add.reduce(w * w, axis=2, keepdims=True))
     return w
-
-
-def _inside_points(lines: list[np.ndarray], pts: np.ndarray) -> np.ndarray:
-    """Which points ``pts`` (k, 2) lie inside each triangle, its edges given as lines
-    ``[nu, nv, c]`` (n, 3) (:func:`_edge_lines`): ``nu·x + nv·y + c >= -1e-9`` for its
-    three edges, (n, k). An edge whose line lies farther than every point from the
-    footprint's centre, on the inner side, keeps them all (no need to evaluate it)."""
-    nu, nv, c = lines
-    x, y = pts[:, 0][None, :], pts[:, 1][None, :]
-    clear = float(np.sqrt((pts * pts).sum(axis=1)).max(initial=0.0)) * (1 + 1e-9) + 1e-6
-    inside = np.ones((len(c), len(pts)), dtype=bool)
-    for j in range(3):
-        r = np.flatnonzero(~(c[:, j] >= clear))
-        val = nu[r, j][:, None] * x + nv[r, j][:, None] * y + c[r, j][:, None]
-        inside[r] &= val >= -1e-9
-    return inside
-
-
-def _quad_ranges(q_r, row, tri, lines, rays, pts, geo) -> None:
-    """Ranges (into ``q_r`` (p, k), all inf before, nearest kept) of the footprint
-    points ``pts`` (k, 2) that fall inside the walked triangles ``tri`` (edge lines
-    ``lines``), ``row`` the row of ``q_r`` of each, along the points' rays: ``rays`` =
-    (the pulses' frames (d, e1, e2), the tangent of the beam's half-angle, which points
-    of each pulse to look at ((p, k) bool) or None: all). ``geo``: vertices, faces, the
-    station."""
-    v, faces, o = geo
-    frame, th, ok = rays
-    if ok is None:
-        ii, kk = np.nonzero(_inside_points(lines, pts))
-    else:  # the few points looked at alone (in row order, as np.nonzero gives them)
-        ii, kk = np.nonzero(ok[row])
-        nu, nv, c = lines
-        keep = np.ones(len(ii), dtype=bool)
-        for j in range(3):
-            keep &= nu[ii, j] * pts[kk, 0] + nv[ii, j] * pts[kk, 1] + c[ii, j] >= -1e-9
-        ii, kk = ii[keep], kk[keep]
-    if not len(ii):
-        return
-    # the plane of each triangle with points inside, once
-    new = np.ones(len(ii), dtype=bool)
-    new[1:] = ii[1:] != ii[:-1]
-    at = np.cumsum(new) - 1
-    t3 = faces[tri[ii[new]]]
-    p0 = v[t3[:, 0]]
-    n = np.cross(v[t3[:, 1]] - p0, v[t3[:, 2]] - p0)
-    num = np.einsum("ij,ij->i", p0 - o, n)
-    pr = row[ii]
-    flat = pr * q_r.shape[1] + kk
-    if ok is None:  # most points of most pulses: every point's ray at once
-        w = _point_rays(frame, pts, th).reshape(-1, 3)[flat]
-        r = num[at] / np.einsum("ij,ij->i", n[at], w)
-    else:  # the point's ray, (d + th (x e1 + y e2)) / norm, for the pairs inside alone
-        d, e1, e2 = frame
-        w = pts[kk, :1] * e1[pr]
-        w += pts[kk, 1:2] * e2[pr]
-        w *= th
-        w += d[pr]
-        r = num[at] * np.sqrt(np.add.reduce(w * w, axis=1)) / np.einsum("ij,ij->i", n[at], w)
-    r = np.where(r > 0, r, np.inf)
-    # a point inside one triangle takes its range; inside several, the nearest
-    dup = np.bincount(flat, minlength=q_r.size)[flat] > 1
-    q_r.reshape(-1)[flat[~dup]] = r[~dup]
-    np.minimum.at(q_r.reshape(-1), flat[dup], r[dup])
 
 
 def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -1045,8 +885,9 @@ class EdgeBeam(AdaptiveBeam):
         half = 0.5 * spec.beam_divergence_mrad * 1e-3
         self.k = int(min(EDGE_MAX_NEIGHBOUR_STEPS, max(1, math.ceil(1.01 * half / step))))
         self.th = math.tan(0.5 * spec.beam_divergence_mrad * 1e-3)
-        self.geo = (caster.v, np.asarray(caster.faces, dtype=np.int64), None)
-        self.geo = (self.geo[0], self.geo[1], edge_neighbours(self.geo[1]))
+        faces = np.ascontiguousarray(caster.faces, dtype=np.int64)
+        v = np.ascontiguousarray(caster.v, dtype=np.float64)
+        self.geo = (v, faces, edge_neighbours(faces))
         ang = 2.0 * math.pi * np.arange(EDGE_RIM_PROBES) / EDGE_RIM_PROBES
         q_off, q_w = subray_pattern(EDGE_RANGE_POINTS, 2.0e3)
         #: the points (unit footprint) and weights of the walked surface's mean range
@@ -1208,7 +1049,7 @@ class EdgeBeam(AdaptiveBeam):
         inside = (g["c"] >= 1.0).all(axis=1)
         cut = np.flatnonzero(~inside)
         sub = tuple(x[cut] for x in frame)
-        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, prim[cut], _edge_rows(g, cut))
+        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, prim[cut])
         cov = _coverage(len(cut), lines)
         alone = jump[cut]
         fb = unres | ~cov["ok"] | alone

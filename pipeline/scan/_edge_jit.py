@@ -1,0 +1,327 @@
+"""The edge beam model's inner loops, compiled (numba): a pulse's footprint against the
+mesh's edges, and the walk across the surface it meets.
+
+:mod:`treesim.scan.beam` imports this module only when the edge model runs
+(``beam_sampling="edge"``): numba's import (about 0.3 s) and its first compilation stay
+out of every other command. The kernels are compiled once per machine and cached
+(``cache=True``: beside this file, or numba's user-wide cache where that is read-only).
+
+The arithmetic is :func:`treesim.scan.beam._edge_lines`' formula, operation for
+operation, in float64 (no fast-math: no reassociation, no fused multiply-add), so the
+numbers are those numpy gave (the tests in ``tests/scan/test_edge_beam_speed.py`` hold
+them to the bit against the formulas as they stood before).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["edge_lines", "walk"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _dot(a0, a1, a2, b, p):  # pragma: no cover - compiled
+    # in the order numpy's einsum sums three products on x86-64 (two lanes: 0 and 2, 1)
+    return (a0 * b[p, 0] + a2 * b[p, 2]) + a1 * b[p, 1]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sign(x):  # pragma: no cover - compiled
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x  # 0.0, -0.0 or nan, as np.sign
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m, au):  # pragma: no cover - compiled
+    """Triangle ``t``'s edge lines along pulse ``p`` of (d, e1, e2, p): ``out`` (5, 3) rows nu, nv,
+    c, dist, sg; ``m`` (3, 3): the normal of each edge's plane through the station;
+    ``au`` (3, 6): scratch (the corners from the station, their footprint coordinates
+    and whether each lies in front)."""
+    for k in range(3):
+        for i in range(3):
+            au[k, i] = v[faces[t, k], i] - o[i]
+        ad = _dot(au[k, 0], au[k, 1], au[k, 2], d, p)
+        nrm = math.sqrt((au[k, 0] * au[k, 0] + au[k, 1] * au[k, 1]) + au[k, 2] * au[k, 2])
+        front = ad > 1e-12 * nrm
+        safe = ad if front else 1.0
+        au[k, 3] = _dot(au[k, 0], au[k, 1], au[k, 2], e1, p) / safe / th
+        au[k, 4] = _dot(au[k, 0], au[k, 1], au[k, 2], e2, p) / safe / th
+        au[k, 5] = 1.0 if front else 0.0
+    for j in range(3):
+        j1, j2 = (j + 1) % 3, (j + 2) % 3
+        m0 = au[j, 1] * au[j1, 2] - au[j, 2] * au[j1, 1]
+        m1 = au[j, 2] * au[j1, 0] - au[j, 0] * au[j1, 2]
+        m2 = au[j, 0] * au[j1, 1] - au[j, 1] * au[j1, 0]
+        sg = _sign(_dot(m0, m1, m2, au, j2))
+        la = _dot(m0, m1, m2, e1, p) * th
+        lb = _dot(m0, m1, m2, e2, p) * th
+        ln = max(math.sqrt(la * la + lb * lb), 1e-300)
+        c = sg * _dot(m0, m1, m2, d, p) / ln
+        pu, pv = au[j, 3], au[j, 4]
+        du, dv = au[j1, 3] - pu, au[j1, 4] - pv
+        s = -(pu * du + pv * dv) / max(du * du + dv * dv, 1e-300)
+        s = min(max(s, 0.0), 1.0)
+        x, y = pu + s * du, pv + s * dv
+        seg = math.sqrt(x * x + y * y)
+        out[0, j] = sg * la / ln
+        out[1, j] = sg * lb / ln
+        out[2, j] = c
+        out[3, j] = seg if (au[j, 5] > 0.0 and au[j1, 5] > 0.0) else abs(c)
+        out[4, j] = sg
+        m[j, 0], m[j, 1], m[j, 2] = m0, m1, m2
+
+
+@njit(cache=True, nogil=True)
+def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
+    """:func:`treesim.scan.beam._edge_lines` of pulses (d, e1, e2) (n, 3) and their
+    triangles ``tri`` (n,): nu, nv, c, dist, sg (each (n, 3)) and m (n, 3, 3)."""
+    n = len(tri)
+    res = np.empty((n, 5, 3))
+    mm = np.empty((n, 3, 3))
+    au = np.empty((3, 6))
+    out = np.empty((5, 3))
+    m = np.empty((3, 3))
+    for p in range(n):
+        _lines_of(v, faces, o, th, d, e1, e2, p, tri[p], out, m, au)
+        for j in range(3):
+            for i in range(5):
+                res[p, i, j] = out[i, j]
+            for i in range(3):
+                mm[p, j, i] = m[j, i]
+    return res[:, 0], res[:, 1], res[:, 2], res[:, 3], res[:, 4], mm
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _grown(a, n):  # pragma: no cover - compiled
+    """``a`` with room for at least ``n`` items (twice over), its items kept."""
+    if n <= len(a):
+        return a
+    b = np.empty(max(n, 2 * len(a)), dtype=a.dtype)
+    b[: len(a)] = a
+    return b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma: no cover
+    """The next ring of a walk from the ``n_cand`` triangles reached (``cand_t``, each
+    with the edge it was entered by, ``cand_e``): each triangle once (the first to reach
+    it), none of the ``n_seen`` seen before, in the order of their indices. Returns
+    (ring_t, ring_e, its length), the arrays grown where needed."""
+    # the candidates sorted by triangle, stably (an insertion sort: they are few)
+    for i in range(1, n_cand):
+        tc, ec = cand_t[i], cand_e[i]
+        k = i - 1
+        while k >= 0 and cand_t[k] > tc:
+            cand_t[k + 1], cand_e[k + 1] = cand_t[k], cand_e[k]
+            k -= 1
+        cand_t[k + 1], cand_e[k + 1] = tc, ec
+    n_ring = 0
+    for i in range(n_cand):
+        tc = cand_t[i]
+        if i > 0 and cand_t[i - 1] == tc:
+            continue
+        known = False
+        for s in range(n_seen):
+            if seen[s] == tc:
+                known = True
+                break
+        if known:
+            continue
+        ring_t = _grown(ring_t, n_ring + 1)
+        ring_e = _grown(ring_e, n_ring + 1)
+        ring_t[n_ring], ring_e[n_ring] = tc, cand_e[i]
+        n_ring += 1
+    return ring_t, ring_e, n_ring
+
+
+@njit(cache=True, nogil=True)
+def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - compiled
+    """:func:`treesim.scan.beam._walk` of pulses (d, e1, e2) from triangles ``start``:
+    ring after ring of triangles, the rings of a pulse walked in the order of their
+    triangles' indices (each reached once, by the first triangle to reach it).
+
+    Returns the silhouette lines (pulse, nu, nv, c, tri), which pulses did not finish
+    within ``steps`` rings, and the trail, pulse by pulse: (2, k) pulse and triangle,
+    (k, 3, 3) their edges' nu, nv, c."""
+    n = len(start)
+    cap = 4 * n + 16
+    l_p = np.empty(cap, np.int64)
+    l_t = np.empty(cap, np.int64)
+    l_f = np.empty(3 * cap)
+    t_p = np.empty(cap, np.int64)
+    t_t = np.empty(cap, np.int64)
+    t_f = np.empty(9 * cap)
+    n_l = 0
+    n_t = 0
+    unresolved = np.zeros(n, dtype=np.bool_)
+    out = np.empty((5, 3))
+    m = np.empty((3, 3))
+    w = np.empty((1, 3))
+    au = np.empty((3, 6))
+    ring_t = np.empty(64, np.int64)
+    ring_e = np.empty(64, np.int64)
+    cand_t = np.empty(64, np.int64)
+    cand_e = np.empty(64, np.int64)
+    seen = np.empty(64, np.int64)
+    for p in range(n):
+        ring_t[0], ring_e[0] = start[p], -1
+        n_ring = 1
+        seen[0] = start[p]
+        n_seen = 1
+        for step in range(steps + 1):
+            if n_ring == 0:
+                break
+            if step == steps:
+                unresolved[p] = True
+                break
+            n_cand = 0
+            for r in range(n_ring):
+                t, e_in = ring_t[r], ring_e[r]
+                _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m, au)
+                t_p = _grown(t_p, n_t + 1)
+                t_t = _grown(t_t, n_t + 1)
+                t_f = _grown(t_f, 9 * (n_t + 1))
+                t_p[n_t], t_t[n_t] = p, t
+                for j in range(3):
+                    t_f[9 * n_t + j] = out[0, j]
+                    t_f[9 * n_t + 3 + j] = out[1, j]
+                    t_f[9 * n_t + 6 + j] = out[2, j]
+                n_t += 1
+                for j in range(3):
+                    if not (out[3, j] < 1.0) or j == e_in:
+                        continue
+                    nb = nbr[t, j]
+                    cont = False
+                    k_opp = 0
+                    if nb >= 0:
+                        ia, ib = faces[t, j], faces[t, (j + 1) % 3]
+                        opp = faces[nb, 0] + faces[nb, 1] + faces[nb, 2] - ia - ib
+                        for i in range(3):
+                            w[0, i] = v[opp, i] - o[i]
+                        side = _sign(_dot(m[j, 0], m[j, 1], m[j, 2], w, 0))
+                        cont = side == -out[4, j]
+                        for k in range(2, -1, -1):  # the first corner that is opp
+                            if faces[nb, k] == opp:
+                                k_opp = k
+                    if not cont:
+                        l_p = _grown(l_p, n_l + 1)
+                        l_t = _grown(l_t, n_l + 1)
+                        l_f = _grown(l_f, 3 * (n_l + 1))
+                        l_p[n_l], l_t[n_l] = p, t
+                        l_f[3 * n_l], l_f[3 * n_l + 1] = out[0, j], out[1, j]
+                        l_f[3 * n_l + 2] = out[2, j]
+                        n_l += 1
+                    else:
+                        cand_t = _grown(cand_t, n_cand + 1)
+                        cand_e = _grown(cand_e, n_cand + 1)
+                        cand_t[n_cand], cand_e[n_cand] = nb, (k_opp + 1) % 3
+                        n_cand += 1
+            ring_t, ring_e, n_ring = _next_ring(
+                cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e
+            )
+            for r in range(n_ring):
+                seen = _grown(seen, n_seen + 1)
+                seen[n_seen] = ring_t[r]
+                n_seen += 1
+    lines_f = l_f[: 3 * n_l].reshape(n_l, 3)
+    trail = np.empty((2, n_t), np.int64)
+    trail[0] = t_p[:n_t]
+    trail[1] = t_t[:n_t]
+    return (
+        l_p[:n_l].copy(),
+        lines_f[:, 0].copy(),
+        lines_f[:, 1].copy(),
+        lines_f[:, 2].copy(),
+        l_t[:n_l].copy(),
+        unresolved,
+        trail,
+        t_f[: 9 * n_t].copy().reshape(n_t, 3, 3),
+    )
+
+
+@njit(cache=True, nogil=True)
+def surface_range(
+    v, faces, o, th, d, e1, e2, trail, lines, pulses, pts, wts, cut, cut_at
+):  # pragma: no cover - compiled
+    """:func:`treesim.scan.beam._surface_range`: for each walked pulse ``pulses[q]``
+    (frames (d, e1, e2)), the weighted mean range of the footprint points ``pts`` (k, 2)
+    (weights ``wts``) that fall inside the triangles of its trail (``trail`` (2, n):
+    pulse, triangle, pulse by pulse; ``lines`` (n, 3, 3): their edges' nu, nv, c), the
+    nearest where several hold one; nan where none does. ``cut`` (m, 3): lines nu, nv,
+    c of pulse ``q`` at rows ``cut_at[q]:cut_at[q + 1]``, beyond any of which a point is
+    not looked at (all looked at where ``cut_at`` is empty)."""
+    n_trail = trail.shape[1]
+    k = len(pts)
+    out = np.empty(len(pulses))
+    q_r = np.empty(k)
+    look = np.empty(k, dtype=np.bool_)
+    w = np.empty((k, 3))
+    nrm = np.empty((1, 3))
+    rel = np.empty((1, 3))
+    for q in range(len(pulses)):
+        p = pulses[q]
+        # the pulse's trail rows (the trail goes pulse by pulse)
+        lo, hi = 0, n_trail
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if trail[0, mid] < p:
+                lo = mid + 1
+            else:
+                hi = mid
+        for i in range(k):
+            q_r[i] = np.inf
+            look[i] = True
+            if len(cut_at):
+                for r in range(cut_at[q], cut_at[q + 1]):
+                    if cut[r, 0] * pts[i, 0] + cut[r, 1] * pts[i, 1] + cut[r, 2] < -1e-9:
+                        look[i] = False
+                        break
+            # the point's ray: (d + th (x e1 + y e2)) / norm
+            for j in range(3):
+                w[i, j] = (pts[i, 0] * e1[p, j] + pts[i, 1] * e2[p, j]) * th + d[p, j]
+            s = math.sqrt((w[i, 0] * w[i, 0] + w[i, 1] * w[i, 1]) + w[i, 2] * w[i, 2])
+            for j in range(3):
+                w[i, j] /= s
+        r = lo
+        while r < n_trail and trail[0, r] == p:
+            t = trail[1, r]
+            have = False
+            for i in range(k):
+                if not look[i]:
+                    continue
+                inside = True
+                for j in range(3):
+                    val = lines[r, 0, j] * pts[i, 0] + lines[r, 1, j] * pts[i, 1]
+                    if not (val + lines[r, 2, j] >= -1e-9):
+                        inside = False
+                        break
+                if not inside:
+                    continue
+                if not have:  # the triangle's plane, once
+                    f0, f1, f2 = faces[t, 0], faces[t, 1], faces[t, 2]
+                    for j in range(3):
+                        rel[0, j] = v[f0, j] - o[j]
+                    a0, a1, a2 = v[f1, 0] - v[f0, 0], v[f1, 1] - v[f0, 1], v[f1, 2] - v[f0, 2]
+                    b0, b1, b2 = v[f2, 0] - v[f0, 0], v[f2, 1] - v[f0, 1], v[f2, 2] - v[f0, 2]
+                    nrm[0, 0] = a1 * b2 - a2 * b1
+                    nrm[0, 1] = a2 * b0 - a0 * b2
+                    nrm[0, 2] = a0 * b1 - a1 * b0
+                    num = _dot(nrm[0, 0], nrm[0, 1], nrm[0, 2], rel, 0)
+                    have = True
+                rng = num / _dot(nrm[0, 0], nrm[0, 1], nrm[0, 2], w, i)
+                if rng > 0 and rng < q_r[i]:
+                    q_r[i] = rng
+            r += 1
+        tot, wt = 0.0, 0.0
+        for i in range(k):
+            if q_r[i] < np.inf:
+                tot += q_r[i] * wts[i]
+                wt += wts[i]
+        out[q] = tot / wt if wt > 0 else np.nan
+    return out
