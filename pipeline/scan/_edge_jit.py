@@ -325,3 +325,124 @@ def surface_range(
                 wt += wts[i]
         out[q] = tot / wt if wt > 0 else np.nan
     return out
+
+
+@njit(cache=True, nogil=True)
+def _search(key, skey, order):  # pragma: no cover - compiled
+    """The pulse of ``key`` among the sorted keys ``skey`` (``order``: their pulses), -1
+    where none.
+
+    The loops find a pulse at column ``qc``, line ``ql`` from
+    :meth:`treesim.scan.beam.EdgeBeam._lookup`'s tuple (``look``, ``colpos``, ``lmin``,
+    ``skey``, ``order``): in the dense table ``look`` (a column's row ``colpos``, a
+    line's column ``line - lmin``), or where that is empty here, with the key
+    ``qc * n_lines + ql``. They do so in their own body: as a function, inlined or not,
+    the lookup made the loops around it ten times slower (numba 0.68)."""
+    lo, hi = 0, len(skey)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if skey[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < len(skey) and skey[lo] == key:
+        return order[lo]
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
+    """Column ``qc`` on the grid (wrapped on a full turn), -1 off it."""
+    if full_turn:
+        return qc % n_az
+    return qc if 0 <= qc < n_az else -1
+
+
+@njit(cache=True, nogil=True)
+def neighbours(lines, cols, n_core, t, x, planes, o, grid, lookup, k, tol):  # pragma: no cover
+    """:meth:`treesim.scan.beam.EdgeBeam._neighbours` of a block's pulses (``lines``,
+    ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; hit
+    points ``x``; ``planes``: the normal and a corner of each core hit's triangle, each
+    (n_core, 3)), looking
+    ``k`` steps each way: per core pulse, whether a neighbour hit (``near``), the nearest
+    and farthest such hit (``lo``, ``hi``) and, for a hit, whether a neighbour's hit lies
+    in front of its triangle's plane (towards the station) by more than ``tol``
+    (``jump``). ``grid``: (n_az, n_lines, full_turn); ``lookup``: see :func:`_search`."""
+    n_az, n_lines, full_turn = grid
+    normal, v0 = planes
+    look, colpos, lmin, skey, order = lookup
+    near = np.empty(n_core, dtype=np.bool_)
+    jump = np.empty(n_core, dtype=np.bool_)
+    lo = np.empty(n_core)
+    hi = np.empty(n_core)
+    for i in range(n_core):
+        is_hit = t[i] < np.inf
+        n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
+        # the plane's normal turned towards the station
+        if (
+            is_hit
+            and (((o[0] - v0[i, 0]) * n0 + (o[2] - v0[i, 2]) * n2) + (o[1] - v0[i, 1]) * n1) < 0
+        ):
+            n0, n1, n2 = -n0, -n1, -n2
+        nr, jp, t_lo, t_hi = False, False, np.inf, -np.inf
+        for dc in range(-k, k + 1):
+            qc = _column(cols[i] + dc, n_az, full_turn)
+            if qc < 0:
+                continue
+            for dl in range(-k, k + 1):
+                ql = lines[i] + dl
+                if (dc == 0 and dl == 0) or ql < 0 or ql >= n_lines:
+                    continue
+                if look.shape[0] > 0:
+                    pc, row = colpos[qc], ql - lmin
+                    q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
+                else:
+                    q = _search(qc * n_lines + ql, skey, order)
+                if q < 0 or not (t[q] < np.inf):
+                    continue
+                if not is_hit:
+                    nr = True
+                    t_lo = min(t_lo, t[q])
+                    t_hi = max(t_hi, t[q])
+                elif not jp:
+                    r0, r1, r2 = x[q, 0] - v0[i, 0], x[q, 1] - v0[i, 1], x[q, 2] - v0[i, 2]
+                    jp = (r0 * n0 + r2 * n2) + r1 * n1 > tol
+        near[i], jump[i], lo[i], hi[i] = nr, jp, t_lo, t_hi
+    return near, lo, hi, jump
+
+
+@njit(cache=True, nogil=True)
+def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
+    """(pulse, triangle) pairs of the thin-geometry boxes ``sel``: each box's pulses
+    (among the first ``n_core`` the lookup knows) within its sample's reach, an ellipse
+    in lines and columns. ``box``: (l_lo, l_hi, c_lo, c_hi, tri) integers and (line,
+    col, rl, rc) floats of :func:`treesim.scan.beam._stray_samples`."""
+    l_lo, l_hi, c_lo, c_hi, tri = box[0]
+    line, col, rl, rc = box[1]
+    n_az, n_lines, full_turn = grid
+    look, colpos, lmin, skey, order = lookup
+    out_p = np.empty(1024, np.int64)
+    out_t = np.empty(1024, np.int64)
+    n = 0
+    for b in sel:
+        for qc0 in range(c_lo[b], c_hi[b] + 1):
+            for ql in range(l_lo[b], l_hi[b] + 1):
+                a = (ql - line[b]) / rl[b]
+                c = (qc0 - col[b]) / rc[b]
+                if a * a + c * c > 1.0 or ql < 0 or ql >= n_lines:
+                    continue
+                qc = _column(qc0, n_az, full_turn)
+                if qc < 0:
+                    continue
+                if look.shape[0] > 0:
+                    pc, row = colpos[qc], ql - lmin
+                    q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
+                else:
+                    q = _search(qc * n_lines + ql, skey, order)
+                if q < 0 or q >= n_core:
+                    continue
+                out_p = _grown(out_p, n + 1)
+                out_t = _grown(out_t, n + 1)
+                out_p[n], out_t[n] = q, tri[b]
+                n += 1
+    return out_p[:n].copy(), out_t[:n].copy()

@@ -779,8 +779,6 @@ EDGE_STRAY_SPACING_STEPS = 1.0
 #: Most samples (about 80 bytes each) a station's thin-geometry index holds; beyond, the
 #: edge model does without it (thin geometry between central rays is not seen).
 _STRAY_MAX_SAMPLES = 1 << 23
-#: Box pulses of that index enumerated at a time.
-_STRAY_BATCH = 1 << 21
 
 
 def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str, np.ndarray]:
@@ -948,87 +946,64 @@ class EdgeBeam(AdaptiveBeam):
         cut = (at[s], sliver["nu"][s], sliver["nv"][s], sliver["c"][s])
         return _surface_range(geo, frame, self.th, trail, pulses, self.quad_sliver, cut)
 
-    def _neighbours(self, lines, cols, t, prim, n_core) -> tuple[np.ndarray, np.ndarray]:
+    def _lookup(self, lines: np.ndarray, cols: np.ndarray) -> tuple:
+        """How the compiled loops find a pulse of the block (``lines``, ``cols``) by its
+        column and line (:func:`treesim.scan._edge_jit._search`): a dense table over the
+        block's columns and lines where it holds at most
+        :data:`_DENSE_NEIGHBOUR_CELLS`, else the sorted keys."""
+        ucols = np.unique(cols)
+        lmin = int(lines.min()) if len(lines) else 0
+        height = int(lines.max()) - lmin + 1 if len(lines) else 0
+        none = np.empty(0, np.int64)
+        if len(ucols) * height <= _DENSE_NEIGHBOUR_CELLS:
+            colpos = np.full(self.n_az, -1, dtype=np.int64)
+            colpos[ucols] = np.arange(len(ucols))
+            table = np.full((len(ucols), height), -1, dtype=np.int64)
+            table[colpos[cols], lines - lmin] = np.arange(len(lines))
+            return table, colpos, lmin, none, none
+        key = cols * self.n_lines + lines
+        order = np.argsort(key, kind="stable")
+        return np.empty((0, 0), np.int64), none, 0, key[order], order
+
+    def _grid(self) -> tuple[int, int, bool]:
+        """(columns, lines, a full turn) of the station's grid, for the compiled loops."""
+        return int(self.n_az), int(self.n_lines), bool(self.full_turn)
+
+    def _neighbours(self, lines, cols, t, prim, n_core, lookup) -> tuple[np.ndarray, np.ndarray]:
         """Core pulses whose central ray missed while a neighbour within k steps hit,
         and core hits with a neighbour hit in front of the plane of their triangle (on
         the station's side) by more than :data:`EDGE_PLANE_TOL_M`: another surface may
         hide part of the footprint. A neighbour's hit behind the plane cannot: where the
         walk finds the footprint covered by the pulse's surface, whatever lies behind
-        that surface is hidden (the other side of a branch, the ground beyond it)."""
+        that surface is hidden (the other side of a branch, the ground beyond it).
+        Compiled (:func:`treesim.scan._edge_jit.neighbours`); ``lookup``:
+        :meth:`_lookup` of the block."""
         hit = np.isfinite(t)
         x = np.zeros((len(t), 3))
         x[hit] = self.o + t[hit, None] * self._directions(lines[hit], cols[hit])
-        # misses look for a hit beside them, hits for one off their triangle's plane
-        hc, mc = np.flatnonzero(hit[:n_core]), np.flatnonzero(~hit[:n_core])
-        n_p, v0_p = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
-        # the plane's normal turned towards the station
-        n_p = n_p * np.where(np.einsum("ij,ij->i", self.o - v0_p, n_p) < 0, -1.0, 1.0)[:, None]
-        near = np.zeros(len(mc), dtype=bool)
-        lo, hi = np.full(len(mc), np.inf), np.full(len(mc), -np.inf)
-        jump_h = np.zeros(len(hc), dtype=bool)
-        around = self._around(lines, cols)
-        for qm, qh in zip(around(mc), around(hc), strict=True):
-            q_hit = (qm >= 0) & hit[np.maximum(qm, 0)]
-            near |= q_hit
-            tq = t[np.maximum(qm, 0)]
-            lo = np.where(q_hit, np.minimum(lo, tq), lo)
-            hi = np.where(q_hit, np.maximum(hi, tq), hi)
-            s = np.flatnonzero((qh >= 0) & hit[np.maximum(qh, 0)])
-            dev = np.einsum("ij,ij->i", x[qh[s]] - v0_p[s], n_p[s])
-            jump_h[s] |= dev > EDGE_PLANE_TOL_M
-        jump = np.zeros(n_core, dtype=bool)
-        jump[hc] = jump_h
+        hc = np.flatnonzero(hit[:n_core])
+        planes = (np.zeros((n_core, 3)), np.zeros((n_core, 3)))
+        planes[0][hc], planes[1][hc] = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
+        near, lo, hi, jump = _jit().neighbours(
+            lines,
+            cols,
+            n_core,
+            t,
+            x,
+            planes,
+            self.o,
+            self._grid(),
+            lookup,
+            self.k,
+            EDGE_PLANE_TOL_M,
+        )
+        mc = np.flatnonzero(near)
         # a miss whose neighbours' hits lie farther apart than the range resolution
         # may have two echoes in its footprint: the rim probes may see one of them
-        self._several = mc[near & (hi - lo > self.spec.range_resolution_m)]
+        self._several = mc[hi[mc] - lo[mc] > self.spec.range_resolution_m]
         #: the nearest and farthest hit beside each miss returned
-        self._beside = (lo[near], hi[near])
-        return mc[near], jump
-
-    def _around(self, lines: np.ndarray, cols: np.ndarray):
-        """A function of some of the block's pulses (``idx``, into ``lines``/``cols``)
-        yielding, for each step (dc, dl) within ``k`` of (0, 0), the index of the pulse
-        ``dc`` columns and ``dl`` lines from each, -1 where the block has none: from a
-        flat table over the block's columns and lines where it is small, else from
-        :meth:`_neighbour_finder`."""
-        ucols = np.unique(cols)
-        lmin = int(lines.min()) if len(lines) else 0
-        height = int(lines.max()) - lmin + 1 if len(lines) else 0
-        steps = [(c, r) for c in range(-self.k, self.k + 1) for r in range(-self.k, self.k + 1)]
-        steps.remove((0, 0))
-        if len(ucols) * height > _DENSE_NEIGHBOUR_CELLS:
-            find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
-            return lambda idx: (self._beside(find, lines[idx], cols[idx], c, r) for c, r in steps)
-        colpos = np.full(self.n_az, -1, dtype=np.int64)
-        colpos[ucols] = np.arange(len(ucols)) * height
-        table = np.full(len(ucols) * height, -1, dtype=np.int32)
-        table[colpos[cols] + (lines - lmin)] = np.arange(len(lines), dtype=np.int32)
-
-        def around(idx: np.ndarray):
-            row0 = lines[idx] - lmin
-            for dc in range(-self.k, self.k + 1):
-                qc = cols[idx] + dc
-                if self.full_turn:
-                    qc %= self.n_az
-                base = colpos[np.clip(qc, 0, self.n_az - 1)]
-                base[(qc < 0) | (qc >= self.n_az)] = -1
-                for dl in range(-self.k, self.k + 1):
-                    if dc or dl:
-                        row = row0 + dl
-                        ok = (base >= 0) & (row >= 0) & (row < height)
-                        yield np.where(ok, table[np.where(ok, base + row, 0)], -1)
-
-        return around
-
-    def _beside(self, find, cl: np.ndarray, cc: np.ndarray, dc: int, dl: int) -> np.ndarray:
-        """Index of the pulse ``dc`` columns and ``dl`` lines from each pulse (``cl``,
-        ``cc``) among the block's, -1 where none is cast (``find``:
-        :meth:`_neighbour_finder`)."""
-        qc = (cc + dc) % self.n_az if self.full_turn else cc + dc
-        col_ok = np.ones(len(cc), bool) if self.full_turn else (qc >= 0) & (qc < self.n_az)
-        ql = cl + dl
-        ok = col_ok & (ql >= 0) & (ql < self.n_lines)
-        return np.maximum(find(np.where(ok, qc, 0), ql, ok), -1)
+        self._beside = (lo[mc], hi[mc])
+        return mc, jump
 
     def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing
@@ -1171,15 +1146,16 @@ class EdgeBeam(AdaptiveBeam):
             self._stray["far"] = np.linalg.norm(tri, axis=2).max(axis=1)
         return self._stray
 
-    def _stray_pairs(self, lines: np.ndarray, cols: np.ndarray, n_core: int):
+    def _stray_pairs(self, lines: np.ndarray, cols: np.ndarray, n_core: int, lookup):
         """(pulse, triangle) pairs: the block's core pulses (the first ``n_core`` of
-        ``lines``, ``cols``) whose footprint a thin triangle may reach
-        (:meth:`_stray_boxes`); a pair may repeat."""
+        ``lines``, ``cols``; ``lookup``: :meth:`_lookup` of the block) whose footprint a
+        thin triangle may reach (:meth:`_stray_boxes`); a pair may repeat. Compiled
+        (:func:`treesim.scan._edge_jit.box_pulses`)."""
         box = self._stray_boxes()
         none = np.empty(0, np.int64)
         if not n_core or not len(box["tri"]):
             return none, none
-        n_az, lines, cols = self.n_az, lines[:n_core], cols[:n_core]
+        n_az, cols = self.n_az, cols[:n_core]
         want = np.zeros(n_az + 1, dtype=bool)
         want[cols] = True
         cum = np.concatenate([[0], np.cumsum(want[:n_az])])
@@ -1191,38 +1167,9 @@ class EdgeBeam(AdaptiveBeam):
         else:
             lo, hi = np.clip(c_lo, 0, n_az - 1), np.clip(c_hi, 0, n_az - 1)
             any_ = (cum[hi + 1] - cum[lo] > 0) & (c_hi >= 0) & (c_lo < n_az)
-        sel = np.flatnonzero(any_)
-        find = self._neighbour_finder(lines, cols, cols * self.n_lines + lines)
-        # a few million box pulses at a time (bounded memory)
-        n = np.maximum(box["l_hi"][sel] - box["l_lo"][sel] + 1, 0) * np.maximum(
-            c_hi[sel] - c_lo[sel] + 1, 0
-        )
-        cuts = np.searchsorted(np.cumsum(n), np.arange(_STRAY_BATCH, int(n.sum()), _STRAY_BATCH))
-        out = [self._box_pulses(box, part, find) for part in np.split(sel, cuts)]
-        return tuple(np.concatenate([x[i] for x in out]) for i in (0, 1))
-
-    def _box_pulses(self, box: dict, sel: np.ndarray, find) -> tuple[np.ndarray, np.ndarray]:
-        """(pulse, triangle) pairs of the boxes ``sel`` of :meth:`_stray_boxes`: their
-        pulses within the sample's reach that ``find`` (:meth:`_neighbour_finder`)
-        knows."""
-        n_az, c_lo = self.n_az, box["c_lo"]
-        nl = np.maximum(box["l_hi"][sel] - box["l_lo"][sel] + 1, 0)
-        nc = np.maximum(box["c_hi"][sel] - c_lo[sel] + 1, 0)
-        n = nl * nc
-        b = np.repeat(np.arange(len(sel)), n)
-        q = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        ql = box["l_lo"][sel][b] + q % nl[b]
-        qc = c_lo[sel][b] + q // nl[b]
-        sb = sel[b]
-        # the box's corners lie outside the sample's reach (an ellipse in lines, columns)
-        near = ((ql - box["line"][sb]) / box["rl"][sb]) ** 2 + (
-            (qc - box["col"][sb]) / box["rc"][sb]
-        ) ** 2 <= 1.0
-        qc = qc % n_az if self.full_turn else qc
-        ok = near & (ql >= 0) & (ql < self.n_lines) & (qc >= 0) & (qc < n_az)
-        at = find(np.where(ok, qc, 0), np.where(ok, ql, 0), ok)
-        found = at >= 0
-        return at[found], box["tri"][sb[found]]
+        ints = tuple(box[k] for k in ("l_lo", "l_hi", "c_lo", "c_hi", "tri"))
+        floats = tuple(np.asarray(box[k], np.float64) for k in ("line", "col", "rl", "rc"))
+        return _jit().box_pulses((ints, floats), np.flatnonzero(any_), n_core, self._grid(), lookup)
 
     def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
         """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``)
@@ -1416,9 +1363,10 @@ class EdgeBeam(AdaptiveBeam):
         self.reasons["range_limit"] += int(near_limit.sum())
         fall = [hit[near_limit]]
         hit = hit[~near_limit]
-        miss, jump = self._neighbours(lines, cols, t, prim, n_core)
+        lookup = self._lookup(lines, cols)
+        miss, jump = self._neighbours(lines, cols, t, prim, n_core, lookup)
         d_hit = self._directions(lines[hit], cols[hit])
-        pairs = self._stray_pairs(lines, cols, n_core)
+        pairs = self._stray_pairs(lines, cols, n_core, lookup)
         front = self._thin_in_front(pairs, hit, d_hit, tc[hit])
         self.reasons["thin geometry"] += int(front.sum())
         fall.append(hit[front])
