@@ -30,11 +30,8 @@ def _dot(a0, a1, a2, b, p):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, inline="always")
 def _sign(x):  # pragma: no cover - compiled
-    if x > 0.0:
-        return 1.0
-    if x < 0.0:
-        return -1.0
-    return x  # 0.0, -0.0 or nan, as np.sign
+    # 0.0, -0.0 or nan, as np.sign; one return (see _search)
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -100,19 +97,19 @@ def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True, inline="always")
 def _grown(a, n):  # pragma: no cover - compiled
     """``a`` with room for at least ``n`` items (twice over), its items kept."""
-    if n <= len(a):
-        return a
-    b = np.empty(max(n, 2 * len(a)), dtype=a.dtype)
-    b[: len(a)] = a
-    return b
+    if n > len(a):
+        b = np.empty(max(n, 2 * len(a)), dtype=a.dtype)
+        b[: len(a)] = a
+        a = b
+    return a
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma: no cover
     """The next ring of a walk from the ``n_cand`` triangles reached (``cand_t``, each
     with the edge it was entered by, ``cand_e``): each triangle once (the first to reach
-    it), none of the ``n_seen`` seen before, in the order of their indices. Returns
-    (ring_t, ring_e, its length), the arrays grown where needed."""
+    it), none of the ``n_seen`` seen before, in the order of their indices, into
+    ``ring_t``, ``ring_e`` (room for ``n_cand``). Returns its length."""
     # the candidates sorted by triangle, stably (an insertion sort: they are few)
     for i in range(1, n_cand):
         tc, ec = cand_t[i], cand_e[i]
@@ -133,11 +130,9 @@ def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma:
                 break
         if known:
             continue
-        ring_t = _grown(ring_t, n_ring + 1)
-        ring_e = _grown(ring_e, n_ring + 1)
         ring_t[n_ring], ring_e[n_ring] = tc, cand_e[i]
         n_ring += 1
-    return ring_t, ring_e, n_ring
+    return n_ring
 
 
 @njit(cache=True, nogil=True)
@@ -162,7 +157,6 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
     unresolved = np.zeros(n, dtype=np.bool_)
     out = np.empty((5, 3))
     m = np.empty((3, 3))
-    w = np.empty((1, 3))
     au = np.empty((3, 6))
     ring_t = np.empty(64, np.int64)
     ring_e = np.empty(64, np.int64)
@@ -180,13 +174,19 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
             if step == steps:
                 unresolved[p] = True
                 break
+            # room for the ring's rows, once (growing arrays inside the loop below made
+            # the compiled walk several times slower)
+            t_p, t_t = _grown(t_p, n_t + n_ring), _grown(t_t, n_t + n_ring)
+            t_f = _grown(t_f, 9 * (n_t + n_ring))
+            l_p, l_t = _grown(l_p, n_l + 3 * n_ring), _grown(l_t, n_l + 3 * n_ring)
+            l_f = _grown(l_f, 3 * (n_l + 3 * n_ring))
+            cand_t, cand_e = _grown(cand_t, 3 * n_ring), _grown(cand_e, 3 * n_ring)
+            ring_t, ring_e = _grown(ring_t, 3 * n_ring), _grown(ring_e, 3 * n_ring)
+            seen = _grown(seen, n_seen + 3 * n_ring)
             n_cand = 0
             for r in range(n_ring):
                 t, e_in = ring_t[r], ring_e[r]
                 _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m, au)
-                t_p = _grown(t_p, n_t + 1)
-                t_t = _grown(t_t, n_t + 1)
-                t_f = _grown(t_f, 9 * (n_t + 1))
                 t_p[n_t], t_t[n_t] = p, t
                 for j in range(3):
                     t_f[9 * n_t + j] = out[0, j]
@@ -202,31 +202,22 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
                     if nb >= 0:
                         ia, ib = faces[t, j], faces[t, (j + 1) % 3]
                         opp = faces[nb, 0] + faces[nb, 1] + faces[nb, 2] - ia - ib
-                        for i in range(3):
-                            w[0, i] = v[opp, i] - o[i]
-                        side = _sign(_dot(m[j, 0], m[j, 1], m[j, 2], w, 0))
+                        r0, r1, r2 = v[opp, 0] - o[0], v[opp, 1] - o[1], v[opp, 2] - o[2]
+                        side = _sign((m[j, 0] * r0 + m[j, 2] * r2) + m[j, 1] * r1)
                         cont = side == -out[4, j]
                         for k in range(2, -1, -1):  # the first corner that is opp
                             if faces[nb, k] == opp:
                                 k_opp = k
                     if not cont:
-                        l_p = _grown(l_p, n_l + 1)
-                        l_t = _grown(l_t, n_l + 1)
-                        l_f = _grown(l_f, 3 * (n_l + 1))
                         l_p[n_l], l_t[n_l] = p, t
                         l_f[3 * n_l], l_f[3 * n_l + 1] = out[0, j], out[1, j]
                         l_f[3 * n_l + 2] = out[2, j]
                         n_l += 1
                     else:
-                        cand_t = _grown(cand_t, n_cand + 1)
-                        cand_e = _grown(cand_e, n_cand + 1)
                         cand_t[n_cand], cand_e[n_cand] = nb, (k_opp + 1) % 3
                         n_cand += 1
-            ring_t, ring_e, n_ring = _next_ring(
-                cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e
-            )
+            n_ring = _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e)
             for r in range(n_ring):
-                seen = _grown(seen, n_seen + 1)
                 seen[n_seen] = ring_t[r]
                 n_seen += 1
     lines_f = l_f[: 3 * n_l].reshape(n_l, 3)
