@@ -437,3 +437,41 @@ def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
                 out_p[n], out_t[n] = q, tri[b]
                 n += 1
     return out_p[:n].copy(), out_t[:n].copy()
+
+
+@njit(cache=True, nogil=True)
+def basis(d):  # pragma: no cover - compiled
+    """:func:`treesim.scan.beam.beam_basis` of directions ``d`` (n, 3), numpy's
+    operations in numpy's order: (e1, e2)."""
+    n = len(d)
+    e1 = np.empty((n, 3))
+    e2 = np.empty((n, 3))
+    for p in range(n):
+        x, y, z = d[p, 0], d[p, 1], d[p, 2]
+        if abs(z) < 0.99:  # up = (0, 0, 1)
+            a0, a1, a2 = 0.0 * z - 1.0 * y, 1.0 * x - 0.0 * z, 0.0 * y - 0.0 * x
+        else:  # up = (1, 0, 0)
+            a0, a1, a2 = 0.0 * z - 0.0 * y, 0.0 * x - 1.0 * z, 1.0 * y - 0.0 * x
+        s = math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+        a0, a1, a2 = a0 / s, a1 / s, a2 / s
+        e1[p, 0], e1[p, 1], e1[p, 2] = a0, a1, a2
+        e2[p, 0] = y * a2 - z * a1
+        e2[p, 1] = z * a0 - x * a2
+        e2[p, 2] = x * a1 - y * a0
+    return e1, e2
+
+
+@njit(cache=True, nogil=True)
+def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compiled
+    """Whether triangle ``tri[i]`` overlaps the footprint of pulse ``rep[i]`` (frames
+    (d, e1, e2)), as seen: an edge within the footprint, or the axis inside it."""
+    n = len(tri)
+    ok = np.empty(n, dtype=np.bool_)
+    out = np.empty((5, 3))
+    m = np.empty((3, 3))
+    au = np.empty((3, 6))
+    for i in range(n):
+        _lines_of(v, faces, o, th, d, e1, e2, rep[i], tri[i], out, m, au)
+        near = out[3, 0] < 1.0 or out[3, 1] < 1.0 or out[3, 2] < 1.0
+        ok[i] = near or (out[2, 0] >= 0.0 and out[2, 1] >= 0.0 and out[2, 2] >= 0.0)
+    return ok

@@ -910,6 +910,7 @@ class EdgeBeam(AdaptiveBeam):
         }
         self.reasons["thin geometry"] = 0
         self._stray: dict[str, np.ndarray] | None = None
+        self._facing_all: np.ndarray | None = None
         self.station = plan.station
 
     def _ray(self, frame: tuple, xy: np.ndarray) -> np.ndarray:
@@ -1019,7 +1020,7 @@ class EdgeBeam(AdaptiveBeam):
         a neighbour on another surface, left to the sub-rays unless a silhouette edge
         inside their footprint accounts for it."""
         m = len(d)
-        frame = (d, *beam_basis(d))
+        frame = self._frame(d)
         g = _edge_lines(self.geo[0], self.geo[1], self.o, self.th, frame, prim)
         inside = (g["c"] >= 1.0).all(axis=1)
         cut = np.flatnonzero(~inside)
@@ -1082,7 +1083,7 @@ class EdgeBeam(AdaptiveBeam):
         probes meet: (range, energy, triangle) per pulse (energy 0: none), the indices
         of those left to the sub-rays, and the rays cast."""
         m, k = len(d), len(self.rim)
-        frame = (d, *beam_basis(d))
+        frame = self._frame(d)
         tp, pp = self._cast(_point_rays(frame, self.rim, self.th).reshape(-1, 3))
         tp, pp = tp.reshape(m, k), pp.reshape(m, k)
         fin = np.isfinite(tp)
@@ -1171,16 +1172,21 @@ class EdgeBeam(AdaptiveBeam):
         floats = tuple(np.asarray(box[k], np.float64) for k in ("line", "col", "rl", "rc"))
         return _jit().box_pulses((ints, floats), np.flatnonzero(any_), n_core, self._grid(), lookup)
 
+    def _frame(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pulse directions ``d`` and their :func:`beam_basis` (compiled, the same
+        numbers): (d, e1, e2)."""
+        d = np.ascontiguousarray(d, dtype=np.float64)
+        return (d, *_jit().basis(d))
+
     def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
         """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``)
-        whose triangle overlaps the pulse's footprint (as seen), each once."""
+        whose triangle overlaps the pulse's footprint (as seen), each once (compiled:
+        :func:`treesim.scan._edge_jit.overlaps`)."""
         n_t = len(self.geo[1])
         pair = np.unique(rep * n_t + tri)
         rep, tri = pair // n_t, pair % n_t
-        frame = (d, *beam_basis(d))
         v, faces, _ = self.geo
-        g = _edge_lines(v, faces, self.o, self.th, tuple(x[rep] for x in frame), tri)
-        over = (g["dist"] < 1.0).any(axis=1) | (g["c"] >= 0.0).all(axis=1)
+        over = _jit().overlaps(v, faces, self.o, self.th, *self._frame(d), rep, tri)
         return rep[over], tri[over]
 
     def _thin_in_front(self, pairs, hit: np.ndarray, d: np.ndarray, t: np.ndarray):
@@ -1233,11 +1239,13 @@ class EdgeBeam(AdaptiveBeam):
 
     def _facing(self, tri: np.ndarray) -> np.ndarray:
         """Whether triangles ``tri`` turn their front (their normal's side) to the
-        station."""
-        v, faces, _ = self.geo
-        a = v[faces[tri]] - self.o
-        nrm = np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0])
-        return np.einsum("ij,ij->i", nrm, a[:, 0]) < 0
+        station (worked out for every triangle once per station, a byte each)."""
+        if self._facing_all is None:
+            v, faces, _ = self.geo
+            a0 = v[faces[:, 0]] - self.o
+            nrm = np.cross(v[faces[:, 1]] - self.o - a0, v[faces[:, 2]] - self.o - a0)
+            self._facing_all = np.einsum("ij,ij->i", nrm, a0) < 0
+        return self._facing_all[tri]
 
     def _unwalked(self, idx, start, trail, thin, m: int, d: np.ndarray | None = None):
         """Which walks (pulses ``idx`` of ``m``, from triangles ``start``, their
@@ -1280,7 +1288,7 @@ class EdgeBeam(AdaptiveBeam):
         if not len(rep):
             return (r, e, p), np.empty(0, np.int64)
         rep, tri = self._overlapping(d, rep, tri)
-        frame = (d, *beam_basis(d))
+        frame = self._frame(d)
         v, faces, _ = self.geo
         a = v[faces[tri]] - self.o
         near = np.linalg.norm(a.mean(axis=1), axis=1)
