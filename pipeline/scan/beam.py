@@ -25,6 +25,8 @@ Returns of a block of pulses are records (dicts of per-return arrays: ``pulse``,
 from __future__ import annotations
 
 import math
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -534,6 +536,14 @@ EDGE_PLANE_TOL_M = 2e-3
 #: Rays cast beyond a silhouette line: at the far part's centroid and along the line,
 #: in shares of the far part's half-chord there.
 EDGE_FAR_PROBES = (0.0, 0.6, -0.6)
+#: Blocks of columns the edge model works on at a time (threads; each holds its block's
+#: arrays): two keep a 2-core machine busy, one block's compiled walks and numpy beside
+#: the other's casts (Open3D's own threads).
+EDGE_THREADS = 2
+#: A station's pulses go in at least this many blocks a thread (blocks no larger than
+#: the scan's chunks, ``chunk_rays``): a small scan still keeps every thread busy, and
+#: the threads finish together (each block casts a halo of ``k`` columns again).
+EDGE_BLOCKS_PER_THREAD = 2
 #: Largest neighbourhood (steps each way) the edge model looks in for hits beside a miss.
 EDGE_MAX_NEIGHBOUR_STEPS = 8
 
@@ -901,13 +911,6 @@ class EdgeBeam(AdaptiveBeam):
             "another surface beside": 0,
             "range_limit": 0,
         }
-        #: pulses resolved by the walk (hits, misses) and rays cast beyond edges / rims
-        self.edge_stats = {
-            "walked hits": 0,
-            "rim-probed misses": 0,
-            "probe rays": 0,
-            "thin geometry found": 0,
-        }
         self.reasons["thin geometry"] = 0
         self._stray: dict[str, np.ndarray] | None = None
         self._facing_all: np.ndarray | None = None
@@ -970,9 +973,10 @@ class EdgeBeam(AdaptiveBeam):
         """(columns, lines, a full turn) of the station's grid, for the compiled loops."""
         return int(self.n_az), int(self.n_lines), bool(self.full_turn)
 
-    def _neighbours(self, lines, cols, t, prim, n_core, lookup) -> tuple[np.ndarray, np.ndarray]:
-        """Core pulses whose central ray missed while a neighbour within k steps hit,
-        and core hits with a neighbour hit in front of the plane of their triangle (on
+    def _neighbours(self, lines, cols, t, prim, n_core, lookup) -> tuple:
+        """Core pulses whose central ray missed while a neighbour within k steps hit
+        (with the nearest and farthest such hit of each: ``beside``, (lo, hi)), and
+        core hits with a neighbour hit in front of the plane of their triangle (on
         the station's side) by more than :data:`EDGE_PLANE_TOL_M`: another surface may
         hide part of the footprint. A neighbour's hit behind the plane cannot: where the
         walk finds the footprint covered by the pulse's surface, whatever lies behind
@@ -999,12 +1003,7 @@ class EdgeBeam(AdaptiveBeam):
             EDGE_PLANE_TOL_M,
         )
         mc = np.flatnonzero(near)
-        # a miss whose neighbours' hits lie farther apart than the range resolution
-        # may have two echoes in its footprint: the rim probes may see one of them
-        self._several = mc[hi[mc] - lo[mc] > self.spec.range_resolution_m]
-        #: the nearest and farthest hit beside each miss returned
-        self._beside = (lo[mc], hi[mc])
-        return mc, jump
+        return mc, jump, (lo[mc], hi[mc])
 
     def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing
@@ -1016,9 +1015,10 @@ class EdgeBeam(AdaptiveBeam):
     def _hits(self, d: np.ndarray, t: np.ndarray, prim: np.ndarray, jump: np.ndarray):
         """Parts (ranges, energies, triangles; (m, 3): the hit surface and what lies
         beyond up to two silhouette lines) of pulses whose central ray hit, and the
-        indices of those left to the sub-rays; plus the rays cast. ``jump``: pulses with
-        a neighbour on another surface, left to the sub-rays unless a silhouette edge
-        inside their footprint accounts for it."""
+        indices of those left to the sub-rays; plus the rays cast and how many were left
+        for another surface beside. ``jump``: pulses with a neighbour on another
+        surface, left to the sub-rays unless a silhouette edge inside their footprint
+        accounts for it."""
         m = len(d)
         frame = self._frame(d)
         g = _edge_lines(self.geo[0], self.geo[1], self.o, self.th, frame, prim)
@@ -1029,7 +1029,7 @@ class EdgeBeam(AdaptiveBeam):
         cov = _coverage(len(cut), lines)
         alone = jump[cut]
         fb = unres | ~cov["ok"] | alone
-        self.reasons["another surface beside"] += int(alone.sum() + (jump & inside).sum())
+        n_beside = int(alone.sum() + (jump & inside).sum())
         tt = np.full((m, 3), np.inf)
         ww = np.zeros((m, 3))
         pp = np.full((m, 3), -1, dtype=np.int64)
@@ -1052,9 +1052,8 @@ class EdgeBeam(AdaptiveBeam):
         rows = cut[lp[li]]
         ww[rows, 1 + rank] = cov["far_energy"][li] * share
         tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
-        self.edge_stats["walked hits"] += len(gi)
         fall = np.concatenate([cut[fb], np.flatnonzero(jump & inside)])
-        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES)
+        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES), n_beside
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
@@ -1116,7 +1115,6 @@ class EdgeBeam(AdaptiveBeam):
         gi = np.flatnonzero(~fb)
         r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
         e[idx[gi]] = cov["energy"][gi]
-        self.edge_stats["rim-probed misses"] += m
         return (r, e, p), np.concatenate([np.flatnonzero(several), idx[fb]]), m * k
 
     def _stray_boxes(self) -> dict[str, np.ndarray]:
@@ -1309,10 +1307,9 @@ class EdgeBeam(AdaptiveBeam):
         gi = np.flatnonzero(~fb)
         r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
         e[idx[gi]] = cov["energy"][gi]
-        self.edge_stats["thin geometry found"] += len(gi)
         return (r, e, p), idx[fb]
 
-    def _miss_parts(self, lines, cols, t, miss, n_core, pairs):
+    def _miss_parts(self, lines, cols, t, miss, n_core, pairs, beside):
         """Returns of the block's core pulses whose central ray missed: the rim-probed
         slivers of those beside a hit (:meth:`_misses`), then thin geometry
         (:meth:`_strays`) in the footprints of the rest; the records, the pulses left to
@@ -1325,10 +1322,12 @@ class EdgeBeam(AdaptiveBeam):
         d_miss = self._directions(lines[miss], cols[miss])
         (r, e, p), fb, n_probe = self._misses(d_miss, (at[s], pairs[1][s]))
         # ... or whose sliver lies on another surface than their neighbours' hits
-        lo, hi = self._beside
+        lo, hi = beside
         res = self.spec.range_resolution_m
         other = np.isfinite(r) & (e > 0) & ((r < lo - res) | (r > hi + res))
-        fb = np.union1d(fb, np.flatnonzero(np.isin(miss, self._several) | other))
+        # a miss whose neighbours' hits lie farther apart than the range resolution
+        # may have two echoes in its footprint: the rim probes may see one of them
+        fb = np.union1d(fb, np.flatnonzero((hi - lo > res) | other))
         e[fb] = 0.0
         seen = np.zeros(n_core, dtype=bool)
         seen[miss[fb]] = True
@@ -1358,9 +1357,10 @@ class EdgeBeam(AdaptiveBeam):
             )
         return parts, [miss[fb], empty[fb2]], n_probe
 
-    def _records(self, lines, cols, t, prim, n_core, offsets, weights, step):
-        """The return records of one block's core pulses (central rays cast) and the
-        rays cast for them beyond the central ones."""
+    def _resolved(self, lines, cols, t, prim, n_core):
+        """What the edge model settles of one block's core pulses (central rays cast):
+        the return records, the pulses left to the sub-rays, the rays cast beyond the
+        central ones and how many pulses were left to the sub-rays for each reason."""
         spec = self.spec
         tc, pc = t[:n_core], prim[:n_core]
         hit = np.flatnonzero(in_range(spec, tc) & (pc >= 0))
@@ -1368,19 +1368,16 @@ class EdgeBeam(AdaptiveBeam):
         near_limit = (np.abs(tc[hit] - spec.max_range_m) < lim * spec.max_range_m) | (
             np.abs(tc[hit] - spec.min_range_m) < lim * max(spec.min_range_m, 1.0)
         )
-        self.reasons["range_limit"] += int(near_limit.sum())
         fall = [hit[near_limit]]
         hit = hit[~near_limit]
         lookup = self._lookup(lines, cols)
-        miss, jump = self._neighbours(lines, cols, t, prim, n_core, lookup)
+        miss, jump, beside = self._neighbours(lines, cols, t, prim, n_core, lookup)
         d_hit = self._directions(lines[hit], cols[hit])
         pairs = self._stray_pairs(lines, cols, n_core, lookup)
         front = self._thin_in_front(pairs, hit, d_hit, tc[hit])
-        self.reasons["thin geometry"] += int(front.sum())
         fall.append(hit[front])
         hit, d_hit = hit[~front], d_hit[~front]
-        beside0 = self.reasons["another surface beside"]
-        (tt, ww, pp), fb, n_rays = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
+        (tt, ww, pp), fb, n_rays, n_beside = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
         fall.append(hit[fb])
         keep = (ww >= EDGE_MIN_ENERGY) & in_range(spec, tt) & (pp >= 0)
         keep[fb] = False
@@ -1397,37 +1394,66 @@ class EdgeBeam(AdaptiveBeam):
                 "number_of_returns": g["number_of_returns"][sel],
             }
         ]
-        miss_parts, miss_fall, n_probe = self._miss_parts(lines, cols, t, miss, n_core, pairs)
-        n_rays += n_probe
-        parts += miss_parts
-        fall += miss_fall
-        cand = np.sort(np.concatenate(fall))
-        self.reasons["thin geometry"] += len(miss_fall[1])
-        self.reasons["corner or several surfaces"] += (
-            len(cand)
-            - int(near_limit.sum())
-            - (self.reasons["another surface beside"] - beside0)
-            - len(miss_fall[1])
-            - int(front.sum())
+        miss_parts, miss_fall, n_probe = self._miss_parts(
+            lines, cols, t, miss, n_core, pairs, beside
         )
-        self.edge_stats["probe rays"] += n_rays
-        s = len(weights)
+        cand = np.sort(np.concatenate(fall + miss_fall))
+        n_thin = int(front.sum()) + len(miss_fall[1])
+        n_limit = int(near_limit.sum())
+        tally = {
+            "corner or several surfaces": len(cand) - n_limit - n_beside - n_thin,
+            "another surface beside": n_beside,
+            "range_limit": n_limit,
+            "thin geometry": n_thin,
+        }
+        return parts + miss_parts, cand, n_rays + n_probe, tally
+
+    def _block(self, block: tuple, offsets: np.ndarray, weights: np.ndarray, step: int):
+        """One block of columns (:meth:`_column_blocks`): its central rays cast, what the
+        edge model settles (:meth:`_resolved`), the rest given the sub-rays. Returns
+        what :meth:`blocks` yields, and the block's count of pulses given sub-rays by
+        reason."""
+        lines, cols, all_l, all_c = block
+        n_core = len(lines)
+        t, prim = self._central(all_l, all_c)
+        parts, cand, n_rays, tally = self._resolved(all_l, all_c, t, prim, n_core)
+        spec, s = self.spec, len(weights)
         for a in range(0, len(cand), step):
             cp = cand[a : a + step]
-            sd = subray_directions(self._directions(lines[cp], cols[cp]), offsets).reshape(-1, 3)
+            d = self._directions(all_l[cp], all_c[cp])
+            sd = subray_directions(d, offsets).reshape(-1, 3)
             ts, ps = self.caster.cast(self.o, sd)
             n_rays += len(sd)
             rec = beam_returns(spec, ts.reshape(-1, s), ps.reshape(-1, s), sd, weights)
             rec["pulse"] = cp[rec["pulse"]]
             parts.append(rec)
-        return _merge_records(parts), n_rays
+        rec, lu, cu, d_used = self._renumbered(_merge_records(parts), lines, cols)
+        return (rec, lu, cu, d_used, n_core, n_rays + len(all_l)), tally
 
     def blocks(self, per_chunk: int, offsets: np.ndarray, weights: np.ndarray):
-        """Yield (records, lines, cols, directions, pulses, rays) per block of columns."""
+        """Yield (records, lines, cols, directions, pulses, rays) per block of columns,
+        in order; :data:`EDGE_THREADS` blocks are worked on at a time (the compiled
+        loops and numpy's larger steps let go of the interpreter's lock: one block's
+        walks run beside the other's casts), so that up to that many blocks' arrays are
+        held at once. The answers do not depend on it."""
         step = max(1, per_chunk // self.spec.rays_per_pulse)
-        for lines, cols, all_l, all_c in self._column_blocks(per_chunk):
-            n_core = len(lines)
-            t, prim = self._central(all_l, all_c)
-            rec, n_rays = self._records(all_l, all_c, t, prim, n_core, offsets, weights, step)
-            rec, lu, cu, d_used = self._renumbered(rec, lines, cols)
-            yield rec, lu, cu, d_used, n_core, n_rays + len(all_l)
+        # what every block reads, made before they start
+        _jit()
+        self._stray_boxes()
+        self._facing(np.empty(0, dtype=np.int64))
+        with ThreadPoolExecutor(max(1, EDGE_THREADS)) as pool:
+            pending: deque = deque()
+            size = -(-self.grid.n_pulses // (EDGE_BLOCKS_PER_THREAD * EDGE_THREADS))
+            for block in self._column_blocks(max(1, min(per_chunk, size))):
+                pending.append(pool.submit(self._block, block, offsets, weights, step))
+                if len(pending) >= EDGE_THREADS:
+                    yield self._counted(pending.popleft().result())
+            while pending:
+                yield self._counted(pending.popleft().result())
+
+    def _counted(self, done: tuple) -> tuple:
+        """A block's answer (:meth:`_block`), its counts added to :attr:`reasons`."""
+        out, tally = done
+        for k, n in tally.items():
+            self.reasons[k] += n
+        return out

@@ -120,6 +120,24 @@ def test_on_a_coffee_window_the_edge_model_is_nearer_the_footprint_than_the_brut
         assert edge[k] <= full[k], (k, edge[k], full[k])
 
 
+def test_the_edge_scan_is_the_same_in_any_blocks_on_any_threads(monkeypatch):
+    # a pulse's answer depends on its neighbours' central rays (each block casts a halo
+    # of columns for them) and on the station's thin-geometry index: never on which
+    # block holds it or which thread works on it
+    beam_module = importlib.import_module("treesim.scan.beam")  # the facade's scan()
+    scene, st, w = coffee_window()
+    w = w.with_(beam_sampling="edge")
+    one = scan(scene, [st], w).cloud
+    assert len(one) > 5000 and (one.fields["number_of_returns"] == 2).any()
+    for threads, per_thread, chunk in ((1, 1, 1 << 19), (2, 7, 1 << 19), (3, 2, 3000)):
+        monkeypatch.setattr(beam_module, "EDGE_THREADS", threads)
+        monkeypatch.setattr(beam_module, "EDGE_BLOCKS_PER_THREAD", per_thread)
+        other = scan(scene, [st], w, chunk_rays=chunk).cloud
+        assert np.array_equal(other.points, one.points), (threads, per_thread, chunk)
+        for k, v in one.fields.items():
+            assert np.array_equal(v, other.fields[k]), (k, threads, per_thread, chunk)
+
+
 def bar_scene(y0: float, y1: float) -> Scene:
     """A bar 1 mm deep at x = 8 m over y0 <= y <= y1 (m), 2 m tall: thinner than the
     pulse spacing (0.01° is 1.4 mm there), so that it can stand between central rays."""
