@@ -22,70 +22,87 @@ from numba import njit
 __all__ = ["edge_lines", "walk"]
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _dot(a0, a1, a2, b, p):  # pragma: no cover - compiled
     # in the order numpy's einsum sums three products on x86-64 (two lanes: 0 and 2, 1)
     return (a0 * b[p, 0] + a2 * b[p, 2]) + a1 * b[p, 1]
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _sign(x):  # pragma: no cover - compiled
     # 0.0, -0.0 or nan, as np.sign; one return (see _search)
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m, au):  # pragma: no cover - compiled
-    """Triangle ``t``'s edge lines along pulse ``p`` of (d, e1, e2, p): ``out`` (5, 3) rows nu, nv,
-    c, dist, sg; ``m`` (3, 3): the normal of each edge's plane through the station;
-    ``au`` (3, 6): scratch (the corners from the station, their footprint coordinates
-    and whether each lies in front)."""
-    for k in range(3):
-        for i in range(3):
-            au[k, i] = v[faces[t, k], i] - o[i]
-        ad = _dot(au[k, 0], au[k, 1], au[k, 2], d, p)
-        nrm = math.sqrt((au[k, 0] * au[k, 0] + au[k, 1] * au[k, 1]) + au[k, 2] * au[k, 2])
-        front = ad > 1e-12 * nrm
-        safe = ad if front else 1.0
-        au[k, 3] = _dot(au[k, 0], au[k, 1], au[k, 2], e1, p) / safe / th
-        au[k, 4] = _dot(au[k, 0], au[k, 1], au[k, 2], e2, p) / safe / th
-        au[k, 5] = 1.0 if front else 0.0
-    for j in range(3):
-        j1, j2 = (j + 1) % 3, (j + 2) % 3
-        m0 = au[j, 1] * au[j1, 2] - au[j, 2] * au[j1, 1]
-        m1 = au[j, 2] * au[j1, 0] - au[j, 0] * au[j1, 2]
-        m2 = au[j, 0] * au[j1, 1] - au[j, 1] * au[j1, 0]
-        sg = _sign(_dot(m0, m1, m2, au, j2))
-        la = _dot(m0, m1, m2, e1, p) * th
-        lb = _dot(m0, m1, m2, e2, p) * th
-        ln = max(math.sqrt(la * la + lb * lb), 1e-300)
-        c = sg * _dot(m0, m1, m2, d, p) / ln
-        pu, pv = au[j, 3], au[j, 4]
-        du, dv = au[j1, 3] - pu, au[j1, 4] - pv
-        s = -(pu * du + pv * dv) / max(du * du + dv * dv, 1e-300)
-        s = min(max(s, 0.0), 1.0)
-        x, y = pu + s * du, pv + s * dv
-        seg = math.sqrt(x * x + y * y)
-        out[0, j] = sg * la / ln
-        out[1, j] = sg * lb / ln
-        out[2, j] = c
-        out[3, j] = seg if (au[j, 5] > 0.0 and au[j1, 5] > 0.0) else abs(c)
-        out[4, j] = sg
-        m[j, 0], m[j, 1], m[j, 2] = m0, m1, m2
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _corner(v, faces, o, th, d, e1, e2, p, t, k):  # pragma: no cover - compiled
+    """Corner ``k`` of triangle ``t`` from the station (x, y, z), on pulse ``p``'s
+    footprint plane (u, v in footprint radii) and whether it lies in front (1.0, 0.0)."""
+    f = faces[t, k]
+    a0, a1, a2 = v[f, 0] - o[0], v[f, 1] - o[1], v[f, 2] - o[2]
+    ad = _dot(a0, a1, a2, d, p)
+    front = ad > 1e-12 * math.sqrt((a0 * a0 + a1 * a1) + a2 * a2)
+    safe = ad if front else 1.0
+    pu = _dot(a0, a1, a2, e1, p) / safe / th
+    pv = _dot(a0, a1, a2, e2, p) / safe / th
+    return a0, a1, a2, pu, pv, 1.0 if front else 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _edge(ca, cb, cc, th, d, e1, e2, p):  # pragma: no cover - compiled
+    """The edge from corner ``ca`` to ``cb`` (:func:`_corner`; ``cc`` the third) on pulse
+    ``p``'s footprint plane: (nu, nv, c, dist, sg, and the normal m0, m1, m2 of the
+    plane through the station and the edge)."""
+    m0 = ca[1] * cb[2] - ca[2] * cb[1]
+    m1 = ca[2] * cb[0] - ca[0] * cb[2]
+    m2 = ca[0] * cb[1] - ca[1] * cb[0]
+    sg = _sign((m0 * cc[0] + m2 * cc[2]) + m1 * cc[1])
+    la = _dot(m0, m1, m2, e1, p) * th
+    lb = _dot(m0, m1, m2, e2, p) * th
+    ln = max(math.sqrt(la * la + lb * lb), 1e-300)
+    c = sg * _dot(m0, m1, m2, d, p) / ln
+    pu, pv = ca[3], ca[4]
+    du, dv = cb[3] - pu, cb[4] - pv
+    s = -(pu * du + pv * dv) / max(du * du + dv * dv, 1e-300)
+    s = min(max(s, 0.0), 1.0)
+    x, y = pu + s * du, pv + s * dv
+    dist = math.sqrt(x * x + y * y) if (ca[5] > 0.0 and cb[5] > 0.0) else abs(c)
+    return sg * la / ln, sg * lb / ln, c, dist, sg, m0, m1, m2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - compiled
+    """Triangle ``t``'s edge lines along pulse ``p`` of (d, e1, e2): ``out`` (5, 3) rows
+    nu, nv, c, dist, sg; ``m`` (3, 3): the normal of each edge's plane through the
+    station. The corners are held in local values, not in an array (stores to ``out``
+    might alias one, and would make the compiler read it back)."""
+    c0 = _corner(v, faces, o, th, d, e1, e2, p, t, 0)
+    c1 = _corner(v, faces, o, th, d, e1, e2, p, t, 1)
+    c2 = _corner(v, faces, o, th, d, e1, e2, p, t, 2)
+    g0 = _edge(c0, c1, c2, th, d, e1, e2, p)
+    g1 = _edge(c1, c2, c0, th, d, e1, e2, p)
+    g2 = _edge(c2, c0, c1, th, d, e1, e2, p)
+    # written out: a loop over the tuples (a run-time index into a tuple) costs more
+    # than the arithmetic
+    out[0, 0], out[1, 0], out[2, 0], out[3, 0], out[4, 0] = g0[0], g0[1], g0[2], g0[3], g0[4]
+    out[0, 1], out[1, 1], out[2, 1], out[3, 1], out[4, 1] = g1[0], g1[1], g1[2], g1[3], g1[4]
+    out[0, 2], out[1, 2], out[2, 2], out[3, 2], out[4, 2] = g2[0], g2[1], g2[2], g2[3], g2[4]
+    m[0, 0], m[0, 1], m[0, 2] = g0[5], g0[6], g0[7]
+    m[1, 0], m[1, 1], m[1, 2] = g1[5], g1[6], g1[7]
+    m[2, 0], m[2, 1], m[2, 2] = g2[5], g2[6], g2[7]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam._edge_lines` of pulses (d, e1, e2) (n, 3) and their
     triangles ``tri`` (n,): nu, nv, c, dist, sg (each (n, 3)) and m (n, 3, 3)."""
     n = len(tri)
     res = np.empty((n, 5, 3))
     mm = np.empty((n, 3, 3))
-    au = np.empty((3, 6))
     out = np.empty((5, 3))
     m = np.empty((3, 3))
     for p in range(n):
-        _lines_of(v, faces, o, th, d, e1, e2, p, tri[p], out, m, au)
+        _lines_of(v, faces, o, th, d, e1, e2, p, tri[p], out, m)
         for j in range(3):
             for i in range(5):
                 res[p, i, j] = out[i, j]
@@ -94,7 +111,7 @@ def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
     return res[:, 0], res[:, 1], res[:, 2], res[:, 3], res[:, 4], mm
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _grown(a, n):  # pragma: no cover - compiled
     """``a`` with room for at least ``n`` items (twice over), its items kept."""
     if n > len(a):
@@ -104,7 +121,7 @@ def _grown(a, n):  # pragma: no cover - compiled
     return a
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma: no cover
     """The next ring of a walk from the ``n_cand`` triangles reached (``cand_t``, each
     with the edge it was entered by, ``cand_e``): each triangle once (the first to reach
@@ -135,7 +152,7 @@ def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma:
     return n_ring
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam._walk` of pulses (d, e1, e2) from triangles ``start``:
     ring after ring of triangles, the rings of a pulse walked in the order of their
@@ -157,7 +174,6 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
     unresolved = np.zeros(n, dtype=np.bool_)
     out = np.empty((5, 3))
     m = np.empty((3, 3))
-    au = np.empty((3, 6))
     ring_t = np.empty(64, np.int64)
     ring_e = np.empty(64, np.int64)
     cand_t = np.empty(64, np.int64)
@@ -186,7 +202,7 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
             n_cand = 0
             for r in range(n_ring):
                 t, e_in = ring_t[r], ring_e[r]
-                _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m, au)
+                _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m)
                 t_p[n_t], t_t[n_t] = p, t
                 for j in range(3):
                     t_f[9 * n_t + j] = out[0, j]
@@ -236,7 +252,7 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
     )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def surface_range(
     v, faces, o, th, d, e1, e2, trail, lines, pulses, pts, wts, cut, cut_at
 ):  # pragma: no cover - compiled
@@ -318,7 +334,7 @@ def surface_range(
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _search(key, skey, order):  # pragma: no cover - compiled
     """The pulse of ``key`` among the sorted keys ``skey`` (``order``: their pulses), -1
     where none.
@@ -341,7 +357,7 @@ def _search(key, skey, order):  # pragma: no cover - compiled
     return -1
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
     """Column ``qc`` on the grid (wrapped on a full turn), -1 off it."""
     if full_turn:
@@ -349,7 +365,7 @@ def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
     return qc if 0 <= qc < n_az else -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def neighbours(lines, cols, n_core, t, x, planes, o, grid, lookup, k, tol):  # pragma: no cover
     """:meth:`treesim.scan.beam.EdgeBeam._neighbours` of a block's pulses (``lines``,
     ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; hit
@@ -402,16 +418,18 @@ def neighbours(lines, cols, n_core, t, x, planes, o, grid, lookup, k, tol):  # p
     return near, lo, hi, jump
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
     """(pulse, triangle) pairs of the thin-geometry boxes ``sel``: each box's pulses
     (among the first ``n_core`` the lookup knows) within its sample's reach, an ellipse
     in lines and columns. ``box``: (l_lo, l_hi, c_lo, c_hi, tri) integers and (line,
-    col, rl, rc) floats of :func:`treesim.scan.beam._stray_samples`."""
+    col, rl, rc) floats of :func:`treesim.scan.beam._stray_samples`, a triangle's boxes
+    one after another: each pair once (a triangle's boxes overlap)."""
     l_lo, l_hi, c_lo, c_hi, tri = box[0]
     line, col, rl, rc = box[1]
     n_az, n_lines, full_turn = grid
     look, colpos, lmin, skey, order = lookup
+    mark = np.full(n_core, -1, np.int64)  # the last triangle paired with each pulse
     out_p = np.empty(1024, np.int64)
     out_t = np.empty(1024, np.int64)
     n = 0
@@ -430,8 +448,9 @@ def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
                     q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
                 else:
                     q = _search(qc * n_lines + ql, skey, order)
-                if q < 0 or q >= n_core:
+                if q < 0 or q >= n_core or mark[q] == tri[b]:
                     continue
+                mark[q] = tri[b]
                 out_p = _grown(out_p, n + 1)
                 out_t = _grown(out_t, n + 1)
                 out_p[n], out_t[n] = q, tri[b]
@@ -439,7 +458,7 @@ def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
     return out_p[:n].copy(), out_t[:n].copy()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def basis(d):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam.beam_basis` of directions ``d`` (n, 3), numpy's
     operations in numpy's order: (e1, e2)."""
@@ -461,7 +480,7 @@ def basis(d):  # pragma: no cover - compiled
     return e1, e2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compiled
     """Whether triangle ``tri[i]`` overlaps the footprint of pulse ``rep[i]`` (frames
     (d, e1, e2)), as seen: an edge within the footprint, or the axis inside it."""
@@ -469,9 +488,8 @@ def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compil
     ok = np.empty(n, dtype=np.bool_)
     out = np.empty((5, 3))
     m = np.empty((3, 3))
-    au = np.empty((3, 6))
     for i in range(n):
-        _lines_of(v, faces, o, th, d, e1, e2, rep[i], tri[i], out, m, au)
+        _lines_of(v, faces, o, th, d, e1, e2, rep[i], tri[i], out, m)
         near = out[3, 0] < 1.0 or out[3, 1] < 1.0 or out[3, 2] < 1.0
         ok[i] = near or (out[2, 0] >= 0.0 and out[2, 1] >= 0.0 and out[2, 2] >= 0.0)
     return ok

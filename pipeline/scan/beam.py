@@ -1138,9 +1138,8 @@ class EdgeBeam(AdaptiveBeam):
             jitter = 6.0 * math.sqrt(2.0) * math.radians(spec.angular_jitter_sd_deg)
             reach = 1.01 * math.atan(self.th) + jitter + 1e-6
             box = _stray_samples(tri[idx], spec, reach)
-            box["tri"] = idx[box["tri"]]
-            order = np.argsort(box["c_lo"], kind="stable")
-            self._stray = {k: x[order] for k, x in box.items()}
+            box["tri"] = idx[box["tri"]]  # a triangle's boxes together, in its order
+            self._stray = box
             #: each triangle's farthest corner from the station
             self._stray["far"] = np.linalg.norm(tri, axis=2).max(axis=1)
         return self._stray
@@ -1148,7 +1147,7 @@ class EdgeBeam(AdaptiveBeam):
     def _stray_pairs(self, lines: np.ndarray, cols: np.ndarray, n_core: int, lookup):
         """(pulse, triangle) pairs: the block's core pulses (the first ``n_core`` of
         ``lines``, ``cols``; ``lookup``: :meth:`_lookup` of the block) whose footprint a
-        thin triangle may reach (:meth:`_stray_boxes`); a pair may repeat. Compiled
+        thin triangle may reach (:meth:`_stray_boxes`), each once. Compiled
         (:func:`treesim.scan._edge_jit.box_pulses`)."""
         box = self._stray_boxes()
         none = np.empty(0, np.int64)
