@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["edge_lines", "walk"]
+__all__ = ["basis", "box_pulses", "edge_lines", "neighbours", "overlaps", "surface_range", "walk"]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

@@ -277,3 +277,27 @@ def test_the_edge_scan_is_the_same_whichever_way_it_finds_neighbours(monkeypatch
     assert same(table.points, search.points)
     for k, val in table.fields.items():
         assert same(val, search.fields[k]), k
+
+
+def test_the_warm_up_compiles_every_kernel():
+    # a fresh interpreter (no kernel called yet): after warm_edge_model() every compiled
+    # kernel the edge model calls has a compiled (or cached) signature, so that the docker
+    # image and scripts/setup.sh, which call it, leave no compilation to a user's scan
+    import json
+    import subprocess
+    import sys
+
+    code = (
+        "import json; from treesim.scan import _edge_jit as J; "
+        "from treesim.scan.beam import warm_edge_model; warm_edge_model(); "
+        "print(json.dumps({k: len(getattr(J, k).signatures) for k in J.__all__}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    signatures = json.loads(out.stdout.strip().splitlines()[-1])
+    assert set(signatures) == {"basis", "box_pulses", "edge_lines", "neighbours"} | {
+        "overlaps",
+        "surface_range",
+        "walk",
+    }
+    assert all(n >= 1 for n in signatures.values()), signatures
