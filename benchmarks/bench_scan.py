@@ -325,6 +325,7 @@ def beam_case(name: str, scene: Scene, station: Station, res: float, ref_check: 
         "t_one": t_one,
         "t_first": t_first,
         "times": times,
+        "rays": {"one": one.rays_cast, **{m: r.rays_cast for m, r in runs.items()}},
         "beam": b,
         "edge": e,
         "errors": errors,
@@ -405,6 +406,12 @@ def docs_table(f: dict) -> str:
             + " / ".join(_count(m["summary"]["points"]) for _, m in mem)
             + " points",
         ),
+        (
+            "the edge model's kernels compiled by numba with an empty cache "
+            "(`warm_edge_model()`, a fresh process: numba's import, the compilation, one "
+            "coarse scan)",
+            f"{f['compile_s']:.1f} s, once per install (cached after)",
+        ),
         *(beam_rows(f["beam_coffee"], f"coffee TreeQSM from 10 m at {cb['res']}°")),
         *(beam_rows(f["beam_aspen"], f"aspen from 15 m at {ab['res']}°")),
     ]
@@ -433,7 +440,8 @@ def beam_rows(c: dict, where: str) -> list[tuple[str, str]]:
             f"left {_count(c['edge']['pulses_subrays'])} "
             f"({c['edge']['pulses_subrays'] / max(c['edge']['pulses_cast'], 1):.0%}) to the "
             f"sub-rays; the edge model's first use in the process (numba's import, its "
-            f"compiled kernels loaded) {c['t_first']:.2f} s more, once, not counted",
+            f"compiled kernels loaded) {c['t_first']:.2f} s more, once, not counted; rays "
+            f"cast: edge {c['rays']['edge'] / c['rays']['one']:.1f}× the single ray's",
         )
     ]
 
@@ -526,6 +534,21 @@ def speed_parts(fig: dict, quick: bool, res: float, aspen_at, coffee_at) -> None
             )
 
 
+def cold_compile() -> float:
+    """Seconds a fresh process takes to compile the edge model's kernels with an empty
+    numba cache (:func:`treesim.scan.beam.warm_edge_model`, its own figure: numba's
+    import, the compilation and one coarse scan)."""
+    code = "from treesim.scan.beam import warm_edge_model; print(warm_edge_model())"
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        out = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        )
+    s = float(out.stdout.strip().splitlines()[-1])
+    print(f"\nthe edge model's kernels compiled with an empty numba cache: {s:.1f} s (once)")
+    return s
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="coarser settings, for a smoke run")
@@ -565,6 +588,7 @@ def main() -> None:
     if not args.beam_only:
         speed_parts(fig, args.quick, res, (scene, st), (coffee, coffee_st))
     fig["coffee_triangles"] = coffee.n_triangles
+    fig["compile_s"] = cold_compile()
     fig["beam_coffee"] = beam_case("coffee tree TreeQSM", coffee, coffee_st, res, args.ref_check)
     fig["beam_aspen"] = beam_case("aspen", scene, st, 0.04 if args.quick else 0.02, args.ref_check)
     fig["load"] = f"{load0:.1f} to {os.getloadavg()[0]:.1f}"
