@@ -1004,12 +1004,12 @@ class EdgeBeam(AdaptiveBeam):
         if len(ucols) * height <= _DENSE_NEIGHBOUR_CELLS:
             colpos = np.full(self.n_az, -1, dtype=np.int64)
             colpos[ucols] = np.arange(len(ucols))
-            table = np.full((len(ucols), height), -1, dtype=np.int64)
-            table[colpos[cols], lines - lmin] = np.arange(len(lines))
+            table = np.full((len(ucols), height), -1, dtype=np.int32)  # 4 B a cell
+            table[colpos[cols], lines - lmin] = np.arange(len(lines), dtype=np.int32)
             return table, colpos, lmin, none, none
         key = cols * self.n_lines + lines
         order = np.argsort(key, kind="stable")
-        return np.empty((0, 0), np.int64), none, 0, key[order], order
+        return np.empty((0, 0), np.int32), none, 0, key[order], order
 
     def _grid(self) -> tuple[int, int, bool]:
         """(columns, lines, a full turn) of the station's grid, for the compiled loops."""
