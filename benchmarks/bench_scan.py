@@ -536,9 +536,9 @@ def speed_parts(fig: dict, quick: bool, res: float, aspen_at, coffee_at) -> None
 
 def cold_compile() -> float:
     """Seconds a fresh process takes to compile the edge model's kernels with an empty
-    numba cache (:func:`treesim.scan.beam.warm_edge_model`, its own figure: numba's
+    numba cache (:func:`treesim.scan.warmup.warm_edge_model`, its own figure: numba's
     import, the compilation and one coarse scan)."""
-    code = "from treesim.scan.beam import warm_edge_model; print(warm_edge_model())"
+    code = "from treesim.scan.warmup import warm_edge_model; print(warm_edge_model())"
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         out = subprocess.run(

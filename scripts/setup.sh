@@ -66,7 +66,7 @@ fi
 if [ "$MODE" != demo ]; then
   # the edge beam model's kernels compiled once into numba's cache (~15 s), not by each
   # test worker that first scans with it
-  "$VENV/bin/python" -c "from treesim.scan.beam import warm_edge_model; warm_edge_model()" \
+  "$VENV/bin/python" -c "from treesim.scan.warmup import warm_edge_model; warm_edge_model()" \
     || { echo "setup: compiling the edge beam model's kernels failed (see above)"; exit 1; }
 fi
 say "ready ($("$VENV/bin/python" --version), treesim in $VENV)"

@@ -6,10 +6,12 @@ mesh's edges, and the walk across the surface it meets.
 out of every other command. The kernels are compiled once per machine and cached
 (``cache=True``: beside this file, or numba's user-wide cache where that is read-only).
 
-The arithmetic is :func:`treesim.scan.beam._edge_lines`' formula, operation for
-operation, in float64 (no fast-math: no reassociation, no fused multiply-add), so the
-numbers are those numpy gave (the tests in ``tests/scan/test_edge_beam_speed.py`` hold
-them to the bit against the formulas as they stood before).
+The arithmetic is the numpy formulas' (:func:`treesim.scan.beam.beam_basis`, the edge
+lines, the surface's range), in float64 and in numpy's order (no fast-math: no
+reassociation, no fused multiply-add), but for a square root where numpy's ``hypot``
+scaled and sums in the loop's order: the tests in ``tests/scan/test_edge_beam_speed.py``
+hold the numbers within 1e-12 of the formulas as they stood before (signs, cross
+products and the frames to the bit), and the walks to the same triangles and edges.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ def _dot(a0, a1, a2, b, p):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _sign(x):  # pragma: no cover - compiled
-    # 0.0, -0.0 or nan, as np.sign; one return (see _search)
+    # 0.0, -0.0 or nan, as np.sign
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x)
 
 
@@ -74,16 +76,13 @@ def _edge(ca, cb, cc, th, d, e1, e2, p):  # pragma: no cover - compiled
 def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - compiled
     """Triangle ``t``'s edge lines along pulse ``p`` of (d, e1, e2): ``out`` (5, 3) rows
     nu, nv, c, dist, sg; ``m`` (3, 3): the normal of each edge's plane through the
-    station. The corners are held in local values, not in an array (stores to ``out``
-    might alias one, and would make the compiler read it back)."""
+    station."""
     c0 = _corner(v, faces, o, th, d, e1, e2, p, t, 0)
     c1 = _corner(v, faces, o, th, d, e1, e2, p, t, 1)
     c2 = _corner(v, faces, o, th, d, e1, e2, p, t, 2)
     g0 = _edge(c0, c1, c2, th, d, e1, e2, p)
     g1 = _edge(c1, c2, c0, th, d, e1, e2, p)
     g2 = _edge(c2, c0, c1, th, d, e1, e2, p)
-    # written out: a loop over the tuples (a run-time index into a tuple) costs more
-    # than the arithmetic
     out[0, 0], out[1, 0], out[2, 0], out[3, 0], out[4, 0] = g0[0], g0[1], g0[2], g0[3], g0[4]
     out[0, 1], out[1, 1], out[2, 1], out[3, 1], out[4, 1] = g1[0], g1[1], g1[2], g1[3], g1[4]
     out[0, 2], out[1, 2], out[2, 2], out[3, 2], out[4, 2] = g2[0], g2[1], g2[2], g2[3], g2[4]
@@ -190,8 +189,8 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
             if step == steps:
                 unresolved[p] = True
                 break
-            # room for the ring's rows, once (growing arrays inside the loop below made
-            # the compiled walk several times slower)
+            # room for the ring's rows, once (checked row by row, the walk took a third
+            # longer)
             t_p, t_t = _grown(t_p, n_t + n_ring), _grown(t_t, n_t + n_ring)
             t_f = _grown(t_f, 9 * (n_t + n_ring))
             l_p, l_t = _grown(l_p, n_l + 3 * n_ring), _grown(l_t, n_l + 3 * n_ring)

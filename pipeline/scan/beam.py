@@ -622,48 +622,6 @@ def _jit():
     return _edge_jit
 
 
-def warm_edge_model() -> float:
-    """Compile the edge model's kernels (:mod:`treesim.scan._edge_jit`), or load them
-    from numba's cache, with one coarse edge scan of a generated aspen: numba compiles
-    each kernel the first time a process calls it and caches it (beside the package, or
-    in numba's user-wide cache), about 15 s in all on a 2-core machine, once per install;
-    a process that finds them cached loads them in about half a second. The docker image
-    and ``scripts/setup.sh`` call it so that no scan pays the compilation.
-
-    Returns
-    -------
-    float
-        The seconds it took.
-
-    Examples
-    --------
-    >>> warm_edge_model() > 0
-    True
-    """
-    import time
-
-    from ..models import generate_tree
-    from ..scene import MeshPart, Scene
-    from .stations import Station
-    from .trace import scan
-
-    t0 = time.perf_counter()
-    v, f, _ = generate_tree("aspen", seed=0).mesh(facets=8)
-    scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="aspen")])
-    lo, hi = scene.bounds
-    station = Station(position_m=(0.5 * (lo[0] + hi[0]) + 15.0, 0.5 * (lo[1] + hi[1]), lo[2]))
-    spec = ScannerSpec(
-        horizontal_resolution_deg=0.1,
-        vertical_resolution_deg=0.1,
-        beam_divergence_mrad=3.0,
-        subrays=19,
-        return_mode="all",
-        beam_sampling="edge",
-    )
-    scan(scene, [station], spec)
-    return time.perf_counter() - t0
-
-
 def _edge_lines(
     v: np.ndarray, faces: np.ndarray, o: np.ndarray, th: float, frame: tuple, tri: np.ndarray
 ) -> dict[str, np.ndarray]:
@@ -926,6 +884,12 @@ class EdgeBeam(AdaptiveBeam):
     Not seen: a thick surface in front of part of a footprint whose central ray, and
     its neighbours', meet a triangle behind it; what lies beyond a silhouette where the
     far probes miss it (a twig behind, a few counts of intensity).
+
+    The walk, the edge lines, the surface's range, the neighbour test and the
+    thin-geometry index are compiled loops (:mod:`treesim.scan._edge_jit`, numba;
+    :func:`treesim.scan.warmup.warm_edge_model` compiles them
+    ahead), and :data:`EDGE_THREADS` blocks of
+    columns are worked on at a time (:meth:`blocks`).
     """
 
     def __init__(self, caster, spec, plan, tables, station_index) -> None:  # noqa: D107

@@ -289,7 +289,7 @@ def test_the_warm_up_compiles_every_kernel():
 
     code = (
         "import json; from treesim.scan import _edge_jit as J; "
-        "from treesim.scan.beam import warm_edge_model; warm_edge_model(); "
+        "from treesim.scan.warmup import warm_edge_model; warm_edge_model(); "
         "print(json.dumps({k: len(getattr(J, k).signatures) for k in J.__all__}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
