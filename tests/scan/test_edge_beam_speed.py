@@ -257,6 +257,21 @@ def test_the_walk_and_its_surface_range_match_the_old_formula(mesh, th):
     assert close(_surface_range(geo, frame, th, trail, some, quad), old["range"][some])
 
 
+def test_the_compiled_frames_are_beam_basis_to_the_bit():
+    # the edge model's pulse frames (compiled) against the numpy basis the other beams
+    # use: directions all round, some near vertical (the other "up"), some exactly in a
+    # coordinate plane (signed zeros)
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(20000, 3))
+    d[::7, 2] *= 300.0
+    d[::11, 1] = 0.0
+    d[::13, :2] = 0.0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert (np.abs(d[:, 2]) >= 0.99).sum() > 1000
+    for got, want in zip(beam._jit().basis(d), beam_basis(d), strict=True):
+        assert same(got, want)
+
+
 def test_point_rays_match_the_old_rays(mesh):
     frame, _ = aim(mesh, 200)
     m = len(frame[0])
