@@ -265,6 +265,7 @@ def surface_range(
     n_trail = trail.shape[1]
     k = len(pts)
     out = np.empty(len(pulses))
+    cover = np.empty((len(pulses), 10))
     q_r = np.empty(k)
     look = np.empty(k, dtype=np.bool_)
     w = np.empty((k, 3))
@@ -325,12 +326,38 @@ def surface_range(
                     q_r[i] = rng
             r += 1
         tot, wt = 0.0, 0.0
+        for j in range(1, 10):
+            cover[q, j] = 0.0
         for i in range(k):
             if q_r[i] < np.inf:
                 tot += q_r[i] * wts[i]
                 wt += wts[i]
+            else:  # the uncovered part, in three sectors of the footprint
+                a = math.atan2(pts[i, 1], pts[i, 0]) % (2.0 * math.pi)
+                sec = min(int(a / (2.0 * math.pi / 3.0)), 2)
+                cover[q, 1 + 3 * sec] += wts[i]
+                cover[q, 2 + 3 * sec] += pts[i, 0] * wts[i]
+                cover[q, 3 + 3 * sec] += pts[i, 1] * wts[i]
         out[q] = tot / wt if wt > 0 else np.nan
-    return out
+        cover[q, 0] = wt
+        for sec in range(3):
+            w_s = cover[q, 1 + 3 * sec]
+            if w_s > 0:
+                cx, cy = cover[q, 2 + 3 * sec] / w_s, cover[q, 3 + 3 * sec] / w_s
+                # the uncovered point of the sector nearest its centroid (the centroid
+                # of a part that is not convex may lie on the surface)
+                best = np.inf
+                for i in range(k):
+                    if q_r[i] < np.inf:
+                        continue
+                    a = math.atan2(pts[i, 1], pts[i, 0]) % (2.0 * math.pi)
+                    if min(int(a / (2.0 * math.pi / 3.0)), 2) != sec:
+                        continue
+                    dd = (pts[i, 0] - cx) ** 2 + (pts[i, 1] - cy) ** 2
+                    if dd < best:
+                        best = dd
+                        cover[q, 2 + 3 * sec], cover[q, 3 + 3 * sec] = pts[i, 0], pts[i, 1]
+    return out, cover
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -536,6 +536,9 @@ EDGE_PLANE_TOL_M = 2e-3
 #: Rays cast beyond a silhouette line: at the far part's centroid and along the line,
 #: in shares of the far part's half-chord there.
 EDGE_FAR_PROBES = (0.0, 0.6, -0.6)
+#: Points of the footprint on which a corner's covered share, range and uncovered parts
+#: are worked out (the walked triangles that hold each; the footprint reference's count).
+EDGE_CORNER_POINTS = 127
 #: Blocks of columns the edge model works on at a time (threads; each holds its block's
 #: arrays): two keep a 2-core machine busy, one block's compiled walks and numpy beside
 #: the other's casts (Open3D's own threads).
@@ -687,7 +690,8 @@ def _surface_range(
     pulses: np.ndarray,
     quad: tuple[np.ndarray, np.ndarray],
     cut: tuple[np.ndarray, ...] | None = None,
-) -> np.ndarray:
+    full: bool = False,
+) -> Any:
     """The walked surface's range over the footprints of ``pulses`` (indices into the
     walk's pulses, frames ``frame``): the weighted mean range of the footprint points
     ``quad`` (points (k, 2) on the unit footprint, their weights (k,)) that fall inside
@@ -706,7 +710,7 @@ def _surface_range(
         lines = np.stack([x[order] for x in cut[1:]], axis=1)
         at = np.searchsorted(cut[0][order], np.arange(len(pulses) + 1))
     pts, wts = quad
-    return _jit().surface_range(
+    rng, covered = _jit().surface_range(
         v,
         faces,
         np.asarray(o, np.float64),
@@ -722,6 +726,7 @@ def _surface_range(
         lines,
         at,
     )
+    return (rng, covered) if full else rng
 
 
 def _point_rays(frame: tuple, pts: np.ndarray, th: float) -> np.ndarray:
@@ -872,9 +877,14 @@ class EdgeBeam(AdaptiveBeam):
       nothing else settled walks from the nearest thin triangle its footprint overlaps
       (a twig between central rays), and a hit with thin geometry in front of it inside
       its footprint gets the sub-rays;
+    * a hit whose walk ends in a corner (two silhouette lines crossing inside the
+      footprint, or more than two; :meth:`_corners`) takes its covered share and range
+      from the walked triangles that hold each of :data:`EDGE_CORNER_POINTS` points of
+      the footprint, and what lies beyond from one ray in each third of the footprint,
+      at its uncovered point nearest the third's uncovered centroid;
     * returns under :data:`EDGE_MIN_ENERGY` of the pulse's energy are not recorded;
-    * pulses the walk cannot settle (a corner, two crossing silhouettes, more than two,
-      probes on several surfaces, a walk longer than :data:`EDGE_WALK_STEPS` rings,
+    * pulses the walk cannot settle (probes on several surfaces or disagreeing with
+      the walk, a walk longer than :data:`EDGE_WALK_STEPS` rings,
       ranges near a range limit), hits with a neighbour's hit in front of their
       triangle's plane (another surface may hide part of the footprint), misses whose
       neighbours' hits lie farther apart than the range resolution (two echoes may
@@ -909,6 +919,8 @@ class EdgeBeam(AdaptiveBeam):
         #: a denser one for slivers (a rim-probed miss, thin geometry): a few of the
         #: points of the walked surface's mean range fall in a narrow part
         self.quad_sliver = subray_pattern(EDGE_SLIVER_RANGE_POINTS, 2.0e3)
+        #: a denser one for corners (the covered share and the uncovered parts too)
+        self.quad_corner = subray_pattern(EDGE_CORNER_POINTS, 2.0e3)
         #: and a sparser one where the surface covers the footprint whole
         self.quad_whole = subray_pattern(EDGE_WHOLE_RANGE_POINTS, 2.0e3)
         self.rim = EDGE_RIM_RHO * np.stack([np.cos(ang), np.sin(ang)], axis=1)
@@ -1036,9 +1048,9 @@ class EdgeBeam(AdaptiveBeam):
         alone = jump[cut]
         fb = unres | ~cov["ok"] | alone
         n_beside = int(alone.sum() + (jump & inside).sum())
-        tt = np.full((m, 3), np.inf)
-        ww = np.zeros((m, 3))
-        pp = np.full((m, 3), -1, dtype=np.int64)
+        tt = np.full((m, 4), np.inf)
+        ww = np.zeros((m, 4))
+        pp = np.full((m, 4), -1, dtype=np.int64)
         tt[:, 0], ww[:, 0], pp[:, 0] = t, 1.0, prim
         gi = np.flatnonzero(~fb)
         good = cut[gi]
@@ -1050,8 +1062,11 @@ class EdgeBeam(AdaptiveBeam):
         r_quad[whole] = self._surface_range(sub, trail, gi[whole], quad=self.quad_whole)
         r_quad[~whole] = self._surface_range(sub, trail, gi[~whole])
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
+        n_corner = self._corners(sub, trail, cut, (unres, cov["ok"], alone), (tt, ww, pp))
+        fb_lines = fb.copy()
+        fb[n_corner] = False
         lp = lines["pulse"]
-        li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
+        li = np.flatnonzero(~fb_lines[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
         li = li[np.argsort(lp[li], kind="stable")]
         rank = np.arange(len(li)) - np.searchsorted(lp[li], lp[li], side="left")
         tf, pf, share = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
@@ -1059,7 +1074,37 @@ class EdgeBeam(AdaptiveBeam):
         ww[rows, 1 + rank] = cov["far_energy"][li] * share
         tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
         fall = np.concatenate([cut[fb], np.flatnonzero(jump & inside)])
-        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES), n_beside
+        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES) + 3 * len(n_corner), n_beside
+
+    def _corners(self, sub, trail, cut, why, parts):
+        """Walked hits (``cut``; frames ``sub``, walks ``trail``) whose silhouette the
+        analytic share cannot take (more than two lines, or two crossing inside the
+        footprint), their walk finished and no other surface beside (``why``: unfinished,
+        analytic ok, another surface beside): the covered share and range from the
+        walked triangles that hold each of :data:`EDGE_CORNER_POINTS` points of the
+        footprint; what lies beyond from one ray in each third of the footprint, at its
+        uncovered point nearest the third's uncovered centroid, with that third's
+        uncovered share. Fills ``parts`` (tt, ww, pp: columns 0 and 1-3) and returns the
+        pulses settled (indices into ``cut``); the rest keep the sub-rays."""
+        unres, ok, alone = why
+        corner = np.flatnonzero(~unres & ~ok & ~alone)
+        if not len(corner):
+            return corner
+        geo = (self.geo[0], self.geo[1], self.o)
+        r, cv = _surface_range(geo, sub, self.th, trail, corner, self.quad_corner, full=True)
+        good = np.isfinite(r) & (cv[:, 0] >= EDGE_MIN_ENERGY)
+        corner, r, cv = corner[good], r[good], cv[good]
+        tt, ww, pp = parts
+        rows = cut[corner]
+        tt[rows, 0], ww[rows, 0] = r, cv[:, 0]
+        for sec in range(3):
+            beyond = cv[:, 1 + 3 * sec]
+            w = self._ray(tuple(x[corner] for x in sub), cv[:, 2 + 3 * sec : 4 + 3 * sec])
+            tb, pb = self._cast(w)
+            hitb = np.isfinite(tb) & (beyond >= EDGE_MIN_ENERGY)
+            rh = rows[hitb]
+            tt[rh, 1 + sec], ww[rh, 1 + sec], pp[rh, 1 + sec] = tb[hitb], beyond[hitb], pb[hitb]
+        return corner
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
