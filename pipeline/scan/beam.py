@@ -1048,9 +1048,9 @@ class EdgeBeam(AdaptiveBeam):
         alone = jump[cut]
         fb = unres | ~cov["ok"] | alone
         n_beside = int(alone.sum() + (jump & inside).sum())
-        tt = np.full((m, 4), np.inf)
-        ww = np.zeros((m, 4))
-        pp = np.full((m, 4), -1, dtype=np.int64)
+        tt = np.full((m, 3), np.inf)
+        ww = np.zeros((m, 3))
+        pp = np.full((m, 3), -1, dtype=np.int64)
         tt[:, 0], ww[:, 0], pp[:, 0] = t, 1.0, prim
         gi = np.flatnonzero(~fb)
         good = cut[gi]
@@ -1062,21 +1062,23 @@ class EdgeBeam(AdaptiveBeam):
         r_quad[whole] = self._surface_range(sub, trail, gi[whole], quad=self.quad_whole)
         r_quad[~whole] = self._surface_range(sub, trail, gi[~whole])
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
-        n_corner = self._corners(sub, trail, cut, (unres, cov["ok"], alone), (tt, ww, pp))
-        fb_lines = fb.copy()
-        fb[n_corner] = False
+        corners = self._corners(sub, trail, cut, (unres, cov["ok"], alone))
         lp = lines["pulse"]
-        li = np.flatnonzero(~fb_lines[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
+        li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
         li = li[np.argsort(lp[li], kind="stable")]
         rank = np.arange(len(li)) - np.searchsorted(lp[li], lp[li], side="left")
         tf, pf, share = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
         rows = cut[lp[li]]
         ww[rows, 1 + rank] = cov["far_energy"][li] * share
         tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
-        fall = np.concatenate([cut[fb], np.flatnonzero(jump & inside)])
-        return (tt, ww, pp), fall, len(li) * len(EDGE_FAR_PROBES) + 3 * len(n_corner), n_beside
+        settled = np.zeros(len(cut), dtype=bool)
+        settled[corners[0]] = True
+        fall = np.concatenate([cut[fb & ~settled], np.flatnonzero(jump & inside)])
+        corners = (cut[corners[0]], *corners[1:])
+        n_rays = len(li) * len(EDGE_FAR_PROBES) + 3 * len(corners[0])
+        return (tt, ww, pp), fall, n_rays, n_beside, corners
 
-    def _corners(self, sub, trail, cut, why, parts):
+    def _corners(self, sub, trail, cut, why):
         """Walked hits (``cut``; frames ``sub``, walks ``trail``) whose silhouette the
         analytic share cannot take (more than two lines, or two crossing inside the
         footprint), their walk finished and no other surface beside (``why``: unfinished,
@@ -1084,27 +1086,24 @@ class EdgeBeam(AdaptiveBeam):
         walked triangles that hold each of :data:`EDGE_CORNER_POINTS` points of the
         footprint; what lies beyond from one ray in each third of the footprint, at its
         uncovered point nearest the third's uncovered centroid, with that third's
-        uncovered share. Fills ``parts`` (tt, ww, pp: columns 0 and 1-3) and returns the
-        pulses settled (indices into ``cut``); the rest keep the sub-rays."""
+        uncovered share. Returns the pulses settled (indices into ``cut``; the rest keep
+        the sub-rays) and their parts (ranges, energies, triangles; (n, 4): the surface,
+        then each third's)."""
         unres, ok, alone = why
         corner = np.flatnonzero(~unres & ~ok & ~alone)
-        if not len(corner):
-            return corner
         geo = (self.geo[0], self.geo[1], self.o)
         r, cv = _surface_range(geo, sub, self.th, trail, corner, self.quad_corner, full=True)
         good = np.isfinite(r) & (cv[:, 0] >= EDGE_MIN_ENERGY)
         corner, r, cv = corner[good], r[good], cv[good]
-        tt, ww, pp = parts
-        rows = cut[corner]
-        tt[rows, 0], ww[rows, 0] = r, cv[:, 0]
+        tt = np.full((len(corner), 4), np.inf)
+        ww = np.zeros((len(corner), 4))
+        pp = np.full((len(corner), 4), -1, dtype=np.int64)
+        tt[:, 0], ww[:, 0], pp[:, 0] = r, cv[:, 0], -1
         for sec in range(3):
-            beyond = cv[:, 1 + 3 * sec]
             w = self._ray(tuple(x[corner] for x in sub), cv[:, 2 + 3 * sec : 4 + 3 * sec])
-            tb, pb = self._cast(w)
-            hitb = np.isfinite(tb) & (beyond >= EDGE_MIN_ENERGY)
-            rh = rows[hitb]
-            tt[rh, 1 + sec], ww[rh, 1 + sec], pp[rh, 1 + sec] = tb[hitb], beyond[hitb], pb[hitb]
-        return corner
+            tt[:, 1 + sec], pp[:, 1 + sec] = self._cast(w)
+            ww[:, 1 + sec] = cv[:, 1 + 3 * sec]
+        return corner, tt, ww, pp
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
@@ -1427,23 +1426,15 @@ class EdgeBeam(AdaptiveBeam):
         front = self._thin_in_front(pairs, hit, d_hit, tc[hit])
         fall.append(hit[front])
         hit, d_hit = hit[~front], d_hit[~front]
-        (tt, ww, pp), fb, n_rays, n_beside = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
+        (tt, ww, pp), fb, n_rays, n_beside, corners = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
         fall.append(hit[fb])
         keep = (ww >= EDGE_MIN_ENERGY) & in_range(spec, tt) & (pp >= 0)
         keep[fb] = False
-        g = group_returns(np.where(keep, tt, np.inf), ww, spec.range_resolution_m)
-        sel = select_returns(g, spec.return_mode)
-        parts = [
-            {
-                "pulse": hit[g["pulse"][sel]],
-                "range_m": g["range_m"][sel],
-                "primitive": pp[g["pulse"][sel], g["subray"][sel]],
-                "direction": None,
-                "energy": g["energy"][sel],
-                "return_number": g["return_number"][sel],
-                "number_of_returns": g["number_of_returns"][sel],
-            }
-        ]
+        keep[corners[0]] = False
+        rows, ct, cw, cp = corners
+        cp[:, 0] = pc[hit][rows]  # the surface's triangle: the central ray's
+        ck = (cw >= EDGE_MIN_ENERGY) & in_range(spec, ct) & (cp >= 0)
+        parts = [self._grouped(hit, tt, ww, pp, keep), self._grouped(hit[rows], ct, cw, cp, ck)]
         miss_parts, miss_fall, n_probe = self._miss_parts(
             lines, cols, t, miss, n_core, pairs, beside
         )
@@ -1457,6 +1448,23 @@ class EdgeBeam(AdaptiveBeam):
             "thin geometry": n_thin,
         }
         return parts + miss_parts, cand, n_rays + n_probe, tally
+
+    def _grouped(self, pulses, tt, ww, pp, keep) -> dict[str, np.ndarray]:
+        """Return records of ``pulses`` from their parts (ranges ``tt``, energies
+        ``ww``, triangles ``pp``, (m, c); ``keep``: the parts recorded), echoes within the
+        range resolution merged (:func:`group_returns`)."""
+        spec = self.spec
+        g = group_returns(np.where(keep, tt, np.inf), ww, spec.range_resolution_m)
+        sel = select_returns(g, spec.return_mode)
+        return {
+            "pulse": pulses[g["pulse"][sel]],
+            "range_m": g["range_m"][sel],
+            "primitive": pp[g["pulse"][sel], g["subray"][sel]],
+            "direction": None,
+            "energy": g["energy"][sel],
+            "return_number": g["return_number"][sel],
+            "number_of_returns": g["number_of_returns"][sel],
+        }
 
     def _block(self, block: tuple, offsets: np.ndarray, weights: np.ndarray, step: int):
         """One block of columns (:meth:`_column_blocks`): its central rays cast, what the
