@@ -261,7 +261,11 @@ def surface_range(
     pulse, triangle, pulse by pulse; ``lines`` (n, 3, 3): their edges' nu, nv, c), the
     nearest where several hold one; nan where none does. ``cut`` (m, 3): lines nu, nv,
     c of pulse ``q`` at rows ``cut_at[q]:cut_at[q + 1]``, beyond any of which a point is
-    not looked at (all looked at where ``cut_at`` is empty)."""
+    not looked at (all looked at where ``cut_at`` is empty).
+
+    Returns the ranges and, per pulse (10 columns), the covered weight, then for each
+    third of the footprint (by angle) the uncovered weight and the uncovered point
+    nearest the third's uncovered centroid (x, y)."""
     n_trail = trail.shape[1]
     k = len(pts)
     out = np.empty(len(pulses))

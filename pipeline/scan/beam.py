@@ -699,7 +699,8 @@ def _surface_range(
     hold one; nan where none does. ``geo``: vertices, faces, the station. ``cut``: the
     silhouette lines of the covered parts (``pulse``, index into ``pulses``; ``nu``,
     ``nv``, ``c``), points beyond any of which are not looked at (a sliver's are few).
-    Compiled (:func:`treesim.scan._edge_jit.surface_range`)."""
+    ``full``: also the covered weight and the uncovered parts (10 columns a pulse, see
+    :func:`treesim.scan._edge_jit.surface_range`). Compiled."""
     v, faces, o = geo
     d, e1, e2 = (np.ascontiguousarray(x, dtype=np.float64) for x in frame)
     idx, edges = trail["packed"]
