@@ -252,8 +252,34 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _uncovered(q_r, pts, wts, sector, row):  # pragma: no cover - compiled
+    """Into ``row[1:10]``: for each third of the footprint (``sector`` of each point),
+    the weight of its points that no walked triangle holds (``q_r`` inf) and the one of
+    them nearest their weighted centroid (the centroid of a part that is not convex may
+    lie on the surface)."""
+    for i in range(len(pts)):
+        if not (q_r[i] < np.inf):
+            sec = sector[i]
+            row[1 + 3 * sec] += wts[i]
+            row[2 + 3 * sec] += pts[i, 0] * wts[i]
+            row[3 + 3 * sec] += pts[i, 1] * wts[i]
+    for sec in range(3):
+        w_s = row[1 + 3 * sec]
+        if w_s > 0:
+            cx, cy = row[2 + 3 * sec] / w_s, row[3 + 3 * sec] / w_s
+            best = np.inf
+            for i in range(len(pts)):
+                if q_r[i] < np.inf or sector[i] != sec:
+                    continue
+                dd = (pts[i, 0] - cx) ** 2 + (pts[i, 1] - cy) ** 2
+                if dd < best:
+                    best = dd
+                    row[2 + 3 * sec], row[3 + 3 * sec] = pts[i, 0], pts[i, 1]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def surface_range(
-    v, faces, o, th, d, e1, e2, trail, lines, pulses, pts, wts, cut, cut_at
+    v, faces, o, th, d, e1, e2, trail, lines, pulses, pts, wts, cut, cut_at, full
 ):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam._surface_range`: for each walked pulse ``pulses[q]``
     (frames (d, e1, e2)), the weighted mean range of the footprint points ``pts`` (k, 2)
@@ -263,13 +289,17 @@ def surface_range(
     c of pulse ``q`` at rows ``cut_at[q]:cut_at[q + 1]``, beyond any of which a point is
     not looked at (all looked at where ``cut_at`` is empty).
 
-    Returns the ranges and, per pulse (10 columns), the covered weight, then for each
-    third of the footprint (by angle) the uncovered weight and the uncovered point
-    nearest the third's uncovered centroid (x, y)."""
+    Returns the ranges and, with ``full``, per pulse (10 columns) the covered weight,
+    then for each third of the footprint (by angle) the uncovered weight and the
+    uncovered point nearest the third's uncovered centroid (x, y) (:func:`_uncovered`)."""
     n_trail = trail.shape[1]
     k = len(pts)
     out = np.empty(len(pulses))
-    cover = np.empty((len(pulses), 10))
+    cover = np.zeros((len(pulses) if full else 0, 10))
+    sector = np.empty(k, np.int64)  # each point's third of the footprint, by angle
+    for i in range(k):
+        a = math.atan2(pts[i, 1], pts[i, 0]) % (2.0 * math.pi)
+        sector[i] = min(int(a / (2.0 * math.pi / 3.0)), 2)
     q_r = np.empty(k)
     look = np.empty(k, dtype=np.bool_)
     w = np.empty((k, 3))
@@ -330,37 +360,14 @@ def surface_range(
                     q_r[i] = rng
             r += 1
         tot, wt = 0.0, 0.0
-        for j in range(1, 10):
-            cover[q, j] = 0.0
         for i in range(k):
             if q_r[i] < np.inf:
                 tot += q_r[i] * wts[i]
                 wt += wts[i]
-            else:  # the uncovered part, in three sectors of the footprint
-                a = math.atan2(pts[i, 1], pts[i, 0]) % (2.0 * math.pi)
-                sec = min(int(a / (2.0 * math.pi / 3.0)), 2)
-                cover[q, 1 + 3 * sec] += wts[i]
-                cover[q, 2 + 3 * sec] += pts[i, 0] * wts[i]
-                cover[q, 3 + 3 * sec] += pts[i, 1] * wts[i]
         out[q] = tot / wt if wt > 0 else np.nan
-        cover[q, 0] = wt
-        for sec in range(3):
-            w_s = cover[q, 1 + 3 * sec]
-            if w_s > 0:
-                cx, cy = cover[q, 2 + 3 * sec] / w_s, cover[q, 3 + 3 * sec] / w_s
-                # the uncovered point of the sector nearest its centroid (the centroid
-                # of a part that is not convex may lie on the surface)
-                best = np.inf
-                for i in range(k):
-                    if q_r[i] < np.inf:
-                        continue
-                    a = math.atan2(pts[i, 1], pts[i, 0]) % (2.0 * math.pi)
-                    if min(int(a / (2.0 * math.pi / 3.0)), 2) != sec:
-                        continue
-                    dd = (pts[i, 0] - cx) ** 2 + (pts[i, 1] - cy) ** 2
-                    if dd < best:
-                        best = dd
-                        cover[q, 2 + 3 * sec], cover[q, 3 + 3 * sec] = pts[i, 0], pts[i, 1]
+        if full:
+            cover[q, 0] = wt
+            _uncovered(q_r, pts, wts, sector, cover[q])
     return out, cover
 
 

@@ -726,6 +726,7 @@ def _surface_range(
         np.asarray(wts, np.float64),
         lines,
         at,
+        bool(full),
     )
     return (rng, covered) if full else rng
 
