@@ -1064,7 +1064,7 @@ class EdgeBeam(AdaptiveBeam):
         r_quad[whole] = self._surface_range(sub, trail, gi[whole], quad=self.quad_whole)
         r_quad[~whole] = self._surface_range(sub, trail, gi[~whole])
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
-        corners = self._corners(sub, trail, cut, (unres, cov["ok"], alone))
+        corners = self._corners(sub, trail, cut, prim[cut], (unres, cov["ok"], alone))
         lp = lines["pulse"]
         li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
         li = li[np.argsort(lp[li], kind="stable")]
@@ -1076,21 +1076,23 @@ class EdgeBeam(AdaptiveBeam):
         settled = np.zeros(len(cut), dtype=bool)
         settled[corners[0]] = True
         fall = np.concatenate([cut[fb & ~settled], np.flatnonzero(jump & inside)])
-        corners = (cut[corners[0]], *corners[1:])
-        n_rays = len(li) * len(EDGE_FAR_PROBES) + 3 * len(corners[0])
+        n_rays = len(li) * len(EDGE_FAR_PROBES) + corners[-1]
+        corners = (cut[corners[0]], *corners[1:-1])
         return (tt, ww, pp), fall, n_rays, n_beside, corners
 
-    def _corners(self, sub, trail, cut, why):
+    def _corners(self, sub, trail, cut, prim, why):
         """Walked hits (``cut``; frames ``sub``, walks ``trail``) whose silhouette the
         analytic share cannot take (more than two lines, or two crossing inside the
         footprint), their walk finished and no other surface beside (``why``: unfinished,
-        analytic ok, another surface beside): the covered share and range from the
+        analytic ok, another surface beside; ``prim``: the central rays' triangles, the
+        covered part's): the covered share and range from the
         walked triangles that hold each of :data:`EDGE_CORNER_POINTS` points of the
         footprint; what lies beyond from one ray in each third of the footprint, at its
         uncovered point nearest the third's uncovered centroid, with that third's
-        uncovered share. Returns the pulses settled (indices into ``cut``; the rest keep
-        the sub-rays) and their parts (ranges, energies, triangles; (n, 4): the surface,
-        then each third's)."""
+        uncovered share (a third under :data:`EDGE_MIN_ENERGY` casts no ray). Returns the
+        pulses settled (indices into ``cut``; the rest keep the sub-rays), their parts
+        (ranges, energies, triangles; (n, 4): the surface, then each third's) and the
+        rays cast."""
         unres, ok, alone = why
         corner = np.flatnonzero(~unres & ~ok & ~alone)
         geo = (self.geo[0], self.geo[1], self.o)
@@ -1100,12 +1102,13 @@ class EdgeBeam(AdaptiveBeam):
         tt = np.full((len(corner), 4), np.inf)
         ww = np.zeros((len(corner), 4))
         pp = np.full((len(corner), 4), -1, dtype=np.int64)
-        tt[:, 0], ww[:, 0], pp[:, 0] = r, cv[:, 0], -1
+        tt[:, 0], ww[:, 0], pp[:, 0] = r, cv[:, 0], prim[corner]
         for sec in range(3):
-            w = self._ray(tuple(x[corner] for x in sub), cv[:, 2 + 3 * sec : 4 + 3 * sec])
-            tt[:, 1 + sec], pp[:, 1 + sec] = self._cast(w)
             ww[:, 1 + sec] = cv[:, 1 + 3 * sec]
-        return corner, tt, ww, pp
+            s = np.flatnonzero(ww[:, 1 + sec] >= EDGE_MIN_ENERGY)  # a third worth a ray
+            w = self._ray(tuple(x[corner[s]] for x in sub), cv[s, 2 + 3 * sec : 4 + 3 * sec])
+            tt[s, 1 + sec], pp[s, 1 + sec] = self._cast(w)
+        return corner, tt, ww, pp, int(np.count_nonzero(ww[:, 1:] >= EDGE_MIN_ENERGY))
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
@@ -1434,7 +1437,6 @@ class EdgeBeam(AdaptiveBeam):
         keep[fb] = False
         keep[corners[0]] = False
         rows, ct, cw, cp = corners
-        cp[:, 0] = pc[hit][rows]  # the surface's triangle: the central ray's
         ck = (cw >= EDGE_MIN_ENERGY) & in_range(spec, ct) & (cp >= 0)
         parts = [self._grouped(hit, tt, ww, pp, keep), self._grouped(hit[rows], ct, cw, cp, ck)]
         miss_parts, miss_fall, n_probe = self._miss_parts(
