@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from ..models import generate_tree
 from ..params import ScannerSpec
 from ..scene import MeshPart, Scene
-from .stations import Station
+from .stations import ring_around
 from .trace import scan
 
 __all__ = ["warm_edge_model"]
@@ -39,8 +41,7 @@ def warm_edge_model() -> float:
     t0 = time.perf_counter()
     v, f, _ = generate_tree("aspen", seed=0).mesh(facets=8)
     scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="aspen")])
-    lo, hi = scene.bounds
-    station = Station(position_m=(0.5 * (lo[0] + hi[0]) + 15.0, 0.5 * (lo[1] + hi[1]), lo[2]))
+    stations = ring_around(np.asarray(scene.bounds), 1, distance_m=15.0, height_m=0.0)
     spec = ScannerSpec(
         horizontal_resolution_deg=0.1,
         vertical_resolution_deg=0.1,
@@ -49,5 +50,5 @@ def warm_edge_model() -> float:
         return_mode="all",
         beam_sampling="edge",
     )
-    scan(scene, [station], spec)
+    scan(scene, stations, spec)
     return time.perf_counter() - t0
