@@ -21,7 +21,20 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["basis", "box_pulses", "edge_lines", "neighbours", "overlaps", "surface_range", "walk"]
+#: how many distinct triangles a miss's neighbours hit :func:`neighbours` keeps (nearest
+#: ring first): where the walk that settles the miss may start
+BESIDE = 8
+
+__all__ = [
+    "approach",
+    "basis",
+    "box_pulses",
+    "edge_lines",
+    "neighbours",
+    "overlaps",
+    "surface_range",
+    "walk",
+]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -403,22 +416,26 @@ def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def neighbours(lines, cols, n_core, t, x, planes, o, grid, lookup, k, tol):  # pragma: no cover
+def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  # pragma: no cover
     """:meth:`treesim.scan.beam.EdgeBeam._neighbours` of a block's pulses (``lines``,
-    ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; hit
-    points ``x``; ``planes``: the normal and a corner of each core hit's triangle, each
-    (n_core, 3)), looking
-    ``k`` steps each way: per core pulse, whether a neighbour hit (``near``), the nearest
-    and farthest such hit (``lo``, ``hi``) and, for a hit, whether a neighbour's hit lies
-    in front of its triangle's plane (towards the station) by more than ``tol``
-    (``jump``). ``grid``: (n_az, n_lines, full_turn); ``lookup``: see :func:`_search`."""
+    ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; ``hit``:
+    the hit points ``x`` and triangles ``prim``; ``planes``: the normal and a corner of
+    each core hit's triangle, each (n_core, 3)), looking ``k`` steps each way, nearest
+    ring first: per core pulse, whether a neighbour hit (``near``), the nearest and
+    farthest such hit (``lo``, ``hi``), for a miss the first :data:`BESIDE` distinct
+    triangles its neighbours hit (``tri``, -1 past them) and, for a hit, whether a
+    neighbour's hit lies in front of its triangle's plane (towards the station) by more
+    than ``tol`` (``jump``). ``grid``: (n_az, n_lines, full_turn); ``lookup``: see
+    :func:`_search`."""
     n_az, n_lines, full_turn = grid
+    x, prim = hit
     normal, v0 = planes
     look, colpos, lmin, skey, order = lookup
     near = np.empty(n_core, dtype=np.bool_)
     jump = np.empty(n_core, dtype=np.bool_)
     lo = np.empty(n_core)
     hi = np.empty(n_core)
+    tri = np.full((n_core, BESIDE), -1, dtype=np.int64)
     for i in range(n_core):
         is_hit = t[i] < np.inf
         n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
@@ -428,31 +445,38 @@ def neighbours(lines, cols, n_core, t, x, planes, o, grid, lookup, k, tol):  # p
             and (((o[0] - v0[i, 0]) * n0 + (o[2] - v0[i, 2]) * n2) + (o[1] - v0[i, 1]) * n1) < 0
         ):
             n0, n1, n2 = -n0, -n1, -n2
-        nr, jp, t_lo, t_hi = False, False, np.inf, -np.inf
-        for dc in range(-k, k + 1):
-            qc = _column(cols[i] + dc, n_az, full_turn)
-            if qc < 0:
-                continue
-            for dl in range(-k, k + 1):
-                ql = lines[i] + dl
-                if (dc == 0 and dl == 0) or ql < 0 or ql >= n_lines:
+        nr, jp, t_lo, t_hi, n_tri = False, False, np.inf, -np.inf, 0
+        for r in range(1, k + 1):
+            for dc in range(-r, r + 1):
+                qc = _column(cols[i] + dc, n_az, full_turn)
+                if qc < 0:
                     continue
-                if look.shape[0] > 0:
-                    pc, row = colpos[qc], ql - lmin
-                    q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
-                else:
-                    q = _search(qc * n_lines + ql, skey, order)
-                if q < 0 or not (t[q] < np.inf):
-                    continue
-                if not is_hit:
-                    nr = True
-                    t_lo = min(t_lo, t[q])
-                    t_hi = max(t_hi, t[q])
-                elif not jp:
-                    r0, r1, r2 = x[q, 0] - v0[i, 0], x[q, 1] - v0[i, 1], x[q, 2] - v0[i, 2]
-                    jp = (r0 * n0 + r2 * n2) + r1 * n1 > tol
+                for dl in range(-r, r + 1):
+                    ql = lines[i] + dl
+                    if (abs(dc) < r and abs(dl) < r) or ql < 0 or ql >= n_lines:
+                        continue
+                    if look.shape[0] > 0:
+                        pc, row = colpos[qc], ql - lmin
+                        q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
+                    else:
+                        q = _search(qc * n_lines + ql, skey, order)
+                    if q < 0 or not (t[q] < np.inf):
+                        continue
+                    if not is_hit:
+                        nr = True
+                        t_lo = min(t_lo, t[q])
+                        t_hi = max(t_hi, t[q])
+                        seen = n_tri >= BESIDE
+                        for j in range(n_tri):
+                            seen = seen or tri[i, j] == prim[q]
+                        if not seen:
+                            tri[i, n_tri] = prim[q]
+                            n_tri += 1
+                    elif not jp:
+                        r0, r1, r2 = x[q, 0] - v0[i, 0], x[q, 1] - v0[i, 1], x[q, 2] - v0[i, 2]
+                        jp = (r0 * n0 + r2 * n2) + r1 * n1 > tol
         near[i], jump[i], lo[i], hi[i] = nr, jp, t_lo, t_hi
-    return near, lo, hi, jump
+    return near, lo, hi, jump, tri
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -530,3 +554,85 @@ def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compil
         near = out[3, 0] < 1.0 or out[3, 1] < 1.0 or out[3, 2] < 1.0
         ok[i] = near or (out[2, 0] >= 0.0 and out[2, 1] >= 0.0 and out[2, 2] >= 0.0)
     return ok
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _reach(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - compiled
+    """How far triangle ``t`` lies from pulse ``p``'s axis, as seen, in footprint radii:
+    0 with the axis inside it, else its nearest edge's distance (under 1: it overlaps
+    the footprint, as :func:`overlaps` says)."""
+    _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m)
+    if out[2, 0] >= 0.0 and out[2, 1] >= 0.0 and out[2, 2] >= 0.0:
+        return 0.0
+    return min(out[3, 0], min(out[3, 1], out[3, 2]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def approach(v, faces, nbr, o, th, d, e1, e2, cand, steps):  # pragma: no cover - compiled
+    """Where pulses (d, e1, e2) whose central ray missed meet the surface their
+    neighbours' central rays hit (``cand``: each pulse's triangles of those hits, -1 past
+    them). Where no candidate overlaps the footprint, from each in turn (nearest the
+    axis first, as seen) at most ``steps`` steps across its edges, each to the
+    neighbour nearest the axis while that comes no farther (round a corner that several
+    triangles share, never back), until one overlaps the footprint: round a twig to its
+    silhouette; a candidate on one branch may lead nowhere while another's does.
+    Returns which candidates overlap the footprint (as :func:`overlaps`) and, per pulse,
+    the triangle the steps reached (-1 where none)."""
+    n, c = cand.shape
+    start = np.full((n, c), -1, dtype=np.int64)
+    gap = np.full(n, np.inf)
+    over = np.zeros((n, c), dtype=np.bool_)
+    been = np.empty(steps + 1, dtype=np.int64)
+    dist = np.empty(c)
+    out = np.empty((5, 3))
+    m = np.empty((3, 3))
+    for p in range(n):
+        n_c, any_over, n_r = 0, False, 0
+        for j in range(c):
+            t = cand[p, j]
+            if t < 0:
+                break
+            dist[j] = _reach(v, faces, o, th, d, e1, e2, p, t, out, m)
+            over[p, j] = dist[j] < 1.0
+            any_over = any_over or over[p, j]
+            n_c += 1
+        for _ in range(n_c if not any_over else 0):
+            # the nearest candidate not yet tried
+            jj, far = -1, np.inf
+            for j in range(n_c):
+                if dist[j] < far:
+                    jj, far = j, dist[j]
+            if jj < 0:
+                break
+            best = cand[p, jj]
+            dist[jj] = np.inf
+            s = 0
+            been[0] = best
+            while not (far < 1.0) and s < steps:
+                nxt, nearer = -1, far
+                for k in range(3):
+                    u = nbr[best, k]
+                    if u < 0:
+                        continue
+                    fresh = True
+                    for j in range(s + 1):
+                        fresh = fresh and been[j] != u
+                    if not fresh:
+                        continue
+                    r = _reach(v, faces, o, th, d, e1, e2, p, u, out, m)
+                    if r < nearer or (r == nearer and nxt < 0):
+                        nxt, nearer = u, r
+                if nxt < 0:
+                    break
+                best, far = nxt, nearer
+                s += 1
+                been[s] = best
+            gap[p] = min(gap[p], far)
+            if far < 1.0:
+                reached = True
+                for j in range(n_r):
+                    reached = reached and start[p, j] != best
+                if reached:
+                    start[p, n_r] = best
+                    n_r += 1
+    return over, start, gap

@@ -503,16 +503,23 @@ def _merge_records(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 #: Fine grid of the profile tables (the footprint's unit disc, offsets -1 to 1).
 _TABLE_POINTS = 8001
-#: Rim probes cast around a pulse whose central ray missed beside a hit: how many, and
-#: at which share of the footprint's radius.
-EDGE_RIM_PROBES = 6
-EDGE_RIM_RHO = 0.95
 #: Triangles the edge model walks from a pulse's first triangle across its footprint
 #: (rings of neighbours) before it gives the pulse its sub-rays instead.
 EDGE_WALK_STEPS = 6
-#: The same for a miss's walk from a rim probe's triangle: a sliver whose surface goes on
-#: for rings is often beside another surface the probes did not meet.
+#: The same for a miss's walk from the surface its neighbours hit: a sliver whose surface
+#: goes on for rings is often beside another surface.
 EDGE_MISS_WALK_STEPS = 4
+#: Steps across edges a miss beside a hit takes from the triangle its neighbours hit
+#: towards its own axis (round a twig to the silhouette) before it decides that surface
+#: stays out of its footprint (:func:`treesim.scan._edge_jit.approach`).
+EDGE_APPROACH_STEPS = 8
+#: A miss whose neighbours' surface comes within this many footprint radii of its axis
+#: but that the steps do not bring into its footprint casts :data:`EDGE_RIM_PROBES` rays
+#: on its footprint's rim at :data:`EDGE_RIM_RHO` of its radius; one that meets
+#: something (a part the surface's edges do not join) gives it the sub-rays.
+EDGE_PROBE_GAP = 2.0
+EDGE_RIM_PROBES = 6
+EDGE_RIM_RHO = 0.95
 #: Returns carrying less than this share of a pulse's energy are not recorded by the
 #: edge model: a sliver the 127-sub-ray reference meets with at most one of its outer
 #: sub-rays (each ~0.25 % of the energy), where whether it has a return is the chance of
@@ -528,7 +535,7 @@ EDGE_WHOLE_RANGE_POINTS = 12
 #: lies from the silhouette line nearest the axis (about the spacing of the reference's
 #: sub-rays, whose strongest hit there is the return's).
 EDGE_SLIVER_INSET = 0.05
-#: The same for a sliver of a footprint (a rim-probed miss's, thin geometry's).
+#: The same for a sliver of a footprint (a miss's beside a hit, thin geometry's).
 EDGE_SLIVER_RANGE_POINTS = 61
 #: A neighbour's hit farther than this from the plane of a pulse's triangle may be
 #: another surface inside its footprint, one the mesh walk cannot reach.
@@ -731,19 +738,6 @@ def _surface_range(
     return (rng, covered) if full else rng
 
 
-def _point_rays(frame: tuple, pts: np.ndarray, th: float) -> np.ndarray:
-    """Unit directions (p, k, 3) through the footprint points ``pts`` (k, 2) (unit
-    radius; ``th``: the tangent of the beam's half-angle) of pulses ``frame``."""
-    d, e1, e2 = frame
-    w = pts[None, :, :1] * e1[:, None, :]
-    w += pts[None, :, 1:2] * e2[:, None, :]
-    w *= th
-    w += d[:, None, :]
-    # np.linalg.norm's own sum (the conjugate of a real number is itself), one pass less
-    w /= np.sqrt(np.add.reduce(w * w, axis=2, keepdims=True))
-    return w
-
-
 def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The surface's share of each of ``n`` pulses' footprints bounded by its silhouette
     ``lines`` (:func:`_walk`): ``ok`` where at most two lines cut it without crossing
@@ -867,10 +861,15 @@ class EdgeBeam(AdaptiveBeam):
       centroid; beyond each line one ray, cast at the far part's centroid, finds what lies
       behind (a second return of the far part's energy, merged within the range
       resolution);
-    * a miss beside a hit (a neighbour within ``k`` steps hit) casts
-      :data:`EDGE_RIM_PROBES` rays on the footprint's rim; the first that hits starts the
-      same walk, and the covered share is the sliver's energy; its range is the walked
-      surface's over :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint;
+    * a miss beside a hit (a neighbour within ``k`` steps hit) starts the same walk
+      from the triangles its neighbours hit that overlap its footprint, or from where
+      up to :data:`EDGE_APPROACH_STEPS` steps across their edges towards its axis lead
+      (round a twig to its silhouette; :func:`treesim.scan._edge_jit.approach`), and
+      the covered share is the sliver's energy; its range is the walked surface's over
+      :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint. Only where that
+      surface comes near (:data:`EDGE_PROBE_GAP`) but is not reached does it cast
+      :data:`EDGE_RIM_PROBES` rays on the footprint's rim, to find a part the edges do
+      not join;
     * thin geometry (the occupancy cull's rule,
       :func:`~treesim.scan.occupancy.thin_triangles`: twigs thinner than
       :data:`~treesim.scan.occupancy.THIN_STEPS` angular steps, leaves), which every
@@ -914,17 +913,18 @@ class EdgeBeam(AdaptiveBeam):
         faces = np.ascontiguousarray(caster.faces, dtype=np.int64)
         v = np.ascontiguousarray(caster.v, dtype=np.float64)
         self.geo = (v, faces, edge_neighbours(faces))
-        ang = 2.0 * math.pi * np.arange(EDGE_RIM_PROBES) / EDGE_RIM_PROBES
         q_off, q_w = subray_pattern(EDGE_RANGE_POINTS, 2.0e3)
         #: the points (unit footprint) and weights of the walked surface's mean range
         self.quad = (q_off, q_w)
-        #: a denser one for slivers (a rim-probed miss, thin geometry): a few of the
+        #: a denser one for slivers (a miss beside a hit, thin geometry): a few of the
         #: points of the walked surface's mean range fall in a narrow part
         self.quad_sliver = subray_pattern(EDGE_SLIVER_RANGE_POINTS, 2.0e3)
         #: a denser one for corners (the covered share and the uncovered parts too)
         self.quad_corner = subray_pattern(EDGE_CORNER_POINTS, 2.0e3)
         #: and a sparser one where the surface covers the footprint whole
         self.quad_whole = subray_pattern(EDGE_WHOLE_RANGE_POINTS, 2.0e3)
+        ang = 2.0 * math.pi * np.arange(EDGE_RIM_PROBES) / EDGE_RIM_PROBES
+        #: the rim probes' points (unit footprint): :meth:`_beside`
         self.rim = EDGE_RIM_RHO * np.stack([np.cos(ang), np.sin(ang)], axis=1)
         self.reasons = {
             "corner or several surfaces": 0,
@@ -995,7 +995,9 @@ class EdgeBeam(AdaptiveBeam):
 
     def _neighbours(self, lines, cols, t, prim, n_core, lookup) -> tuple:
         """Core pulses whose central ray missed while a neighbour within k steps hit
-        (with the nearest and farthest such hit of each: ``beside``, (lo, hi)), and
+        (with the nearest and farthest such hit of each and the first
+        :data:`treesim.scan._edge_jit.BESIDE` distinct triangles of those hits, nearest
+        ring first: ``beside``, (lo, hi, tri)), and
         core hits with a neighbour hit in front of the plane of their triangle (on
         the station's side) by more than :data:`EDGE_PLANE_TOL_M`: another surface may
         hide part of the footprint. A neighbour's hit behind the plane cannot: where the
@@ -1009,12 +1011,12 @@ class EdgeBeam(AdaptiveBeam):
         hc = np.flatnonzero(hit[:n_core])
         planes = (np.zeros((n_core, 3)), np.zeros((n_core, 3)))
         planes[0][hc], planes[1][hc] = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
-        near, lo, hi, jump = _jit().neighbours(
+        near, lo, hi, jump, tri = _jit().neighbours(
             lines,
             cols,
             n_core,
             t,
-            x,
+            (x, prim),
             planes,
             self.o,
             self._grid(),
@@ -1023,7 +1025,7 @@ class EdgeBeam(AdaptiveBeam):
             EDGE_PLANE_TOL_M,
         )
         mc = np.flatnonzero(near)
-        return mc, jump, (lo[mc], hi[mc])
+        return mc, jump, (lo[mc], hi[mc], tri[mc])
 
     def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing
@@ -1132,46 +1134,6 @@ class EdgeBeam(AdaptiveBeam):
         rows = np.arange(n)
         return tf[rows, pick], pf[rows, pick], fin.mean(axis=1)
 
-    def _misses(self, d: np.ndarray, thin: tuple[np.ndarray, np.ndarray]):
-        """The sliver each pulse whose central ray missed has from the surface its rim
-        probes meet: (range, energy, triangle) per pulse (energy 0: none), the indices
-        of those left to the sub-rays, and the rays cast."""
-        m, k = len(d), len(self.rim)
-        frame = self._frame(d)
-        tp, pp = self._cast(_point_rays(frame, self.rim, self.th).reshape(-1, 3))
-        tp, pp = tp.reshape(m, k), pp.reshape(m, k)
-        fin = np.isfinite(tp)
-        has = fin.any(axis=1)
-        lo = np.where(fin, tp, np.inf).min(axis=1)
-        hi = np.where(fin, tp, -np.inf).max(axis=1)
-        several = has & (hi - lo > self.spec.range_resolution_m)
-        idx = np.flatnonzero(has & ~several)
-        start = pp[idx, np.argmax(fin[idx], axis=1)]
-        sub = tuple(x[idx] for x in frame)
-        lines, unres, trail = _walk(
-            self.geo, self.o, self.th, sub, start, steps=EDGE_MISS_WALK_STEPS
-        )
-        cov = _coverage(len(idx), lines)
-        fb = unres | ~cov["ok"] | (np.bincount(lines["pulse"], minlength=len(idx)) == 0)
-        # the probes must agree: those that hit inside the covered part, the rest beyond
-        lp = lines["pulse"]
-        val = (
-            lines["nu"][:, None] * self.rim[None, :, 0]
-            + lines["nv"][:, None] * self.rim[None, :, 1]
-        )
-        out = np.zeros((len(idx), k), dtype=bool)
-        np.logical_or.at(out, lp, val + lines["c"][:, None] < 0.0)
-        fb |= (fin[idx] == out).any(axis=1)
-        # a thin triangle in the footprint that the walk did not reach: a second echo
-        fb |= self._unwalked(idx, start, trail, thin, m, d)
-        r = np.full(m, np.inf)
-        e = np.zeros(m)
-        p = np.full(m, -1, dtype=np.int64)
-        gi = np.flatnonzero(~fb)
-        r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
-        e[idx[gi]] = cov["energy"][gi]
-        return (r, e, p), np.concatenate([np.flatnonzero(several), idx[fb]]), m * k
-
     def _stray_boxes(self) -> dict[str, np.ndarray]:
         """This station's boxes of pulses thin triangles may reach
         (:func:`_stray_samples`), once: of open parts (leaves) and of the sides of thin
@@ -1231,12 +1193,10 @@ class EdgeBeam(AdaptiveBeam):
         return (d, *_jit().basis(d))
 
     def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
-        """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``)
-        whose triangle overlaps the pulse's footprint (as seen), each once (compiled:
-        :func:`treesim.scan._edge_jit.overlaps`)."""
-        n_t = len(self.geo[1])
-        pair = np.unique(rep * n_t + tri)
-        rep, tri = pair // n_t, pair % n_t
+        """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``; each
+        pair once, as :meth:`_stray_pairs` gives them) whose triangle overlaps the pulse's
+        footprint (as seen; compiled: :func:`treesim.scan._edge_jit.overlaps`), in their
+        order."""
         v, faces, _ = self.geo
         over = _jit().overlaps(v, faces, self.o, self.th, *self._frame(d), rep, tri)
         return rep[over], tri[over]
@@ -1326,31 +1286,44 @@ class EdgeBeam(AdaptiveBeam):
         out[k] = True
         return out
 
-    def _strays(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
-        """Thin geometry in the footprints of pulses (directions ``d``) whose central ray
-        missed and whose neighbours (or rim probes) saw nothing, from the candidate thin
-        triangles ``tri`` of each (``rep``: index into ``d``;
-        :meth:`_stray_candidates`): the nearest that the footprint overlaps starts the
-        walk, and its surface's share is the return, as for a rim-probed miss. (range,
-        energy, triangle) per pulse (energy 0: none), and the indices of those left to
-        the sub-rays (a walk that does not settle, or another thin surface facing the
-        station that it did not reach)."""
+    def _strays(
+        self,
+        d: np.ndarray,
+        rep: np.ndarray,
+        tri: np.ndarray,
+        *,
+        steps: int = EDGE_WALK_STEPS,
+        thin: tuple | None = None,
+        tested: bool = False,
+    ):
+        """The sliver of the footprints of pulses (directions ``d``) whose central ray
+        missed, from candidate triangles ``tri`` of each (``rep``: index into ``d``;
+        ``tested``: all known to overlap the footprint): thin geometry
+        (:meth:`_stray_pairs`) where the neighbours saw nothing, or the surface the
+        neighbours hit (:meth:`_beside`). The nearest candidate that the footprint
+        overlaps starts the walk (at most ``steps`` rings), and its surface's share is
+        the return. (range, energy, triangle) per pulse (energy 0: none), and the
+        indices of those left to the sub-rays: a walk that does not settle, or that
+        leaves out another candidate facing the station as its start does, or a thin
+        triangle of ``thin`` (pairs as ``rep``, ``tri``, to be tested) that overlaps the
+        footprint."""
         m = len(d)
         r, e, p = np.full(m, np.inf), np.zeros(m), np.full(m, -1, dtype=np.int64)
         if not len(rep):
             return (r, e, p), np.empty(0, np.int64)
-        rep, tri = self._overlapping(d, rep, tri)
+        if not tested:
+            rep, tri = self._overlapping(d, rep, tri)
         frame = self._frame(d)
         v, faces, _ = self.geo
         a = v[faces[tri]] - self.o
         near = np.linalg.norm(a.mean(axis=1), axis=1)
-        order = np.lexsort((near, rep))
+        order = np.lexsort((tri, near, rep))
         first = np.ones(len(order), dtype=bool)
         first[1:] = rep[order][1:] != rep[order][:-1]
         idx = rep[order][first]
         start = tri[order][first]
         sub = tuple(x[idx] for x in frame)
-        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, start)
+        lines, unres, trail = _walk(self.geo, self.o, self.th, sub, start, steps=steps)
         cov = _coverage(len(idx), lines)
         lp = lines["pulse"]
         # the central ray missed: the footprint's centre lies beyond some silhouette line
@@ -1358,30 +1331,75 @@ class EdgeBeam(AdaptiveBeam):
         np.logical_or.at(centre_out, lp, lines["c"] < 0.0)
         fb = unres | ~cov["ok"] | ~centre_out
         fb |= self._unwalked(idx, start, trail, (rep, tri), len(d))
+        if thin is not None:
+            fb |= self._unwalked(idx, start, trail, thin, len(d), d)
         gi = np.flatnonzero(~fb)
         r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
         e[idx[gi]] = cov["energy"][gi]
         return (r, e, p), idx[fb]
 
-    def _miss_parts(self, lines, cols, t, miss, n_core, pairs, beside):
-        """Returns of the block's core pulses whose central ray missed: the rim-probed
-        slivers of those beside a hit (:meth:`_misses`), then thin geometry
-        (:meth:`_strays`) in the footprints of the rest; the records, the pulses left to
-        the sub-rays (rim-probed, thin) and the rays cast."""
-        spec = self.spec
-        pos = np.full(n_core, -1, dtype=np.int64)
-        pos[miss] = np.arange(len(miss))
-        at = pos[pairs[0]]
-        s = at >= 0
-        d_miss = self._directions(lines[miss], cols[miss])
-        (r, e, p), fb, n_probe = self._misses(d_miss, (at[s], pairs[1][s]))
-        # ... or whose sliver lies on another surface than their neighbours' hits
-        lo, hi = beside
+    def _beside(self, d, cand, lo, hi, thin):
+        """The slivers of misses beside a hit (directions ``d``; ``cand``, ``lo``, ``hi``:
+        the triangles their neighbours hit and those hits' nearest and farthest range,
+        within the range resolution): that surface reached
+        (:func:`treesim.scan._edge_jit.approach`) and walked (:meth:`_strays`; ``thin``:
+        :meth:`_stray_pairs` of these misses). (range, energy, triangle) per miss (energy
+        0: none), the indices of those left to the sub-rays and the rays cast: a sliver
+        on another surface than the neighbours' hits, and a miss where that surface came
+        within :data:`EDGE_PROBE_GAP` footprint radii but the steps across its edges did
+        not bring it into the footprint and one of :data:`EDGE_RIM_PROBES` rays on its
+        rim meets something (another part the edges do not join: a QSM's next
+        cylinder)."""
+        v, faces, nbr = self.geo
+        frame = self._frame(d)
+        over, reach, gap = _jit().approach(
+            v, faces, nbr, self.o, self.th, *frame, cand, EDGE_APPROACH_STEPS
+        )
+        start = np.concatenate([cand, reach], axis=1)
+        over = np.concatenate([over, reach >= 0], axis=1)
+        rep = np.repeat(np.arange(len(d)), start.shape[1])
+        (r, e, p), fb = self._strays(
+            d,
+            rep[over.ravel()],
+            start[over],
+            steps=EDGE_MISS_WALK_STEPS,
+            thin=thin,
+            tested=True,
+        )
         res = self.spec.range_resolution_m
         other = np.isfinite(r) & (e > 0) & ((r < lo - res) | (r > hi + res))
+        q = np.flatnonzero(~over.any(axis=1) & (gap < EDGE_PROBE_GAP))
+        k = len(self.rim)
+        sub = tuple(x[np.repeat(q, k)] for x in frame)
+        t_rim, _ = self._cast(self._ray(sub, np.tile(self.rim, (len(q), 1))))
+        probed = q[np.isfinite(t_rim.reshape(-1, k)).any(axis=1)]
+        fb = np.union1d(fb, np.concatenate([np.flatnonzero(other), probed]))
+        e[fb] = 0.0
+        return (r, e, p), fb, len(q) * k
+
+    def _miss_parts(self, lines, cols, t, miss, n_core, pairs, beside):
+        """Returns of the block's core pulses whose central ray missed: the slivers of
+        those beside a hit (``beside``: their neighbours' nearest and farthest hits and
+        the triangles of those hits; :meth:`_neighbours`) from the surface their
+        neighbours hit (:meth:`_beside`), then thin geometry (:meth:`_strays`,
+        ``pairs``: :meth:`_stray_pairs`) in the footprints of the rest; the records, the
+        pulses left to the sub-rays (beside a hit, thin) and the rays cast."""
+        spec = self.spec
+        lo, hi, cand = beside
         # a miss whose neighbours' hits lie farther apart than the range resolution
-        # may have two echoes in its footprint: the rim probes may see one of them
-        fb = np.union1d(fb, np.flatnonzero((hi - lo > res) | other))
+        # may have two echoes in its footprint: the sub-rays
+        apart = hi - lo > spec.range_resolution_m
+        near = np.flatnonzero(~apart)
+        pos = np.full(n_core, -1, dtype=np.int64)
+        pos[miss[near]] = np.arange(len(near))
+        at = pos[pairs[0]]
+        s = at >= 0
+        d_near = self._directions(lines[miss[near]], cols[miss[near]])
+        r, e, p = np.full(len(miss), np.inf), np.zeros(len(miss)), np.full(len(miss), -1)
+        (r[near], e[near], p[near]), fb, n_probe = self._beside(
+            d_near, cand[near], lo[near], hi[near], (at[s], pairs[1][s])
+        )
+        fb = np.union1d(near[fb], np.flatnonzero(apart))
         e[fb] = 0.0
         seen = np.zeros(n_core, dtype=bool)
         seen[miss[fb]] = True

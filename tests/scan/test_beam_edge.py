@@ -224,3 +224,48 @@ def test_the_thin_geometry_index_given_up(monkeypatch):
     # an index too large is given up: the bar between central rays is not seen
     monkeypatch.setattr(beam_module, "_STRAY_MAX_SAMPLES", 0)
     assert len(scan(bar_scene(y0, y1), ORIGIN, EDGE).cloud) == 0 < len(whole)
+
+
+def prism_scene(centre_y: float, radius: float, sides: int = 8) -> Scene:
+    """A vertical prism (a twig of ``sides`` facets, one corner towards +y) at x = 8 m,
+    y = ``centre_y``, 2 m tall, its side triangles sharing their edges, capped."""
+    ang = math.pi / 2 + 2 * math.pi * np.arange(sides) / sides
+    ring = np.stack([8.0 + radius * np.cos(ang), centre_y + radius * np.sin(ang)], axis=1)
+    v = np.concatenate(
+        [
+            np.c_[ring, np.full(sides, -1.0)],
+            np.c_[ring, np.full(sides, 1.0)],
+            [[8.0, centre_y, -1.0], [8.0, centre_y, 1.0]],
+        ]
+    )
+    f = []
+    for i in range(sides):
+        j = (i + 1) % sides
+        f += [[i, j, sides + j], [i, sides + j, sides + i]]
+        f += [[2 * sides, j, i], [2 * sides + 1, sides + i, sides + j]]
+    return Scene([MeshPart(v, np.array(f, dtype=np.int64), label="other")])
+
+
+def test_a_miss_beside_a_twig_reaches_its_silhouette_across_the_facets():
+    # a pulse whose central ray passes 3 mm beyond an octagonal twig's side (40 mm
+    # radius, 8 m away; footprints 8 mm in radius, 18 mm apart): the neighbour one step
+    # in hits the facet before the one that holds the silhouette, which the footprint
+    # does not reach. The edge model steps across the facets' edges to the silhouette
+    # and gives the pulse the share of its footprint beyond that edge (no ray cast)
+    step_deg = 0.13
+    spec = EDGE.with_(horizontal_resolution_deg=step_deg, horizontal_fov_deg=(-0.65, 0.65))
+    a2 = math.radians(2 * step_deg)
+    radius = 0.04
+    centre = 8.0 * math.tan(a2) - 0.003 - radius  # the silhouette 3 mm inside pulse 2
+    r = scan(prism_scene(centre, radius), ORIGIN, spec)
+    f = r.cloud.fields
+    az = np.radians(spec.horizontal_fov_deg[0] + f["scan_column"] * step_deg)
+    energy = f["intensity"] / 65535.0 / np.cos(np.radians(f["incidence_deg"].astype(np.float64)))
+    a_sil = math.atan2(centre + radius, 8.0)
+    right = az > math.atan2(centre, 8.0)  # the twig's side towards +y
+    want = np.array([covered(a - a_sil) for a in az[right]])
+    np.testing.assert_allclose(energy[right], want, atol=BOUND)
+    beyond = np.isclose(az, a2, atol=1e-9)
+    # that pulse's return: its footprint's share beyond the silhouette (about a fifth)
+    assert beyond.sum() == 1 and 0.1 < energy[beyond][0] < 0.4
+    assert r.lod["beam"]["pulses_subrays"] == 0

@@ -17,7 +17,6 @@ from tests.scan.test_beam_footprint import SPEC, edge_scene
 from treesim.scan import Station, beam, scan
 from treesim.scan.beam import (
     _edge_lines,
-    _point_rays,
     _surface_range,
     _walk,
     beam_basis,
@@ -162,13 +161,6 @@ def old_quad_ranges(q_r, g, pts, geo, frame, it_p, it_t) -> None:
     np.minimum.at(q_r, (it_p[ii], kk), np.where(r > 0, r, np.inf))
 
 
-def old_ray(th: float, frame: tuple, xy: np.ndarray) -> np.ndarray:
-    """``EdgeBeam._ray`` as it stood: unit directions at footprint points ``xy``."""
-    d, e1, e2 = frame
-    w = d + th * (xy[:, :1] * e1 + xy[:, 1:2] * e2)
-    return w / np.linalg.norm(w, axis=1, keepdims=True)
-
-
 # --------------------------------------------------------------------------------------
 # the new helpers, bit for bit
 # --------------------------------------------------------------------------------------
@@ -272,14 +264,48 @@ def test_the_compiled_frames_are_beam_basis_to_the_bit():
         assert same(got, want)
 
 
-def test_point_rays_match_the_old_rays(mesh):
-    frame, _ = aim(mesh, 200)
-    m = len(frame[0])
-    for pts in (subray_pattern(19, 2.0e3)[0], 0.95 * np.array([[1.0, 0.0], [-0.5, 0.8]])):
-        k = len(pts)
-        rep = np.repeat(np.arange(m), k)
-        old = old_ray(THS[0], tuple(x[rep] for x in frame), np.tile(pts, (m, 1)))
-        assert same(_point_rays(frame, pts, THS[0]).reshape(-1, 3), old)
+def test_a_miss_lists_the_triangles_its_neighbours_hit_nearest_ring_first():
+    # a 9 x 7 grid, one block (every pulse core), k = 2 steps: per miss, the distinct
+    # triangles of its neighbours' hits, those of the nearer ring first, at most BESIDE
+    from treesim.scan import _edge_jit as J
+
+    rng = np.random.default_rng(5)
+    n_az, n_lines, k = 9, 7, 2
+    cols, lines = (a.ravel() for a in np.meshgrid(np.arange(n_az), np.arange(n_lines)))
+    n = len(cols)
+    t = np.where(rng.random(n) < 0.5, 5.0 + rng.random(n), np.inf)
+    prim = np.where(np.isfinite(t), rng.integers(0, 30, n), -1)
+    table = np.full((n_az, n_lines), -1, dtype=np.int32)
+    table[cols, lines] = np.arange(n)
+    none = np.empty(0, np.int64)
+    lookup = (table, np.arange(n_az), 0, none, none)
+    planes = (np.tile([1.0, 0.0, 0.0], (n, 1)), np.zeros((n, 3)))
+    near, _, _, _, tri = J.neighbours(
+        lines,
+        cols,
+        n,
+        t,
+        (np.zeros((n, 3)), prim),
+        planes,
+        np.zeros(3),
+        (n_az, n_lines, False),
+        lookup,
+        k,
+        1e-3,
+    )
+    for i in np.flatnonzero(~np.isfinite(t)):
+        ring = {}
+        for q in range(n):
+            r = max(abs(int(cols[q] - cols[i])), abs(int(lines[q] - lines[i])))
+            if 0 < r <= k and np.isfinite(t[q]):
+                ring[prim[q]] = min(ring.get(prim[q], k + 1), r)
+        got = [x for x in tri[i] if x >= 0]
+        assert near[i] == bool(ring)
+        assert len(got) == len(set(got)) == min(len(ring), J.BESIDE)
+        assert set(got) <= set(ring) and [ring[x] for x in got] == sorted(ring[x] for x in got)
+        # a triangle left out (more than BESIDE) lies no nearer than every one listed
+        assert all(ring[x] >= max(ring[y] for y in got) for x in set(ring) - set(got))
+    assert max(len(x[x >= 0]) for x in tri) == J.BESIDE  # some misses had more
 
 
 def test_the_edge_scan_is_the_same_whichever_way_it_finds_neighbours(monkeypatch):
@@ -310,7 +336,7 @@ def test_the_warm_up_compiles_every_kernel():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     signatures = json.loads(out.stdout.strip().splitlines()[-1])
-    assert set(signatures) == {"basis", "box_pulses", "edge_lines", "neighbours"} | {
+    assert set(signatures) == {"approach", "basis", "box_pulses", "edge_lines", "neighbours"} | {
         "overlaps",
         "surface_range",
         "walk",
