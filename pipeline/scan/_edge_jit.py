@@ -576,8 +576,9 @@ def approach(v, faces, nbr, o, th, d, e1, e2, cand, steps):  # pragma: no cover 
     neighbour nearest the axis while that comes no farther (round a corner that several
     triangles share, never back), until one overlaps the footprint: round a twig to its
     silhouette; a candidate on one branch may lead nowhere while another's does.
-    Returns which candidates overlap the footprint (as :func:`overlaps`) and, per pulse,
-    the triangle the steps reached (-1 where none)."""
+    Returns which candidates overlap the footprint (as :func:`overlaps`; (n, c)), per
+    pulse the distinct triangles the steps reached ((n, c), -1 past them) and how near
+    the steps came to the axis (footprint radii; inf where none were taken)."""
     n, c = cand.shape
     start = np.full((n, c), -1, dtype=np.int64)
     gap = np.full(n, np.inf)
