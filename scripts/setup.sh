@@ -64,8 +64,8 @@ fi
 "$VENV/bin/python" -c "import open3d, pymeshlab, laspy, trimesh, pgeof" \
   || { echo "setup: the native libraries failed to import (see above)"; exit 1; }
 if [ "$MODE" != demo ]; then
-  # the edge beam model's kernels compiled once into numba's cache (~15 s), not by each
-  # test worker that first scans with it
+  # the edge beam model's kernels compiled once into numba's cache (its time: see
+  # docs/validation.md), not by each test worker that first scans with it
   "$VENV/bin/python" -c "from treesim.scan.warmup import warm_edge_model; warm_edge_model()" \
     || { echo "setup: compiling the edge beam model's kernels failed (see above)"; exit 1; }
 fi
