@@ -843,6 +843,18 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
     }
 
 
+def _pairs_within(pairs: tuple[np.ndarray, np.ndarray], members: np.ndarray) -> tuple:
+    """The (pulse, triangle) ``pairs`` whose pulse is one of ``members`` (distinct pulse
+    indices), their pulse given as its index into ``members``."""
+    rep, tri = pairs
+    n = int(max(rep.max(initial=-1), members.max(initial=-1))) + 1
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[members] = np.arange(len(members))
+    at = pos[rep]
+    s = np.flatnonzero(at >= 0)
+    return at[s], tri[s]
+
+
 class EdgeBeam(AdaptiveBeam):
     """The footprint at the price of about one ray a pulse (``beam_sampling="edge"``).
 
@@ -1205,12 +1217,7 @@ class EdgeBeam(AdaptiveBeam):
         """Which hits (core indices ``hit``, directions ``d``, ranges ``t``) have thin
         geometry in front of their surface inside their footprint (``pairs``:
         :meth:`_stray_pairs`): a twig before a branch that the central ray passed by."""
-        at, tri = pairs
-        pos = np.full(int(hit.max(initial=-1)) + 2, -1, dtype=np.int64)
-        pos[hit] = np.arange(len(hit))
-        k = pos[np.minimum(at, len(pos) - 1)]
-        s = np.flatnonzero(k >= 0)
-        k, tri = k[s], tri[s]
+        k, tri = _pairs_within(pairs, hit)
         s = np.flatnonzero(self._stray["far"][tri] < t[k] - EDGE_PLANE_TOL_M)
         rep, _ = self._overlapping(d, k[s], tri[s])
         front = np.zeros(len(hit), dtype=bool)
@@ -1259,18 +1266,13 @@ class EdgeBeam(AdaptiveBeam):
             self._facing_all = np.einsum("ij,ij->i", nrm, a0) < 0
         return self._facing_all[tri]
 
-    def _unwalked(self, idx, start, trail, thin, m: int, d: np.ndarray | None = None):
-        """Which walks (pulses ``idx`` of ``m``, from triangles ``start``, their
-        ``trail``: :func:`_walk`) leave out a thin triangle that overlaps their footprint
-        (``thin``: pairs (pulse of ``m``, triangle), overlapping or, given the pulses'
-        directions ``d``, to be tested: :meth:`_overlapping`) and faces the station as
-        the start does: another twig inside the footprint."""
-        rep, tri = thin
-        pos = np.full(m, -1, dtype=np.int64)
-        pos[idx] = np.arange(len(idx))
-        k = pos[rep]
-        s = np.flatnonzero(k >= 0)
-        k, tri = k[s], tri[s]
+    def _unwalked(self, idx, start, trail, thin, d: np.ndarray | None = None):
+        """Which walks (pulses ``idx``, from triangles ``start``, their ``trail``:
+        :func:`_walk`) leave out a thin triangle that overlaps their footprint (``thin``:
+        pairs (pulse, triangle), overlapping or, given the pulses' directions ``d``, to be
+        tested: :meth:`_overlapping`) and faces the station as the start does: another
+        twig inside the footprint."""
+        k, tri = _pairs_within(thin, idx)
         out = np.zeros(len(idx), dtype=bool)
         if not len(k):
             return out
@@ -1330,9 +1332,9 @@ class EdgeBeam(AdaptiveBeam):
         centre_out = np.zeros(len(idx), dtype=bool)
         np.logical_or.at(centre_out, lp, lines["c"] < 0.0)
         fb = unres | ~cov["ok"] | ~centre_out
-        fb |= self._unwalked(idx, start, trail, (rep, tri), len(d))
+        fb |= self._unwalked(idx, start, trail, (rep, tri))
         if thin is not None:
-            fb |= self._unwalked(idx, start, trail, thin, len(d), d)
+            fb |= self._unwalked(idx, start, trail, thin, d)
         gi = np.flatnonzero(~fb)
         r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
         e[idx[gi]] = cov["energy"][gi]
@@ -1390,14 +1392,10 @@ class EdgeBeam(AdaptiveBeam):
         # may have two echoes in its footprint: the sub-rays
         apart = hi - lo > spec.range_resolution_m
         near = np.flatnonzero(~apart)
-        pos = np.full(n_core, -1, dtype=np.int64)
-        pos[miss[near]] = np.arange(len(near))
-        at = pos[pairs[0]]
-        s = at >= 0
         d_near = self._directions(lines[miss[near]], cols[miss[near]])
         r, e, p = np.full(len(miss), np.inf), np.zeros(len(miss)), np.full(len(miss), -1)
         (r[near], e[near], p[near]), fb, n_probe = self._beside(
-            d_near, cand[near], lo[near], hi[near], (at[s], pairs[1][s])
+            d_near, cand[near], lo[near], hi[near], _pairs_within(pairs, miss[near])
         )
         fb = np.union1d(near[fb], np.flatnonzero(apart))
         e[fb] = 0.0
@@ -1406,12 +1404,8 @@ class EdgeBeam(AdaptiveBeam):
         found = (e >= EDGE_MIN_ENERGY) & in_range(spec, r)
         seen[miss[found]] = True
         empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen)
-        pos = np.full(n_core, -1, dtype=np.int64)
-        pos[empty] = np.arange(len(empty))
-        rep = pos[pairs[0]]
-        s = rep >= 0
         d_empty = self._directions(lines[empty], cols[empty])
-        (r2, e2, p2), fb2 = self._strays(d_empty, rep[s], pairs[1][s])
+        (r2, e2, p2), fb2 = self._strays(d_empty, *_pairs_within(pairs, empty))
         parts = []
         for pulses, rr, ee, pp in ((miss, r, e, p), (empty, r2, e2, p2)):
             ok = np.flatnonzero((ee >= EDGE_MIN_ENERGY) & in_range(spec, rr))
