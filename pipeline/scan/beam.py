@@ -1046,15 +1046,15 @@ class EdgeBeam(AdaptiveBeam):
         keep = in_range(self.spec, t) & (p >= 0)
         return np.where(keep, t, np.inf), np.where(keep, p, -1)
 
-    def _hits(self, d: np.ndarray, t: np.ndarray, prim: np.ndarray, jump: np.ndarray):
+    def _hits(self, frame: tuple, t: np.ndarray, prim: np.ndarray, jump: np.ndarray):
         """Parts (ranges, energies, triangles; (m, 3): the hit surface and what lies
-        beyond up to two silhouette lines) of pulses whose central ray hit, and the
+        beyond up to two silhouette lines) of pulses (frames ``frame``: :meth:`_frame`;
+        central ranges ``t``, triangles ``prim``) whose central ray hit, and the
         indices of those left to the sub-rays; plus the rays cast and how many were left
         for another surface beside. ``jump``: pulses with a neighbour on another
         surface, left to the sub-rays unless a silhouette edge inside their footprint
         accounts for it."""
-        m = len(d)
-        frame = self._frame(d)
+        m = len(t)
         g = _edge_lines(self.geo[0], self.geo[1], self.o, self.th, frame, prim)
         inside = (g["c"] >= 1.0).all(axis=1)
         cut = np.flatnonzero(~inside)
@@ -1204,22 +1204,22 @@ class EdgeBeam(AdaptiveBeam):
         d = np.ascontiguousarray(d, dtype=np.float64)
         return (d, *_jit().basis(d))
 
-    def _overlapping(self, d: np.ndarray, rep: np.ndarray, tri: np.ndarray):
-        """The pairs (``rep``: index into pulse directions ``d``, triangle ``tri``; each
+    def _overlapping(self, frame: tuple, rep: np.ndarray, tri: np.ndarray):
+        """The pairs (``rep``: index into pulses of frames ``frame``, triangle ``tri``; each
         pair once, as :meth:`_stray_pairs` gives them) whose triangle overlaps the pulse's
         footprint (as seen; compiled: :func:`treesim.scan._edge_jit.overlaps`), in their
         order."""
         v, faces, _ = self.geo
-        over = _jit().overlaps(v, faces, self.o, self.th, *self._frame(d), rep, tri)
+        over = _jit().overlaps(v, faces, self.o, self.th, *frame, rep, tri)
         return rep[over], tri[over]
 
-    def _thin_in_front(self, pairs, hit: np.ndarray, d: np.ndarray, t: np.ndarray):
-        """Which hits (core indices ``hit``, directions ``d``, ranges ``t``) have thin
+    def _thin_in_front(self, pairs, hit: np.ndarray, frame: tuple, t: np.ndarray):
+        """Which hits (core indices ``hit``, frames ``frame``, ranges ``t``) have thin
         geometry in front of their surface inside their footprint (``pairs``:
         :meth:`_stray_pairs`): a twig before a branch that the central ray passed by."""
         k, tri = _pairs_within(pairs, hit)
         s = np.flatnonzero(self._stray["far"][tri] < t[k] - EDGE_PLANE_TOL_M)
-        rep, _ = self._overlapping(d, k[s], tri[s])
+        rep, _ = self._overlapping(frame, k[s], tri[s])
         front = np.zeros(len(hit), dtype=bool)
         front[rep] = True
         return front
@@ -1266,10 +1266,10 @@ class EdgeBeam(AdaptiveBeam):
             self._facing_all = np.einsum("ij,ij->i", nrm, a0) < 0
         return self._facing_all[tri]
 
-    def _unwalked(self, idx, start, trail, thin, d: np.ndarray | None = None):
+    def _unwalked(self, idx, start, trail, thin, frame: tuple | None = None):
         """Which walks (pulses ``idx``, from triangles ``start``, their ``trail``:
         :func:`_walk`) leave out a thin triangle that overlaps their footprint (``thin``:
-        pairs (pulse, triangle), overlapping or, given the pulses' directions ``d``, to be
+        pairs (pulse, triangle), overlapping or, given the pulses' frames ``frame``, to be
         tested: :meth:`_overlapping`) and faces the station as the start does: another
         twig inside the footprint."""
         k, tri = _pairs_within(thin, idx)
@@ -1283,14 +1283,14 @@ class EdgeBeam(AdaptiveBeam):
         at = np.minimum(np.searchsorted(walked, ck), max(len(walked) - 1, 0))
         seen = (walked[at] == ck) if len(walked) else np.zeros(len(ck), dtype=bool)
         k, tri = k[same & ~seen], tri[same & ~seen]
-        if d is not None:  # the few left out overlap the footprint?
-            k, _ = self._overlapping(d[idx], k, tri)
+        if frame is not None:  # the few left out overlap the footprint?
+            k, _ = self._overlapping(tuple(x[idx] for x in frame), k, tri)
         out[k] = True
         return out
 
     def _strays(
         self,
-        d: np.ndarray,
+        frame: tuple,
         rep: np.ndarray,
         tri: np.ndarray,
         *,
@@ -1298,8 +1298,8 @@ class EdgeBeam(AdaptiveBeam):
         thin: tuple | None = None,
         tested: bool = False,
     ):
-        """The sliver of the footprints of pulses (directions ``d``) whose central ray
-        missed, from candidate triangles ``tri`` of each (``rep``: index into ``d``;
+        """The sliver of the footprints of pulses (frames ``frame``: :meth:`_frame`) whose
+        central ray missed, from candidate triangles ``tri`` of each (``rep``: their index;
         ``tested``: all known to overlap the footprint): thin geometry
         (:meth:`_stray_pairs`) where the neighbours saw nothing, or the surface the
         neighbours hit (:meth:`_beside`). The nearest candidate that the footprint
@@ -1309,13 +1309,12 @@ class EdgeBeam(AdaptiveBeam):
         leaves out another candidate facing the station as its start does, or a thin
         triangle of ``thin`` (pairs as ``rep``, ``tri``, to be tested) that overlaps the
         footprint."""
-        m = len(d)
+        m = len(frame[0])
         r, e, p = np.full(m, np.inf), np.zeros(m), np.full(m, -1, dtype=np.int64)
         if not len(rep):
             return (r, e, p), np.empty(0, np.int64)
         if not tested:
-            rep, tri = self._overlapping(d, rep, tri)
-        frame = self._frame(d)
+            rep, tri = self._overlapping(frame, rep, tri)
         v, faces, _ = self.geo
         a = v[faces[tri]] - self.o
         near = np.linalg.norm(a.mean(axis=1), axis=1)
@@ -1334,14 +1333,14 @@ class EdgeBeam(AdaptiveBeam):
         fb = unres | ~cov["ok"] | ~centre_out
         fb |= self._unwalked(idx, start, trail, (rep, tri))
         if thin is not None:
-            fb |= self._unwalked(idx, start, trail, thin, d)
+            fb |= self._unwalked(idx, start, trail, thin, frame)
         gi = np.flatnonzero(~fb)
         r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
         e[idx[gi]] = cov["energy"][gi]
         return (r, e, p), idx[fb]
 
-    def _beside(self, d, cand, lo, hi, thin):
-        """The slivers of misses beside a hit (directions ``d``; ``cand``, ``lo``, ``hi``:
+    def _beside(self, frame, cand, lo, hi, thin):
+        """The slivers of misses beside a hit (frames ``frame``; ``cand``, ``lo``, ``hi``:
         the triangles their neighbours hit and those hits' nearest and farthest range,
         within the range resolution): that surface reached
         (:func:`treesim.scan._edge_jit.approach`) and walked (:meth:`_strays`; ``thin``:
@@ -1353,15 +1352,14 @@ class EdgeBeam(AdaptiveBeam):
         rim meets something (another part the edges do not join: a QSM's next
         cylinder)."""
         v, faces, nbr = self.geo
-        frame = self._frame(d)
         over, reach, gap = _jit().approach(
             v, faces, nbr, self.o, self.th, *frame, cand, EDGE_APPROACH_STEPS
         )
         start = np.concatenate([cand, reach], axis=1)
         over = np.concatenate([over, reach >= 0], axis=1)
-        rep = np.repeat(np.arange(len(d)), start.shape[1])
+        rep = np.repeat(np.arange(len(cand)), start.shape[1])
         (r, e, p), fb = self._strays(
-            d,
+            frame,
             rep[over.ravel()],
             start[over],
             steps=EDGE_MISS_WALK_STEPS,
@@ -1392,10 +1390,10 @@ class EdgeBeam(AdaptiveBeam):
         # may have two echoes in its footprint: the sub-rays
         apart = hi - lo > spec.range_resolution_m
         near = np.flatnonzero(~apart)
-        d_near = self._directions(lines[miss[near]], cols[miss[near]])
+        f_near = self._frame(self._directions(lines[miss[near]], cols[miss[near]]))
         r, e, p = np.full(len(miss), np.inf), np.zeros(len(miss)), np.full(len(miss), -1)
         (r[near], e[near], p[near]), fb, n_probe = self._beside(
-            d_near, cand[near], lo[near], hi[near], _pairs_within(pairs, miss[near])
+            f_near, cand[near], lo[near], hi[near], _pairs_within(pairs, miss[near])
         )
         fb = np.union1d(near[fb], np.flatnonzero(apart))
         e[fb] = 0.0
@@ -1404,8 +1402,8 @@ class EdgeBeam(AdaptiveBeam):
         found = (e >= EDGE_MIN_ENERGY) & in_range(spec, r)
         seen[miss[found]] = True
         empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen)
-        d_empty = self._directions(lines[empty], cols[empty])
-        (r2, e2, p2), fb2 = self._strays(d_empty, *_pairs_within(pairs, empty))
+        f_empty = self._frame(self._directions(lines[empty], cols[empty]))
+        (r2, e2, p2), fb2 = self._strays(f_empty, *_pairs_within(pairs, empty))
         parts = []
         for pulses, rr, ee, pp in ((miss, r, e, p), (empty, r2, e2, p2)):
             ok = np.flatnonzero((ee >= EDGE_MIN_ENERGY) & in_range(spec, rr))
@@ -1438,12 +1436,12 @@ class EdgeBeam(AdaptiveBeam):
         hit = hit[~near_limit]
         lookup = self._lookup(lines, cols)
         miss, jump, beside = self._neighbours(lines, cols, t, prim, n_core, lookup)
-        d_hit = self._directions(lines[hit], cols[hit])
+        f_hit = self._frame(self._directions(lines[hit], cols[hit]))
         pairs = self._stray_pairs(lines, cols, n_core, lookup)
-        front = self._thin_in_front(pairs, hit, d_hit, tc[hit])
+        front = self._thin_in_front(pairs, hit, f_hit, tc[hit])
         fall.append(hit[front])
-        hit, d_hit = hit[~front], d_hit[~front]
-        (tt, ww, pp), fb, n_rays, n_beside, corners = self._hits(d_hit, tc[hit], pc[hit], jump[hit])
+        hit, f_hit = hit[~front], tuple(x[~front] for x in f_hit)
+        (tt, ww, pp), fb, n_rays, n_beside, corners = self._hits(f_hit, tc[hit], pc[hit], jump[hit])
         fall.append(hit[fb])
         keep = (ww >= EDGE_MIN_ENERGY) & in_range(spec, tt) & (pp >= 0)
         keep[fb] = False
