@@ -3,8 +3,10 @@ mesh's edges, and the walk across the surface it meets.
 
 :mod:`treesim.scan.beam` imports this module only when the edge model runs
 (``beam_sampling="edge"``): numba's import (about 0.3 s) and its first compilation stay
-out of every other command. The kernels are compiled once per machine and cached
-(``cache=True``: beside this file, or numba's user-wide cache where that is read-only).
+out of every other command. The kernels are compiled once per machine and cached: in
+``NUMBA_CACHE_DIR`` where it is set, else beside this file, else in numba's user-wide cache
+where this folder is read-only; where none can be written, once per process
+(:func:`_cache_usable`).
 
 The arithmetic is the numpy formulas' (:func:`treesim.scan.beam.beam_basis`, the edge
 lines, the surface's range), in float64 and in numpy's order (no fast-math: no
@@ -16,10 +18,39 @@ products and the frames to the bit), and the walks to the same triangles and edg
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
 from numba import njit
+
+
+def _cache_usable() -> bool:
+    """Whether numba can cache this module's kernels: it needs a folder it can write
+    (``NUMBA_CACHE_DIR``, else the ``__pycache__`` beside this file, else numba's
+    user-wide cache), and without one ``cache=True`` fails as the module is imported (a
+    read-only install run by a user with no writable home). There the kernels are
+    compiled in each process instead (:func:`treesim.scan.warmup.warm_edge_model`'s
+    figure, once per process), with a warning that says how to keep them."""
+
+    def probe(x):  # pragma: no cover - never called, only decorated
+        return x
+
+    try:
+        njit(cache=True)(probe)
+    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator"
+        logging.getLogger("treesim").warning(
+            "the edge beam model's kernels cannot be cached (%s): each process compiles "
+            "them on its first edge scan (tens of seconds); set NUMBA_CACHE_DIR to a "
+            "folder this user can write to keep them",
+            exc,
+        )
+        return False
+    return True
+
+
+#: whether the kernels are cached (:func:`_cache_usable`)
+CACHE = _cache_usable()
 
 #: how many distinct triangles a miss's neighbours hit :func:`neighbours` keeps (nearest
 #: ring first): where the walk that settles the miss may start
@@ -37,19 +68,19 @@ __all__ = [
 ]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _dot(a0, a1, a2, b, p):  # pragma: no cover - compiled
     # in the order numpy's einsum sums three products on x86-64 (two lanes: 0 and 2, 1)
     return (a0 * b[p, 0] + a2 * b[p, 2]) + a1 * b[p, 1]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _sign(x):  # pragma: no cover - compiled
     # 0.0, -0.0 or nan, as np.sign
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _corner(v, faces, o, th, d, e1, e2, p, t, k):  # pragma: no cover - compiled
     """Corner ``k`` of triangle ``t`` from the station (x, y, z), on pulse ``p``'s
     footprint plane (u, v in footprint radii) and whether it lies in front (1.0, 0.0)."""
@@ -63,7 +94,7 @@ def _corner(v, faces, o, th, d, e1, e2, p, t, k):  # pragma: no cover - compiled
     return a0, a1, a2, pu, pv, 1.0 if front else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _edge(ca, cb, cc, th, d, e1, e2, p):  # pragma: no cover - compiled
     """The edge from corner ``ca`` to ``cb`` (:func:`_corner`; ``cc`` the third) on pulse
     ``p``'s footprint plane: (nu, nv, c, dist, sg, and the normal m0, m1, m2 of the
@@ -85,7 +116,7 @@ def _edge(ca, cb, cc, th, d, e1, e2, p):  # pragma: no cover - compiled
     return sg * la / ln, sg * lb / ln, c, dist, sg, m0, m1, m2
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - compiled
     """Triangle ``t``'s edge lines along pulse ``p`` of (d, e1, e2): ``out`` (5, 3) rows
     nu, nv, c, dist, sg; ``m`` (3, 3): the normal of each edge's plane through the
@@ -104,7 +135,7 @@ def _lines_of(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - c
     m[2, 0], m[2, 1], m[2, 2] = g2[5], g2[6], g2[7]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam._edge_lines` of pulses (d, e1, e2) (n, 3) and their
     triangles ``tri`` (n,): nu, nv, c, dist, sg (each (n, 3)) and m (n, 3, 3)."""
@@ -123,7 +154,7 @@ def edge_lines(v, faces, o, th, d, e1, e2, tri):  # pragma: no cover - compiled
     return res[:, 0], res[:, 1], res[:, 2], res[:, 3], res[:, 4], mm
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _grown(a, n):  # pragma: no cover - compiled
     """``a`` with room for at least ``n`` items (twice over), its items kept."""
     if n > len(a):
@@ -133,7 +164,7 @@ def _grown(a, n):  # pragma: no cover - compiled
     return a
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma: no cover
     """The next ring of a walk from the ``n_cand`` triangles reached (``cand_t``, each
     with the edge it was entered by, ``cand_e``): each triangle once (the first to reach
@@ -164,7 +195,7 @@ def _next_ring(cand_t, cand_e, n_cand, seen, n_seen, ring_t, ring_e):  # pragma:
     return n_ring
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam._walk` of pulses (d, e1, e2) from triangles ``start``:
     ring after ring of triangles, the rings of a pulse walked in the order of their
@@ -264,7 +295,7 @@ def walk(v, faces, nbr, o, th, d, e1, e2, start, steps):  # pragma: no cover - c
     )
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def _uncovered(q_r, pts, wts, sector, row):  # pragma: no cover - compiled
     """Into ``row[1:10]``: for each third of the footprint (``sector`` of each point),
     the weight of its points that no walked triangle holds (``q_r`` inf) and the one of
@@ -290,7 +321,7 @@ def _uncovered(q_r, pts, wts, sector, row):  # pragma: no cover - compiled
                     row[2 + 3 * sec], row[3 + 3 * sec] = pts[i, 0], pts[i, 1]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def surface_range(
     v, faces, o, th, d, e1, e2, trail, lines, pulses, pts, wts, cut, cut_at, full
 ):  # pragma: no cover - compiled
@@ -384,7 +415,7 @@ def surface_range(
     return out, cover
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def _search(key, skey, order):  # pragma: no cover - compiled
     """The pulse of ``key`` among the sorted keys ``skey`` (``order``: their pulses), -1
     where none.
@@ -407,7 +438,7 @@ def _search(key, skey, order):  # pragma: no cover - compiled
     return -1
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
     """Column ``qc`` on the grid (wrapped on a full turn), -1 off it."""
     if full_turn:
@@ -415,7 +446,7 @@ def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
     return qc if 0 <= qc < n_az else -1
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  # pragma: no cover
     """:meth:`treesim.scan.beam.EdgeBeam._neighbours` of a block's pulses (``lines``,
     ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; ``hit``:
@@ -479,7 +510,7 @@ def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  #
     return near, lo, hi, jump, tri
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
     """(pulse, triangle) pairs of the thin-geometry boxes ``sel``: each box's pulses
     (among the first ``n_core`` the lookup knows) within its sample's reach, an ellipse
@@ -519,7 +550,7 @@ def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
     return out_p[:n].copy(), out_t[:n].copy()
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def basis(d):  # pragma: no cover - compiled
     """:func:`treesim.scan.beam.beam_basis` of directions ``d`` (n, 3), numpy's
     operations in numpy's order: (e1, e2)."""
@@ -541,7 +572,7 @@ def basis(d):  # pragma: no cover - compiled
     return e1, e2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compiled
     """Whether triangle ``tri[i]`` overlaps the footprint of pulse ``rep[i]`` (frames
     (d, e1, e2)), as seen: an edge within the footprint, or the axis inside it."""
@@ -556,7 +587,7 @@ def overlaps(v, faces, o, th, d, e1, e2, rep, tri):  # pragma: no cover - compil
     return ok
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=CACHE, nogil=True, error_model="numpy", inline="always")
 def _reach(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - compiled
     """How far triangle ``t`` lies from pulse ``p``'s axis, as seen, in footprint radii:
     0 with the axis inside it, else its nearest edge's distance (under 1: it overlaps
@@ -567,7 +598,7 @@ def _reach(v, faces, o, th, d, e1, e2, p, t, out, m):  # pragma: no cover - comp
     return min(out[3, 0], min(out[3, 1], out[3, 2]))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=CACHE, nogil=True, error_model="numpy")
 def approach(v, faces, nbr, o, th, d, e1, e2, cand, steps):  # pragma: no cover - compiled
     """Where pulses (d, e1, e2) whose central ray missed meet the surface their
     neighbours' central rays hit (``cand``: each pulse's triangles of those hits, -1 past

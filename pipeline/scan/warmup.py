@@ -22,9 +22,10 @@ __all__ = ["warm_edge_model"]
 def warm_edge_model() -> float:
     """Compile the edge model's kernels (:mod:`treesim.scan._edge_jit`), or load them
     from numba's cache, with one coarse edge scan of a generated aspen: numba compiles
-    each kernel the first time a process calls it and caches it (beside the package, or
-    in numba's user-wide cache), once per install; a process that finds them cached loads
-    them in about half a second (``benchmarks/bench_scan.py`` measures both: the
+    each kernel the first time a process calls it and caches it (in ``NUMBA_CACHE_DIR``
+    where it is set, else beside the package, else in numba's user-wide cache: the first
+    of them that the user can write), once per install; a process that finds them cached
+    loads them in about half a second (``benchmarks/bench_scan.py`` measures both: the
     compilation's figure is in ``docs/validation.md``). The docker image and
     ``scripts/setup.sh`` call it so that no scan pays the compilation.
 

@@ -342,3 +342,28 @@ def test_the_warm_up_compiles_every_kernel():
         "walk",
     }
     assert all(n >= 1 for n in signatures.values()), signatures
+
+
+def test_the_kernels_run_where_numba_cannot_cache_them():
+    # a read-only install run by a user with no writable home: every folder numba could
+    # cache in refuses a file (numba's own check made to fail), which once made importing
+    # the kernels fail ("no locator available"); they now compile in the process, with a
+    # warning, and give beam_basis's frames to the bit
+    import json
+    import subprocess
+    import sys
+
+    code = (
+        "import json, numpy as np; import numba.core.caching as C\n"
+        "def refuse(self): raise PermissionError('read-only')\n"
+        "C._CacheLocator.ensure_cache_path = refuse\n"
+        "from treesim.scan import _edge_jit as J; from treesim.scan.beam import beam_basis\n"
+        "d = np.random.default_rng(3).normal(size=(50, 3))\n"
+        "d /= np.linalg.norm(d, axis=1, keepdims=True)\n"
+        "e1, e2 = J.basis(d); r1, r2 = beam_basis(d)\n"
+        "print(json.dumps([J.CACHE, bool((e1 == r1).all() and (e2 == r2).all())]))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == [False, True]
+    assert "cannot be cached" in out.stderr and "NUMBA_CACHE_DIR" in out.stderr
