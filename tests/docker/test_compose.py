@@ -283,3 +283,21 @@ def test_references_between_services_and_volumes_resolve():
             source = mount.split(":", 1)[0] if isinstance(mount, str) else mount.get("source")
             if source and not source.startswith((".", "/", "~", "$")):
                 assert source in declared, f"{name} mounts undeclared volume {source!r}"
+
+
+def test_the_kernels_are_warmed_by_the_user_that_runs_them_into_a_cache_it_can_write():
+    # numba caches only in a folder it can write: kernels compiled by root beside the
+    # package are passed over by the image's user, which would compile them again (tens
+    # of seconds) in every new container. So the warm-up runs as the image's last USER,
+    # with NUMBA_CACHE_DIR set (for every later process too) to a folder chowned to it
+    text = re.sub(r"\\\n\s*", " ", DOCKERFILE)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    warm = next(i for i, ln in enumerate(lines) if "warm_edge_model()" in ln)
+    users = [ln.split()[1] for ln in lines if ln.startswith("USER ")]
+    before = [ln.split()[1] for ln in lines[:warm] if ln.startswith("USER ")]
+    assert users and before and before[-1] == users[-1], (before, users)
+    envs = [ln for ln in lines[:warm] if ln.startswith("ENV ") and "NUMBA_CACHE_DIR=" in ln]
+    assert envs, "NUMBA_CACHE_DIR is not set before the warm-up"
+    cache = re.search(r"NUMBA_CACHE_DIR=(\S+)", envs[-1]).group(1)
+    chown = [ln for ln in lines[:warm] if f"chown {users[-1]}" in ln and cache in ln]
+    assert chown, f"{cache} is not given to {users[-1]} before the warm-up"
