@@ -63,6 +63,7 @@ __all__ = [
     "edge_lines",
     "neighbours",
     "overlaps",
+    "stray_samples",
     "surface_range",
     "walk",
 ]
@@ -548,6 +549,53 @@ def box_pulses(box, sel, n_core, grid, lookup):  # pragma: no cover - compiled
                 out_p[n], out_t[n] = q, tri[b]
                 n += 1
     return out_p[:n].copy(), out_t[:n].copy()
+
+
+@njit(cache=CACHE, nogil=True, error_model="numpy")
+def stray_samples(sides, n_s, reach, res, fov0):  # pragma: no cover - compiled
+    """The samples of :func:`treesim.scan.beam._stray_samples` and their boxes, its numpy
+    formulas sample by sample: ``sides`` (ua, ub, length, width) of
+    :func:`treesim.scan.occupancy.seen_sides`, ``n_s`` samples per triangle, ``reach``
+    (rad), ``res`` (vertical, horizontal step, rad), ``fov0`` (the field of view's first
+    elevation and azimuth, rad). Returns (l_lo, l_hi, c_lo, c_hi, tri) integers and
+    (line, col, rl, rc) floats, each (samples,), and False where a box reaches a pole
+    (cosine of its elevation under 1e-3: then nothing else is filled)."""
+    ua, ub, length, width = sides
+    vres, hres = res
+    el0, az0 = fov0
+    total = 0
+    for i in range(len(n_s)):
+        total += n_s[i]
+    ints = np.empty((5, total), np.int64)
+    floats = np.empty((4, total))
+    two_pi = 2.0 * math.pi
+    s = 0
+    for i in range(len(n_s)):
+        den = max(n_s[i] - 1, 1)
+        radius = reach + 1.01 * width[i] + 0.6 * length[i] / den
+        for j in range(n_s[i]):
+            f = j / den
+            d0 = (1.0 - f) * ua[i, 0] + f * ub[i, 0]
+            d1 = (1.0 - f) * ua[i, 1] + f * ub[i, 1]
+            d2 = (1.0 - f) * ua[i, 2] + f * ub[i, 2]
+            nn = math.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+            d0, d1, d2 = d0 / nn, d1 / nn, d2 / nn
+            el = math.asin(min(max(d2, -1.0), 1.0))
+            cos_el = math.cos(min(abs(el) + radius, math.pi / 2))
+            if cos_el < 1e-3:
+                return ints, floats, False
+            line = (el - el0) / vres
+            col = ((math.atan2(d1, d0) - az0) % two_pi) / hres
+            rl = radius / vres
+            rc = radius / (hres * cos_el)
+            ints[0, s] = math.ceil(line - rl)
+            ints[1, s] = math.floor(line + rl)
+            ints[2, s] = math.ceil(col - rc)
+            ints[3, s] = math.floor(col + rc)
+            ints[4, s] = i
+            floats[0, s], floats[1, s], floats[2, s], floats[3, s] = line, col, rl, rc
+            s += 1
+    return ints, floats, True
 
 
 @njit(cache=CACHE, nogil=True, error_model="numpy")

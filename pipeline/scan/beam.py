@@ -807,40 +807,19 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
         return {k: np.empty(0, np.int64) for k in keys}
     u = tri / np.linalg.norm(tri, axis=2, keepdims=True)
     ua, ub, length, width = seen_sides(u)
-    rows = np.arange(len(u))
     vres = math.radians(spec.vertical_resolution_deg)
     hres = math.radians(spec.horizontal_resolution_deg)
     # a chord's samples: evenly spaced on the chord, at most the spacing apart on the arc
     n_s = np.ceil(1.2 * length / (EDGE_STRAY_SPACING_STEPS * min(vres, hres))).astype(np.int64) + 1
     if int(n_s.sum()) > _STRAY_MAX_SAMPLES:  # its memory: thin geometry stays unseen
         return {k: np.empty(0, np.int64) for k in keys}
-    k = np.repeat(rows, n_s)
-    f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
-        n_s[k] - 1, 1
+    fov0 = (math.radians(spec.vertical_fov_deg[0]), math.radians(spec.horizontal_fov_deg[0]))
+    ints, floats, ok = _jit().stray_samples(
+        (ua, ub, length, width), n_s, float(reach), (vres, hres), fov0
     )
-    d = (1.0 - f)[:, None] * ua[k] + f[:, None] * ub[k]
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
-    radius = reach + 1.01 * width[k] + 0.6 * length[k] / np.maximum(n_s[k] - 1, 1)
-    cos_el = np.cos(np.minimum(np.abs(el) + radius, math.pi / 2))
-    if (cos_el < 1e-3).any():
+    if not ok:  # a box reaches a pole
         return {k: np.empty(0, np.int64) for k in keys}
-    line = (el - math.radians(spec.vertical_fov_deg[0])) / vres
-    az = np.arctan2(d[:, 1], d[:, 0]) - math.radians(spec.horizontal_fov_deg[0])
-    col = (az % (2 * math.pi)) / hres
-    rc = radius / (hres * cos_el)
-    return {
-        "l_lo": np.ceil(line - radius / vres).astype(np.int64),
-        "l_hi": np.floor(line + radius / vres).astype(np.int64),
-        "c_lo": np.ceil(col - rc).astype(np.int64),
-        "c_hi": np.floor(col + rc).astype(np.int64),
-        "tri": k,
-        # the sample and its reach in lines and columns: the box's pulses inside it
-        "line": line,
-        "col": col,
-        "rl": radius / vres,
-        "rc": rc,
-    }
+    return dict(zip(keys, (*ints, *floats), strict=True))
 
 
 def _pairs_within(pairs: tuple[np.ndarray, np.ndarray], members: np.ndarray) -> tuple:
@@ -1169,8 +1148,11 @@ class EdgeBeam(AdaptiveBeam):
             box = _stray_samples(tri[idx], spec, reach)
             box["tri"] = idx[box["tri"]]  # a triangle's boxes together, in its order
             self._stray = box
-            #: each triangle's farthest corner from the station
-            self._stray["far"] = np.linalg.norm(tri, axis=2).max(axis=1)
+            #: each thin triangle's farthest corner from the station (0 for the others:
+            #: only thin ones are looked up)
+            far = np.zeros(len(tri))
+            far[idx] = np.linalg.norm(tri[idx], axis=2).max(axis=1)
+            self._stray["far"] = far
         return self._stray
 
     def _stray_pairs(self, lines: np.ndarray, cols: np.ndarray, n_core: int, lookup):

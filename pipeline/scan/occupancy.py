@@ -602,12 +602,13 @@ def thin_triangles(tri: np.ndarray, thickness_m: np.ndarray, spec: ScannerSpec) 
     """
     step = math.radians(max(spec.horizontal_resolution_deg, spec.vertical_resolution_deg))
     centroid_m = np.linalg.norm(tri.mean(axis=1), axis=1)
+    closed = np.isfinite(thickness_m)
     with np.errstate(invalid="ignore"):
-        return np.where(
-            np.isfinite(thickness_m),
-            thickness_m < THIN_STEPS * step * centroid_m,
-            angular_inradius_rad(tri) < step,
-        )
+        out = thickness_m < THIN_STEPS * step * centroid_m
+    # an open part's triangles alone need their angular inradius
+    open_ = np.flatnonzero(~closed)
+    out[open_] = angular_inradius_rad(tri[open_]) < step
+    return out
 
 
 def thin_mask(

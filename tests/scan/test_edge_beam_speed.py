@@ -10,10 +10,13 @@ neighbours.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from tests.scan.test_beam_footprint import SPEC, edge_scene
+from treesim.params import ScannerSpec
 from treesim.scan import Station, beam, scan
 from treesim.scan.beam import (
     _edge_lines,
@@ -23,6 +26,7 @@ from treesim.scan.beam import (
     edge_neighbours,
     subray_pattern,
 )
+from treesim.scan.occupancy import seen_sides
 
 # --------------------------------------------------------------------------------------
 # the old formulas (commit dc78f01), the oracle
@@ -249,6 +253,65 @@ def test_the_walk_and_its_surface_range_match_the_old_formula(mesh, th):
     assert close(_surface_range(geo, frame, th, trail, some, quad), old["range"][some])
 
 
+def old_stray_samples(u: np.ndarray, spec, reach: float) -> dict[str, np.ndarray]:
+    """The thin-geometry boxes' samples as numpy worked them out (commit 43bc528), from
+    the triangles' corner directions ``u`` (n, 3, 3)."""
+    ua, ub, length, width = seen_sides(u)
+    vres = math.radians(spec.vertical_resolution_deg)
+    hres = math.radians(spec.horizontal_resolution_deg)
+    n_s = np.ceil(1.2 * length / min(vres, hres)).astype(np.int64) + 1
+    k = np.repeat(np.arange(len(u)), n_s)
+    f = (np.arange(int(n_s.sum())) - np.repeat(np.cumsum(n_s) - n_s, n_s)) / np.maximum(
+        n_s[k] - 1, 1
+    )
+    d = (1.0 - f)[:, None] * ua[k] + f[:, None] * ub[k]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+    radius = reach + 1.01 * width[k] + 0.6 * length[k] / np.maximum(n_s[k] - 1, 1)
+    cos_el = np.cos(np.minimum(np.abs(el) + radius, math.pi / 2))
+    line = (el - math.radians(spec.vertical_fov_deg[0])) / vres
+    az = np.arctan2(d[:, 1], d[:, 0]) - math.radians(spec.horizontal_fov_deg[0])
+    col = (az % (2 * math.pi)) / hres
+    rc = radius / (hres * cos_el)
+    return {
+        "l_lo": np.ceil(line - radius / vres).astype(np.int64),
+        "l_hi": np.floor(line + radius / vres).astype(np.int64),
+        "c_lo": np.ceil(col - rc).astype(np.int64),
+        "c_hi": np.floor(col + rc).astype(np.int64),
+        "tri": k,
+        "line": line,
+        "col": col,
+        "rl": radius / vres,
+        "rc": rc,
+        "cos_el": cos_el,
+    }
+
+
+def test_the_compiled_thin_geometry_boxes_match_the_old_formula():
+    # twig-like triangles all round the station (long and narrow, some crossing the
+    # azimuth's wrap behind it), at 0.02 degrees: the same samples, boxes and reaches
+    rng = np.random.default_rng(11)
+    n = 3000
+    c = rng.normal(size=(n, 3)) * [6.0, 6.0, 3.0]
+    c[::17, 1] = rng.normal(size=len(c[::17])) * 1e-3  # near azimuth 0 / 180
+    c[::17, 0] = -np.abs(c[::17, 0])
+    along = rng.normal(size=(n, 3))
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    tri = np.stack([c, c + 0.2 * along, c + 0.003 * rng.normal(size=(n, 3))], axis=1)
+    spec = ScannerSpec(horizontal_resolution_deg=0.02, vertical_resolution_deg=0.02)
+    reach = 2e-4
+    old = old_stray_samples(tri / np.linalg.norm(tri, axis=2, keepdims=True), spec, reach)
+    assert (old["cos_el"] >= 1e-3).all() and len(old["tri"]) > 10 * n
+    new = beam._stray_samples(tri, spec, reach)
+    for k in ("l_lo", "l_hi", "c_lo", "c_hi", "tri"):
+        assert same(new[k], old[k]), k
+    for k in ("line", "col", "rl", "rc"):
+        assert close(new[k], old[k]), k
+    # a triangle near the zenith: a box would reach the pole, and there are none
+    up = np.array([[[0.0, 1e-4, 10.0], [1e-4, 0.0, 10.0], [0.0, 0.0, 10.0]]])
+    assert all(len(x) == 0 for x in beam._stray_samples(up, spec, reach).values())
+
+
 def test_the_compiled_frames_are_beam_basis_to_the_bit():
     # the edge model's pulse frames (compiled) against the numpy basis the other beams
     # use: directions all round, some near vertical (the other "up"), some exactly in a
@@ -338,6 +401,7 @@ def test_the_warm_up_compiles_every_kernel():
     signatures = json.loads(out.stdout.strip().splitlines()[-1])
     assert set(signatures) == {"approach", "basis", "box_pulses", "edge_lines", "neighbours"} | {
         "overlaps",
+        "stray_samples",
         "surface_range",
         "walk",
     }
