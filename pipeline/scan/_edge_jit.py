@@ -451,33 +451,42 @@ def _column(qc, n_az, full_turn):  # pragma: no cover - compiled
 def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  # pragma: no cover
     """:meth:`treesim.scan.beam.EdgeBeam._neighbours` of a block's pulses (``lines``,
     ``cols``, the first ``n_core`` its core; central ranges ``t``, inf on a miss; ``hit``:
-    the hit points ``x`` and triangles ``prim``; ``planes``: the normal and a corner of
-    each core hit's triangle, each (n_core, 3)), looking ``k`` steps each way, nearest
-    ring first: per core pulse, whether a neighbour hit (``near``), the nearest and
-    farthest such hit (``lo``, ``hi``), for a miss the first :data:`BESIDE` distinct
-    triangles its neighbours hit (``tri``, -1 past them) and, for a hit, whether a
-    neighbour's hit lies in front of its triangle's plane (towards the station) by more
-    than ``tol`` (``jump``). ``grid``: (n_az, n_lines, full_turn); ``lookup``: see
-    :func:`_search`."""
+    the hits' directions (m, 3), each pulse's row in them (-1 on a miss) and its triangle;
+    ``planes``: the vertices, the faces, triangles' normals and each core pulse's row in
+    them, -1 on a miss), looking ``k`` steps each way, nearest ring first: per core
+    pulse, whether a neighbour hit (``near``), the nearest and farthest such hit (``lo``,
+    ``hi``), for a hit whether a neighbour's hit lies in front of its triangle's plane
+    (towards the station) by more than ``tol`` (``jump``), and for each miss with a
+    neighbour's hit, in order, the first :data:`BESIDE` distinct triangles those hits
+    met (``tri``, (misses, BESIDE), -1 past them). ``grid``: (n_az, n_lines, full_turn);
+    ``lookup``: see :func:`_search`."""
     n_az, n_lines, full_turn = grid
-    x, prim = hit
-    normal, v0 = planes
+    d_hit, at, prim = hit
+    v, faces, normal, n_at = planes
     look, colpos, lmin, skey, order = lookup
     near = np.empty(n_core, dtype=np.bool_)
     jump = np.empty(n_core, dtype=np.bool_)
     lo = np.empty(n_core)
     hi = np.empty(n_core)
-    tri = np.full((n_core, BESIDE), -1, dtype=np.int64)
+    tri = np.empty(BESIDE * 1024, dtype=np.int64)
+    n_near = 0
     for i in range(n_core):
         is_hit = t[i] < np.inf
-        n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
-        # the plane's normal turned towards the station
-        if (
-            is_hit
-            and (((o[0] - v0[i, 0]) * n0 + (o[2] - v0[i, 2]) * n2) + (o[1] - v0[i, 1]) * n1) < 0
-        ):
-            n0, n1, n2 = -n0, -n1, -n2
+        n0, n1, n2, p0, p1, p2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        if is_hit:
+            r = n_at[i]
+            n0, n1, n2 = normal[r, 0], normal[r, 1], normal[r, 2]
+            f0 = faces[prim[i], 0]
+            p0, p1, p2 = v[f0, 0], v[f0, 1], v[f0, 2]
+            # the plane's normal turned towards the station
+            if (((o[0] - p0) * n0 + (o[2] - p2) * n2) + (o[1] - p1) * n1) < 0:
+                n0, n1, n2 = -n0, -n1, -n2
         nr, jp, t_lo, t_hi, n_tri = False, False, np.inf, -np.inf, 0
+        row = BESIDE * n_near
+        if not is_hit:  # a row for the miss, kept if a neighbour hit
+            tri = _grown(tri, row + BESIDE)
+            for j in range(BESIDE):
+                tri[row + j] = -1
         for r in range(1, k + 1):
             for dc in range(-r, r + 1):
                 qc = _column(cols[i] + dc, n_az, full_turn)
@@ -488,8 +497,8 @@ def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  #
                     if (abs(dc) < r and abs(dl) < r) or ql < 0 or ql >= n_lines:
                         continue
                     if look.shape[0] > 0:
-                        pc, row = colpos[qc], ql - lmin
-                        q = -1 if (pc < 0 or row < 0 or row >= look.shape[1]) else look[pc, row]
+                        pc, rw = colpos[qc], ql - lmin
+                        q = -1 if (pc < 0 or rw < 0 or rw >= look.shape[1]) else look[pc, rw]
                     else:
                         q = _search(qc * n_lines + ql, skey, order)
                     if q < 0 or not (t[q] < np.inf):
@@ -500,15 +509,21 @@ def neighbours(lines, cols, n_core, t, hit, planes, o, grid, lookup, k, tol):  #
                         t_hi = max(t_hi, t[q])
                         seen = n_tri >= BESIDE
                         for j in range(n_tri):
-                            seen = seen or tri[i, j] == prim[q]
+                            seen = seen or tri[row + j] == prim[q]
                         if not seen:
-                            tri[i, n_tri] = prim[q]
+                            tri[row + n_tri] = prim[q]
                             n_tri += 1
                     elif not jp:
-                        r0, r1, r2 = x[q, 0] - v0[i, 0], x[q, 1] - v0[i, 1], x[q, 2] - v0[i, 2]
+                        a = at[q]
+                        x0 = o[0] + t[q] * d_hit[a, 0]
+                        x1 = o[1] + t[q] * d_hit[a, 1]
+                        x2 = o[2] + t[q] * d_hit[a, 2]
+                        r0, r1, r2 = x0 - p0, x1 - p1, x2 - p2
                         jp = (r0 * n0 + r2 * n2) + r1 * n1 > tol
         near[i], jump[i], lo[i], hi[i] = nr, jp, t_lo, t_hi
-    return near, lo, hi, jump, tri
+        if nr:
+            n_near += 1
+    return near, lo, hi, jump, tri[: BESIDE * n_near].copy().reshape(n_near, BESIDE)
 
 
 @njit(cache=CACHE, nogil=True, error_model="numpy")

@@ -996,19 +996,23 @@ class EdgeBeam(AdaptiveBeam):
         that surface is hidden (the other side of a branch, the ground beyond it).
         Compiled (:func:`treesim.scan._edge_jit.neighbours`); ``lookup``:
         :meth:`_lookup` of the block."""
-        hit = np.isfinite(t)
-        x = np.zeros((len(t), 3))
-        x[hit] = self.o + t[hit, None] * self._directions(lines[hit], cols[hit])
-        hc = np.flatnonzero(hit[:n_core])
-        planes = (np.zeros((n_core, 3)), np.zeros((n_core, 3)))
-        planes[0][hc], planes[1][hc] = self.caster.normal[prim[hc]], self.caster.v0[prim[hc]]
+        hits = np.flatnonzero(np.isfinite(t))
+        at = np.full(len(t), -1, dtype=np.int64)
+        at[hits] = np.arange(len(hits))
+        d_hit = self._directions(lines[hits], cols[hits])
+        normal = self.caster.normal
+        if isinstance(normal, np.ndarray):  # held: each core hit's row is its triangle
+            n_at = prim[:n_core]
+        else:  # gathered: the core hits' normals, in order
+            hc = hits[hits < n_core]
+            normal, n_at = normal[prim[hc]], at[:n_core]
         near, lo, hi, jump, tri = _jit().neighbours(
             lines,
             cols,
             n_core,
             t,
-            (x, prim),
-            planes,
+            (d_hit, at, prim),
+            (self.geo[0], self.geo[1], normal, n_at),
             self.o,
             self._grid(),
             lookup,
@@ -1016,7 +1020,7 @@ class EdgeBeam(AdaptiveBeam):
             EDGE_PLANE_TOL_M,
         )
         mc = np.flatnonzero(near)
-        return mc, jump, (lo[mc], hi[mc], tri[mc])
+        return mc, jump, (lo[mc], hi[mc], tri)
 
     def _cast(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays ``w`` from the station: (range, triangle), inf / -1 where nothing

@@ -172,6 +172,16 @@ class Caster:
         o = self._origin
         return self._sv[f[..., 0]] - o, self._sv[f[..., 1]] - o, self._sv[f[..., 2]] - o
 
+    def first_corners(self, idx: Any) -> np.ndarray:
+        """The local float64 first corner (n, 3) of triangles ``idx`` (:meth:`corners`'
+        first, without gathering the other two)."""
+        f = self.faces[idx]
+        if f.ndim == 2:
+            c = np.take(self._sv, f[:, 0], axis=0)
+            c -= self._origin
+            return c
+        return self._sv[f[..., 0]] - self._origin
+
     def geometry(self, idx: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """First corner (n, 3), unit normal (n, 3) and smallest height (n,), float32 (twice
         the area over the longest edge: how far the interior reaches from an edge), of
@@ -563,7 +573,7 @@ class _Gathered:
 
     def __getitem__(self, idx: Any) -> np.ndarray:
         if self.what == 0:
-            return self.caster.corners(idx)[0]
+            return self.caster.first_corners(idx)
         if self.what == 1:
             return self.caster.normals(idx)
         return self.caster.geometry(idx)[2]

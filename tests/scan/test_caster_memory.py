@@ -170,6 +170,8 @@ def test_a_scan_with_gathered_normals_is_the_held_ones_bit_for_bit(monkeypatch):
             return_mode="all",
         ),
     ]
+    # the edge model reads the hits' normals and planes in its own loops
+    specs.append(specs[1].with_(beam_sampling="edge", subrays=19))
     held = [scan(scene, st, spec, nthreads=1).cloud for spec in specs]
     monkeypatch.setattr(caster_module, "HELD_GEOMETRY_BYTES", 0)
     gathered = [scan(scene, st, spec, nthreads=1).cloud for spec in specs]

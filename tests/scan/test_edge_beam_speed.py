@@ -342,13 +342,17 @@ def test_a_miss_lists_the_triangles_its_neighbours_hit_nearest_ring_first():
     table[cols, lines] = np.arange(n)
     none = np.empty(0, np.int64)
     lookup = (table, np.arange(n_az), 0, none, none)
-    planes = (np.tile([1.0, 0.0, 0.0], (n, 1)), np.zeros((n, 3)))
+    hits = np.flatnonzero(np.isfinite(t))
+    at = np.full(n, -1, dtype=np.int64)
+    at[hits] = np.arange(len(hits))
+    faces = np.zeros((30, 3), dtype=np.int64)
+    planes = (np.zeros((1, 3)), faces, np.tile([1.0, 0.0, 0.0], (30, 1)), prim)
     near, _, _, _, tri = J.neighbours(
         lines,
         cols,
         n,
         t,
-        (np.zeros((n, 3)), prim),
+        (np.zeros((len(hits), 3)), at, prim),
         planes,
         np.zeros(3),
         (n_az, n_lines, False),
@@ -356,18 +360,24 @@ def test_a_miss_lists_the_triangles_its_neighbours_hit_nearest_ring_first():
         k,
         1e-3,
     )
+    # a row of triangles for each miss with a neighbour's hit, in order
+    assert tri.shape == (int(near.sum()), J.BESIDE)
+    row = dict(zip(np.flatnonzero(near).tolist(), tri, strict=True))
     for i in np.flatnonzero(~np.isfinite(t)):
         ring = {}
         for q in range(n):
             r = max(abs(int(cols[q] - cols[i])), abs(int(lines[q] - lines[i])))
             if 0 < r <= k and np.isfinite(t[q]):
                 ring[prim[q]] = min(ring.get(prim[q], k + 1), r)
-        got = [x for x in tri[i] if x >= 0]
         assert near[i] == bool(ring)
+        if not ring:
+            continue
+        got = [x for x in row[i] if x >= 0]
         assert len(got) == len(set(got)) == min(len(ring), J.BESIDE)
         assert set(got) <= set(ring) and [ring[x] for x in got] == sorted(ring[x] for x in got)
         # a triangle left out (more than BESIDE) lies no nearer than every one listed
         assert all(ring[x] >= max(ring[y] for y in got) for x in set(ring) - set(got))
+    assert not near[np.isfinite(t)].any()
     assert max(len(x[x >= 0]) for x in tri) == J.BESIDE  # some misses had more
 
 
