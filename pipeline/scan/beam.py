@@ -1387,7 +1387,10 @@ class EdgeBeam(AdaptiveBeam):
         seen[miss[fb]] = True
         found = (e >= EDGE_MIN_ENERGY) & in_range(spec, r)
         seen[miss[found]] = True
-        empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen)
+        # the rest of the misses that thin geometry may reach
+        near_thin = np.zeros(n_core, dtype=bool)
+        near_thin[pairs[0]] = True
+        empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen & near_thin)
         f_empty = self._frame(self._directions(lines[empty], cols[empty]))
         (r2, e2, p2), fb2 = self._strays(f_empty, *_pairs_within(pairs, empty))
         parts = []
