@@ -805,7 +805,8 @@ def _stray_samples(tri: np.ndarray, spec: ScannerSpec, reach: float) -> dict[str
     pointing slack). Returns per box its first and last ``line`` and ``col`` (``col``
     unwrapped: taken modulo the turn, or past the end back to the start of the field of
     view, by the caller) and ``tri`` (index into ``tri``); empty where a box would reach
-    a pole or the samples would be more than :data:`_STRAY_MAX_SAMPLES`."""
+    a pole or the samples would be more than :data:`_STRAY_MAX_SAMPLES`. The samples are
+    compiled (:func:`treesim.scan._edge_jit.stray_samples`)."""
     keys = ("l_lo", "l_hi", "c_lo", "c_hi", "tri", "line", "col", "rl", "rc")
     if not len(tri):
         return {k: np.empty(0, np.int64) for k in keys}
