@@ -334,12 +334,14 @@ def surface_range(
     c of pulse ``q`` at rows ``cut_at[q]:cut_at[q + 1]``, beyond any of which a point is
     not looked at (all looked at where ``cut_at`` is empty).
 
-    Returns the ranges and, with ``full``, per pulse (10 columns) the covered weight,
-    then for each third of the footprint (by angle) the uncovered weight and the
-    uncovered point nearest the third's uncovered centroid (x, y) (:func:`_uncovered`)."""
+    Returns the ranges, the nearest and farthest range of the covered points (n, 2; nan
+    where none) and, with ``full``, per pulse (10 columns) the covered weight, then for
+    each third of the footprint (by angle) the uncovered weight and the uncovered point
+    nearest the third's uncovered centroid (x, y) (:func:`_uncovered`)."""
     n_trail = trail.shape[1]
     k = len(pts)
     out = np.empty(len(pulses))
+    ext = np.full((len(pulses), 2), np.nan)
     cover = np.zeros((len(pulses) if full else 0, 10))
     sector = np.empty(k, np.int64)  # each point's third of the footprint, by angle
     for i in range(k):
@@ -405,15 +407,20 @@ def surface_range(
                     q_r[i] = rng
             r += 1
         tot, wt = 0.0, 0.0
+        r_lo, r_hi = np.inf, -np.inf
         for i in range(k):
             if q_r[i] < np.inf:
                 tot += q_r[i] * wts[i]
                 wt += wts[i]
+                r_lo = min(r_lo, q_r[i])
+                r_hi = max(r_hi, q_r[i])
         out[q] = tot / wt if wt > 0 else np.nan
+        if wt > 0:
+            ext[q, 0], ext[q, 1] = r_lo, r_hi
         if full:
             cover[q, 0] = wt
             _uncovered(q_r, pts, wts, sector, cover[q])
-    return out, cover
+    return out, ext, cover
 
 
 @njit(cache=CACHE, nogil=True, error_model="numpy")

@@ -69,7 +69,10 @@ def subray_directions(d: np.ndarray, offsets: np.ndarray) -> np.ndarray:
 
 
 def group_returns(
-    t: np.ndarray, weights: np.ndarray, range_resolution_m: float
+    t: np.ndarray,
+    weights: np.ndarray,
+    range_resolution_m: float,
+    extent: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """Group sub-ray ranges of each pulse into returns.
 
@@ -82,6 +85,12 @@ def group_returns(
         (the edge model's parts of a footprint).
     range_resolution_m : float
         Echoes closer than this merge.
+    extent : ((p, s), (p, s)) float, optional
+        The nearest and farthest range of each part (the edge model's surface across the
+        covered part of a footprint, which may span a range): parts merge where one
+        begins within ``range_resolution_m`` of the farthest range of those before it,
+        as the sub-rays across such a surface would chain. Without it each part is a
+        point at its range.
 
     Returns
     -------
@@ -90,12 +99,22 @@ def group_returns(
     the strongest sub-ray of the return).
     """
     p, s = t.shape
-    order = np.argsort(t, axis=1, kind="stable")
-    ts = np.take_along_axis(t, order, axis=1)
+    new = np.ones(t.shape, dtype=bool)
+    if extent is None:
+        order = np.argsort(t, axis=1, kind="stable")
+        ts = np.take_along_axis(t, order, axis=1)
+        with np.errstate(invalid="ignore"):
+            new[:, 1:] = np.diff(ts, axis=1) > range_resolution_m
+    else:
+        lo = np.where(np.isfinite(t), extent[0], np.inf)
+        order = np.argsort(lo, axis=1, kind="stable")
+        ts = np.take_along_axis(t, order, axis=1)
+        far = np.maximum.accumulate(np.take_along_axis(extent[1], order, axis=1), axis=1)
+        with np.errstate(invalid="ignore"):
+            new[:, 1:] = np.take_along_axis(lo, order, axis=1)[:, 1:] - far[:, :-1] > (
+                range_resolution_m
+            )
     valid = np.isfinite(ts)
-    new = np.ones_like(ts, dtype=bool)
-    with np.errstate(invalid="ignore"):
-        new[:, 1:] = np.diff(ts, axis=1) > range_resolution_m
     cid = np.cumsum(new, axis=1) - 1
     pulse = np.broadcast_to(np.arange(p)[:, None], (p, s))[valid]
     cl = cid[valid]
@@ -702,6 +721,7 @@ def _surface_range(
     quad: tuple[np.ndarray, np.ndarray],
     cut: tuple[np.ndarray, ...] | None = None,
     full: bool = False,
+    extent: bool = False,
 ) -> Any:
     """The walked surface's range over the footprints of ``pulses`` (indices into the
     walk's pulses, frames ``frame``): the weighted mean range of the footprint points
@@ -711,7 +731,9 @@ def _surface_range(
     silhouette lines of the covered parts (``pulse``, index into ``pulses``; ``nu``,
     ``nv``, ``c``), points beyond any of which are not looked at (a sliver's are few).
     ``full``: also the covered weight and the uncovered parts (10 columns a pulse, see
-    :func:`treesim.scan._edge_jit.surface_range`). Compiled."""
+    :func:`treesim.scan._edge_jit.surface_range`); ``extent``: also the nearest and
+    farthest range of the covered points ((n, 2), nan where none), before them.
+    Compiled."""
     v, faces, o = geo
     d, e1, e2 = (np.ascontiguousarray(x, dtype=np.float64) for x in frame)
     idx, edges = trail["packed"]
@@ -722,7 +744,7 @@ def _surface_range(
         lines = np.stack([x[order] for x in cut[1:]], axis=1)
         at = np.searchsorted(cut[0][order], np.arange(len(pulses) + 1))
     pts, wts = quad
-    rng, covered = _jit().surface_range(
+    rng, ext, covered = _jit().surface_range(
         v,
         faces,
         np.asarray(o, np.float64),
@@ -739,7 +761,9 @@ def _surface_range(
         at,
         bool(full),
     )
-    return (rng, covered) if full else rng
+    head = (rng, ext) if extent else (rng,)
+    out = (*head, covered) if full else head
+    return out if len(out) > 1 else out[0]
 
 
 def _coverage(n: int, lines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -951,14 +975,17 @@ class EdgeBeam(AdaptiveBeam):
         pulses: np.ndarray,
         sliver: dict | None = None,
         quad: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> np.ndarray:
+        extent: bool = False,
+    ) -> Any:
         """:func:`_surface_range` of walked ``pulses`` (frames ``frame``, walk ``trail``),
-        on the points ``quad`` (default: :data:`EDGE_RANGE_POINTS`); where the covered
-        part is a sliver, on the denser points that lie inside its silhouette lines
-        ``sliver`` (:func:`_walk`)."""
+        on the points ``quad`` (default: :data:`EDGE_RANGE_POINTS`; ``extent``: also the
+        covered points' nearest and farthest range); where the covered part is a sliver,
+        on the denser points that lie inside its silhouette lines ``sliver``
+        (:func:`_walk`)."""
         geo = (self.geo[0], self.geo[1], self.o)
         if sliver is None:
-            return _surface_range(geo, frame, self.th, trail, pulses, quad or self.quad)
+            q = quad or self.quad
+            return _surface_range(geo, frame, self.th, trail, pulses, q, extent=extent)
         pos = np.full(len(frame[0]), -1, dtype=np.int64)
         pos[pulses] = np.arange(len(pulses))
         at = pos[sliver["pulse"]]
@@ -1064,23 +1091,33 @@ class EdgeBeam(AdaptiveBeam):
         whole = np.bincount(lines["pulse"], minlength=len(cut))[gi] == 0
         r_quad = np.empty(len(gi))
         r_quad[whole] = self._surface_range(sub, trail, gi[whole], quad=self.quad_whole)
-        r_quad[~whole] = self._surface_range(sub, trail, gi[~whole])
+        r_quad[~whole], ext = self._surface_range(sub, trail, gi[~whole], extent=True)
         tt[good, 0] = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w0, prim[good]))
         corners = self._corners(sub, trail, cut, prim[cut], (unres, cov["ok"], alone))
         lp = lines["pulse"]
         li = np.flatnonzero(~fb[lp] & (cov["far_energy"] >= EDGE_MIN_ENERGY))
         li = li[np.argsort(lp[li], kind="stable")]
         rank = np.arange(len(li)) - np.searchsorted(lp[li], lp[li], side="left")
-        tf, pf, share = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
+        tf, pf, share, f_span = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
         rows = cut[lp[li]]
         ww[rows, 1 + rank] = cov["far_energy"][li] * share
         tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
+        # the span of ranges of each part where parts lie beyond a silhouette: the
+        # covered part's (a surface seen at a slant) and what the far rays met (several
+        # surfaces behind): parts within the range resolution of one another's ends merge,
+        # as the sub-rays that meet the ranges between would chain them
+        span = (tt.copy(), tt.copy())
+        cut_rows = good[~whole]
+        span[0][cut_rows, 0] = np.fmin(ext[:, 0], tt[cut_rows, 0])
+        span[1][cut_rows, 0] = np.fmax(ext[:, 1], tt[cut_rows, 0])
+        span[0][rows, 1 + rank] = np.minimum(f_span[0], tf)
+        span[1][rows, 1 + rank] = np.where(np.isfinite(tf), np.maximum(f_span[1], tf), np.inf)
         settled = np.zeros(len(cut), dtype=bool)
         settled[corners[0]] = True
         fall = np.concatenate([cut[fb & ~settled], np.flatnonzero(jump & inside)])
         n_rays = len(li) * len(EDGE_FAR_PROBES) + corners[-1]
         corners = (cut[corners[0]], *corners[1:-1])
-        return (tt, ww, pp), fall, n_rays, n_beside, corners
+        return (tt, ww, pp, span), fall, n_rays, n_beside, corners
 
     def _corners(self, sub, trail, cut, prim, why):
         """Walked hits (``cut``; frames ``sub``, walks ``trail``) whose silhouette the
@@ -1098,9 +1135,11 @@ class EdgeBeam(AdaptiveBeam):
         unres, ok, alone = why
         corner = np.flatnonzero(~unres & ~ok & ~alone)
         geo = (self.geo[0], self.geo[1], self.o)
-        r, cv = _surface_range(geo, sub, self.th, trail, corner, self.quad_corner, full=True)
+        r, ext, cv = _surface_range(
+            geo, sub, self.th, trail, corner, self.quad_corner, full=True, extent=True
+        )
         good = np.isfinite(r) & (cv[:, 0] >= EDGE_MIN_ENERGY)
-        corner, r, cv = corner[good], r[good], cv[good]
+        corner, r, cv, ext = corner[good], r[good], cv[good], ext[good]
         tt = np.full((len(corner), 4), np.inf)
         ww = np.zeros((len(corner), 4))
         pp = np.full((len(corner), 4), -1, dtype=np.int64)
@@ -1110,13 +1149,18 @@ class EdgeBeam(AdaptiveBeam):
             s = np.flatnonzero(ww[:, 1 + sec] >= EDGE_MIN_ENERGY)  # a third worth a ray
             w = self._ray(tuple(x[corner[s]] for x in sub), cv[s, 2 + 3 * sec : 4 + 3 * sec])
             tt[s, 1 + sec], pp[s, 1 + sec] = self._cast(w)
-        return corner, tt, ww, pp, int(np.count_nonzero(ww[:, 1:] >= EDGE_MIN_ENERGY))
+        span = (tt.copy(), tt.copy())
+        span[0][:, 0], span[1][:, 0] = np.fmin(ext[:, 0], r), np.fmax(ext[:, 1], r)
+        rays = int(np.count_nonzero(ww[:, 1:] >= EDGE_MIN_ENERGY))
+        return corner, tt, ww, pp, span, rays
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
         and beside it along the line (:data:`EDGE_FAR_PROBES`); the range and triangle
-        of the central one that hits (else the first), and the share of them that hit
-        (the share of the far part's energy given to it)."""
+        of the central one that hits (else the first), the share of them that hit
+        (the share of the far part's energy given to it), and the nearest and farthest
+        range of those that chain with it (each within the range resolution of the next,
+        as the sub-rays between would merge them; inf where none hit)."""
         nu, nv = lines["nu"][li], lines["nv"][li]
         fc = cov["far_centroid"][li]
         depth = fc[:, 0] * nu + fc[:, 1] * nv
@@ -1132,7 +1176,17 @@ class EdgeBeam(AdaptiveBeam):
         fin = np.isfinite(tf)
         pick = np.argmax(fin, axis=1)
         rows = np.arange(n)
-        return tf[rows, pick], pf[rows, pick], fin.mean(axis=1)
+        t_pick = tf[rows, pick]
+        ts = np.sort(tf, axis=1)
+        link = np.zeros(ts.shape, dtype=np.int64)
+        with np.errstate(invalid="ignore"):
+            link[:, 1:] = np.cumsum(np.diff(ts, axis=1) > self.spec.range_resolution_m, axis=1)
+        at = np.argmax(ts == t_pick[:, None], axis=1)
+        chain = (link == link[rows, at][:, None]) & np.isfinite(ts)
+        lo = np.where(chain, ts, np.inf).min(axis=1)
+        hi = np.where(chain, ts, -np.inf).max(axis=1)
+        span = (lo, np.where(np.isfinite(t_pick), hi, np.inf))
+        return t_pick, pf[rows, pick], fin.mean(axis=1), span
 
     def _stray_boxes(self) -> dict[str, np.ndarray]:
         """This station's boxes of pulses thin triangles may reach
@@ -1435,14 +1489,19 @@ class EdgeBeam(AdaptiveBeam):
         front = self._thin_in_front(pairs, hit, f_hit, tc[hit])
         fall.append(hit[front])
         hit, f_hit = hit[~front], tuple(x[~front] for x in f_hit)
-        (tt, ww, pp), fb, n_rays, n_beside, corners = self._hits(f_hit, tc[hit], pc[hit], jump[hit])
+        (tt, ww, pp, span), fb, n_rays, n_beside, corners = self._hits(
+            f_hit, tc[hit], pc[hit], jump[hit]
+        )
         fall.append(hit[fb])
         keep = (ww >= EDGE_MIN_ENERGY) & in_range(spec, tt) & (pp >= 0)
         keep[fb] = False
         keep[corners[0]] = False
-        rows, ct, cw, cp = corners
+        rows, ct, cw, cp, c_span = corners
         ck = (cw >= EDGE_MIN_ENERGY) & in_range(spec, ct) & (cp >= 0)
-        parts = [self._grouped(hit, tt, ww, pp, keep), self._grouped(hit[rows], ct, cw, cp, ck)]
+        parts = [
+            self._grouped(hit, (tt, ww, pp), keep, span),
+            self._grouped(hit[rows], (ct, cw, cp), ck, c_span),
+        ]
         miss_parts, miss_fall, n_probe = self._miss_parts(
             lines, cols, t, miss, n_core, pairs, beside
         )
@@ -1457,12 +1516,14 @@ class EdgeBeam(AdaptiveBeam):
         }
         return parts + miss_parts, cand, n_rays + n_probe, tally
 
-    def _grouped(self, pulses, tt, ww, pp, keep) -> dict[str, np.ndarray]:
-        """Return records of ``pulses`` from their parts (ranges ``tt``, energies
-        ``ww``, triangles ``pp``, (m, c); ``keep``: the parts recorded), echoes within the
-        range resolution merged (:func:`group_returns`)."""
+    def _grouped(self, pulses, part, keep, span) -> dict[str, np.ndarray]:
+        """Return records of ``pulses`` from their parts (``part``: ranges, energies,
+        triangles, each (m, c); ``keep``: the parts recorded; ``span``: each part's
+        nearest and farthest range), echoes within the range resolution merged
+        (:func:`group_returns`)."""
         spec = self.spec
-        g = group_returns(np.where(keep, tt, np.inf), ww, spec.range_resolution_m)
+        tt, ww, pp = part
+        g = group_returns(np.where(keep, tt, np.inf), ww, spec.range_resolution_m, span)
         sel = select_returns(g, spec.return_mode)
         return {
             "pulse": pulses[g["pulse"][sel]],
