@@ -886,10 +886,12 @@ class EdgeBeam(AdaptiveBeam):
       up to :data:`EDGE_APPROACH_STEPS` steps across their edges towards its axis lead
       (round a twig to its silhouette; :func:`treesim.scan._edge_jit.approach`), and
       the covered share is the sliver's energy; its range is the walked surface's over
-      :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint. Only where that
-      surface comes near (:data:`EDGE_PROBE_GAP`) but is not reached does it cast
-      :data:`EDGE_RIM_PROBES` rays on the footprint's rim, to find a part the edges do
-      not join;
+      :data:`EDGE_SLIVER_RANGE_POINTS` points of the footprint. Where a sliver was
+      found, and where that surface comes near (:data:`EDGE_PROBE_GAP`) but is not
+      reached, it casts :data:`EDGE_RIM_PROBES` rays on the footprint's rim: one that
+      meets something beyond the sliver's span of ranges (another surface no
+      neighbour's central ray met: a stem behind the twigs they hit), or anything where
+      no sliver was found (a part the edges do not join), gives it the sub-rays;
     * thin geometry (the occupancy cull's rule,
       :func:`~treesim.scan.occupancy.thin_triangles`: twigs thinner than
       :data:`~treesim.scan.occupancy.THIN_STEPS` angular steps, leaves), which every
@@ -991,7 +993,9 @@ class EdgeBeam(AdaptiveBeam):
         at = pos[sliver["pulse"]]
         s = at >= 0
         cut = (at[s], sliver["nu"][s], sliver["nv"][s], sliver["c"][s])
-        return _surface_range(geo, frame, self.th, trail, pulses, self.quad_sliver, cut)
+        return _surface_range(
+            geo, frame, self.th, trail, pulses, self.quad_sliver, cut, extent=extent
+        )
 
     def _lookup(self, lines: np.ndarray, cols: np.ndarray) -> tuple:
         """How the compiled loops find a pulse of the block (``lines``, ``cols``) by its
@@ -1275,7 +1279,7 @@ class EdgeBeam(AdaptiveBeam):
         and coverage ``cov``): the range over the sliver's points; the triangle (its
         incidence, its label) the walked one that holds the sliver's point nearest the
         axis (:data:`EDGE_SLIVER_INSET` inside), else that of its silhouette line with
-        the largest offset."""
+        the largest offset; and the nearest and farthest range of the sliver's points."""
         lp = lines["pulse"]
         order = np.lexsort((-lines["c"], lp))
         first = np.ones(len(order), dtype=bool)
@@ -1297,9 +1301,9 @@ class EdgeBeam(AdaptiveBeam):
         tri[tp[under]] = trail["tri"][under]
         cen = cov["centroid"]
         w = self._ray(tuple(x[gi] for x in sub), cen[gi])
-        r_quad = self._surface_range(sub, trail, gi, sliver=lines)
+        r_quad, ext = self._surface_range(sub, trail, gi, sliver=lines, extent=True)
         rng = np.where(np.isfinite(r_quad), r_quad, self._plane_range(w, tri[gi]))
-        return rng, tri[gi]
+        return rng, tri[gi], (np.fmin(ext[:, 0], rng), np.fmax(ext[:, 1], rng))
 
     def _facing(self, tri: np.ndarray) -> np.ndarray:
         """Whether triangles ``tri`` turn their front (their normal's side) to the
@@ -1349,15 +1353,16 @@ class EdgeBeam(AdaptiveBeam):
         (:meth:`_stray_pairs`) where the neighbours saw nothing, or the surface the
         neighbours hit (:meth:`_beside`). The nearest candidate that the footprint
         overlaps starts the walk (at most ``steps`` rings), and its surface's share is
-        the return. (range, energy, triangle) per pulse (energy 0: none), and the
-        indices of those left to the sub-rays: a walk that does not settle, or that
+        the return. (range, energy, triangle) per pulse (energy 0: none), the
+        indices of those left to the sub-rays (a walk that does not settle, or that
         leaves out another candidate facing the station as its start does, or a thin
         triangle of ``thin`` (pairs as ``rep``, ``tri``, to be tested) that overlaps the
-        footprint."""
+        footprint), and the nearest and farthest range of each sliver's points."""
         m = len(frame[0])
         r, e, p = np.full(m, np.inf), np.zeros(m), np.full(m, -1, dtype=np.int64)
+        span = (np.full(m, np.inf), np.full(m, -np.inf))
         if not len(rep):
-            return (r, e, p), np.empty(0, np.int64)
+            return (r, e, p), np.empty(0, np.int64), span
         if not tested:
             rep, tri = self._overlapping(frame, rep, tri)
         v, faces, _ = self.geo
@@ -1380,9 +1385,11 @@ class EdgeBeam(AdaptiveBeam):
         if thin is not None:
             fb |= self._unwalked(idx, start, trail, thin, frame)
         gi = np.flatnonzero(~fb)
-        r[idx[gi]], p[idx[gi]] = self._sliver(sub, gi, start, lines, trail, cov)
+        r[idx[gi]], p[idx[gi]], (span[0][idx[gi]], span[1][idx[gi]]) = self._sliver(
+            sub, gi, start, lines, trail, cov
+        )
         e[idx[gi]] = cov["energy"][gi]
-        return (r, e, p), idx[fb]
+        return (r, e, p), idx[fb], span
 
     def _beside(self, frame, cand, lo, hi, thin):
         """The slivers of misses beside a hit (frames ``frame``; ``cand``, ``lo``, ``hi``:
@@ -1391,11 +1398,14 @@ class EdgeBeam(AdaptiveBeam):
         (:func:`treesim.scan._edge_jit.approach`) and walked (:meth:`_strays`; ``thin``:
         :meth:`_stray_pairs` of these misses). (range, energy, triangle) per miss (energy
         0: none), the indices of those left to the sub-rays and the rays cast: a sliver
-        on another surface than the neighbours' hits, and a miss where that surface came
-        within :data:`EDGE_PROBE_GAP` footprint radii but the steps across its edges did
-        not bring it into the footprint and one of :data:`EDGE_RIM_PROBES` rays on its
-        rim meets something (another part the edges do not join: a QSM's next
-        cylinder)."""
+        on another surface than the neighbours' hits; a sliver where one of
+        :data:`EDGE_RIM_PROBES` rays on the footprint's rim meets something farther than
+        :data:`EDGE_PLANE_TOL_M` outside the sliver's span of ranges (another surface in
+        the footprint that no neighbour's central ray met: a stem behind the twigs they
+        hit, a branch's end); and a miss where that surface came within
+        :data:`EDGE_PROBE_GAP` footprint radii but the steps across its edges did not
+        bring it into the footprint and one of those rays meets something (another part
+        the edges do not join: a QSM's next cylinder)."""
         v, faces, nbr = self.geo
         over, reach, gap = _jit().approach(
             v, faces, nbr, self.o, self.th, *frame, cand, EDGE_APPROACH_STEPS
@@ -1403,7 +1413,7 @@ class EdgeBeam(AdaptiveBeam):
         start = np.concatenate([cand, reach], axis=1)
         over = np.concatenate([over, reach >= 0], axis=1)
         rep = np.repeat(np.arange(len(cand)), start.shape[1])
-        (r, e, p), fb = self._strays(
+        (r, e, p), fb, span = self._strays(
             frame,
             rep[over.ravel()],
             start[over],
@@ -1413,11 +1423,16 @@ class EdgeBeam(AdaptiveBeam):
         )
         res = self.spec.range_resolution_m
         other = np.isfinite(r) & (e > 0) & ((r < lo - res) | (r > hi + res))
-        q = np.flatnonzero(~over.any(axis=1) & (gap < EDGE_PROBE_GAP))
+        # the rim rays: where the surface came near but was not reached, and where a
+        # sliver was found (a ray beyond the sliver's span of ranges meets another surface)
+        q = np.flatnonzero((~over.any(axis=1) & (gap < EDGE_PROBE_GAP)) | (e > 0))
         k = len(self.rim)
         sub = tuple(x[np.repeat(q, k)] for x in frame)
         t_rim, _ = self._cast(self._ray(sub, np.tile(self.rim, (len(q), 1))))
-        probed = q[np.isfinite(t_rim.reshape(-1, k)).any(axis=1)]
+        t_rim = t_rim.reshape(-1, k)
+        tol = EDGE_PLANE_TOL_M
+        off = (t_rim < span[0][q, None] - tol) | (t_rim > span[1][q, None] + tol)
+        probed = q[(np.isfinite(t_rim) & np.where((e[q] > 0)[:, None], off, True)).any(axis=1)]
         fb = np.union1d(fb, np.concatenate([np.flatnonzero(other), probed]))
         e[fb] = 0.0
         return (r, e, p), fb, len(q) * k
@@ -1451,7 +1466,7 @@ class EdgeBeam(AdaptiveBeam):
         near_thin[pairs[0]] = True
         empty = np.flatnonzero(~np.isfinite(t[:n_core]) & ~seen & near_thin)
         f_empty = self._frame(self._directions(lines[empty], cols[empty]))
-        (r2, e2, p2), fb2 = self._strays(f_empty, *_pairs_within(pairs, empty))
+        (r2, e2, p2), fb2, _ = self._strays(f_empty, *_pairs_within(pairs, empty))
         parts = []
         for pulses, rr, ee, pp in ((miss, r, e, p), (empty, r2, e2, p2)):
             ok = np.flatnonzero((ee >= EDGE_MIN_ENERGY) & in_range(spec, rr))

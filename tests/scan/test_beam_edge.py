@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import box_arrays
-from tests.scan.beam_agreement import coffee_window
+from tests.scan.beam_agreement import coffee_window, held_out_windows
 from tests.scan.test_beam_footprint import (
     SPEC,
     covered,
@@ -306,27 +306,18 @@ def test_parts_that_span_ranges_merge_as_the_sub_rays_across_them_would():
 
 
 @pytest.mark.slow
-def test_on_a_leafy_sapling_the_edge_model_is_nearer_the_footprint_than_the_brute_force():
-    # HELIOS++'s apple sapling with its 274 leaves (held out: none of the edge model's
-    # constants were set on it): leaves seen at a slant in front of others once gave the
-    # edge model two returns where the footprint's sub-rays chain into one (unmatched
-    # intensity 5.2e-5 against the brute force's 3.7e-5)
-    from tests.conftest import shared_path
-    from treesim.io.mesh import load_scene
-
-    scene = load_scene(shared_path("models", "apple_sapling", "tree1_leafon.obj"))
-    lo, hi = scene.bounds
-    c = 0.5 * (lo + hi)
-    st = [Station(position_m=(c[0] + 6.0, c[1], lo[2] + 1.5))]
-    w = ScannerSpec(
-        horizontal_resolution_deg=0.01,
-        vertical_resolution_deg=0.01,
-        beam_divergence_mrad=0.3,
-        subrays=19,
-        return_mode="all",
-        horizontal_fov_deg=(176.0, 184.0),
-        vertical_fov_deg=(-2.0, 12.0),
-    )
+@pytest.mark.parametrize("name", list(held_out_windows()))
+def test_on_held_out_trees_the_edge_model_is_nearer_the_footprint_than_the_brute_force(name):
+    # trees none of the edge model's constants were set on. They broke it twice, each
+    # time by a case the benchmark trees do not hold:
+    # - HELIOS++'s leafy apple sapling: leaves seen at a slant in front of others gave two
+    #   returns where the footprint's sub-rays chain into one (unmatched intensity 7.3e-5
+    #   against the brute force's 5.3e-5 on this window);
+    # - the generated balsam fir: a miss beside a hit whose footprint also holds part of
+    #   a surface no neighbour's central ray met (a stem behind the twigs they hit, a
+    #   branch's end) took the sliver's range alone, 20-30 cm off where the reference
+    #   chains both (range mean 0.30 mm against 0.27 mm)
+    scene, st, w = held_out_windows()[name]()
     ref = scan(scene, st, reference_spec(w)).cloud
     full = footprint_errors(scan(scene, st, w.with_(beam_sampling="full")).cloud, ref)
     edge = footprint_errors(scan(scene, st, w.with_(beam_sampling="edge")).cloud, ref)
