@@ -1083,9 +1083,10 @@ class EdgeBeam(AdaptiveBeam):
         alone = jump[cut]
         fb = unres | ~cov["ok"] | alone
         n_beside = int(alone.sum() + (jump & inside).sum())
-        tt = np.full((m, 3), np.inf)
-        ww = np.zeros((m, 3))
-        pp = np.full((m, 3), -1, dtype=np.int64)
+        n_far = len(EDGE_FAR_PROBES)
+        tt = np.full((m, 1 + 2 * n_far), np.inf)
+        ww = np.zeros((m, 1 + 2 * n_far))
+        pp = np.full((m, 1 + 2 * n_far), -1, dtype=np.int64)
         tt[:, 0], ww[:, 0], pp[:, 0] = t, 1.0, prim
         gi = np.flatnonzero(~fb)
         good = cut[gi]
@@ -1104,8 +1105,9 @@ class EdgeBeam(AdaptiveBeam):
         rank = np.arange(len(li)) - np.searchsorted(lp[li], lp[li], side="left")
         tf, pf, share, f_span = self._far_probes(tuple(x[lp[li]] for x in sub), lines, cov, li)
         rows = cut[lp[li]]
-        ww[rows, 1 + rank] = cov["far_energy"][li] * share
-        tt[rows, 1 + rank], pp[rows, 1 + rank] = tf, pf
+        col = 1 + rank[:, None] * n_far + np.arange(n_far)[None, :]
+        ww[rows[:, None], col] = cov["far_energy"][li][:, None] * share
+        tt[rows[:, None], col], pp[rows[:, None], col] = tf, pf
         # the span of ranges of each part where parts lie beyond a silhouette: the
         # covered part's (a surface seen at a slant) and what the far rays met (several
         # surfaces behind): parts within the range resolution of one another's ends merge,
@@ -1114,8 +1116,8 @@ class EdgeBeam(AdaptiveBeam):
         cut_rows = good[~whole]
         span[0][cut_rows, 0] = np.fmin(ext[:, 0], tt[cut_rows, 0])
         span[1][cut_rows, 0] = np.fmax(ext[:, 1], tt[cut_rows, 0])
-        span[0][rows, 1 + rank] = np.minimum(f_span[0], tf)
-        span[1][rows, 1 + rank] = np.where(np.isfinite(tf), np.maximum(f_span[1], tf), np.inf)
+        span[0][rows[:, None], col] = np.minimum(f_span[0], tf)
+        span[1][rows[:, None], col] = np.where(np.isfinite(tf), np.maximum(f_span[1], tf), np.inf)
         settled = np.zeros(len(cut), dtype=bool)
         settled[corners[0]] = True
         fall = np.concatenate([cut[fb & ~settled], np.flatnonzero(jump & inside)])
@@ -1160,11 +1162,12 @@ class EdgeBeam(AdaptiveBeam):
 
     def _far_probes(self, frame, lines, cov, li):
         """What lies beyond silhouette lines ``li``: rays at the far part's centroid
-        and beside it along the line (:data:`EDGE_FAR_PROBES`); the range and triangle
-        of the central one that hits (else the first), the share of them that hit
-        (the share of the far part's energy given to it), and the nearest and farthest
-        range of those that chain with it (each within the range resolution of the next,
-        as the sub-rays between would merge them; inf where none hit)."""
+        and beside it along the line (:data:`EDGE_FAR_PROBES`), grouped as sub-rays would
+        be (each within the range resolution of the next). Per line (n, k) each: first
+        the group of the central ray that hits (else the first), at that ray's range and
+        triangle, then each other group at its nearest ray's; the share of the rays in
+        each group (the share of the far part's energy it carries; 0 past the groups),
+        and each group's nearest and farthest range."""
         nu, nv = lines["nu"][li], lines["nv"][li]
         fc = cov["far_centroid"][li]
         depth = fc[:, 0] * nu + fc[:, 1] * nv
@@ -1178,19 +1181,33 @@ class EdgeBeam(AdaptiveBeam):
         tf, pf = self._cast(self._ray(tuple(x[rep] for x in frame), pts.reshape(-1, 2)))
         tf, pf = tf.reshape(n, k), pf.reshape(n, k)
         fin = np.isfinite(tf)
-        pick = np.argmax(fin, axis=1)
         rows = np.arange(n)
-        t_pick = tf[rows, pick]
-        ts = np.sort(tf, axis=1)
+        pick = np.argmax(fin, axis=1)
+        order = np.argsort(tf, axis=1, kind="stable")
+        ts = np.take_along_axis(tf, order, axis=1)
         link = np.zeros(ts.shape, dtype=np.int64)
         with np.errstate(invalid="ignore"):
             link[:, 1:] = np.cumsum(np.diff(ts, axis=1) > self.spec.range_resolution_m, axis=1)
-        at = np.argmax(ts == t_pick[:, None], axis=1)
-        chain = (link == link[rows, at][:, None]) & np.isfinite(ts)
-        lo = np.where(chain, ts, np.inf).min(axis=1)
-        hi = np.where(chain, ts, -np.inf).max(axis=1)
-        span = (lo, np.where(np.isfinite(t_pick), hi, np.inf))
-        return t_pick, pf[rows, pick], fin.mean(axis=1), span
+        group = np.empty_like(link)
+        np.put_along_axis(group, order, link, axis=1)  # each ray's group
+        main = group[rows, pick]
+        # groups renumbered: the main one first, the others in range order
+        rank = np.where(group == main[:, None], 0, group + (group < main[:, None]))
+        rank = np.where(fin, rank, k)
+        t_g = np.full((n, k), np.inf)
+        p_g = np.full((n, k), -1, dtype=np.int64)
+        share = np.zeros((n, k))
+        lo, hi = np.full((n, k), np.inf), np.full((n, k), -np.inf)
+        for j in range(k - 1, -1, -1):  # the nearest ray of a group last (the main: pick)
+            ok = np.flatnonzero(fin[rows, order[:, j]])
+            r = rank[ok, order[ok, j]]
+            t_g[ok, r], p_g[ok, r] = ts[ok, j], pf[ok, order[ok, j]]
+            share[ok, r] += 1.0 / k
+            lo[ok, r] = np.minimum(lo[ok, r], ts[ok, j])
+            hi[ok, r] = np.maximum(hi[ok, r], ts[ok, j])
+        has = fin.any(axis=1)
+        t_g[has, 0], p_g[has, 0] = tf[has, pick[has]], pf[has, pick[has]]
+        return t_g, p_g, share, (lo, np.where(np.isfinite(t_g), hi, np.inf))
 
     def _stray_boxes(self) -> dict[str, np.ndarray]:
         """This station's boxes of pulses thin triangles may reach
