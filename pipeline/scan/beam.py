@@ -877,10 +877,12 @@ class EdgeBeam(AdaptiveBeam):
       boundary, or a neighbour folding back: the silhouette) are straight lines across
       the footprint. With one, or two that do not cross inside it, the surface's share of
       the energy is analytic (:func:`footprint_share`, the profile integrated once into
-      a table) and its range is that of its triangle's plane at the covered part's
-      centroid; beyond each line one ray, cast at the far part's centroid, finds what lies
-      behind (a second return of the far part's energy, merged within the range
-      resolution);
+      a table) and its range the walked surface's over the footprint points it covers;
+      beyond each line :data:`EDGE_FAR_PROBES` rays find what lies behind, each group of
+      them within the range resolution a return with its share of the far part's energy
+      (:meth:`_far_probes`); parts merge as the footprint's sub-rays would chain them,
+      within the range resolution of the covered surface's span of ranges
+      (:func:`group_returns`' ``extent``);
     * a miss beside a hit (a neighbour within ``k`` steps hit) starts the same walk
       from the triangles its neighbours hit that overlap its footprint, or from where
       up to :data:`EDGE_APPROACH_STEPS` steps across their edges towards its axis lead
@@ -1066,13 +1068,14 @@ class EdgeBeam(AdaptiveBeam):
         return np.where(keep, t, np.inf), np.where(keep, p, -1)
 
     def _hits(self, frame: tuple, t: np.ndarray, prim: np.ndarray, jump: np.ndarray):
-        """Parts (ranges, energies, triangles; (m, 3): the hit surface and what lies
-        beyond up to two silhouette lines) of pulses (frames ``frame``: :meth:`_frame`;
-        central ranges ``t``, triangles ``prim``) whose central ray hit, and the
-        indices of those left to the sub-rays; plus the rays cast and how many were left
-        for another surface beside. ``jump``: pulses with a neighbour on another
-        surface, left to the sub-rays unless a silhouette edge inside their footprint
-        accounts for it."""
+        """Parts (ranges, energies, triangles; (m, 1 + 2 k): the hit surface, then the k
+        groups of far rays (:meth:`_far_probes`) beyond each of up to two silhouette
+        lines) and their spans of ranges (:func:`group_returns`' ``extent``) of pulses
+        (frames ``frame``: :meth:`_frame`; central ranges ``t``, triangles ``prim``) whose
+        central ray hit, and the indices of those left to the sub-rays; plus the rays
+        cast and how many were left for another surface beside. ``jump``: pulses with a
+        neighbour on another surface, left to the sub-rays unless a silhouette edge inside
+        their footprint accounts for it."""
         m = len(t)
         g = _edge_lines(self.geo[0], self.geo[1], self.o, self.th, frame, prim)
         inside = (g["c"] >= 1.0).all(axis=1)
@@ -1108,16 +1111,15 @@ class EdgeBeam(AdaptiveBeam):
         col = 1 + rank[:, None] * n_far + np.arange(n_far)[None, :]
         ww[rows[:, None], col] = cov["far_energy"][li][:, None] * share
         tt[rows[:, None], col], pp[rows[:, None], col] = tf, pf
-        # the span of ranges of each part where parts lie beyond a silhouette: the
-        # covered part's (a surface seen at a slant) and what the far rays met (several
-        # surfaces behind): parts within the range resolution of one another's ends merge,
-        # as the sub-rays that meet the ranges between would chain them
+        # each part's span of ranges where parts lie beyond a silhouette: the covered
+        # part's (a surface seen at a slant) and each far group's: parts within the range
+        # resolution of one another's ends merge, as the sub-rays that meet the ranges
+        # between would chain them
         span = (tt.copy(), tt.copy())
         cut_rows = good[~whole]
         span[0][cut_rows, 0] = np.fmin(ext[:, 0], tt[cut_rows, 0])
         span[1][cut_rows, 0] = np.fmax(ext[:, 1], tt[cut_rows, 0])
-        span[0][rows[:, None], col] = np.minimum(f_span[0], tf)
-        span[1][rows[:, None], col] = np.where(np.isfinite(tf), np.maximum(f_span[1], tf), np.inf)
+        span[0][rows[:, None], col], span[1][rows[:, None], col] = f_span
         settled = np.zeros(len(cut), dtype=bool)
         settled[corners[0]] = True
         fall = np.concatenate([cut[fb & ~settled], np.flatnonzero(jump & inside)])
@@ -1442,7 +1444,7 @@ class EdgeBeam(AdaptiveBeam):
         other = np.isfinite(r) & (e > 0) & ((r < lo - res) | (r > hi + res))
         # the rim rays: where the surface came near but was not reached, and where a
         # sliver was found (a ray beyond the sliver's span of ranges meets another surface)
-        q = np.flatnonzero((~over.any(axis=1) & (gap < EDGE_PROBE_GAP)) | (e > 0))
+        q = np.flatnonzero((~over.any(axis=1) & (gap < EDGE_PROBE_GAP)) | ((e > 0) & ~other))
         k = len(self.rim)
         sub = tuple(x[np.repeat(q, k)] for x in frame)
         t_rim, _ = self._cast(self._ray(sub, np.tile(self.rim, (len(q), 1))))
