@@ -24,15 +24,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import docs_part  # noqa: E402
 from benchmarks.bench_scan import ERROR_FORMAT, reference_window  # noqa: E402
-from treesim.models import generate_tree  # noqa: E402
-from treesim.scan import ScannerSpec, Station, scan  # noqa: E402
+from tests.scan.beam_agreement import generated_scene, station_before  # noqa: E402
+from treesim.scan import ScannerSpec, scan  # noqa: E402
 from treesim.scan.footprint import (  # noqa: E402
     ERROR_NAMES,
     footprint_errors,
     reference_spec,
     window_spec,
 )
-from treesim.scene import MeshPart, Scene  # noqa: E402
 
 #: (species, distance m, resolution deg, divergence mrad) tried
 SETTINGS = [
@@ -50,11 +49,8 @@ BUDGET = 80_000
 
 def setting(species: str, distance_m: float, res: float, div: float) -> tuple[dict, dict]:
     """The brute force's and the edge model's errors on one setting's window."""
-    v, f = generate_tree(species, seed=2).mesh(facets=8)[:2]
-    scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name=species)])
-    lo, hi = scene.bounds
-    c = 0.5 * (lo + hi)
-    st = [Station(position_m=(c[0] + distance_m, c[1], lo[2] + 1.5))]
+    scene = generated_scene(species, seed=2)
+    st = [station_before(scene, distance_m)]
     base = ScannerSpec(horizontal_resolution_deg=res, vertical_resolution_deg=res)
     az, el = reference_window(scan(scene, st, base), BUDGET)
     w = window_spec(base.with_(beam_divergence_mrad=div, subrays=19, return_mode="all"), az, el)

@@ -51,8 +51,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import docs_part  # noqa: E402
+from tests.scan.beam_agreement import generated_scene  # noqa: E402
+from tests.scan.beam_agreement import station_before as station_at  # noqa: E402
 from treesim.io.mesh import write_mesh  # noqa: E402
-from treesim.models import cylinders_to_mesh, generate_tree, read_cylinders  # noqa: E402
+from treesim.models import cylinders_to_mesh, read_cylinders  # noqa: E402
 from treesim.scan import ScannerSpec, Station, scan  # noqa: E402
 from treesim.scan.footprint import (  # noqa: E402
     ERROR_NAMES,
@@ -79,19 +81,12 @@ DOCS_PART = "bench-scan"
 
 
 def aspen_scene() -> Scene:
-    v, f, _ = generate_tree("aspen", seed=0).mesh(facets=8)
-    return Scene([MeshPart(vertices=v, faces=f, label="wood", name="aspen")])
+    return generated_scene("aspen", seed=0)
 
 
 def coffee_scene() -> Scene:
     v, f = cylinders_to_mesh(read_cylinders(COFFEE), facets=24, joints="miter")
     return Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
-
-
-def station_at(scene: Scene, distance_m: float) -> Station:
-    lo, hi = scene.bounds
-    c = 0.5 * (lo + hi)
-    return Station(position_m=(c[0] + distance_m, c[1], lo[2] + 1.5))
 
 
 def plain_open3d(mesh_path: Path, station: Station, spec: ScannerSpec, chunk: int) -> dict:

@@ -54,15 +54,14 @@ def coffee_window():
     a 10° x 25° window of a 0.04° scan with a 0.3 mrad, 19-sub-ray beam, all returns."""
     from tests.conftest import bundled_path
     from treesim.models import cylinders_to_mesh, read_cylinders
-    from treesim.scan import ScannerSpec, Station
+    from treesim.scan import ScannerSpec
     from treesim.scan.footprint import window_spec
     from treesim.scene import MeshPart, Scene
 
     table = read_cylinders(bundled_path("coffee_tree", "QSM_treeqsm_v2.4.1_cylinders.csv"))
     v, f = cylinders_to_mesh(table, facets=12, joints="miter")
     scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name="coffee")])
-    lo, hi = scene.bounds
-    st = Station(position_m=(0.5 * (lo[0] + hi[0]) + 10.0, 0.5 * (lo[1] + hi[1]), lo[2] + 1.5))
+    st = station_before(scene, 10.0)
     spec = ScannerSpec(
         horizontal_resolution_deg=0.04,
         vertical_resolution_deg=0.04,
@@ -71,6 +70,25 @@ def coffee_window():
         return_mode="all",
     )
     return scene, st, window_spec(spec, (175.0, 185.0), (-10.0, 15.0))
+
+
+def station_before(scene, distance_m: float):
+    """A station ``distance_m`` along x from the middle of ``scene``'s bounds, 1.5 m above
+    their bottom: where the beam tests and benchmarks stand."""
+    from treesim.scan import Station
+
+    lo, hi = scene.bounds
+    c = 0.5 * (lo + hi)
+    return Station(position_m=(c[0] + distance_m, c[1], lo[2] + 1.5))
+
+
+def generated_scene(species: str, seed: int):
+    """A generated tree of ``species`` (its wood and leaves, one part) meshed at 8 facets."""
+    from treesim.models import generate_tree
+    from treesim.scene import MeshPart, Scene
+
+    v, f = generate_tree(species, seed=seed).mesh(facets=8)[:2]
+    return Scene([MeshPart(vertices=v, faces=f, label="wood", name=species)])
 
 
 def held_out_windows() -> dict:
@@ -94,21 +112,10 @@ def held_out_windows() -> dict:
             vertical_fov_deg=vfov,
         )
 
-    def before(scene, distance_m: float) -> list:
-        from treesim.scan import Station
-
-        lo, hi = scene.bounds
-        c = 0.5 * (lo + hi)
-        return [Station(position_m=(c[0] + distance_m, c[1], lo[2] + 1.5))]
-
     def generated(species: str, vfov: tuple):
-        from treesim.models import generate_tree
-        from treesim.scene import MeshPart, Scene
-
         def make():
-            v, f = generate_tree(species, seed=1).mesh(facets=8)[:2]
-            scene = Scene([MeshPart(vertices=v, faces=f, label="wood", name=species)])
-            return scene, before(scene, 15.0), spec(0.02, (179.0, 181.0), vfov)
+            scene = generated_scene(species, seed=1)
+            return scene, [station_before(scene, 15.0)], spec(0.02, (179.0, 181.0), vfov)
 
         return make
 
@@ -117,7 +124,7 @@ def held_out_windows() -> dict:
         from treesim.io.mesh import load_scene
 
         scene = load_scene(shared_path("models", "apple_sapling", "tree1_leafon.obj"))
-        return scene, before(scene, 6.0), spec(0.01, (176.0, 184.0), (-2.0, 12.0))
+        return scene, [station_before(scene, 6.0)], spec(0.01, (176.0, 184.0), (-2.0, 12.0))
 
     return {
         "balsam fir (generated)": generated("balsam-fir", (0.0, 50.0)),
